@@ -1,0 +1,93 @@
+"""The sample block: the one type that carries samples from a source to every sink.
+
+Time inside the pipeline is an integer sample index plus the sample rate; nanoseconds are derived
+only at the boundaries (MCAP, zenoh).  Channel names are the recording-format column names
+(``current_A``, ``force_N``, ``flux_Wb``, ``sense_V``, ``command_V``) so that a block, a CSV
+recording and an MCAP log all say the same thing the same way.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+#: Channels the recording format defines, with their units.
+CHANNEL_UNITS: Mapping[str, str] = {
+    "current_A": "A",
+    "force_N": "N",
+    "flux_Wb": "Wb",
+    "sense_V": "V",
+    "command_V": "V",
+}
+
+
+class BlockFlags(enum.IntFlag):
+    NONE = 0
+    GAP = 1  #: samples before this block were lost (see ``gap_samples``)
+    OVERRUN = 2  #: a reader fell behind and lost samples
+    CLIP = 4  #: at least one sample reached an ADC or amplifier limit
+
+
+@dataclass(frozen=True)
+class SampleBlock:
+    """Samples ``first_index .. first_index + n - 1`` of every channel, at ``fs_hz``."""
+
+    first_index: int
+    fs_hz: float
+    channels: Mapping[str, np.ndarray]
+    flags: BlockFlags = BlockFlags.NONE
+    gap_samples: int = 0
+    meta: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        lengths = {name: np.shape(x) for name, x in self.channels.items()}
+        if len({s for s in lengths.values()}) > 1:
+            raise ValueError(f"channels of one block must have the same length, got {lengths}")
+        if self.fs_hz <= 0:
+            raise ValueError(f"fs_hz must be positive, got {self.fs_hz}")
+
+    @property
+    def n(self) -> int:
+        return len(next(iter(self.channels.values()))) if self.channels else 0
+
+    @property
+    def end_index(self) -> int:
+        """Index one past the last sample (the next block's ``first_index`` if none is lost)."""
+        return self.first_index + self.n
+
+    @property
+    def t0_ns(self) -> int:
+        return round(self.first_index * 1e9 / self.fs_hz)
+
+    def time_s(self) -> np.ndarray:
+        return (self.first_index + np.arange(self.n)) / self.fs_hz
+
+
+def concatenate(blocks: list[SampleBlock]) -> SampleBlock:
+    """Join consecutive blocks into one; refuses blocks that are not contiguous."""
+    if not blocks:
+        raise ValueError("no blocks to concatenate")
+    first = blocks[0]
+    for prev, nxt in zip(blocks, blocks[1:]):
+        if nxt.first_index != prev.end_index:
+            raise ValueError(
+                f"blocks are not contiguous: {prev.end_index} then {nxt.first_index}"
+            )
+    names = list(first.channels)
+    flags = BlockFlags.NONE
+    for b in blocks:
+        flags |= b.flags
+    return SampleBlock(
+        first_index=first.first_index,
+        fs_hz=first.fs_hz,
+        channels={k: np.concatenate([b.channels[k] for b in blocks]) for k in names},
+        flags=flags,
+        gap_samples=first.gap_samples,
+        meta=dict(first.meta),
+    )
+
+
+__all__ = ["CHANNEL_UNITS", "BlockFlags", "SampleBlock", "concatenate"]
