@@ -6,15 +6,26 @@ through :func:`require`, so every message names the file and the key.
 
 from __future__ import annotations
 
+import os
 import tomllib
 from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
 
-__all__ = ["CONFIG_DIR", "rig_names", "load_rig", "material_names", "load_material", "require"]
+__all__ = ["CONFIG_DIR", "shared_data_dir", "rig_names", "load_rig", "material_names", "load_material", "require"]
 
 CONFIG_DIR = Path(__file__).resolve().parent
+
+
+def shared_data_dir() -> Path:
+    """``shared/data`` beside the checkout (real measured material data), or $HYSTBENCH_SHARED_DIR/data."""
+    root = os.environ.get("HYSTBENCH_SHARED_DIR")
+    base = Path(root) if root else CONFIG_DIR.parents[2] / "shared"
+    data = base / "data"
+    if not data.is_dir():
+        raise ConfigError(f"shared data folder {data} not found; set HYSTBENCH_SHARED_DIR to the shared/ folder")
+    return data
 
 
 def _names(folder: str) -> list[str]:
