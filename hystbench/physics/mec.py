@@ -72,6 +72,7 @@ class FluxCoefficients:
     """Fluxes as linear functions of the two MMFs: phi = a * F_coil + b * F_magnet (Wb per A)."""
 
     coil_leg: tuple[float, float]
+    magnet: tuple[float, float]
     outer_tooth: tuple[float, float]
     middle_gap: tuple[float, float]
 
@@ -152,9 +153,17 @@ class ECoreMEC:
         return c1, 0.5 * (c2 + m1), m2  # reciprocity: c2 == m1 up to rounding
 
     def flux_coefficients(self, z: float) -> FluxCoefficients:
-        c1, _, o1, g1 = self._branch_fluxes(z, 1.0, 0.0)
-        c2, _, o2, g2 = self._branch_fluxes(z, 0.0, 1.0)
-        return FluxCoefficients((float(c1), float(c2)), (float(o1), float(o2)), (float(g1), float(g2)))
+        c1, m1, o1, g1 = self._branch_fluxes(z, 1.0, 0.0)
+        c2, m2, o2, g2 = self._branch_fluxes(z, 0.0, 1.0)
+        pair = lambda a, b: (float(np.real(a)), float(np.real(b)))  # noqa: E731
+        return FluxCoefficients(pair(c1, c2), pair(m1, m2), pair(o1, o2), pair(g1, g2))
+
+    def port_permeance_derivatives(self, z: float) -> tuple[np.ndarray, np.ndarray]:
+        """(dLambda/dz, d2Lambda/dz2) as arrays [L11, L12, L22] at ``z`` (the second by a central
+        difference of the complex-step first derivative)."""
+        d1 = lambda zz: np.array(self._dz(lambda q: np.stack(self.port_permeances(q)), zz))  # noqa: E731
+        h = 1e-3 * z
+        return d1(z), (d1(z + h) - d1(z - h)) / (2 * h)
 
     # --- paper quantities ------------------------------------------------------------------------
     def _dz(self, fun, z):

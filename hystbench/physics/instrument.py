@@ -1,0 +1,90 @@
+"""Force-measurement instrument: load cell + frame (mechanical 2nd-order low-pass) in cascade with the
+charge amplifier's 2nd-order low-pass (paper Sec. IV C, Figs. 8-9), plus the optional effects the
+paper mentions but leaves out of its model: small frame resonances (Fig. 7c) and the piezo/charge
+amplifier high-pass (a load cell cannot hold a static charge).
+
+Continuous-time models give the phase the method must remove; ``sos(fs)`` gives the same response
+sampled, for the simulator.  Discretisation: bilinear, with the mechanical section pre-warped at its
+resonance (so the resonance lands at fn) and the charge-amplifier section not pre-warped (so its
+in-band phase, which dominates the 40-480 Hz delay, is kept to O((wT)^2)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal
+
+__all__ = ["InstrumentModel", "second_order_lowpass", "resonance_pair", "bilinear_sos"]
+
+
+def second_order_lowpass(f_hz: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
+    """w^2 / (s^2 + 2 zeta w s + w^2), unity gain at DC."""
+    w = 2 * np.pi * f_hz
+    return np.array([w * w]), np.array([1.0, 2 * zeta * w, w * w])
+
+
+def resonance_pair(f_hz: float, zeta_pole: float, zeta_zero: float) -> tuple[np.ndarray, np.ndarray]:
+    """A small mode: unity gain away from f, gain zeta_zero/zeta_pole at f, a local phase wiggle."""
+    w = 2 * np.pi * f_hz
+    return np.array([1.0, 2 * zeta_zero * w, w * w]), np.array([1.0, 2 * zeta_pole * w, w * w])
+
+
+def bilinear_sos(b: np.ndarray, a: np.ndarray, fs_hz: float, prewarp_hz: float | None = None) -> np.ndarray:
+    """Bilinear transform of one section to an SOS row, optionally pre-warped at ``prewarp_hz``."""
+    fs_eff = fs_hz
+    if prewarp_hz is not None:
+        wp = 2 * np.pi * prewarp_hz
+        fs_eff = wp / (2 * np.tan(wp / (2 * fs_hz)))
+    bz, az = signal.bilinear(b, a, fs=fs_eff)
+    return signal.tf2sos(bz, az)
+
+
+@dataclass(frozen=True)
+class InstrumentModel:
+    """H_instr(s) = H_mech(s) * H_LPF(s) [* frame modes] [* charge-amplifier high-pass]."""
+
+    fn_hz: float = 4450.0
+    zeta_n: float = 0.012
+    f0_hz: float = 31000.0
+    zeta_0: float = 1.0
+    frame_modes: tuple[tuple[float, float, float], ...] = field(default=())  # (f, zeta_p, zeta_z)
+    highpass_time_constant_s: float | None = None
+
+    def sections(self, *, core: bool = True) -> list[tuple[np.ndarray, np.ndarray, float | None]]:
+        """(b, a, prewarp frequency) of every continuous-time section; ``core=False`` leaves out the
+        two low-passes of the paper's model (the simulator's ``instrument_filter`` switched off)."""
+        out = []
+        if core:
+            out += [(*second_order_lowpass(self.fn_hz, self.zeta_n), self.fn_hz),
+                    (*second_order_lowpass(self.f0_hz, self.zeta_0), None)]
+        out += [(*resonance_pair(f, zp, zz), f) for f, zp, zz in self.frame_modes]
+        if self.highpass_time_constant_s is not None:
+            tau = self.highpass_time_constant_s
+            out.append((np.array([tau, 0.0]), np.array([tau, 1.0]), None))
+        return out
+
+    def frequency_response(self, f_hz) -> np.ndarray:
+        """Complex H(j 2 pi f) of the continuous model."""
+        f = np.asarray(f_hz, dtype=float)
+        w = 2 * np.pi * np.atleast_1d(f)
+        h = np.ones_like(w, dtype=complex)
+        for b, a, _ in self.sections():
+            h *= signal.freqs(b, a, worN=w)[1]
+        return h.reshape(f.shape)
+
+    def phase_deg(self, f_hz) -> np.ndarray:
+        """Phase of H in degrees (negative: the measured force lags the actuator's force)."""
+        f = np.asarray(f_hz, dtype=float)
+        h = np.atleast_1d(self.frequency_response(f))
+        return np.degrees(np.unwrap(np.angle(h))).reshape(f.shape)
+
+    def delay_s(self, f_hz) -> np.ndarray:
+        """Equivalent time delay -phase/omega (positive: the measured force is late)."""
+        f = np.asarray(f_hz, dtype=float)
+        return -np.radians(self.phase_deg(f)) / (2 * np.pi * f)
+
+    def sos(self, fs_hz: float) -> np.ndarray:
+        """Second-order sections of the sampled model at ``fs_hz`` (for scipy.signal.sosfilt)."""
+        return np.vstack([bilinear_sos(b, a, fs_hz, pw) for b, a, pw in self.sections()])
