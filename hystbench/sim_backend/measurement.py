@@ -1,0 +1,137 @@
+"""The measuring side of the bench: what happens to each true signal before it is a sample.
+
+Force: load cell + frame + charge amplifier (and, when switched on, frame modes, the charge
+amplifier's high-pass, its offset drift, mains pick-up).  Flux: the integrator (ideal: AC only;
+lossy when ``integrator_leak`` is on).  Every channel: sampling skew, noise, ADC rounding/clipping.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Mapping
+
+import numpy as np
+from scipy import signal
+
+from ..blocks import BlockFlags
+from ..physics import presets as physics_presets
+from ..physics.instrument import InstrumentModel, bilinear_sos
+
+__all__ = ["MeasurementChain", "FractionalDelay", "instrument_from_preset"]
+
+_NOISE_KEYS = {"current_A": "current_a", "force_N": "force_n", "flux_Wb": "flux_wb",
+               "sense_V": "sense_v", "command_V": "command_v"}
+
+
+def instrument_from_preset(preset: Mapping[str, Any], effects: Mapping[str, Mapping[str, Any]] | None = None
+                           ) -> InstrumentModel:
+    """The instrument model of a preset; with ``effects``, the frame modes and high-pass that are on."""
+    effects = effects or {}
+    modes: tuple = ()
+    if "frame_resonance" in effects:
+        fr = effects["frame_resonance"]
+        zeta = float(fr["zeta"])
+        modes = tuple((float(f), zeta, zeta * (1.0 + float(fr["depth"]))) for f in fr["frequencies_hz"])
+    hp = effects.get("charge_amp_highpass")
+    return dataclasses.replace(
+        physics_presets.instrument(preset), frame_modes=modes,
+        highpass_time_constant_s=None if hp is None else float(hp["time_constant_s"]))
+
+
+class FractionalDelay:
+    """Delay by a non-integer number of samples with linear interpolation (exact phase to
+    O((wT)^3) in band), carrying the history across blocks."""
+
+    def __init__(self, delay_samples: float) -> None:
+        if delay_samples < 0:
+            raise ValueError(f"delay_samples must be >= 0, got {delay_samples}")
+        self.whole = int(math.floor(delay_samples))
+        self.frac = delay_samples - self.whole
+        self._history: np.ndarray | None = None
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        keep = self.whole + 1
+        if self._history is None:
+            self._history = np.full(keep, x[0])
+        ext = np.concatenate((self._history, x))  # ext[k + keep] == x[k]
+        n = len(x)
+        y = (1.0 - self.frac) * ext[1:n + 1] + self.frac * ext[:n]  # x[k - whole], x[k - whole - 1]
+        self._history = ext[-keep:]
+        return y
+
+
+class _Sos:
+    """A stateful sosfilt that starts in steady state for its first input value."""
+
+    def __init__(self, sos: np.ndarray) -> None:
+        self.sos = sos
+        self.zi: np.ndarray | None = None
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        if self.zi is None:
+            self.zi = signal.sosfilt_zi(self.sos) * x[0]
+        y, self.zi = signal.sosfilt(self.sos, x, zi=self.zi)
+        return y
+
+
+class MeasurementChain:
+    def __init__(self, preset: Mapping[str, Any], effects: Mapping[str, Mapping[str, Any]],
+                 fs_hz: float, channels: list[str], seed: int) -> None:
+        self.fs_hz = fs_hz
+        self.channels = channels
+        self.effects = effects
+        self.instrument = instrument_from_preset(preset, effects)
+        force_sections = [bilinear_sos(b, a, fs_hz, prewarp) for b, a, prewarp
+                          in self.instrument.sections(core="instrument_filter" in effects)]
+        self._force_filter = _Sos(np.vstack(force_sections)) if force_sections else None
+        leak = effects.get("integrator_leak")
+        self._flux_filter = None
+        if leak is not None:
+            tau = float(leak["time_constant_s"])
+            self._flux_filter = _Sos(bilinear_sos(np.array([tau, 0.0]), np.array([tau, 1.0]), fs_hz))
+        skew = effects.get("channel_skew", {})
+        self._skew = {ch: FractionalDelay(float(skew[ch]) * fs_hz) for ch in channels
+                      if float(skew.get(ch, 0.0)) > 0.0}
+        seq = np.random.SeedSequence(seed)
+        self._rng = {ch: np.random.default_rng(s) for ch, s in zip(channels, seq.spawn(len(channels)))}
+        mains_rng = np.random.default_rng(seq.spawn(1)[0])
+        self._mains_phase = mains_rng.uniform(0, 2 * np.pi, size=2)
+
+    def _mains(self, t_s: np.ndarray, amplitude: float, which: int) -> np.ndarray:
+        m = self.effects["mains_pickup"]
+        w = 2 * np.pi * float(m["frequency_hz"])
+        ph = self._mains_phase[which]
+        return amplitude * (np.sin(w * t_s + ph) + float(m["third_harmonic"]) * np.sin(3 * (w * t_s + ph)))
+
+    def measure(self, t_s: np.ndarray, truth: Mapping[str, np.ndarray]) -> tuple[dict[str, np.ndarray], BlockFlags]:
+        """Samples as the ADC delivers them, from the true signals of one block."""
+        out: dict[str, np.ndarray] = {}
+        flags = BlockFlags.NONE
+        e = self.effects
+        for ch in self.channels:
+            x = np.asarray(truth[ch], dtype=float)
+            if ch == "force_N":
+                if self._force_filter is not None:
+                    x = self._force_filter(x)
+                if "force_offset_drift" in e:
+                    x = x + float(e["force_offset_drift"]["offset_n"]) + float(e["force_offset_drift"]["drift_n_per_s"]) * t_s
+                if "mains_pickup" in e:
+                    x = x + self._mains(t_s, float(e["mains_pickup"]["force_n"]), 0)
+            elif ch == "flux_Wb" and self._flux_filter is not None:
+                x = self._flux_filter(x)
+            elif ch == "sense_V" and "mains_pickup" in e:
+                x = x + self._mains(t_s, float(e["mains_pickup"]["sense_v"]), 1)
+            if ch in self._skew:
+                x = self._skew[ch](x)
+            if "sensor_noise" in e:
+                x = x + float(e["sensor_noise"][_NOISE_KEYS[ch]]) * self._rng[ch].standard_normal(x.size)
+            if "adc_quantisation" in e:
+                q = e["adc_quantisation"]
+                full_scale = float(q[_NOISE_KEYS[ch]])
+                lsb = 2.0 * full_scale / 2 ** int(q["bits"])
+                if np.any(np.abs(x) > full_scale):
+                    flags |= BlockFlags.CLIP
+                x = np.round(np.clip(x, -full_scale, full_scale - lsb) / lsb) * lsb
+            out[ch] = x
+        return out, flags

@@ -1,0 +1,192 @@
+"""The simulated rig: signal generator -> current amplifier -> actuator -> instruments -> ADC.
+
+It stands in for the bench when no hardware is attached: a real backend, not a test helper.  It
+produces the recording format's channels in sample blocks, deterministic for a given seed and
+independent of how the stream is cut into blocks, paced to real time or as fast as possible.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Iterator, Mapping
+
+import numpy as np
+
+from .. import __version__
+from ..blocks import SampleBlock, concatenate
+from ..config import load_rig, require
+from ..errors import ConfigError
+from .actuators import build_actuator
+from .effects import resolve_effects
+from .measurement import MeasurementChain
+
+__all__ = ["SimulatedRig", "DEFAULT_FS_HZ"]
+
+DEFAULT_FS_HZ = 100_000.0
+#: The generator's clock against the ADC's: they are independent, so the true excitation
+#: frequency is off by this much (a typical crystal tolerance).  Estimators must not assume it.
+DEFAULT_GENERATOR_CLOCK_PPM = 25.0
+
+
+class SimulatedRig:
+    """One bench: a rig preset with its effects, excited by a sine (or one-period waveform)."""
+
+    def __init__(self, rig: str | Mapping[str, Any] = "ecore_pm", *, fs_hz: float = DEFAULT_FS_HZ,
+                 seed: int = 0, effects: Mapping[str, Mapping[str, Any] | bool] | None = None,
+                 frequency_hz: float | None = None, current_pp_a: float | None = None,
+                 offset_a: float = 0.0, generator_clock_ppm: float = DEFAULT_GENERATOR_CLOCK_PPM,
+                 warmup_s: float | None = None) -> None:
+        self.preset = dict(load_rig(rig) if isinstance(rig, str) else rig)
+        self.name = str(self.preset.get("name"))
+        where = str(self.preset.get("_source", self.name))
+        if not fs_hz > 0:
+            raise ConfigError(f"fs_hz must be positive, got {fs_hz}")
+        self.fs_hz = float(fs_hz)
+        self.seed = int(seed)
+        self.effects = resolve_effects(self.preset.get("effects", {}), effects, where)
+        self.generator_clock_ppm = float(generator_clock_ppm)
+        self.amplifier_gain_a_per_v = float(require(self.preset.get("amplifier", {}), "gain_a_per_v",
+                                                    f"{where} [amplifier]"))
+        exc = self.preset.get("excitation", {})
+        self.actuator = build_actuator(self.preset, self.effects, self.fs_hz)
+        self.channels = ["current_A"]
+        if self.actuator.has_force:
+            self.channels.append("force_N")
+        if self.actuator.has_flux:
+            self.channels += ["flux_Wb", "sense_V"]
+        self.channels.append("command_V")
+        self.sense_turns = int(self.preset.get("sense", {}).get("turns", 1))
+        self.chain = MeasurementChain(self.preset, self.effects, self.fs_hz, self.channels, self.seed)
+        self.output_enabled = True
+        self._waveform: np.ndarray | None = None
+        self._cycle = 0.0  # generator phase at the next sample, in cycles [0, 1)
+        self.set_excitation(float(frequency_hz or exc.get("frequency_hz", 320.0)),
+                            float(current_pp_a if current_pp_a is not None else exc.get("current_pp_a", 1.0)),
+                            offset_a)
+        warm = warmup_s if warmup_s is not None else max(0.05, 5.0 / self.frequency_hz)
+        self._next_index = -int(math.ceil(warm * self.fs_hz))
+        while self._next_index < 0:  # settle hysteresis memory and filters before sample 0
+            self._generate(min(-self._next_index, 50_000))
+
+    # --- control (what the emulated generator and amplifier set) -------------------------------
+    def set_excitation(self, frequency_hz: float | None = None, current_pp_a: float | None = None,
+                       offset_a: float | None = None) -> None:
+        """Sine current command; the phase runs on continuously across changes, as a generator's does."""
+        if frequency_hz is not None:
+            if not 0 < frequency_hz < self.fs_hz / 2:
+                raise ConfigError(f"excitation frequency {frequency_hz} Hz must be in (0, fs/2 = {self.fs_hz / 2} Hz)")
+            self.frequency_hz = float(frequency_hz)
+        if current_pp_a is not None:
+            if current_pp_a < 0:
+                raise ConfigError(f"current_pp_a must be >= 0, got {current_pp_a}")
+            self.current_pp_a = float(current_pp_a)
+        if offset_a is not None:
+            self.offset_a = float(offset_a)
+        self._waveform = None
+        self._dc_flux = self.actuator.dc_flux_wb(self.offset_a)
+
+    def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
+        """Arbitrary periodic current command: one period, uniformly sampled (the compensator's
+        upload).  Played with periodic linear interpolation at ``frequency_hz``."""
+        table = np.asarray(current_a, dtype=float)
+        if table.ndim != 1 or table.size < 4 or not np.all(np.isfinite(table)):
+            raise ConfigError("waveform must be a finite 1-D table of at least 4 samples")
+        self.set_excitation(frequency_hz=frequency_hz)
+        self._waveform = table
+        self._dc_flux = self.actuator.dc_flux_wb(float(table.mean()))
+
+    @property
+    def generator_frequency_hz(self) -> float:
+        """The true excitation frequency (nominal x generator clock error)."""
+        return self.frequency_hz * (1.0 + 1e-6 * self.generator_clock_ppm)
+
+    # --- the physics of one block ----------------------------------------------------------------
+    def _command_current(self, cycles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Commanded current and its time derivative at the given generator phases (cycles)."""
+        w = 2 * np.pi * self.generator_frequency_hz
+        if self._waveform is None:
+            amp = 0.5 * self.current_pp_a
+            return self.offset_a + amp * np.sin(2 * np.pi * cycles), amp * w * np.cos(2 * np.pi * cycles)
+        table = self._waveform
+        n = table.size
+        grid = np.arange(n + 1) / n
+        wrapped = np.append(table, table[0])
+        slope = np.diff(wrapped) * n * self.generator_frequency_hz
+        frac = np.mod(cycles, 1.0)
+        idx = np.minimum((frac * n).astype(int), n - 1)
+        return np.interp(frac, grid, wrapped), slope[idx]
+
+    def _generate(self, n: int) -> SampleBlock:
+        k0 = self._next_index
+        t = (k0 + np.arange(n)) / self.fs_hz
+        step = self.generator_frequency_hz / self.fs_hz
+        cycles = self._cycle + step * np.arange(n)
+        self._cycle = float(np.mod(self._cycle + step * n, 1.0))
+        i_cmd, di_cmd = self._command_current(cycles)
+        command_v = i_cmd / self.amplifier_gain_a_per_v
+        if not self.output_enabled:
+            i_cmd, di_cmd = np.zeros(n), np.zeros(n)
+        current, dcurrent = i_cmd, di_cmd
+        if "amplifier_distortion" in self.effects:  # i = i0 + k2 i0^2 + k3 i0^3 (per A, A^2)
+            d = self.effects["amplifier_distortion"]
+            k2, k3 = float(d["second"]), float(d["third"])
+            current = i_cmd + k2 * i_cmd**2 + k3 * i_cmd**3
+            dcurrent = di_cmd * (1 + 2 * k2 * i_cmd + 3 * k3 * i_cmd**2)
+        out = self.actuator.step(t, current, dcurrent)
+        truth = {"current_A": current, "command_V": command_v}
+        if out.force_n is not None:
+            truth["force_N"] = out.force_n
+        if out.flux_wb is not None:
+            truth["flux_Wb"] = out.flux_wb - self._dc_flux  # an integrator has no DC
+            truth["sense_V"] = -self.sense_turns * out.dflux_dt
+        channels, flags = self.chain.measure(t, truth)
+        self._next_index = k0 + n
+        return SampleBlock(k0, self.fs_hz, channels, flags=flags)
+
+    # --- streaming ---------------------------------------------------------------------------------
+    def read(self, n: int) -> SampleBlock:
+        """The next ``n`` samples of every channel."""
+        if n <= 0:
+            raise ValueError(f"n must be positive, got {n}")
+        return self._generate(int(n))
+
+    def blocks(self, block_size: int = 10_000, duration_s: float | None = None,
+               pace: str = "max") -> Iterator[SampleBlock]:
+        """Consecutive blocks; ``pace='realtime'`` sleeps so samples leave no faster than the ADC's."""
+        if pace not in ("max", "realtime"):
+            raise ValueError(f"pace must be 'max' or 'realtime', got {pace!r}")
+        remaining = None if duration_s is None else int(round(duration_s * self.fs_hz))
+        start_wall, start_index = time.monotonic(), self._next_index
+        while remaining is None or remaining > 0:
+            n = block_size if remaining is None else min(block_size, remaining)
+            block = self.read(n)
+            if remaining is not None:
+                remaining -= n
+            if pace == "realtime":
+                due = start_wall + (block.end_index - start_index) / self.fs_hz
+                time.sleep(max(0.0, due - time.monotonic()))
+            yield block
+
+    def record(self, duration_s: float, block_size: int = 50_000) -> SampleBlock:
+        """``duration_s`` of samples as one block (as fast as possible)."""
+        return concatenate(list(self.blocks(block_size, duration_s)))
+
+    def metadata(self) -> dict[str, Any]:
+        """The recording sidecar for what this rig produces (recording-format keys plus extras)."""
+        meta: dict[str, Any] = {
+            "rig": self.name,
+            "frequency_Hz": self.frequency_hz,
+            "sample_rate_Hz": self.fs_hz,
+            "current_pp_A": self.current_pp_a,
+            "offset_A": self.offset_a,
+            "generator_frequency_Hz": self.generator_frequency_hz,
+            "source": f"hystbench {__version__} simulated rig",
+            "seed": self.seed,
+            "effects": {k: dict(v) for k, v in self.effects.items()},
+        }
+        if self.actuator.has_flux:
+            meta["sense_turns"] = self.sense_turns
+        return meta
+
+
