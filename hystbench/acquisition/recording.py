@@ -1,0 +1,448 @@
+"""The recording interchange format (v1): ``NAME.csv`` samples beside a ``NAME.json`` sidecar.
+
+The contract is ``recording-format.md``.  Reading is strict because the files come from scopes,
+DAQ software and spreadsheets: every defect is a :class:`RecordingError` naming the file, and the
+line and column where there is one; nothing is dropped, rescaled or guessed.  The numbers go
+through numpy in bulk; a pass per line runs only on the error path, to say where the defect is.
+Writing is lossless (shortest round-trip float text) and replaces files atomically.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import numbers
+import os
+import re
+import secrets
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, TextIO
+
+import numpy as np
+
+from ..blocks import CHANNEL_UNITS, BlockFlags, SampleBlock, concatenate
+from ..config import rig_names
+from ..errors import RecordingError
+
+__all__ = ["REQUIRED_KEYS", "TIME_TOL_PERIODS", "Recording", "read_recording", "write_recording",
+           "read_sweep", "write_sweep", "sweep_stem"]
+
+#: Sidecar keys every recording must have.
+REQUIRED_KEYS = ("rig", "frequency_Hz", "sample_rate_Hz", "current_pp_A")
+
+#: How far (in sample periods) a ``time_s`` value may sit from ``t0 + i / sample_rate_Hz``.
+#: The estimators time samples by index and rate, and the channels of a pair share a row, so the
+#: column only has to prove that no sample was lost, repeated or shifted (errors of >= 1 period).
+#: 1e-3 lets through other tools' time text rounded to 9-10 significant digits (``%.9f`` at
+#: 51.2 kS/s errs 2.6e-5 periods), which 1e-6 would refuse (it needs 13+ digits); float64
+#: round-off of an hour-long recording is < 1e-7 periods.  Even at 10 kS/s, 1e-3 periods is
+#: 0.017 deg at 480 Hz, far under the delays this bench measures.
+TIME_TOL_PERIODS = 1e-3
+
+_SUFFIXES = (".csv", ".json")
+_ROWS_PER_CHUNK = 65536  # bounds the text held in memory while writing
+_KNOWN = {name.rsplit("_", 1)[0]: name for name in CHANNEL_UNITS}  # 'force' -> 'force_N'
+_COLUMN = re.compile(r"(?P<channel>[^\W\d_]\w*)_(?P<unit>(?:[^\W\d_]|[%°])[^\s_,\"]*)")
+# The numbers numpy's loadtxt accepts (ASCII, no underscores), to find the bad field on error.
+_NUMBER = re.compile(r"\s*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?|inf|infinity|nan)\s*", re.I | re.A)
+
+
+@dataclass(eq=False)
+class Recording:
+    """Samples by column name plus the whole sidecar; ``metadata['sample_rate_Hz']`` is filled
+    from ``fs_hz`` when absent (both must agree).  Validated on creation and before writing."""
+
+    path: Path | None
+    fs_hz: float
+    channels: dict[str, np.ndarray]
+    metadata: dict
+    t0_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.metadata = dict(self.metadata)
+        self.metadata.setdefault("sample_rate_Hz", self.fs_hz)
+        self.channels = dict(self.channels)
+        self._validate()
+        self.fs_hz, self.t0_s = float(self.fs_hz), float(self.t0_s)
+
+    def _validate(self) -> None:
+        """Refuse in memory what could not be written or read back."""
+        where = str(self.path) if self.path is not None else "recording"
+        _check_sidecar(self.metadata, where)
+        fs, t0 = self.metadata["sample_rate_Hz"], self.t0_s
+        if self.fs_hz != fs:
+            raise RecordingError(f"{where}: fs_hz {self.fs_hz!r} differs from metadata sample_rate_Hz {fs!r}")
+        if isinstance(t0, bool) or not isinstance(t0, numbers.Real) or not math.isfinite(t0):
+            raise RecordingError(f"{where}: t0_s must be a finite number, got {t0!r}")
+        if not self.channels:
+            raise RecordingError(f"{where}: no channels besides time")
+        for name, x in self.channels.items():
+            if name == "time_s":
+                raise RecordingError(f"{where}: 'time_s' is the time column, not a channel; use t0_s")
+            _check_column_name(name, f"{where}: channel {name!r}")
+            x = self.channels[name] = np.asarray(x, dtype=np.float64)
+            if x.ndim != 1 or x.size == 0:
+                raise RecordingError(f"{where}: channel {name!r} must be 1-D and non-empty, got {x.shape}")
+            if not np.isfinite(x).all():
+                i = int(np.argmin(np.isfinite(x)))
+                raise RecordingError(f"{where}: channel {name!r} sample {i} is {float(x[i])!r}, not finite")
+        if len({x.size for x in self.channels.values()}) > 1:
+            sizes = ", ".join(f"{k}={v.size}" for k, v in self.channels.items())
+            raise RecordingError(f"{where}: channels differ in length: {sizes}")
+        if np.spacing(abs(t0) + self.n / fs) > TIME_TOL_PERIODS / fs / 8:  # float64 time resolution
+            raise RecordingError(f"{where}: t0_s={t0!r} is too far from 0 to write time_s at {fs} Hz "
+                                 "within TIME_TOL_PERIODS; keep the offset in the metadata instead")
+
+    @property
+    def rig(self) -> str:
+        return self.metadata["rig"]
+
+    @property
+    def frequency_hz(self) -> float:
+        """Nominal excitation frequency (sidecar ``frequency_Hz``)."""
+        return float(self.metadata["frequency_Hz"])
+
+    @property
+    def current_pp_a(self) -> float:
+        """Nominal peak-to-peak excitation current (sidecar ``current_pp_A``)."""
+        return float(self.metadata["current_pp_A"])
+
+    @property
+    def n(self) -> int:
+        """Samples per channel."""
+        return len(next(iter(self.channels.values())))
+
+    @property
+    def duration_s(self) -> float:
+        """``n / fs_hz``: the time the samples cover, one period per sample."""
+        return self.n / self.fs_hz
+
+    def time_s(self) -> np.ndarray:
+        """The time column, ``t0_s + i / fs_hz``."""
+        return self.t0_s + np.arange(self.n) / self.fs_hz
+
+    def to_block(self, first_index: int | None = None) -> SampleBlock:
+        """The samples as a pipeline block; by default ``first_index = t0_s * fs_hz``, which must
+        then be a whole number of samples (within TIME_TOL_PERIODS) rather than be rounded."""
+        if first_index is None:
+            first_index = round(self.t0_s * self.fs_hz)
+            if abs(self.t0_s * self.fs_hz - first_index) > TIME_TOL_PERIODS:
+                raise RecordingError(f"{self.path or 'recording'}: t0_s={self.t0_s!r} is not a whole "
+                                     "number of samples; pass first_index")
+        return SampleBlock(first_index=int(first_index), fs_hz=self.fs_hz, channels=dict(self.channels))
+
+    @classmethod
+    def from_blocks(cls, blocks: Iterable[SampleBlock], metadata: Mapping[str, Any]) -> Recording:
+        """Join contiguous blocks; a lost sample cannot be written as uniform time, so it is refused.
+        A clipped block sets ``clipped: true`` in the metadata, since the flag has no column."""
+        blocks = list(blocks)
+        if not blocks:
+            raise RecordingError("from_blocks: no blocks")
+        first = blocks[0]
+        for k, b in enumerate(blocks[1:], start=1):
+            if b.fs_hz != first.fs_hz or set(b.channels) != set(first.channels):
+                raise RecordingError(f"from_blocks: block {k} has {b.fs_hz} Hz, {sorted(b.channels)}; "
+                                     f"block 0 {first.fs_hz} Hz, {sorted(first.channels)}")
+            if b.flags & (BlockFlags.GAP | BlockFlags.OVERRUN):
+                raise RecordingError(f"from_blocks: samples were lost before block {k} ({b.flags!r})")
+        try:
+            block = concatenate(blocks)
+        except ValueError as err:
+            raise RecordingError(f"from_blocks: {err}") from err
+        meta = {**metadata, **({"clipped": True} if block.flags & BlockFlags.CLIP else {})}
+        return cls(path=None, fs_hz=block.fs_hz, channels=dict(block.channels), metadata=meta,
+                   t0_s=block.first_index / block.fs_hz)
+
+
+def _paths(path: str | Path) -> tuple[Path, Path, Path]:
+    """(stem, csv, json).  Only a .csv/.json suffix is removed: '..._1.4App' keeps its '.4App'."""
+    p = Path(path)
+    stem = p.with_suffix("") if p.suffix in _SUFFIXES else p
+    return stem, stem.with_name(stem.name + ".csv"), stem.with_name(stem.name + ".json")
+
+
+def _check_column_name(name: str, where: str) -> None:
+    m = _COLUMN.fullmatch(name)
+    if m is None:
+        raise RecordingError(f"{where}: {name!r} is not <channel>_<unit> (e.g. force_N); name its unit")
+    known = _KNOWN.get(m["channel"])
+    if known is not None and known != name:
+        raise RecordingError(f"{where}: {name!r}: the format defines this channel as {known!r} "
+                             f"({CHANNEL_UNITS[known]}); convert the values, nothing is rescaled here")
+
+
+def _check_sidecar(meta: Any, where: str) -> None:
+    if not isinstance(meta, dict):
+        raise RecordingError(f"{where}: the sidecar must be a JSON object, got {type(meta).__name__}")
+    for key in REQUIRED_KEYS:
+        if key not in meta:
+            raise RecordingError(f"{where}: missing key {key!r} (required: {', '.join(REQUIRED_KEYS)})")
+    if not isinstance(meta["rig"], str):
+        raise RecordingError(f"{where}: key 'rig' must be a string, got {meta['rig']!r}")
+    if meta["rig"] not in rig_names():
+        raise RecordingError(f"{where}: unknown rig {meta['rig']!r}; known: {', '.join(rig_names())}")
+    for key in REQUIRED_KEYS[1:]:
+        v, low = meta[key], ">= 0" if key == "current_pp_A" else "> 0"
+        if isinstance(v, bool) or not isinstance(v, numbers.Real):
+            raise RecordingError(f"{where}: key {key!r} must be a number, got {v!r}")
+        if not math.isfinite(v) or v < 0 or (v == 0 and low == "> 0"):
+            raise RecordingError(f"{where}: key {key!r} must be finite and {low}, got {v!r}")
+    f, fs = meta["frequency_Hz"], meta["sample_rate_Hz"]
+    if f >= fs / 2:
+        raise RecordingError(f"{where}: frequency_Hz {f!r} is not below half of sample_rate_Hz {fs!r}")
+
+
+def _read_text(path: Path) -> str:
+    """UTF-8 text with '\n' line ends; a spreadsheet's BOM is not part of the first name."""
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise RecordingError(f"{path}: cannot read: {err.strerror}") from err
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        line = raw.count(b"\n", 0, err.start) + 1
+        raise RecordingError(f"{path}:{line}: not UTF-8 (byte {err.start})") from err
+    return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """json.loads keeps the last of two equal keys; here that is an error."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise RecordingError(f"key {key!r} appears twice")
+        out[key] = value
+    return out
+
+
+def _no_constant(name: str) -> None:
+    """json.loads accepts NaN and Infinity, which are not JSON and could not be written back."""
+    raise RecordingError(f"{name} is not valid JSON; write a number or null")
+
+
+def _read_sidecar(path: Path) -> dict:
+    try:
+        meta = json.loads(_read_text(path), object_pairs_hook=_unique_keys, parse_constant=_no_constant)
+    except json.JSONDecodeError as err:
+        raise RecordingError(f"{path}:{err.lineno}: column {err.colno}: not valid JSON ({err.msg})") from err
+    except RecordingError as err:
+        raise RecordingError(f"{path}: {err}") from None
+    _check_sidecar(meta, str(path))
+    return meta
+
+
+def _parse_header(line: str, where: str) -> list[str]:
+    if not line.strip():
+        raise RecordingError(f"{where}:1: empty header line; expected 'time_s,<channel>_<unit>,...'")
+    names = [n.strip() for n in next(csv.reader([line]))]
+    for j, name in enumerate(names):
+        if not name:
+            raise RecordingError(f"{where}:1: column {j + 1} has no name")
+        if name in names[:j]:
+            raise RecordingError(f"{where}:1: column {j + 1} {name!r} repeats column {names.index(name) + 1}")
+    if "time_s" not in names:
+        other = [n for n in names if n.startswith("time")]
+        hint = f" (found {', '.join(other)}; time must be in seconds)" if other else ""
+        raise RecordingError(f"{where}:1: missing the time_s column{hint}")
+    if names[0] != "time_s":
+        raise RecordingError(f"{where}:1: time_s must be column 1, found in column {names.index('time_s') + 1}")
+    if len(names) == 1:
+        raise RecordingError(f"{where}:1: no channel columns besides time_s")
+    for j, name in enumerate(names[1:], start=2):
+        _check_column_name(name, f"{where}:1: column {j}")
+    return names
+
+
+def _locate_bad_line(body: str, names: list[str], where: str) -> RecordingError | None:
+    """The error path: walk the lines to name the first one loadtxt refused or skipped."""
+    for lineno, line in enumerate(body.split("\n"), start=2):
+        if not line.strip():
+            return RecordingError(f"{where}:{lineno}: empty line between samples")
+        fields = line.split(",")
+        if len(fields) != len(names):
+            return RecordingError(f"{where}:{lineno}: {len(fields)} fields, the header has {len(names)}")
+        for j, f in enumerate(fields):
+            if not _NUMBER.fullmatch(f):
+                what = "empty field" if not f.strip() else f"not a number: {f.strip()!r}"
+                return RecordingError(f"{where}:{lineno}: column {j + 1} ({names[j]}): {what}")
+    return None
+
+
+def _parse_samples(text: str, where: str) -> tuple[list[str], np.ndarray]:
+    """Header names and the (rows, columns) float64 array, checked for shape and finiteness."""
+    if not text.strip():
+        raise RecordingError(f"{where}: empty file; expected a header line 'time_s,...' and samples")
+    header, _, body = text.partition("\n")
+    names = _parse_header(header, where)
+    body = body.rstrip()  # trailing blank lines hold no sample; blank lines between rows are errors
+    if not body:
+        raise RecordingError(f"{where}: header only, no samples")
+    rows = body.count("\n") + 1
+    try:
+        data = np.loadtxt(io.StringIO(body), delimiter=",", comments=None, ndmin=2, dtype=np.float64)
+    except ValueError as err:
+        raise (_locate_bad_line(body, names, where)
+               or RecordingError(f"{where}: cannot read the samples: {err}")) from err
+    if data.shape != (rows, len(names)):  # loadtxt skips empty lines; a constant extra field passes
+        raise (_locate_bad_line(body, names, where)
+               or RecordingError(f"{where}: read {data.shape} samples, expected ({rows}, {len(names)})"))
+    bad = ~np.isfinite(data)
+    if bad.any():
+        r, c = divmod(int(np.argmax(bad)), data.shape[1])
+        field = body.split("\n", r + 1)[r].split(",")[c].strip()
+        raise RecordingError(f"{where}:{r + 2}: column {c + 1} ({names[c]}): {field!r} is not a finite number")
+    return names, data
+
+
+def _check_time(t: np.ndarray, fs: float, where: str, sidecar: str) -> None:
+    """time_s must sit on t[0] + i / fs within TIME_TOL_PERIODS; say which line leaves it, and why."""
+    period = 1.0 / fs
+    tol = TIME_TOL_PERIODS * period
+    dev = t - (t[0] + np.arange(t.size) * period)
+    if t.size < 2 or np.max(np.abs(dev)) <= tol:
+        return
+    steps = np.diff(t)
+    step = float(np.median(steps))
+    off = (steps <= 0) | (np.abs(steps - step) > 2 * tol)  # one rounded value moves two steps
+    if off.any():
+        i = int(np.argmax(off))
+        what = "does not increase" if steps[i] <= 0 else "is non-uniform"
+        raise RecordingError(f"{where}:{i + 3}: time_s {what}: {float(t[i + 1])!r} s follows "
+                             f"{float(t[i])!r} s, a step of {steps[i]:.9g} s where most are {step:.9g} s "
+                             f"(tolerance {TIME_TOL_PERIODS:g} periods)")
+    i = int(np.argmax(np.abs(dev) > tol))
+    rate = (t.size - 1) / (t[-1] - t[0])
+    raise RecordingError(f"{where}:{i + 2}: time_s is sampled at {rate:.9g} Hz but {sidecar} says "
+                         f"sample_rate_Hz {fs:.9g}; here time_s is {dev[i] / period:+.3g} periods off")
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Read ``NAME.csv`` + ``NAME.json``; ``path`` is the stem or either file."""
+    stem, csv_path, json_path = _paths(path)
+    if not json_path.is_file():
+        if not csv_path.is_file():
+            raise RecordingError(f"{stem}: no recording (neither {csv_path.name} nor {json_path.name})")
+        raise RecordingError(f"{json_path}: missing sidecar for {csv_path.name}")
+    meta = _read_sidecar(json_path)
+    if not csv_path.is_file():
+        raise RecordingError(f"{csv_path}: missing samples for sidecar {json_path.name}")
+    names, data = _parse_samples(_read_text(csv_path), str(csv_path))
+    fs = float(meta["sample_rate_Hz"])
+    _check_time(data[:, 0], fs, str(csv_path), json_path.name)
+    cols = data.T.copy()  # one contiguous row per column
+    return Recording(path=stem, fs_hz=fs, channels=dict(zip(names[1:], cols[1:])),
+                     metadata=meta, t0_s=float(cols[0, 0]))
+
+
+def _write_csv(fh: TextIO, rec: Recording) -> None:
+    fh.write(",".join(["time_s", *rec.channels]) + "\n")
+    cols = [rec.time_s(), *rec.channels.values()]
+    for start in range(0, rec.n, _ROWS_PER_CHUNK):
+        # repr is the shortest text that reads back to the same float64: lossless and readable
+        text = [map(repr, c[start:start + _ROWS_PER_CHUNK].tolist()) for c in cols]
+        fh.write("\n".join(map(",".join, zip(*text))) + "\n")
+
+
+def _write_temp(dest: Path, write: Callable[[TextIO], Any]) -> Path:
+    """A fully written, fsynced hidden temporary beside ``dest`` (same file system, so the rename
+    is atomic); removed again if writing fails."""
+    tmp = dest.with_name(f".{dest.name}.{secrets.token_hex(4)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as for open()
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return tmp
+
+
+def _refuse_existing(paths: Iterable[Path]) -> None:
+    for p in paths:
+        if p.exists():
+            raise RecordingError(f"{p}: already exists; pass overwrite=True to replace it")
+
+
+def write_recording(rec: Recording, stem: str | Path, *, overwrite: bool = False) -> tuple[Path, Path]:
+    """Write ``STEM.csv`` and ``STEM.json``; returns their paths and sets ``rec.path``.
+
+    Each file is written to a temporary beside it and renamed over the target, so a crash leaves
+    the old file whole; both temporaries are complete before either rename.  An existing
+    recording is replaced only with ``overwrite=True``.
+    """
+    stem, csv_path, json_path = _paths(stem)
+    rec._validate()
+    if not overwrite:
+        _refuse_existing([csv_path, json_path])
+    try:
+        sidecar = json.dumps(rec.metadata, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+    except (TypeError, ValueError) as err:
+        raise RecordingError(f"{json_path}: metadata cannot be written as JSON: {err}") from err
+    temps: list[Path] = []
+    try:
+        temps.append(_write_temp(csv_path, lambda fh: _write_csv(fh, rec)))
+        temps.append(_write_temp(json_path, lambda fh: fh.write(sidecar)))
+        os.replace(temps[0], csv_path)
+        os.replace(temps[1], json_path)
+    except OSError as err:
+        raise RecordingError(f"{stem}: cannot write the recording: {err}") from err
+    finally:
+        for tmp in temps:
+            tmp.unlink(missing_ok=True)
+    rec.path = stem
+    return csv_path, json_path
+
+
+def sweep_stem(rec: Recording) -> str:
+    """The file stem of a recording in a sweep folder, e.g. ``ecore_pm_320Hz_1.4App``."""
+    return f"{rec.rig}_{rec.frequency_hz:g}Hz_{rec.current_pp_a:g}App"
+
+
+def read_sweep(folder: str | Path) -> list[Recording]:
+    """Every recording in ``folder``, sorted by (frequency_Hz, current_pp_A); one rig only."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise RecordingError(f"{folder}: not a folder")
+    files = [p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".")]
+    odd = sorted(p.name for p in files if p.suffix.lower() in _SUFFIXES and p.suffix not in _SUFFIXES)
+    if odd:
+        raise RecordingError(f"{folder}: suffixes must be .csv and .json in lower case: {', '.join(odd)}")
+    stems = {p.with_suffix("") for p in files if p.suffix == ".csv"}
+    orphans = sorted(p.name for p in files if p.suffix == ".json" and p.with_suffix("") not in stems)
+    if orphans:
+        raise RecordingError(f"{folder}: sidecars without a .csv: {', '.join(orphans)}")
+    if not stems:
+        raise RecordingError(f"{folder}: no recordings (NAME.csv + NAME.json) in this folder")
+    recs = [read_recording(s) for s in sorted(stems)]
+    rigs = sorted({r.rig for r in recs})
+    if len(rigs) > 1:
+        raise RecordingError(f"{folder}: recordings of several rigs ({', '.join(rigs)}); a sweep is one rig")
+    return sorted(recs, key=lambda r: (r.frequency_hz, r.current_pp_a, str(r.path)))
+
+
+def write_sweep(recordings: Iterable[Recording], folder: str | Path, *,
+                overwrite: bool = False) -> list[Path]:
+    """Write each recording as ``folder/<sweep_stem>``; returns the stems.  Name clashes and (unless
+    ``overwrite``) existing files are refused before anything is written."""
+    recs, folder = list(recordings), Path(folder)
+    if not recs:
+        raise RecordingError(f"{folder}: no recordings to write")
+    stems = [folder / sweep_stem(r) for r in recs]
+    for k, s in enumerate(stems):
+        if s in stems[:k]:
+            raise RecordingError(f"{s}: recordings {stems.index(s)} and {k} would both be written here")
+    if not overwrite:
+        _refuse_existing(p for s in stems for p in _paths(s)[1:])
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise RecordingError(f"{folder}: cannot create the folder: {err}") from err
+    for r, s in zip(recs, stems):
+        write_recording(r, s, overwrite=overwrite)
+    return stems
