@@ -28,6 +28,7 @@ def _add_rig_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
                    help="switch an effect: NAME=on|off, NAME=<number> or NAME.param=<number> (repeatable)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing recordings of the same name")
 
 
 def _simulate_one(args, freq_hz: float, ipp_a: float, seed: int):
@@ -45,7 +46,7 @@ def cmd_simulate(args) -> int:
     from .recording import write_recording
 
     rec = _simulate_one(args, args.freq, args.ipp, args.seed)
-    csv_path, json_path = write_recording(rec, args.out)
+    csv_path, json_path = write_recording(rec, args.out, overwrite=args.overwrite)
     print(f"wrote {csv_path} and {json_path} ({rec.n} samples at {rec.fs_hz:g} Hz)")
     return 0
 
@@ -62,7 +63,7 @@ def _sweep(args, out: Path) -> list:
         for n, (f, i) in enumerate(points):
             recs.append(_simulate_one(args, f, i, args.seed + n))
             progress.advance(task)
-    write_sweep(recs, out)
+    write_sweep(recs, out, overwrite=args.overwrite)
     return recs
 
 
