@@ -113,8 +113,6 @@ class ECoreActuator:
 
     def _static_field(self, b: np.ndarray):
         """The iron's rate-independent H for the trajectory b, and the state it ends in."""
-        if self.hysteresis is None:
-            return b * self._nu0, None
         return self.hysteresis.field(b, self._h_state, irreversible=self._irreversible,
                                      saturation=self._saturation)
 
@@ -127,9 +125,9 @@ class ECoreActuator:
             fm, dfm = fm * (1.0 + rate * t_s), self.magnet_mmf_a * rate
         # The linear part of the iron and the eddy currents are solved exactly by the recursion;
         # only the iron's nonlinear remainder h(B) - nu0 B is iterated (a small loop gain).
-        h_rest = np.zeros_like(fc)
-        for _ in range(IRON_ITERATIONS):
-            x, lag_state = self._lag.run(np.stack([fc - h_rest * self.iron_length_m, fm]))
+        h_rest, h_state = np.zeros_like(fc), None
+        for _ in range(IRON_ITERATIONS if self.hysteresis is not None else 0):
+            x, _ = self._lag.run(np.stack([fc - h_rest * self.iron_length_m, fm]))
             h, h_state = self._static_field(x[0])
             h_rest = h - self._nu0 * x[0]
         u = np.stack([fc - h_rest * self.iron_length_m, fm])
