@@ -38,6 +38,7 @@ class ActuatorOutput:
     force_n: np.ndarray | None  # true force on the load cell
     flux_wb: np.ndarray | None  # true flux through the sense coil (absolute, with any bias)
     dflux_dt: np.ndarray | None  # its time derivative (Wb/s)
+    current_a: np.ndarray | None = None  # the coil current, when the actuator sets it (flux control)
 
 
 class Actuator(Protocol):

@@ -81,10 +81,12 @@ class MeasurementChain:
         self.fs_hz = fs_hz
         self.channels = channels
         self.effects = effects
-        self.instrument = instrument_from_preset(preset, effects)
-        force_sections = [bilinear_sos(b, a, fs_hz, prewarp) for b, a, prewarp
-                          in self.instrument.sections(core="instrument_filter" in effects)]
-        self._force_filter = _Sos(np.vstack(force_sections)) if force_sections else None
+        self._force_filter = None
+        if "force_N" in channels:  # a toroid has no load cell
+            instrument = instrument_from_preset(preset, effects)
+            sections = [bilinear_sos(b, a, fs_hz, prewarp) for b, a, prewarp
+                        in instrument.sections(core="instrument_filter" in effects)]
+            self._force_filter = _Sos(np.vstack(sections)) if sections else None
         leak = effects.get("integrator_leak")
         self._flux_filter = None
         if leak is not None:

@@ -134,7 +134,7 @@ class SimulatedRig:
             current = i_cmd + k2 * i_cmd**2 + k3 * i_cmd**3
             dcurrent = di_cmd * (1 + 2 * k2 * i_cmd + 3 * k3 * i_cmd**2)
         out = self.actuator.step(t, current, dcurrent)
-        truth = {"current_A": current, "command_V": command_v}
+        truth = {"current_A": current if out.current_a is None else out.current_a, "command_V": command_v}
         if out.force_n is not None:
             truth["force_N"] = out.force_n
         if out.flux_wb is not None:
