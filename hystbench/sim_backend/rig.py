@@ -85,6 +85,7 @@ class SimulatedRig:
             self.offset_a = float(offset_a)
         self._waveform = None
         self._dc_flux = self.actuator.dc_flux_wb(self.offset_a)
+        self._tell_period()
 
     def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
         """Arbitrary periodic current command: one period, uniformly sampled (the compensator's
@@ -95,6 +96,11 @@ class SimulatedRig:
         self.set_excitation(frequency_hz=frequency_hz)
         self._waveform = table
         self._dc_flux = self.actuator.dc_flux_wb(float(table.mean()))
+        self._tell_period()
+
+    def _tell_period(self) -> None:
+        if hasattr(self.actuator, "set_period"):
+            self.actuator.set_period(self.fs_hz / self.generator_frequency_hz)
 
     @property
     def generator_frequency_hz(self) -> float:
