@@ -83,11 +83,17 @@ class ECoreMEC:
     the coil leg, which is what the paper's non-hysteretic analytical model does."""
 
     def __init__(self, geometry: ECoreGeometry, magnet: Magnet | None = None,
-                 iron_mu_r: float = math.inf, tip_leakage: bool = True) -> None:
+                 iron_mu_r: float = math.inf, tip_leakage: bool = True,
+                 iron_incremental_mu_r: float | None = None) -> None:
         self.geometry = geometry
         self.magnet = magnet
         self.iron_mu_r = iron_mu_r
         self.tip_leakage = tip_leakage
+        #: With this set, the iron is linearised at its operating point: ``iron_mu_r`` is the chord
+        #: permeability that carries the magnet's bias, this one the incremental (minor-loop)
+        #: permeability the excitation sees.  Iron in real reluctance actuators needs both: at low
+        #: induction its minor loops are far less permeable than its bias chord (Rayleigh region).
+        self.iron_incremental_mu_r = iron_incremental_mu_r
 
     # --- sources -------------------------------------------------------------------------------
     @property
@@ -98,6 +104,30 @@ class ECoreMEC:
 
     def ideal_iron(self) -> "ECoreMEC":
         return ECoreMEC(self.geometry, self.magnet, math.inf, self.tip_leakage)
+
+    def _operating_point_coefficients(self, z):
+        """(k0, k1, k2) with the iron linearised at its operating point (see __init__).
+
+        The force is that of the ideal-iron circuit at the coil MMF the airgaps see,
+        F_c,eff(i) = F_c0 + g N1 i: the bias drop F_c0 comes from the chord permeability, the gain
+        g = 1 / (1 + a11 l nu_inc / A) from the incremental one (a11: coil-leg flux per MMF)."""
+        g_ = self.geometry
+        ideal = self.ideal_iron()
+        z = np.asarray(z, dtype=float)
+        a11, a12, _, _ = ideal._branch_fluxes(z, 1.0, 0.0)
+        a12 = ideal._branch_fluxes(z, 0.0, 1.0)[0]
+        nu_dc = 0.0 if math.isinf(self.iron_mu_r) else 1.0 / (mu_0 * self.iron_mu_r)
+        nu_inc = 1.0 / (mu_0 * self.iron_incremental_mu_r)
+        k_l = g_.iron_path_length_m / g_.middle_area_m2
+        fm = self.magnet_mmf_a
+        fc0 = -k_l * nu_dc * a12 * fm / (1.0 + a11 * k_l * nu_dc)  # bias drop: -l nu_dc B0
+        gain = 1.0 / (1.0 + a11 * k_l * nu_inc)
+        d = ideal._dz(lambda q: np.stack(ideal.port_permeances(q)), z)
+        n1 = g_.coil_turns
+        k2 = -0.5 * d[0] * (gain * n1) ** 2
+        k1 = -(d[0] * fc0 + d[1] * fm) * gain * n1
+        k0 = -0.5 * (d[0] * fc0**2 + 2 * d[1] * fc0 * fm + d[2] * fm**2)
+        return k0, k1, k2
 
     # --- network ------------------------------------------------------------------------------
     def _permeances(self, z):
@@ -193,6 +223,8 @@ class ECoreMEC:
 
     def force_coefficients(self, z):
         """(k0, k1, k2) with F(i) = k0 + k1 i + k2 i^2 at airgap z: the paper's Eq. (1)."""
+        if self.iron_incremental_mu_r is not None:
+            return self._operating_point_coefficients(z)
         n1 = self.geometry.coil_turns
         fm = self.magnet_mmf_a
         k2 = -0.5 * n1 * self.dphi_coil_dz(z)

@@ -25,8 +25,9 @@ def where(preset: Mapping[str, Any], table: str | None = None) -> str:
 
 
 def ecore_mec(preset: Mapping[str, Any], *, linear_iron: bool = False) -> ECoreMEC:
-    """The E-core's MEC from a rig preset; ``linear_iron`` puts the preset's linear iron in the
-    coil leg (the paper's non-hysteretic analytical model), otherwise iron is ideal."""
+    """The E-core's MEC from a rig preset; ``linear_iron`` gives the paper's non-hysteretic
+    analytical model with the preset's iron (``linear_mu_r``, and ``incremental_mu_r`` when the
+    iron is linearised at its operating point), otherwise iron is ideal."""
     geo_t = preset.get("geometry")
     if not isinstance(geo_t, dict):
         raise ConfigError(f"{where(preset)}: missing table [geometry]")
@@ -46,10 +47,13 @@ def ecore_mec(preset: Mapping[str, Any], *, linear_iron: bool = False) -> ECoreM
             recoil_mu_r=float(m.get("recoil_mu_r", 1.05)),
             conductivity_s_per_m=float(m.get("conductivity_s_per_m", 0.0)),
         )
-    mu_r = math.inf
+    mu_r, mu_inc = math.inf, None
     if linear_iron:
-        mu_r = float(require(preset.get("iron", {}), "linear_mu_r", where(preset, "iron")))
-    return ECoreMEC(geo, magnet, iron_mu_r=mu_r)
+        iron = preset.get("iron", {})
+        mu_r = float(require(iron, "linear_mu_r", where(preset, "iron")))
+        if "incremental_mu_r" in iron:
+            mu_inc = float(require(iron, "incremental_mu_r", where(preset, "iron")))
+    return ECoreMEC(geo, magnet, iron_mu_r=mu_r, iron_incremental_mu_r=mu_inc)
 
 
 def voice_coil(preset: Mapping[str, Any]) -> VoiceCoil:
