@@ -150,9 +150,13 @@ def cmd_bench(args) -> int:
 
 
 def cmd_demo(args) -> int:
+    """The main job: the paper's sweeps as recordings with their delays, then the whole method."""
+    from .commands_method import cmd_paper
     from .demo import run_demo
 
-    return run_demo(Path(args.out))
+    out = Path(args.out)
+    status = run_demo(out)
+    return status or cmd_paper(argparse.Namespace(out=str(out / "paper"), quick=False, save_recordings=False))
 
 
 def build_parser() -> argparse.ArgumentParser:
