@@ -354,7 +354,8 @@ def explanations(res: PaperResult) -> list[str]:
                                for rig, g in k_gain.items()) + ".")
     out.append("Instrument phase: the simulated E-core sits on exactly the instrument the voice coil identifies, "
                "so force-behind-flux equals the model (the paper measured 1.52 deg against 1.28 modelled; the "
-               "frame_resonance effect adds about 0.2 deg at 320 Hz and is one candidate for that gap).")
+               "frame_resonance effect shifts the 320 Hz phase by 0.34 deg at depth -0.2 (lag) or +0.2 (lead), "
+               "one candidate for that gap).")
     out.append("Geometry, turns and magnet are assumed (the paper gives none) and were chosen only to land on "
                "the paper's force ranges; nothing was tuned to its delays, errors or accuracies.")
     return out

@@ -147,30 +147,38 @@ class PtyPort:
 
 
 class TcpServer:
-    """A listening socket on 127.0.0.1 (port 0: ephemeral) with one thread per connection."""
+    """A listening socket on 127.0.0.1 (port 0: ephemeral) with one thread per connection.
+
+    ``pause()`` pulls the cable: connections drop and the port refuses new ones (the listener is
+    closed, so a client sees ECONNREFUSED); ``resume()`` listens on the same port again."""
 
     def __init__(self, handler: Callable[[socket.socket], None], name: str, port: int = 0) -> None:
         self.name = name
         self._handler = handler
-        self._sock = socket.create_server(("127.0.0.1", port))
-        self._sock.settimeout(0.1)
-        self.port = self._sock.getsockname()[1]
-        self.address = f"127.0.0.1:{self.port}"
-        self.refuse = False
+        self._sock: socket.socket | None = None
         self._conns: set[socket.socket] = set()
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self._listen(port)
+        self.port = self._sock.getsockname()[1]
+        self.address = f"127.0.0.1:{self.port}"
         self._thread = threading.Thread(target=self._accept, name=f"emu-{name}-accept", daemon=True)
         self._thread.start()
 
+    def _listen(self, port: int) -> None:
+        sock = socket.create_server(("127.0.0.1", port))  # SO_REUSEADDR: the same port after a pause
+        sock.settimeout(0.05)
+        self._sock = sock
+
     def _accept(self) -> None:
         while not self._stop.is_set():
-            try:
-                conn, _ = self._sock.accept()
-            except (socket.timeout, OSError):
+            sock = self._sock
+            if sock is None:
+                self._stop.wait(0.05)
                 continue
-            if self.refuse:
-                conn.close()
+            try:
+                conn, _ = sock.accept()
+            except (socket.timeout, OSError):
                 continue
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             with self._lock:
@@ -205,10 +213,19 @@ class TcpServer:
             with self._lock:
                 self._conns.discard(c)
 
+    def pause(self) -> None:
+        sock, self._sock = self._sock, None
+        if sock is not None:
+            sock.close()
+        self.drop_connections()
+
+    def resume(self) -> None:
+        if self._sock is None and not self._stop.is_set():
+            self._listen(self.port)
+
     def close(self) -> None:
         self._stop.set()
-        self.drop_connections()
-        self._sock.close()
+        self.pause()
         self._thread.join(timeout=1.0)
 
 

@@ -86,13 +86,14 @@ class CurrentAmplifierEmulator:
         self.on_change()
 
     def disconnect(self) -> None:
-        self.modbus_tcp.refuse = self.stream.server.refuse = True
+        """Pull the LAN cable: connections drop, the ports refuse; the serial line goes silent."""
         self.faults.silent = True
-        self.modbus_tcp.drop_connections()
-        self.stream.server.drop_connections()
+        self.modbus_tcp.pause()
+        self.stream.server.pause()
 
     def reconnect(self) -> None:
-        self.modbus_tcp.refuse = self.stream.server.refuse = False
+        self.modbus_tcp.resume()
+        self.stream.server.resume()
         self.faults.silent = False
 
     # --- registers -----------------------------------------------------------------------------------

@@ -66,14 +66,14 @@ class SignalGeneratorEmulator:
                 self.errors.append((code, scpi.SCPI_ERRORS.get(code, "Error") if text is None else text))
 
     def disconnect(self) -> None:
-        """Pull the LAN cable: connections drop, new ones are refused; the serial line goes silent."""
-        self.scpi.refuse = self.stream.server.refuse = True
+        """Pull the LAN cable: connections drop, the ports refuse; the serial line goes silent."""
         self.faults.silent = True
-        self.scpi.drop_connections()
-        self.stream.server.drop_connections()
+        self.scpi.pause()
+        self.stream.server.pause()
 
     def reconnect(self) -> None:
-        self.scpi.refuse = self.stream.server.refuse = False
+        self.scpi.resume()
+        self.stream.server.resume()
         self.faults.silent = False
 
     # --- the instrument --------------------------------------------------------------------------------
