@@ -4,6 +4,7 @@
      ├── ConfigError            a preset, bench file or command-line value is wrong (names the key)
      ├── RecordingError         a recording or log cannot be read or written (names file/line/column)
      ├── EstimationError        the data cannot give the asked-for estimate (names the recording)
+     ├── SimulationError        the simulated rig cannot follow what it was asked (names rig and why)
      └── InstrumentError        an instrument misbehaves (names the instrument and command)
           ├── ConnectionLost
           ├── ProtocolError
@@ -31,6 +32,10 @@ class EstimationError(BenchError, ValueError):
     """The data cannot support the requested estimate."""
 
 
+class SimulationError(BenchError):
+    """The simulated rig was driven outside the range its physics is solved in."""
+
+
 class InstrumentError(BenchError):
     """An instrument did not do what it was asked."""
 
@@ -52,6 +57,7 @@ __all__ = [
     "ConfigError",
     "RecordingError",
     "EstimationError",
+    "SimulationError",
     "InstrumentError",
     "ConnectionLost",
     "ProtocolError",

@@ -16,7 +16,7 @@ import numpy as np
 from scipy import signal
 
 from ..config import load_material, require
-from ..errors import ConfigError
+from ..errors import ConfigError, SimulationError
 from ..physics.eddy import cylinder_eddy_coefficient, lamination_eddy_coefficient
 from ..physics.instrument import bilinear_sos
 from ..physics.presets import ecore_mec, voice_coil
@@ -35,6 +35,10 @@ IRON_ITERATIONS = 4
 #: Passes when the fixed point starts from the iron's remainder one period earlier (interpolated
 #: at the exact fractional period): in steady state two passes reach the same residual.
 WARM_PASSES = 2
+#: Passes allowed before the rig gives up (deep saturation), and the step that counts as converged
+#: (relative to the iron's remainder field).
+MAX_PASSES = 30
+CONVERGED = 1e-3
 
 
 @dataclass
@@ -119,6 +123,12 @@ class ECoreActuator:
         n = np.diag([self._nu0 * self.iron_length_m, 0.0])
         m = np.array([self._coil, self._magnet]) / self.area_m2  # flux density per MMF
         self._lag = _LinearPart(m, n, d, fs_hz)
+        self._b_knee = np.inf  # beyond it the iron's slope outgrows nu0 (only with saturation on)
+        if self.hysteresis is not None and self._saturation:
+            grid = np.linspace(0.0, 2.6, 1041)
+            steep = np.gradient(self.hysteresis.anhysteretic_field(grid), grid) > self._nu0
+            self._b_knee = float(grid[np.argmax(steep)]) if steep.any() else np.inf
+        self.name = str(preset.get("name"))
         self._thermal = effects.get("magnet_thermal_drift")
         comp = effects.get("load_cell_compliance")
         self._compliance = 0.0 if comp is None else 1.0 / float(comp["stiffness_n_per_m"])
@@ -151,6 +161,19 @@ class ECoreActuator:
             keep = int(np.ceil(self._period)) + 2
             self._history = np.concatenate((self._history, h_rest))[-keep:]
 
+    def _newton_step(self, b: np.ndarray, residual: np.ndarray) -> np.ndarray:
+        """Fixed-point step on the iron's remainder, damped by the Newton factor where the iron is
+        past its knee: there dH/dB (the anhysteretic slope, which the branches approach in
+        saturation) outgrows the airgap's dilution and the plain step would diverge."""
+        steep = np.abs(b) > self._b_knee
+        if not steep.any():
+            return residual
+        nu_d = np.full_like(b, self._nu0)
+        bs = b[steep]
+        an = self.hysteresis.anhysteretic_field
+        nu_d[steep] = np.maximum(self._nu0, (an(bs + 1e-3) - an(bs - 1e-3)) / 2e-3)
+        return residual / (1.0 + (nu_d - self._nu0) * self._lag.instantaneous_gain * self.iron_length_m)
+
     def _static_field(self, b: np.ndarray):
         """The iron's rate-independent H for the trajectory b, and the state it ends in."""
         return self.hysteresis.field(b, self._h_state, irreversible=self._irreversible,
@@ -166,10 +189,18 @@ class ECoreActuator:
         # The linear part of the iron and the eddy currents are solved exactly by the recursion;
         # only the iron's nonlinear remainder h(B) - nu0 B is iterated (a small loop gain).
         h_rest, h_state, passes = self._first_guess(fc.size)
-        for _ in range(passes):
+        for n_pass in range(1, MAX_PASSES + 1 if self.hysteresis is not None else 1):
             x, _ = self._lag.run(np.stack([fc - h_rest * self.iron_length_m, fm]))
             h, h_state = self._static_field(x[0])
-            h_rest = h - self._nu0 * x[0]
+            step = self._newton_step(x[0], h - self._nu0 * x[0] - h_rest)
+            h_rest = h_rest + step
+            if n_pass >= passes and np.max(np.abs(step)) <= CONVERGED * (np.max(np.abs(h_rest)) + 1.0):
+                break
+        else:
+            if self.hysteresis is not None:
+                raise SimulationError(
+                    f"{self.name}: the iron's field does not converge (|B| up to {np.max(np.abs(x[0])):.2f} T): "
+                    "the actuator is driven far into saturation; lower the current")
         self._remember(h_rest)
         u = np.stack([fc - h_rest * self.iron_length_m, fm])
         x, lag_state = self._lag.run(u)
@@ -209,6 +240,8 @@ class _LinearPart:
         self.lam, self.vec = lam.real, vec.real
         self.vec_inv = np.linalg.inv(self.vec)
         self.q = self.vec_inv @ (k @ m)
+        #: dB_iron[n] / dF_coil[n]: how much this sample's coil MMF moves this sample's iron B
+        self.instantaneous_gain = float((k @ m)[0, 0])
         self.state: tuple[np.ndarray, np.ndarray] | None = None  # (y[n-1], x[n-1])
 
     def run(self, u: np.ndarray):
