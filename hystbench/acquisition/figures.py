@@ -13,7 +13,16 @@ import numpy as np  # noqa: E402
 from ..config import load_rig  # noqa: E402
 from ..physics import presets  # noqa: E402
 
-__all__ = ["force_map_figure", "loops_figure"]
+__all__ = ["plt", "save_figure", "force_map_figure", "loops_figure"]
+
+
+def save_figure(fig, path: Path, dpi: int = 110) -> Path:
+    """Lay out, write as PNG (making the folder) and free the figure; returns the path."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
 
 
 def force_map_figure(rig: str, out: Path) -> Path:
@@ -34,11 +43,7 @@ def force_map_figure(rig: str, out: Path) -> Path:
     ax.set_zlabel("$F_z$ (N)")
     z0 = mec.geometry.airgap_m * 1e3
     ax.set_title(f"{rig}: static force (MEC, Eq. 1); nominal airgap {z0:g} mm")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out, dpi=120)
 
 
 def loops_figure(curves: list[tuple[str, np.ndarray, np.ndarray]], xlabel: str, ylabel: str,
@@ -52,8 +57,4 @@ def loops_figure(curves: list[tuple[str, np.ndarray, np.ndarray]], xlabel: str, 
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out, dpi=120)

@@ -10,11 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
+from .figures import plt, save_figure as _save  # noqa: E402
 
 from ..config import CONFIG_DIR, load_material  # noqa: E402
 from ..physics import material_fit as mf  # noqa: E402
@@ -132,13 +130,6 @@ def _figure_operating(model, lags: dict[str, float], out: Path) -> Path:
     ax.grid(alpha=0.3)
     return _save(fig, out / "M330-50A_operating_points.png")
 
-
-def _save(fig, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
 
 
 def run_material_fit(out_dir: Path, *, refit: bool = False, materials_dir: Path | None = None) -> dict[str, Any]:

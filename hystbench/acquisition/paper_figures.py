@@ -5,11 +5,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
+from .figures import plt, save_figure as _save  # noqa: E402
 
 from ..config import load_rig  # noqa: E402
 from .force_error import ForceError, analytical_model  # noqa: E402
@@ -22,13 +20,6 @@ _FZ = "$F_z$ (N)"
 _I = "Current (A)"
 _B2 = "$B^2$ (T$^2$)"
 
-
-def _save(fig, out: Path) -> Path:
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
 
 
 def _style(ax, xlabel, ylabel, *, legend=True, title=None):
