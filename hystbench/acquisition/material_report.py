@@ -10,13 +10,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from .figures import plt, save_figure as _save  # noqa: E402
-
-from ..config import CONFIG_DIR, load_material  # noqa: E402
-from ..physics import material_fit as mf  # noqa: E402
-from ..physics.hysteresis import PreisachHysteresis  # noqa: E402
+from ..config import CONFIG_DIR, load_material
+from ..physics import material_fit as mf
+from ..physics.hysteresis import PreisachHysteresis
+from .figures import plt, save_figure as _save
 
 __all__ = ["run_material_fit", "OPERATING_POINTS", "FIT_SETTINGS"]
 

@@ -5,13 +5,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from .figures import plt, save_figure as _save  # noqa: E402
-
-from ..config import load_rig  # noqa: E402
-from .force_error import ForceError, analytical_model  # noqa: E402
-from .paper import EcoreRun, PaperResult  # noqa: E402
+from ..config import load_rig
+from .force_error import ForceError, analytical_model
+from .paper import EcoreRun, PaperResult
+from .figures import plt, save_figure as _save
 
 __all__ = ["paper_figures"]
 

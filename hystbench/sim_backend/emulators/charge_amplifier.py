@@ -16,7 +16,7 @@ from scipy import signal
 
 from ...blocks import SampleBlock
 from ...drivers.protocols import charge_amp as ca
-from .common import Faults, FrameEmitter, PtyPort, PtyStreamSink, log
+from .common import Faults, FrameEmitter, PtyPort, PtyStreamSink
 
 __all__ = ["ChargeAmplifierEmulator", "CHARGE_AMP_STREAM_ID"]
 

@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from ...drivers.protocols.framing import Frame, cobs_record, encode_frame, frames_from_block, length_prefixed
+from ...drivers.protocols.framing import cobs_record, encode_frame, frames_from_block, length_prefixed
 
 __all__ = ["Faults", "PtyPort", "TcpServer", "FrameEmitter", "TcpStreamServer", "PtyStreamSink"]
 
