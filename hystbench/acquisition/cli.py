@@ -201,9 +201,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("rest", nargs=argparse.REMAINDER, help="arguments for the benchmark (e.g. --json)")
     p.set_defaults(func=cmd_bench)
 
-    from . import commands_method
+    from . import commands_bench, commands_method
 
     commands_method.register(sub)  # estimate, identify, paper
+    commands_bench.register(sub)  # emulate
 
     p = sub.add_parser("demo", help="the main job on the embedded simulated rig")
     p.add_argument("--out", default="demo-output")

@@ -13,7 +13,7 @@ from typing import Any
 
 from ..errors import ConfigError
 
-__all__ = ["CONFIG_DIR", "shared_data_dir", "rig_names", "load_rig", "material_names", "load_material", "require"]
+__all__ = ["CONFIG_DIR", "read_toml", "shared_data_dir", "rig_names", "load_rig", "material_names", "load_material", "require"]
 
 CONFIG_DIR = Path(__file__).resolve().parent
 
@@ -41,6 +41,18 @@ def material_names() -> list[str]:
     return _names("materials")
 
 
+def read_toml(path: str | Path, what: str = "file") -> dict[str, Any]:
+    """A TOML file as a dict; a missing or malformed file is a ConfigError naming it."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError as err:
+        raise ConfigError(f"{path}: no such {what}") from err
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from err
+
+
 def _load(folder: str, name_or_path: str | Path) -> dict[str, Any]:
     path = Path(name_or_path)
     if path.suffix != ".toml":
@@ -49,13 +61,7 @@ def _load(folder: str, name_or_path: str | Path) -> dict[str, Any]:
             raise ConfigError(
                 f"unknown {folder[:-1]} {str(name_or_path)!r}; known: {', '.join(_names(folder))}"
             )
-    try:
-        with path.open("rb") as fh:
-            data = tomllib.load(fh)
-    except FileNotFoundError as err:
-        raise ConfigError(f"{path}: no such file") from err
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path}: not valid TOML: {err}") from err
+    data = read_toml(path)
     data.setdefault("name", path.stem)
     data["_source"] = str(path)
     return data

@@ -1,0 +1,65 @@
+"""``hystbench emulate``: the emulated bench instruments, standalone.
+
+Prints on the FIRST line of stdout one JSON object saying where each instrument listens, then runs
+until SIGINT or SIGTERM.  The CLI adds it with ``commands_bench.register(sub)``; until then
+``python -m hystbench.acquisition.commands_bench emulate`` runs it the same way.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+
+from ..errors import BenchError
+
+__all__ = ["register", "cmd_emulate", "main"]
+
+
+def register(subparsers) -> None:
+    """Add the bench commands to the CLI's subparsers."""
+    p = subparsers.add_parser("emulate", help="run the emulated bench instruments until SIGINT/SIGTERM",
+                              description=__doc__.split("\n\n")[1])
+    p.add_argument("--config", default=None, help="bench file (default: the shipped config/bench.toml)")
+    p.set_defaults(func=cmd_emulate)
+
+
+def cmd_emulate(args) -> int:
+    from ..drivers.protocols.bench_config import load_bench_config
+    from ..sim_backend.emulators.bench import EmulatedBench
+
+    config = load_bench_config(args.config)
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with EmulatedBench(config) as emu:
+            print(json.dumps(emu.addresses), flush=True)
+            can = emu.addresses["flux_integrator"]
+            if can["can_interface"] == "virtual":
+                print(f"note: the flux integrator is on python-can virtual channel {can['can_channel']!r}, "
+                      "reachable only from this process; set [flux_integrator] interface = \"socketcan\" and "
+                      "channel = \"vcan0\" to share it", file=sys.stderr, flush=True)
+            while not stop.wait(0.2):
+                pass
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Standalone entry point with the CLI's error convention (BenchError -> status 2)."""
+    parser = argparse.ArgumentParser(prog="hystbench")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except BenchError as err:
+        print(f"hystbench {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,292 @@
+"""The four instruments as one bench: opened from a bench file, kept safe, streamed in step.
+
+Safety first, always in this order: on a fault (amplifier fault bits, a lost connection, a
+command error) and at shutdown, the generator output goes off and the amplifier is disabled,
+both attempted independently, *before* anything else happens (reconnecting, raising, closing).
+A heartbeat thread polls every instrument (which also feeds the amplifier's watchdog), so a fault
+is acted on within ``heartbeat_s`` even when nobody is calling the bench.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Iterator
+
+from ..blocks import BlockFlags, SampleBlock, concatenate
+from ..errors import ConfigError, ConnectionLost, InstrumentError
+from .align import StreamAligner
+from .base import Backoff, Instrument, log
+from .charge_amplifier import ChargeAmplifier
+from .current_amplifier import ModbusCurrentAmplifier
+from .flux_integrator import CanFluxIntegrator
+from .protocols.bench_config import BenchConfig
+from .safety import CurrentBudget, SafetyLimitError
+from .signal_generator import ScpiSignalGenerator
+from .stream import SampleStream
+
+__all__ = ["Bench", "BenchFault", "build_instruments"]
+
+
+class _FaultBits(InstrumentError):
+    """An instrument reports a latched fault: acted on at once, not after a second poll."""
+
+
+@dataclass(frozen=True)
+class BenchFault:
+    t_monotonic: float
+    instrument: str
+    message: str
+    output_off: bool  # whether switching the output off was confirmed
+
+
+def build_instruments(config: BenchConfig, budget: CurrentBudget) -> dict[str, Instrument]:
+    """One driver per instrument, from a resolved bench config (addresses filled in)."""
+    backoff = Backoff(**config.backoff)
+    out: dict[str, Instrument] = {}
+    for name, inst in config.instruments.items():
+        o = inst.options
+        common = dict(timeout_s=inst.timeout_s or config.timeout_s, backoff=backoff)
+        if name == "signal_generator":
+            if not o["url"]:
+                raise ConfigError(f"{config.source} [{name}]: no url (start the emulators or set one)")
+            out[name] = ScpiSignalGenerator(o["url"], budget=budget, baudrate=o["baudrate"],
+                                            reset_on_open=o["reset_on_open"], stream_url=o["stream_url"] or None,
+                                            fs_hz=config.fs_hz, **common)
+        elif name == "current_amplifier":
+            where = dict(host=o["host"], port=o["port"]) if o["transport"] == "tcp" else dict(
+                serial_port=o["serial_port"], baudrate=o["baudrate"])
+            out[name] = ModbusCurrentAmplifier(budget=budget, unit=o["unit"], stream_url=o["stream_url"] or None,
+                                               fs_hz=config.fs_hz, **where, **common)
+        elif name == "charge_amplifier":
+            out[name] = ChargeAmplifier(o["url"], baudrate=o["baudrate"], stream_url=o["stream_url"] or None,
+                                        fs_hz=config.fs_hz, **common)
+        else:
+            out[name] = CanFluxIntegrator(interface=o["interface"], channel=o["channel"], node=o["node"],
+                                          fd=o["fd"], fs_hz=config.fs_hz, **common)
+    return out
+
+
+class Bench:
+    """``with Bench(config.resolved(addresses)) as bench: bench.start_output(); bench.acquire(1.0)``"""
+
+    def __init__(self, config: BenchConfig) -> None:
+        self.config = config
+        gain = float(config.instruments["current_amplifier"].settings.get("gain_a_per_v", 0.5))
+        self.budget = CurrentBudget(config.max_current_a, gain)
+        self.instruments = build_instruments(config, self.budget)
+        self.generator: ScpiSignalGenerator = self.instruments["signal_generator"]  # type: ignore[assignment]
+        self.amplifier: ModbusCurrentAmplifier = self.instruments["current_amplifier"]  # type: ignore[assignment]
+        self.charge_amp: ChargeAmplifier = self.instruments["charge_amplifier"]  # type: ignore[assignment]
+        self.integrator: CanFluxIntegrator = self.instruments["flux_integrator"]  # type: ignore[assignment]
+        self.faults: list[BenchFault] = []
+        self.streams: dict[str, SampleStream] = {}
+        self._fault_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._heartbeats: list[threading.Thread] = []
+        self.heartbeat_paused = threading.Event()  # tests: stop feeding the watchdog
+
+    # --- life cycle --------------------------------------------------------------------------------
+    def open(self) -> "Bench":
+        """Open every instrument (amplifier first, disabled), apply the file's settings."""
+        try:
+            for name in ("current_amplifier", "signal_generator", "charge_amplifier", "flux_integrator"):
+                self.instruments[name].open()
+                if name == "current_amplifier":
+                    self.amplifier.disable()
+            for name, inst in self.config.instruments.items():
+                settings = dict(inst.settings)
+                if name == "signal_generator" and settings:
+                    s = {**self.generator.state, **settings}
+                    self.generator.set_sine(s["frequency_hz"], s["amplitude_vpp"], s["offset_v"])
+                elif settings:
+                    self.instruments[name].configure(**settings)
+            self.charge_amp.operate()
+        except BaseException:
+            self.close()
+            raise
+        self._stop.clear()
+        self._heartbeats = [threading.Thread(target=self._beat, args=(name,), name=f"heartbeat-{name}", daemon=True)
+                            for name in self.instruments]  # one each: a slow instrument starves no other poll
+        for t in self._heartbeats:
+            t.start()
+        return self
+
+    def close(self) -> None:
+        """Output off first; then streams, heartbeat and connections."""
+        self.safe_off()
+        self._stop.set()
+        for t in self._heartbeats:
+            t.join(timeout=2.0)
+        self._heartbeats = []
+        self.close_streams()
+        for inst in self.instruments.values():
+            inst.close()
+
+    def __enter__(self) -> "Bench":
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- safety --------------------------------------------------------------------------------------
+    def safe_off(self) -> bool:
+        """Generator output off and amplifier disabled, each tried regardless of the other."""
+        ok_gen = self.generator.safe_off() if self.generator.is_open else False
+        ok_amp = self.amplifier.safe_off() if self.amplifier.is_open else False
+        return ok_gen or ok_amp  # either one stops the coil current
+
+    def _fault(self, instrument: str, message: str) -> BenchFault:
+        off = self.safe_off()  # before anything else
+        fault = BenchFault(time.monotonic(), instrument, message, off)
+        with self._fault_lock:
+            self.faults.append(fault)
+        log.error("bench fault on %s: %s (output off: %s)", instrument, message, off)
+        return fault
+
+    def raise_if_faulted(self) -> None:
+        with self._fault_lock:
+            fault = self.faults[-1] if self.faults else None
+        if fault is not None:
+            raise InstrumentError(f"bench stopped: {fault.instrument}: {fault.message} "
+                                  f"(output switched off: {fault.output_off}); clear_faults() to go on")
+
+    def clear_faults(self) -> None:
+        self.amplifier.clear_faults()
+        with self._fault_lock:
+            self.faults.clear()
+
+    @contextlib.contextmanager
+    def guarded(self, instrument: str) -> Iterator[None]:
+        """Any instrument error inside switches the output off, is recorded, and is re-raised."""
+        try:
+            yield
+        except SafetyLimitError:
+            raise  # refused before anything was sent: the bench is as it was
+        except InstrumentError as err:
+            self._fault(instrument, str(err))
+            raise
+
+    def start_output(self) -> None:
+        """Amplifier enabled, then generator output on (refused while a fault is recorded)."""
+        self.raise_if_faulted()
+        with self.guarded("current_amplifier"):
+            self.amplifier.enable()
+        with self.guarded("signal_generator"):
+            self.generator.set_output(True)
+
+    def configure(self, instrument: str, **settings: Any) -> None:
+        with self.guarded(instrument):
+            self.instruments[instrument].configure(**settings)
+
+    def reconnect(self, instrument: str) -> None:
+        """Reopen one instrument with back-off; its output comes back off."""
+        self.close_streams()  # streams are reopened by the next acquire
+        with self.guarded(instrument):
+            self.instruments[instrument].reconnect()
+
+    # --- heartbeat -------------------------------------------------------------------------------------
+    def _poll(self, name: str) -> None:
+        if name == "current_amplifier":
+            st = self.amplifier.read_status()
+            if st.faults:
+                raise _FaultBits(f"{name}: fault {', '.join(st.faults)}; output disabled by the amplifier")
+        elif name == "signal_generator":
+            self.generator.query("output")
+        elif name == "flux_integrator":
+            self.integrator.read_status()
+        else:
+            st = self.charge_amp.status()
+            if "OVERLOAD" in st.faults:
+                log.warning("charge amplifier overload: force samples are flagged CLIP")
+
+    def _beat(self, name: str) -> None:
+        failures = 0
+        inst = self.instruments[name]
+        while not self._stop.wait(self.config.heartbeat_s):
+            if self.heartbeat_paused.is_set() or self.faults or not inst.is_open:
+                continue
+            try:
+                self._poll(name)
+                failures = 0
+            except ConnectionLost as err:
+                self._fault(name, str(err))
+                self._try_reconnect(name)
+            except InstrumentError as err:
+                failures += 1
+                if failures >= 2 or isinstance(err, _FaultBits):  # one missed poll may be noise
+                    self._fault(name, str(err))
+                    failures = 0
+
+    def _try_reconnect(self, name: str) -> None:
+        try:
+            self.instruments[name].reconnect()
+            log.warning("bench: %s reconnected; output stays off until clear_faults() and start_output()", name)
+        except InstrumentError as err:
+            log.error("bench: %s did not come back: %s", name, err)
+
+    # --- streams ---------------------------------------------------------------------------------------
+    def open_streams(self) -> dict[str, SampleStream]:
+        """Start the four sample streams (generator command_V, amplifier current_A, charge amplifier
+        force_N, integrator flux_Wb)."""
+        if not self.streams:
+            kw = dict(stall_timeout_s=self.config.stall_timeout_s)
+            for name, inst in self.instruments.items():
+                with self.guarded(name):
+                    self.streams[name] = inst.open_stream(skew_s=self.config.instruments[name].skew_s, **kw)
+        return self.streams
+
+    def close_streams(self) -> None:
+        for s in self.streams.values():
+            s.close()
+        self.streams = {}
+
+    def acquire(self, duration_s: float, *, timeout_s: float | None = None) -> list[SampleBlock]:
+        """``duration_s`` worth of aligned samples of every channel, as contiguous runs.
+
+        Missing samples are never filled in: the first run starts where all streams have begun;
+        each later run has ``BlockFlags.GAP`` and ``gap_samples`` = the exact number of indices
+        missing before it.  A recorded fault, or a stream that cannot be reconnected, raises (with
+        the output already off)."""
+        self.raise_if_faulted()
+        n_want = int(round(duration_s * self.config.fs_hz))
+        deadline = time.monotonic() + (timeout_s if timeout_s is not None else 3 * duration_s + 5.0)
+        streams = self.open_streams()
+        aligner = StreamAligner(streams)
+        got: list[SampleBlock] = []
+        have = 0
+        while have < n_want:
+            self.raise_if_faulted()
+            if time.monotonic() > deadline:
+                raise InstrumentError(f"bench: only {have} of {n_want} aligned samples within the timeout")
+            for name, s in streams.items():
+                try:
+                    block = s.read(timeout_s=0.02)
+                except InstrumentError as err:
+                    self._fault(name, str(err))
+                    raise
+                if block is not None:
+                    aligner.push(name, block)
+            while have < n_want and (block := aligner.pop(max_samples=n_want - have)) is not None:
+                got.append(block)
+                have += block.n
+        return _runs(got)
+
+    def stream_stats(self) -> dict[str, dict[str, int]]:
+        return {name: s.stats.as_dict() for name, s in self.streams.items()}
+
+
+def _runs(blocks: list[SampleBlock]) -> list[SampleBlock]:
+    """Merge consecutive contiguous blocks; each run keeps the GAP flag and count of its first block."""
+    runs: list[SampleBlock] = []
+    start = 0
+    for i in range(1, len(blocks) + 1):
+        if i == len(blocks) or blocks[i].first_index != blocks[i - 1].end_index:
+            run = concatenate(blocks[start:i])
+            flags = run.flags if blocks[start].gap_samples else run.flags & ~BlockFlags.GAP
+            runs.append(SampleBlock(run.first_index, run.fs_hz, run.channels, flags=flags,
+                                    gap_samples=blocks[start].gap_samples, meta=run.meta))
+            start = i
+    return runs

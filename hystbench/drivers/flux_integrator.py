@@ -1,0 +1,170 @@
+"""Flux integrator over CAN / CAN FD (python-can), protocol from ``protocols.can_integrator``.
+
+Commands and replies use one bus handle; the sample stream another (filtered to the stream's
+identifier), so a reader thread never takes a command's reply.  The stream carries the output
+voltage; the driver divides by the gain it read back, giving ``flux_Wb`` (flux through one turn).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from ..errors import ConfigError, InstrumentError, ProtocolError
+from .base import Backoff, Instrument, InstrumentStatus
+from .protocols import can_integrator as ci
+from .stream import CanFrameSource, SampleStream
+
+__all__ = ["CanFluxIntegrator", "IntegratorError", "INTEGRATOR_STREAM_ID"]
+
+INTEGRATOR_STREAM_ID = 4
+
+
+class IntegratorError(InstrumentError):
+    def __init__(self, message: str, result: int) -> None:
+        super().__init__(message)
+        self.result = result
+
+
+class CanFluxIntegrator(Instrument):
+    kind = "flux_integrator"
+
+    def __init__(self, *, interface: str = "virtual", channel: str = "hystbench", node: int = 0x10,
+                 fd: bool = True, bus_kwargs: dict | None = None, name: str | None = None,
+                 timeout_s: float = 1.0, backoff: Backoff | None = None, fs_hz: float = 100_000.0) -> None:
+        super().__init__(name, timeout_s=timeout_s, backoff=backoff)
+        if not 1 <= node <= 0x7F:
+            raise ConfigError(f"{self.name}: node must be 1..127, got {node}")
+        self.interface, self.channel, self.node, self.fd = interface, channel, node, fd
+        self.bus_kwargs = dict(bus_kwargs or {})
+        self.fs_hz = fs_hz
+        self.firmware = ""
+        self.settings: dict[str, Any] = {}
+        self.last_heartbeat: tuple[float, int] | None = None  # (monotonic time, status bits)
+        self._bus = None
+        self._streams: list[SampleStream] = []
+
+    def _new_bus(self, can_id: int | None = None):
+        import can
+
+        kw = dict(self.bus_kwargs)
+        if can_id is not None:
+            kw["can_filters"] = [{"can_id": can_id, "can_mask": 0x7FF, "extended": False}]
+        return can.Bus(interface=self.interface, channel=self.channel, receive_own_messages=False,
+                       fd=self.fd, **kw)
+
+    # --- hooks -----------------------------------------------------------------------------------
+    def _open_hook(self) -> None:
+        self._bus = self._new_bus()
+        ident = self.call("identify")
+        if ident >> 16 != ci.DEVICE_TYPE:
+            raise ProtocolError(f"{self.name}: node 0x{self.node:02x} is device type 0x{ident >> 16:04x}, "
+                                f"expected 0x{ci.DEVICE_TYPE:04x}")
+        self.firmware = f"{(ident >> 8) & 0xFF}.{ident & 0xFF}"
+        self.settings = {"gain_v_per_wb": self.call("get_gain"), "turns": self.call("get_turns")}
+
+    def _close_hook(self) -> None:
+        if self._bus is not None:
+            try:
+                self.call("stream", 0)
+            except InstrumentError:
+                pass
+            self._bus.shutdown()
+            self._bus = None
+
+    def _configure_hook(self, key: str, value: Any) -> None:
+        setters = {"gain_v_per_wb": self.set_gain, "turns": self.set_turns, "hold": self.hold}
+        if key not in setters:
+            raise ConfigError(f"{self.name}: no setting {key!r}; settings: {', '.join(setters)}")
+        setters[key](value)
+
+    def _status_hook(self) -> InstrumentStatus:
+        return self.read_status()
+
+    # --- public API --------------------------------------------------------------------------------
+    def call(self, name: str, value: float | int | None = None) -> Any:
+        """One request/reply exchange; IntegratorError if the integrator refuses it."""
+        self._require_open(name)
+        op = ci.OPS[name]
+        if op.value != "none" and (value is None or (op.minimum is not None and value < op.minimum)
+                                   or (op.maximum is not None and value > op.maximum)):
+            raise ConfigError(f"{self.name}: refused {name} {value!r}: outside [{op.minimum}, {op.maximum}]")
+        return self._io(f"{name}(0x{op.code:02x})", lambda: self._exchange(name, value))
+
+    def reset(self) -> None:
+        self.call("reset")
+
+    def hold(self, on: bool = True) -> None:
+        self.call("hold", int(bool(on)))
+
+    def set_gain(self, gain_v_per_wb: float) -> None:
+        self.settings["gain_v_per_wb"] = self.call("set_gain", float(gain_v_per_wb))
+        for s in self._streams:
+            s.scale["flux_Wb"] = 1.0 / self.settings["gain_v_per_wb"]
+
+    def set_turns(self, turns: int) -> None:
+        self.settings["turns"] = self.call("set_turns", int(turns))
+
+    def read_status(self) -> InstrumentStatus:
+        bits = self.call("get_status")
+        faults = ("OVERLOAD",) if bits & ci.STATUS["OVERLOAD"] else ()
+        values = {"integrating": bool(bits & ci.STATUS["INTEGRATING"]), "hold": bool(bits & ci.STATUS["HOLD"]),
+                  "streaming": bool(bits & ci.STATUS["STREAMING"]), **self.settings}
+        if self.last_heartbeat is not None:
+            values["heartbeat_age_s"] = time.monotonic() - self.last_heartbeat[0]
+        return InstrumentStatus(self.name, ok=not faults, faults=faults, values=values)
+
+    def open_stream(self, *, stall_timeout_s: float = 0.5, backoff: Backoff | None = None,
+                    skew_s: float = 0.0) -> SampleStream:
+        """``flux_Wb`` on the common sample clock from CAN FD frames (wire: volts / gain)."""
+        bus = self._new_bus(ci.stream_id(self.node))
+        source = _OwnedCanSource(bus, ci.stream_id(self.node), stream_id=INTEGRATOR_STREAM_ID, channels=1)
+        self.call("stream", 1)
+        gain = self.call("get_gain")
+        self.settings["gain_v_per_wb"] = gain
+        stream = SampleStream(self.name, source, ["flux_Wb"], self.fs_hz, scale={"flux_Wb": 1.0 / gain},
+                              skew_s=skew_s, stall_timeout_s=stall_timeout_s, backoff=backoff or self.backoff)
+        try:
+            stream.start()
+        except Exception:
+            bus.shutdown()
+            raise
+        self._streams.append(stream)
+        return stream
+
+    # --- internals ---------------------------------------------------------------------------------
+    def _exchange(self, name: str, value: float | int | None) -> Any:
+        import can
+
+        if self._bus is None:
+            raise ConnectionError("bus is not open")
+        op = ci.OPS[name]
+        self._bus.send(can.Message(arbitration_id=ci.command_id(self.node), data=ci.encode_command(name, value),
+                                   is_extended_id=False), timeout=self.timeout_s)
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError(name)
+            msg = self._bus.recv(left)
+            if msg is None:
+                continue
+            if msg.arbitration_id == ci.heartbeat_id(self.node) and len(msg.data) >= 2:
+                self.last_heartbeat = (time.monotonic(), msg.data[1])
+                continue
+            if msg.arbitration_id != ci.reply_id(self.node):
+                continue
+            code, result, reply = ci.decode_reply(bytes(msg.data), name)
+            if code != op.code:
+                continue  # a late reply to an earlier request
+            if result != 0:
+                raise IntegratorError(f"{self.name}: {name}({value!r}) -> result {result} "
+                                      f"({ci.RESULTS.get(result, '?')})", result)
+            return reply
+
+
+class _OwnedCanSource(CanFrameSource):
+    """A CAN frame source that owns its bus handle and shuts it down when the stream closes."""
+
+    def shutdown(self) -> None:
+        self.bus.shutdown()

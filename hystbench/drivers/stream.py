@@ -1,0 +1,358 @@
+"""Sample streams: frames from a transport turned into :class:`SampleBlock` s with exact gaps.
+
+A background reader (one per stream) pulls frames from a :class:`FrameSource` (TCP with length
+prefixes, serial with COBS, CAN FD), checks their first-sample index against the last one kept and
+queues contiguous runs.  ``read(timeout_s)`` hands them out as blocks; a block after missing samples
+has ``BlockFlags.GAP`` and ``gap_samples`` = exactly how many indices are missing, however many
+frames were lost or damaged.  A silent or dropped transport is reopened with back-off; when the
+attempts run out, ``read`` raises ``ConnectionLost``.
+"""
+
+from __future__ import annotations
+
+import abc
+import collections
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Iterator, Mapping, Sequence
+
+import numpy as np
+
+from ..blocks import BlockFlags, SampleBlock
+from ..errors import ConnectionLost, InstrumentError
+from .base import Backoff, log
+from .protocols.framing import CobsDeframer, DeframerStats, Frame, FrameError, LengthPrefixDeframer, decode_frame
+
+__all__ = ["FrameSource", "TcpFrameSource", "SerialFrameSource", "CanFrameSource", "StreamStats",
+           "SampleStream", "parse_stream_url"]
+
+_SEQ_MOD = 1 << 32
+
+
+def parse_stream_url(url: str) -> tuple[str, str]:
+    """'tcp://host:port' -> ('tcp', 'host:port'); anything else is a serial URL or device path."""
+    if url.startswith("tcp://"):
+        return "tcp", url[len("tcp://"):]
+    return "serial", url
+
+
+class FrameSource(abc.ABC):
+    """Where frames come from.  ``read_frames`` waits at most ``timeout_s``; transport loss raises."""
+
+    name: str = "stream"
+    deframer_stats: DeframerStats
+
+    @abc.abstractmethod
+    def open(self) -> None: ...
+
+    @abc.abstractmethod
+    def close(self) -> None: ...
+
+    @abc.abstractmethod
+    def read_frames(self, timeout_s: float) -> list[Frame]: ...
+
+
+class TcpFrameSource(FrameSource):
+    def __init__(self, address: str, *, stream_id: int | None = None, channels: int | None = None,
+                 connect_timeout_s: float = 1.0) -> None:
+        host, _, port = address.rpartition(":")
+        self.address, self.host, self.port = address, host, int(port)
+        self._ids = (stream_id, channels)
+        self.connect_timeout_s = connect_timeout_s
+        self._sock: socket.socket | None = None
+        self.deframer = LengthPrefixDeframer(*self._ids)
+        self.deframer_stats = self.deframer.stats
+
+    def open(self) -> None:
+        self.close()
+        self._sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout_s)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        stats = self.deframer.stats
+        self.deframer = LengthPrefixDeframer(*self._ids)  # a new connection starts on a boundary
+        self.deframer.stats = self.deframer_stats = stats
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def read_frames(self, timeout_s: float) -> list[Frame]:
+        if self._sock is None:
+            raise ConnectionError(f"{self.address} is not open")
+        self._sock.settimeout(timeout_s)
+        try:
+            data = self._sock.recv(1 << 18)
+        except socket.timeout:
+            return []
+        if not data:
+            raise ConnectionError(f"{self.address}: peer closed the stream")
+        return self.deframer.feed(data)
+
+
+class SerialFrameSource(FrameSource):
+    def __init__(self, url: str, *, stream_id: int | None = None, channels: int | None = None,
+                 baudrate: int = 115200) -> None:
+        self.url, self.baudrate = url, baudrate
+        self._port = None
+        self.deframer = CobsDeframer(stream_id, channels)
+        self.deframer_stats = self.deframer.stats
+
+    def open(self) -> None:
+        import serial
+
+        self.close()
+        self._port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.05)
+        self._port.reset_input_buffer()
+        self.deframer.resync()
+
+    def close(self) -> None:
+        if self._port is not None:
+            self._port.close()
+            self._port = None
+
+    def read_frames(self, timeout_s: float) -> list[Frame]:
+        if self._port is None:
+            raise ConnectionError(f"{self.url} is not open")
+        self._port.timeout = timeout_s
+        data = self._port.read(max(1, min(self._port.in_waiting, 1 << 18)))
+        return self.deframer.feed(data) if data else []
+
+
+class CanFrameSource(FrameSource):
+    """CAN FD: one frame per CAN message with the stream's arbitration id; others are ignored."""
+
+    def __init__(self, bus, can_id: int, *, stream_id: int | None = None, channels: int | None = None,
+                 open_timeout_s: float = 0.2) -> None:
+        self.bus, self.can_id = bus, can_id
+        self._ids = (stream_id, channels)
+        self.open_timeout_s = open_timeout_s
+        self.deframer_stats = DeframerStats()
+        self._pending: list[Frame] = []
+        self._opened = False
+
+    def open(self) -> None:
+        """A CAN bus has no connection: reopening means frames of this stream are on the bus again."""
+        if not self._opened:
+            self._opened = True
+            return
+        self._pending = self.read_frames(self.open_timeout_s)
+        if not self._pending:
+            raise ConnectionError(f"no stream frames with CAN id 0x{self.can_id:x} "
+                                  f"within {self.open_timeout_s:g} s")
+
+    def close(self) -> None:
+        self._pending = []
+
+    def read_frames(self, timeout_s: float) -> list[Frame]:
+        out, self._pending = self._pending, []
+        deadline = time.monotonic() + timeout_s
+        while len(out) < 256:
+            msg = self.bus.recv(max(0.0, deadline - time.monotonic()) if not out else 0.0)
+            if msg is None:
+                break
+            if msg.arbitration_id != self.can_id or msg.is_error_frame or msg.is_remote_frame:
+                continue
+            try:
+                frame = decode_frame(bytes(msg.data))
+            except FrameError:
+                self.deframer_stats.corrupt += 1
+                self.deframer_stats.discarded_bytes += len(msg.data)
+                continue
+            sid, ch = self._ids
+            if (sid is not None and frame.stream_id != sid) or (ch is not None and frame.samples.shape[0] != ch):
+                self.deframer_stats.foreign += 1
+                continue
+            self.deframer_stats.frames += 1
+            out.append(frame)
+        return out
+
+
+@dataclass
+class StreamStats:
+    frames: int = 0  #: frames kept
+    frames_lost: int = 0  #: frames never seen, from the sequence numbers
+    gap_samples: int = 0  #: sample indices never delivered (sum of every block's gap_samples)
+    gaps: int = 0  #: blocks delivered with BlockFlags.GAP
+    stale_frames: int = 0  #: frames at or before the last index kept (duplicates), discarded
+    reconnects: int = 0
+    stalls: int = 0  #: times no frame came within stall_timeout_s
+    overruns: int = 0  #: runs dropped because the consumer did not read (queue full)
+    deframer: DeframerStats = field(default_factory=DeframerStats)
+
+    def as_dict(self) -> dict:
+        d = {k: v for k, v in self.__dict__.items() if k != "deframer"}
+        d.update({f"deframer_{k}": v for k, v in self.deframer.__dict__.items()})
+        return d
+
+
+class SampleStream:
+    """One instrument's samples: ``read(timeout_s)`` -> SampleBlock | None; iterable; context manager.
+
+    ``channels`` names the frame's rows; ``scale`` maps a channel to the factor from wire units to
+    SI (e.g. N/V for a charge amplifier's voltage).  ``skew_s`` is the instrument's known sampling
+    delay on the common clock, recorded in each block's meta as ``skew_s.<channel>``."""
+
+    def __init__(self, name: str, source: FrameSource, channels: Sequence[str], fs_hz: float, *,
+                 scale: Mapping[str, float] | None = None, skew_s: float = 0.0,
+                 stall_timeout_s: float = 0.5, backoff: Backoff | None = None,
+                 max_queued_samples: int = 2_000_000) -> None:
+        self.name, self.source, self.channels, self.fs_hz = name, source, list(channels), float(fs_hz)
+        self.scale = dict(scale or {})
+        self.skew_s = float(skew_s)
+        self.stall_timeout_s = stall_timeout_s
+        self.backoff = backoff or Backoff()
+        self.max_queued_samples = max_queued_samples
+        self.stats = StreamStats(deframer=source.deframer_stats)
+        self._runs: collections.deque[tuple[int, np.ndarray, int]] = collections.deque()
+        self._queued = 0
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._error: InstrumentError | None = None
+        self._next_index: int | None = None  # reader side: one past the last index kept
+        self._next_seq: int | None = None
+        self._delivered_end: int | None = None  # consumer side
+
+    # --- life cycle ------------------------------------------------------------------------------
+    def start(self) -> "SampleStream":
+        if self._thread is not None:
+            return self
+        try:
+            self.source.open()
+        except OSError as err:
+            raise ConnectionLost(f"{self.name}: cannot open sample stream: {err}") from err
+        self._thread = threading.Thread(target=self._reader, name=f"stream-{self.name}", daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        try:
+            self.source.close()
+        except OSError:
+            pass
+        shutdown = getattr(self.source, "shutdown", None)  # a source that owns its handle
+        if shutdown is not None:
+            shutdown()
+
+    def __enter__(self) -> "SampleStream":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __iter__(self) -> Iterator[SampleBlock]:
+        while True:
+            block = self.read(timeout_s=self.stall_timeout_s * 4)
+            if block is not None:
+                yield block
+
+    # --- consumer side ---------------------------------------------------------------------------
+    def read(self, timeout_s: float = 1.0, max_samples: int | None = None) -> SampleBlock | None:
+        """The next contiguous run (or None after ``timeout_s``); raises the reader's fatal error."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while not self._runs:
+                if self._error is not None:
+                    raise self._error
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(left)
+            first, data, flags = self._runs.popleft()
+            if max_samples is not None and data.shape[1] > max_samples:
+                self._runs.appendleft((first + max_samples, data[:, max_samples:], flags))
+                data = data[:, :max_samples]
+            self._queued -= data.shape[1]
+        gap = 0 if self._delivered_end is None else first - self._delivered_end
+        if gap > 0:
+            flags |= BlockFlags.GAP
+            self.stats.gaps += 1
+            self.stats.gap_samples += gap
+        self._delivered_end = first + data.shape[1]
+        chans = {ch: data[i].astype(np.float64) * self.scale.get(ch, 1.0) for i, ch in enumerate(self.channels)}
+        meta = {f"skew_s.{ch}": self.skew_s for ch in self.channels}
+        return SampleBlock(first, self.fs_hz, chans, flags=BlockFlags(flags), gap_samples=max(gap, 0), meta=meta)
+
+    # --- reader side -----------------------------------------------------------------------------
+    def _accept(self, frames: list[Frame]) -> None:
+        """Keep frames that extend the stream; merge contiguous ones into runs (a loop per frame)."""
+        pieces: list[tuple[int, np.ndarray, int]] = []
+        for f in frames:
+            first, data = f.first_index, f.samples
+            if self._next_index is not None and first < self._next_index:
+                if f.end_index <= self._next_index:
+                    self.stats.stale_frames += 1
+                    continue
+                data = data[:, self._next_index - first:]  # overlap: keep only what is new
+                first = self._next_index
+            if data.shape[0] != len(self.channels):
+                self.stats.deframer.foreign += 1
+                continue
+            if self._next_seq is not None:  # frames never seen (informative; gaps come from indices)
+                step = (f.seq - self._next_seq) % _SEQ_MOD
+                self.stats.frames_lost += step if step < _SEQ_MOD // 2 else 0
+            self._next_seq = (f.seq + 1) % _SEQ_MOD
+            self.stats.frames += 1
+            self._next_index = first + data.shape[1]
+            if pieces and pieces[-1][0] + pieces[-1][1].shape[1] == first and pieces[-1][2] == f.flags:
+                pieces[-1] = (pieces[-1][0], np.concatenate([pieces[-1][1], data], axis=1), f.flags)
+            else:
+                pieces.append((first, data, f.flags))
+        if not pieces:
+            return
+        with self._cond:
+            for p in pieces:
+                self._runs.append(p)
+                self._queued += p[1].shape[1]
+            while self._queued > self.max_queued_samples and len(self._runs) > 1:
+                _, dropped, _ = self._runs.popleft()  # the consumer will see the exact gap
+                self._queued -= dropped.shape[1]
+                self.stats.overruns += 1
+            self._cond.notify_all()
+
+    def _reader(self) -> None:
+        last_frame = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                frames = self.source.read_frames(0.05)
+            except (OSError, ValueError) as err:
+                if not self._reopen(f"transport lost: {err}"):
+                    return
+                last_frame = time.monotonic()
+                continue
+            if frames:
+                last_frame = time.monotonic()
+                self._accept(frames)
+            elif time.monotonic() - last_frame > self.stall_timeout_s:
+                self.stats.stalls += 1
+                if not self._reopen(f"no frame for {self.stall_timeout_s:g} s"):
+                    return
+                last_frame = time.monotonic()
+
+    def _reopen(self, why: str) -> bool:
+        log.warning("%s: %s; reconnecting", self.name, why)
+        try:
+            self.source.close()
+        except OSError:
+            pass
+        for delay in self.backoff.delays():
+            if self._stop.wait(delay):
+                return False
+            try:
+                self.source.open()
+            except OSError as err:
+                log.info("%s: reopen failed: %s", self.name, err)
+                continue
+            self.stats.reconnects += 1
+            return True
+        with self._cond:
+            self._error = ConnectionLost(f"{self.name}: sample stream lost ({why}); "
+                                         f"{self.backoff.attempts} reconnection attempts failed")
+            self._cond.notify_all()
+        return False

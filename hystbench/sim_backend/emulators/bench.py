@@ -1,0 +1,143 @@
+"""The emulated bench: one SimulatedRig behind the four emulated instruments, on one sample clock.
+
+A clock thread reads the rig block by block (paced to real time) and hands every block to each
+instrument, which streams its own channel: command_V from the generator, current_A from the
+amplifier's monitor, force_N from the charge amplifier, flux_Wb from the integrator.  The
+generator's and amplifier's settings set the rig's excitation, gain and output enable.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import itertools
+import os
+import threading
+import time
+from typing import Any
+
+from ...drivers.protocols.bench_config import BenchConfig, load_bench_config
+from ..rig import SimulatedRig
+from .charge_amplifier import ChargeAmplifierEmulator
+from .common import log
+from .current_amplifier import CurrentAmplifierEmulator
+from .flux_integrator import FluxIntegratorEmulator
+from .signal_generator import SignalGeneratorEmulator
+
+__all__ = ["EmulatedBench"]
+
+_channels = itertools.count()
+
+
+def _default_effects(effects: dict[str, Any]) -> dict[str, Any]:
+    """Iron hysteresis needs physics/hysteresis.py; while it is missing, keep those effects off."""
+    out = dict(effects)
+    if importlib.util.find_spec("hystbench.physics.hysteresis") is None:
+        out.update({"static_hysteresis": False, "iron_saturation": False})
+    return out
+
+
+class EmulatedBench:
+    """``with EmulatedBench(config) as emu: emu.addresses`` -> where each instrument listens."""
+
+    def __init__(self, config: BenchConfig | None = None) -> None:
+        self.config = config or load_bench_config()
+        sim = self.config.sim
+        self.fs_hz = self.config.fs_hz
+        self.block_samples = int(sim["block_samples"])
+        self.pace = sim["pace"]
+        self.rig = SimulatedRig(sim["rig"], fs_hz=self.fs_hz, seed=int(sim["seed"]),
+                                effects=_default_effects(sim["effects"]))
+        self.rig.output_enabled = False
+        self._rig_lock = threading.RLock()
+        amp_settings = self.config.instruments["current_amplifier"].settings
+        amp_opts = self.config.instruments["current_amplifier"].options
+        integ = self.config.instruments["flux_integrator"].options
+        channel = integ["channel"] or f"hystbench-emu-{os.getpid()}-{next(_channels)}"
+        spf = int(sim["samples_per_frame"])
+        self.generator = SignalGeneratorEmulator(on_change=self._update, samples_per_frame=spf)
+        self.amplifier = CurrentAmplifierEmulator(unit=int(amp_opts["unit"]), on_change=self._update,
+                                                  gain_a_per_v=self.rig.amplifier_gain_a_per_v,
+                                                  current_limit_a=float(amp_settings.get("current_limit_a", 2.0)),
+                                                  samples_per_frame=spf)
+        self.charge_amp = ChargeAmplifierEmulator(fs_hz=self.fs_hz, samples_per_frame=spf,
+                                                  load_cell_pc_per_n=float(sim["load_cell_pc_per_n"]))
+        self.integrator = FluxIntegratorEmulator(interface=integ["interface"], channel=channel, node=int(integ["node"]),
+                                                 true_turns=self.rig.sense_turns)
+        self.emulators = {"signal_generator": self.generator, "current_amplifier": self.amplifier,
+                          "charge_amplifier": self.charge_amp, "flux_integrator": self.integrator}
+        self._update()
+        self._stop = threading.Event()
+        self._clock: threading.Thread | None = None
+        self.blocks = 0
+        self.late_s = 0.0  # how far the clock fell behind real time at worst
+        self.taps: list = []  # callables given every rig block (the truth), e.g. by tests
+
+    @property
+    def addresses(self) -> dict[str, Any]:
+        """Where each instrument listens (the first line ``hystbench emulate`` prints)."""
+        out: dict[str, Any] = {name: emu.addresses for name, emu in self.emulators.items()}
+        out["fs_hz"] = self.fs_hz
+        out["rig"] = self.rig.name
+        out["seed"] = self.rig.seed
+        return out
+
+    # --- the rig follows the generator and the amplifier --------------------------------------------
+    def _update(self) -> None:
+        if not hasattr(self, "amplifier"):
+            return  # construction: the amplifier is not there yet
+        g, a = self.generator.state, self.amplifier
+        with self._rig_lock:
+            gain = a.gain_a_per_v
+            self.rig.amplifier_gain_a_per_v = gain
+            amp_a = float(g["amplitude_vpp"]) * gain
+            off_a = float(g["offset_v"]) * gain
+            if g["function"] == "ARB" and self.generator.arb_unit is not None:
+                self.rig.set_waveform(self.generator.arb_unit * amp_a / 2 + off_a, float(g["frequency_hz"]))
+            else:
+                self.rig.set_excitation(float(g["frequency_hz"]), amp_a, off_a)
+            self.rig.output_enabled = bool(g["output"]) and a.output_on
+
+    # --- the sample clock ---------------------------------------------------------------------------------
+    def start(self) -> "EmulatedBench":
+        if self._clock is None:
+            self._stop.clear()
+            self._clock = threading.Thread(target=self._run, name="emu-clock", daemon=True)
+            self._clock.start()
+        return self
+
+    def _run(self) -> None:
+        t0 = time.monotonic()
+        n0 = None
+        while not self._stop.is_set():
+            with self._rig_lock:
+                block = self.rig.read(self.block_samples)
+            if n0 is None:
+                n0 = block.first_index
+            for tap in list(self.taps):
+                tap(block)
+            for emu in self.emulators.values():
+                try:
+                    emu.on_block(block)
+                except Exception as err:  # one emulator's trouble must not stop the clock
+                    log.error("%s: block %d: %s", emu.kind, block.first_index, err)
+            self.blocks += 1
+            if self.pace == "realtime":
+                due = t0 + (block.end_index - n0) / self.fs_hz
+                lag = time.monotonic() - due
+                self.late_s = max(self.late_s, lag)
+                if lag < 0:
+                    self._stop.wait(-lag)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._clock is not None:
+            self._clock.join(timeout=2.0)
+            self._clock = None
+        for emu in self.emulators.values():
+            emu.close()
+
+    def __enter__(self) -> "EmulatedBench":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

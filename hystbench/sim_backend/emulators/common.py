@@ -1,0 +1,315 @@
+"""What every emulator needs: fault switches, a pseudo-terminal port, a TCP server, stream sinks.
+
+Pseudo-terminals stand in for serial ports: the emulator holds the master, a driver opens the
+slave path (``/dev/pts/N``).  The slave is put in raw mode and kept open here, so a driver can
+come and go without the port disappearing.  "Disconnect" on a serial line is silence (a pulled
+cable); on TCP it closes the connections and refuses new ones until ``reconnect``.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import os
+import select
+import socket
+import threading
+import tty
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ...drivers.protocols.framing import cobs_record, encode_frame, frames_from_block, length_prefixed
+
+__all__ = ["Faults", "PtyPort", "TcpServer", "FrameEmitter", "TcpStreamServer", "PtyStreamSink"]
+
+log = logging.getLogger("hystbench.emulators")
+
+
+@dataclass
+class Faults:
+    """Switchable faults of one emulator.  Counters are consumed one event at a time."""
+
+    reply_delay_s: float = 0.0  #: slow replies
+    drop_replies: int = 0  #: the next N replies are never sent (missing replies)
+    garbage: bytes = b""  #: sent once on the command channel before the next reply
+    drop_frames: int = 0  #: the next N stream frames are never sent
+    corrupt_frames: int = 0  #: the next N stream frames get one flipped payload bit (bad CRC)
+    stream_garbage: bytes = b""  #: bytes sent once on the stream before the next frame
+    silent: bool = False  #: no replies, no frames (cable pulled / bus off / power loss)
+    modbus_exception: int = 0  #: Modbus: exception code for the next requests (0 = none)
+    modbus_exception_count: int = 0
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def take(self, name: str) -> bool:
+        """Consume one event of counter ``name``; True if there was one."""
+        with self._lock:
+            left = getattr(self, name)
+            if left > 0:
+                setattr(self, name, left - 1)
+                return True
+            return False
+
+    def take_bytes(self, name: str) -> bytes:
+        with self._lock:
+            data = getattr(self, name)
+            setattr(self, name, b"")
+            return data
+
+    def clear(self) -> None:
+        with self._lock:
+            self.reply_delay_s, self.drop_replies, self.garbage = 0.0, 0, b""
+            self.drop_frames, self.corrupt_frames, self.stream_garbage = 0, 0, b""
+            self.silent, self.modbus_exception, self.modbus_exception_count = False, 0, 0
+
+
+class PtyPort:
+    """The emulator's end of a pseudo-terminal; ``path`` is what a driver opens."""
+
+    def __init__(self, max_pending: int = 1 << 20) -> None:
+        self.master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self._slave)
+        self._pending = bytearray()
+        self._max_pending = max_pending
+        self.overflow_drops = 0  # whole records dropped because nobody read the port
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._closed = False
+        self._writer = threading.Thread(target=self._drain, name="emu-pty-writer", daemon=True)
+        self._writer.start()
+
+    def _drain(self) -> None:
+        """Push the backlog whenever the line takes more (a UART's transmit side)."""
+        while not self._closed:
+            self._wake.wait(0.05)
+            self._wake.clear()
+            while not self._closed and self._pending:
+                try:
+                    select.select([], [self.master], [], 0.05)
+                except (OSError, ValueError):
+                    return
+                self.flush()
+
+    def read(self, timeout_s: float) -> bytes:
+        r, _, _ = select.select([self.master], [], [], timeout_s)
+        if not r:
+            return b""
+        try:
+            return os.read(self.master, 65536)
+        except OSError as err:
+            if err.errno in (errno.EAGAIN, errno.EIO):
+                return b""
+            raise
+
+    def write(self, data: bytes, *, droppable: bool = False) -> bool:
+        """Queue ``data`` and push what the line takes now.  A droppable record (a stream frame) is
+        discarded whole when the backlog is full, as a device's transmit FIFO would."""
+        with self._lock:
+            if droppable and len(self._pending) + len(data) > self._max_pending:
+                self.overflow_drops += 1
+                return False
+            self._pending += data
+            self._flush()
+        if self._pending:
+            self._wake.set()
+        return True
+
+    def _flush(self) -> None:
+        while self._pending:
+            try:
+                n = os.write(self.master, self._pending[:65536])
+            except OSError as err:
+                if err.errno in (errno.EAGAIN, errno.EIO):
+                    return
+                raise
+            del self._pending[:n]
+
+    def flush(self) -> None:
+        with self._lock:
+            self._flush()
+
+    def discard_output(self) -> None:
+        with self._lock:
+            self._pending.clear()
+
+    def close(self) -> None:
+        self._closed = True
+        self._wake.set()
+        self._writer.join(timeout=1.0)
+        for fd in (self.master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class TcpServer:
+    """A listening socket on 127.0.0.1 (port 0: ephemeral) with one thread per connection.
+
+    ``pause()`` pulls the cable: connections drop and the port refuses new ones (the listener is
+    closed, so a client sees ECONNREFUSED); ``resume()`` listens on the same port again."""
+
+    def __init__(self, handler: Callable[[socket.socket], None], name: str, port: int = 0) -> None:
+        self.name = name
+        self._handler = handler
+        self._sock: socket.socket | None = None
+        self._conns: set[socket.socket] = set()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._listen(port)
+        self.port = self._sock.getsockname()[1]
+        self.address = f"127.0.0.1:{self.port}"
+        self._thread = threading.Thread(target=self._accept, name=f"emu-{name}-accept", daemon=True)
+        self._thread.start()
+
+    def _listen(self, port: int) -> None:
+        sock = socket.create_server(("127.0.0.1", port))  # SO_REUSEADDR: the same port after a pause
+        sock.settimeout(0.05)
+        self._sock = sock
+
+    def _accept(self) -> None:
+        while not self._stop.is_set():
+            sock = self._sock
+            if sock is None:
+                self._stop.wait(0.05)
+                continue
+            try:
+                conn, _ = sock.accept()
+            except (socket.timeout, OSError):
+                continue
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with self._lock:
+                self._conns.add(conn)
+            threading.Thread(target=self._serve, args=(conn,), name=f"emu-{self.name}-conn", daemon=True).start()
+
+    def _serve(self, conn: socket.socket) -> None:
+        try:
+            self._handler(conn)
+        except OSError:
+            pass
+        finally:
+            with self._lock:
+                self._conns.discard(conn)
+            conn.close()
+
+    @property
+    def stopped(self) -> bool:
+        return self._stop.is_set()
+
+    def connections(self) -> list[socket.socket]:
+        with self._lock:
+            return list(self._conns)
+
+    def drop_connections(self) -> None:
+        for c in self.connections():
+            try:
+                c.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            c.close()
+            with self._lock:
+                self._conns.discard(c)
+
+    def pause(self) -> None:
+        sock, self._sock = self._sock, None
+        if sock is not None:
+            sock.close()
+        self.drop_connections()
+
+    def resume(self) -> None:
+        if self._sock is None and not self._stop.is_set():
+            self._listen(self.port)
+
+    def close(self) -> None:
+        self._stop.set()
+        self.pause()
+        self._thread.join(timeout=1.0)
+
+
+class FrameEmitter:
+    """Cuts sample blocks into frames with running sequence numbers, applying stream faults."""
+
+    def __init__(self, stream_id: int, samples_per_frame: int, faults: Faults) -> None:
+        self.stream_id, self.samples_per_frame, self.faults = stream_id, samples_per_frame, faults
+        self.seq = 0
+        self.sent = self.dropped = self.corrupted = 0
+
+    def emit(self, first_index: int, data: np.ndarray, flags: int = 0) -> list[bytes]:
+        frames = frames_from_block(self.stream_id, self.seq, first_index, data, self.samples_per_frame, flags)
+        self.seq = (self.seq + len(frames)) % (1 << 32)
+        out = []
+        for f in frames:
+            if self.faults.silent or self.faults.take("drop_frames"):
+                self.dropped += 1
+                continue
+            raw = encode_frame(f)
+            if self.faults.take("corrupt_frames"):
+                b = bytearray(raw)
+                b[len(b) // 2] ^= 0x10  # a payload bit: the CRC no longer matches
+                raw = bytes(b)
+                self.corrupted += 1
+            out.append(raw)
+            self.sent += 1
+        return out
+
+
+class TcpStreamServer:
+    """A stream port: every connected client gets length-prefixed frames; a client too slow to take
+    them within ``send_timeout_s`` is dropped (it will see the exact gap after reconnecting)."""
+
+    def __init__(self, name: str, emitter: FrameEmitter, send_timeout_s: float = 0.5) -> None:
+        self.emitter = emitter
+        self.send_timeout_s = send_timeout_s
+        self.server = TcpServer(self._hold, name)
+        self.address = self.server.address
+
+    def _hold(self, conn: socket.socket) -> None:
+        conn.settimeout(self.send_timeout_s)
+        while not self.server.stopped:  # keep the connection until the client leaves
+            r, _, _ = select.select([conn], [], [], 0.2)
+            if r:
+                try:
+                    if not conn.recv(4096):
+                        return
+                except OSError:
+                    return
+
+    def send(self, first_index: int, data: np.ndarray, flags: int = 0) -> None:
+        records = [length_prefixed(f) for f in self.emitter.emit(first_index, data, flags)]
+        garbage = self.emitter.faults.take_bytes("stream_garbage")
+        payload = garbage + b"".join(records)
+        if not payload:
+            return
+        for conn in self.server.connections():
+            try:
+                conn.sendall(payload)
+            except OSError:
+                try:
+                    conn.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+
+    def close(self) -> None:
+        self.server.close()
+
+
+class PtyStreamSink:
+    """A serial stream port: COBS records on a pseudo-terminal."""
+
+    def __init__(self, emitter: FrameEmitter) -> None:
+        self.emitter = emitter
+        self.port = PtyPort()
+        self.path = self.port.path
+
+    def send(self, first_index: int, data: np.ndarray, flags: int = 0) -> None:
+        garbage = self.emitter.faults.take_bytes("stream_garbage")
+        if garbage:
+            self.port.write(garbage, droppable=True)
+        for raw in self.emitter.emit(first_index, data, flags):  # a leading 0x00 lets a reader that
+            self.port.write(b"\x00" + cobs_record(raw), droppable=True)  # joins now sync at once
+
+    def close(self) -> None:
+        self.port.close()

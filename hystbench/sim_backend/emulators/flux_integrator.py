@@ -1,0 +1,153 @@
+"""Emulated flux integrator on a python-can bus (virtual by default): the commands of
+``protocols.can_integrator``, a heartbeat, and the output voltage as CAN FD stream frames.
+
+U = gain * flux * (rig sense turns / set turns) - U at the last reset; frozen in HOLD; clipped at
++-10 V with OVERLOAD.  The rig's flux channel already is the integrator's AC-only (and, with
+``integrator_leak``, lossy) view of the sense-coil voltage.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from ...blocks import SampleBlock
+from ...drivers.protocols import can_integrator as ci
+from ...drivers.protocols.framing import samples_per_frame_for
+from .common import Faults, FrameEmitter, log
+
+__all__ = ["FluxIntegratorEmulator", "INTEGRATOR_STREAM_ID"]
+
+INTEGRATOR_STREAM_ID = 4
+
+
+class FluxIntegratorEmulator:
+    kind = "flux_integrator"
+
+    def __init__(self, *, interface: str = "virtual", channel: str = "hystbench", node: int = 0x10,
+                 true_turns: int = 10, firmware: int = 0x0105) -> None:
+        import can
+
+        self.faults = Faults()
+        self.interface, self.channel, self.node = interface, channel, node
+        self.true_turns = true_turns
+        self.firmware = firmware
+        self.state = {"gain_v_per_wb": 1e5, "turns": 1, "hold": False, "stream": False}
+        self.overload = False
+        self._offset_v = 0.0  # output at the last reset
+        self._last_u = 0.0  # newest output, before the reset offset
+        self._reset_pending = False
+        self.emitter = FrameEmitter(INTEGRATOR_STREAM_ID, samples_per_frame_for(ci.STREAM_PAYLOAD, 1), self.faults)
+        self._lock = threading.RLock()
+        self._bus = can.Bus(interface=interface, channel=channel, receive_own_messages=False, fd=True)
+        self._tx_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, name="emu-integrator", daemon=True)
+        self._thread.start()
+
+    @property
+    def addresses(self) -> dict[str, str | int]:
+        return {"can_interface": self.interface, "can_channel": str(self.channel), "node": self.node}
+
+    def disconnect(self) -> None:
+        """Bus-off: no replies, no heartbeat, no stream."""
+        self.faults.silent = True
+
+    def reconnect(self) -> None:
+        self.faults.silent = False
+
+    def _send(self, can_id: int, data: bytes, fd: bool = False) -> None:
+        import can
+
+        with self._tx_lock:
+            self._bus.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False, is_fd=fd,
+                                       bitrate_switch=fd), timeout=0.5)
+
+    # --- commands ----------------------------------------------------------------------------------
+    def handle(self, data: bytes) -> bytes:
+        name, code, value = ci.decode_command(data)
+        if name is None:
+            return ci.encode_reply(code, 1)
+        op = ci.OPS[name]
+        with self._lock:
+            if op.value != "none" and ((op.minimum is not None and value < op.minimum)
+                                       or (op.maximum is not None and value > op.maximum)):
+                return ci.encode_reply(code, 2)
+            if name == "identify":
+                return ci.encode_reply(code, 0, "u32", ci.DEVICE_TYPE << 16 | self.firmware)
+            if name == "reset":
+                self._reset_pending = True
+            elif name == "hold":
+                self.state["hold"] = bool(value)
+            elif name == "stream":
+                self.state["stream"] = bool(value)
+            elif name in ("set_gain", "get_gain"):
+                if name == "set_gain":
+                    self.state["gain_v_per_wb"] = float(np.float32(value))
+                return ci.encode_reply(code, 0, "f32", self.state["gain_v_per_wb"])
+            elif name in ("set_turns", "get_turns"):
+                if name == "set_turns":
+                    self.state["turns"] = int(value)
+                return ci.encode_reply(code, 0, "u32", self.state["turns"])
+            elif name == "get_status":
+                return ci.encode_reply(code, 0, "u32", self._status_bits())
+            return ci.encode_reply(code, 0)
+
+    def _status_bits(self) -> int:
+        s = ci.STATUS["HOLD"] if self.state["hold"] else ci.STATUS["INTEGRATING"]
+        s |= ci.STATUS["OVERLOAD"] if self.overload else 0
+        s |= ci.STATUS["STREAMING"] if self.state["stream"] else 0
+        return s
+
+    # --- the output ----------------------------------------------------------------------------------
+    def output_volts(self, flux_wb: np.ndarray) -> tuple[np.ndarray, bool]:
+        with self._lock:
+            if self.state["hold"]:
+                u = np.full_like(flux_wb, self._last_u - self._offset_v)
+            else:
+                raw = flux_wb * self.state["gain_v_per_wb"] * self.true_turns / self.state["turns"]
+                if self._reset_pending and raw.size:
+                    self._offset_v, self._reset_pending = float(raw[0]), False
+                if raw.size:
+                    self._last_u = float(raw[-1])
+                u = raw - self._offset_v
+            clipped = bool(np.any(np.abs(u) > ci.FULL_SCALE_V))
+            self.overload = clipped
+            return np.clip(u, -ci.FULL_SCALE_V, ci.FULL_SCALE_V), clipped
+
+    def on_block(self, block: SampleBlock) -> None:
+        u, clipped = self.output_volts(block.channels["flux_Wb"])
+        if not self.state["stream"] or self.faults.silent:
+            self.emitter.seq = (self.emitter.seq + -(-u.size // self.emitter.samples_per_frame)) % (1 << 32)
+            return
+        for raw in self.emitter.emit(block.first_index, u[None, :], 4 if clipped else 0):
+            try:
+                self._send(ci.stream_id(self.node), raw, fd=True)
+            except Exception as err:  # a full receive queue: the frame is lost, the receiver sees the gap
+                log.info("integrator: stream frame not sent: %s", err)
+
+    # --- transport ------------------------------------------------------------------------------------
+    def _serve(self) -> None:
+        next_beat = time.monotonic()
+        while not self._stop.is_set():
+            msg = self._bus.recv(0.02)
+            now = time.monotonic()
+            if now >= next_beat:
+                next_beat = now + ci.HEARTBEAT_PERIOD_S
+                if not self.faults.silent:
+                    self._send(ci.heartbeat_id(self.node), bytes((0x05, self._status_bits())))
+            if msg is None or msg.arbitration_id != ci.command_id(self.node) or self.faults.silent:
+                continue
+            reply = self.handle(bytes(msg.data))
+            if self.faults.take("drop_replies"):
+                continue
+            if self.faults.reply_delay_s:
+                time.sleep(self.faults.reply_delay_s)
+            self._send(ci.reply_id(self.node), reply)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        self._bus.shutdown()

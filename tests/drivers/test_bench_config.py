@@ -1,0 +1,96 @@
+"""The bench file: every bad key is a ConfigError naming the file and the key; instrument settings
+are checked against the instruments' own tables; emulator addresses fill in sim instruments."""
+
+import pytest
+
+from hystbench.drivers.protocols.bench_config import DEFAULT_BENCH, INSTRUMENTS, load_bench_config
+from hystbench.errors import ConfigError
+
+
+def write(tmp_path, text):
+    p = tmp_path / "bench.toml"
+    p.write_text(text)
+    return p
+
+
+def shipped():
+    return DEFAULT_BENCH.read_text()
+
+
+def test_shipped_bench_file_loads_all_sim():
+    cfg = load_bench_config()
+    assert set(cfg.instruments) == set(INSTRUMENTS) and cfg.any_sim
+    assert cfg.max_current_a == 2.0 and cfg.fs_hz == 100_000.0
+    assert cfg.instruments["current_amplifier"].settings == {"gain_a_per_v": 0.5, "current_limit_a": 1.8,
+                                                             "watchdog_s": 0.5}
+
+
+@pytest.mark.parametrize("edit, where, key", [
+    (("[bench]", "[bench]\nmax_curent_a = 3"), "[bench]", "unknown key 'max_curent_a'"),
+    (("[sim]", "[sim]\nspeed = 2"), "[sim]", "unknown key 'speed'"),
+    (("[charge_amplifier]", "[charge_amplifier]\nbaud = 9600"), "[charge_amplifier]", "unknown key 'baud'"),
+    (("scale_n_per_v = 50.0", "scale_n_per_v = -1.0"), "[charge_amplifier.settings]", "key 'scale_n_per_v'"),
+    (("turns = 10", "turns = 0"), "[flux_integrator.settings]", "key 'turns'"),
+    (("gain_a_per_v = 0.5", "gain_a_per_v = 50.0"), "[current_amplifier.settings]", "key 'gain_a_per_v'"),
+    (("frequency_hz = 320.0", "frequency_hz = \"fast\""), "[signal_generator.settings]", "key 'frequency_hz'"),
+    (("lowpass_hz = 0.0", "lowpas_hz = 0.0"), "[charge_amplifier.settings]", "unknown key 'lowpas_hz'"),
+    (("heartbeat_s = 0.1", "heartbeat_s = 0"), "[bench]", "key 'heartbeat_s' must be > 0"),
+    (("unit = 1", "unit = \"one\""), "[current_amplifier]", "key 'unit' must be int"),
+    (("attempts = 6", "attempts = 2.5"), "[bench.backoff]", "key 'attempts' must be int"),
+])
+def test_bad_keys_name_file_and_key(tmp_path, edit, where, key):
+    text = shipped().replace(*edit, 1)
+    assert text != shipped()
+    path = write(tmp_path, text)
+    with pytest.raises(ConfigError) as info:
+        load_bench_config(path)
+    assert str(path) in str(info.value) and where in str(info.value) and key in str(info.value)
+
+
+def test_hardware_needs_an_address(tmp_path):
+    path = write(tmp_path, shipped().replace('[charge_amplifier]\nbackend = "sim"',
+                                             '[charge_amplifier]\nbackend = "hardware"'))
+    with pytest.raises(ConfigError, match=r"\[charge_amplifier\]: key 'url' is required with backend = \"hardware\""):
+        load_bench_config(path)
+
+
+def test_missing_table_unknown_table_and_bad_toml(tmp_path):
+    with pytest.raises(ConfigError, match="missing table .flux_integrator."):
+        load_bench_config(write(tmp_path, shipped().split("[flux_integrator]")[0]))
+    with pytest.raises(ConfigError, match=r"unknown table \[oscilloscope\]"):
+        load_bench_config(write(tmp_path, shipped() + "\n[oscilloscope]\nx = 1\n"))
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_bench_config(write(tmp_path, "[bench\n"))
+    with pytest.raises(ConfigError, match="no such bench file"):
+        load_bench_config(tmp_path / "nope.toml")
+
+
+def test_resolved_points_sim_instruments_at_the_emulators():
+    addresses = {
+        "signal_generator": {"scpi_tcp": "127.0.0.1:5025", "stream_tcp": "127.0.0.1:5026", "serial": "/dev/pts/7"},
+        "current_amplifier": {"modbus_tcp": "127.0.0.1:1502", "unit": 3, "stream_tcp": "127.0.0.1:5027",
+                              "modbus_rtu": "/dev/pts/8"},
+        "charge_amplifier": {"serial": "/dev/pts/9", "stream_serial": "/dev/pts/10"},
+        "flux_integrator": {"can_interface": "virtual", "can_channel": "ch", "node": 16},
+    }
+    cfg = load_bench_config().resolved(addresses)
+    i = cfg.instruments
+    assert i["signal_generator"].options["url"] == "socket://127.0.0.1:5025"
+    assert i["signal_generator"].options["stream_url"] == "tcp://127.0.0.1:5026"
+    assert (i["current_amplifier"].options["host"], i["current_amplifier"].options["port"],
+            i["current_amplifier"].options["unit"]) == ("127.0.0.1", 1502, 3)
+    assert i["charge_amplifier"].options["stream_url"] == "/dev/pts/10"
+    assert i["flux_integrator"].options["channel"] == "ch"
+
+
+def test_hardware_example_builds_drivers_without_touching_anything():
+    from hystbench.config import CONFIG_DIR
+    from hystbench.drivers.bench import build_instruments
+    from hystbench.drivers.safety import CurrentBudget
+
+    cfg = load_bench_config(CONFIG_DIR / "bench_hardware.toml")
+    assert not cfg.any_sim
+    drivers = build_instruments(cfg, CurrentBudget(cfg.max_current_a, 0.5))
+    assert drivers["current_amplifier"].serial_port == "/dev/ttyUSB0"
+    assert drivers["signal_generator"].link.url == "socket://192.168.0.20:5025"
+    assert not any(d.is_open for d in drivers.values())

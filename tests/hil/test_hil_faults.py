@@ -1,0 +1,262 @@
+"""Every injected fault and its documented reaction (docs/faults.md): exact gaps for stream damage,
+reconnection with back-off, a clear error naming instrument and command, and the output off first.
+No sample may be lost silently or invented: every delivered sample is checked against the rig."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from hystbench.blocks import BlockFlags
+from hystbench.drivers.current_amplifier import ModbusError
+from hystbench.drivers.safety import SafetyLimitError
+from hystbench.drivers.signal_generator import ScpiError
+from hystbench.errors import ConnectionLost, InstrumentError, InstrumentTimeout, ProtocolError
+
+from .conftest import expected_wire
+
+
+def wait_until(cond, timeout_s=3.0, step_s=0.01):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if cond():
+            return True
+        time.sleep(step_s)
+    return False
+
+
+def streams_flowing(bench):
+    streams = bench.open_streams()
+    assert wait_until(lambda: all(s.stats.frames > 0 for s in streams.values()))
+    return streams
+
+
+def check_runs(hil, runs):
+    """Samples are the rig's at their indices, and kept + missing = the whole span, exactly."""
+    for r in runs:
+        for name in r.channels:
+            np.testing.assert_allclose(r.channels[name], expected_wire(hil, name, r.first_index, r.n),
+                                       rtol=1e-12, atol=0, err_msg=f"{name} at {r.first_index}")
+    span = runs[-1].end_index - runs[0].first_index
+    assert sum(r.n for r in runs) + sum(r.gap_samples for r in runs[1:]) == span
+    for a, b in zip(runs, runs[1:]):
+        assert b.flags & BlockFlags.GAP and b.gap_samples == b.first_index - a.end_index > 0
+    return sum(r.gap_samples for r in runs[1:])
+
+
+def output_is_off(hil):
+    return not hil.emu.rig.output_enabled and not (hil.emu.generator.state["output"] and hil.emu.amplifier.enabled)
+
+
+# --- stream damage: exact gaps, no fault ------------------------------------------------------------
+def test_crc_errors_on_the_serial_stream_give_an_exact_gap(hil):
+    hil.bench.start_output()
+    streams = streams_flowing(hil.bench)
+    hil.emu.charge_amp.faults.corrupt_frames = 3
+    runs = hil.bench.acquire(0.3)
+    assert check_runs(hil, runs) == 3 * 500
+    st = streams["charge_amplifier"].stats
+    assert st.deframer.corrupt == 3 and st.frames_lost == 3 and st.gap_samples == 1500
+    assert not hil.bench.faults
+
+
+def test_dropped_can_fd_frames_give_an_exact_gap(hil):
+    hil.bench.start_output()
+    streams = streams_flowing(hil.bench)
+    hil.emu.integrator.faults.drop_frames = 7
+    runs = hil.bench.acquire(0.3)
+    assert check_runs(hil, runs) == 70
+    assert streams["flux_integrator"].stats.frames_lost == 7
+
+
+def test_garbage_bytes_on_both_stream_kinds_lose_nothing(hil):
+    hil.bench.start_output()
+    streams = streams_flowing(hil.bench)
+    junk = bytes(range(1, 200))  # no 0x00 (COBS delimiter) and no frame magic
+    hil.emu.amplifier.faults.stream_garbage = junk  # TCP, length-prefixed
+    hil.emu.charge_amp.faults.stream_garbage = junk  # serial, COBS
+    runs = hil.bench.acquire(0.3)
+    assert check_runs(hil, runs) == 0 and len(runs) == 1
+    amp, ca = streams["current_amplifier"].stats, streams["charge_amplifier"].stats
+    assert amp.deframer.discarded_bytes == len(junk) and amp.deframer.resyncs == 1
+    assert ca.deframer.corrupt == 1 and ca.gap_samples == 0
+
+
+def test_stream_connection_lost_and_back_is_reconnected_with_an_exact_gap(hil):
+    hil.bench.start_output()
+    streams = streams_flowing(hil.bench)
+    server = hil.emu.generator.stream.server
+    server.pause()
+    threading.Timer(0.08, server.resume).start()
+    runs = hil.bench.acquire(0.5)
+    gap = check_runs(hil, runs)
+    assert gap > 0 and len(runs) == 2
+    assert streams["signal_generator"].stats.reconnects >= 1
+    assert not hil.bench.faults  # the control connection never went away
+
+
+# --- instrument faults: output off first, a clear error, reconnection ----------------------------
+def test_disconnect_switches_output_off_then_reconnects_with_backoff(hil):
+    bench = hil.bench
+    bench.start_output()
+    assert hil.emu.rig.output_enabled
+    hil.emu.generator.disconnect()
+    assert wait_until(lambda: bench.faults)
+    fault = bench.faults[0]
+    assert fault.instrument == "signal_generator" and fault.output_off
+    assert "connection lost" in fault.message
+    assert not hil.emu.amplifier.enabled and not hil.emu.rig.output_enabled  # the amplifier cut the current
+    with pytest.raises(InstrumentError, match="bench stopped: signal_generator"):
+        bench.acquire(0.1)
+    with pytest.raises(ConnectionLost, match="could not reconnect after 4 attempts"):
+        bench.reconnect("signal_generator")  # cable still out: back-off runs out
+    hil.emu.generator.reconnect()
+    bench.reconnect("signal_generator")
+    assert bench.generator.reconnects == 1 and hil.emu.generator.state["output"] is False
+    bench.clear_faults()
+    bench.start_output()
+    runs = bench.acquire(0.1)
+    check_runs(hil, runs)
+
+
+def test_modbus_exception_response_is_a_clear_error_and_output_goes_off(hil):
+    bench = hil.bench
+    bench.start_output()
+    bench.heartbeat_paused.set()
+    time.sleep(2 * hil.config.heartbeat_s)
+    hil.emu.amplifier.faults.modbus_exception, hil.emu.amplifier.faults.modbus_exception_count = 4, 1
+    with pytest.raises(ModbusError, match=r"write gain \(register 5\) = 400 -> Modbus exception 4 "
+                                          r"\(SERVER DEVICE FAILURE\)"):
+        bench.configure("current_amplifier", gain_a_per_v=0.4)
+    assert output_is_off(hil) and hil.emu.generator.state["output"] is False
+    assert bench.faults[-1].instrument == "current_amplifier"
+
+
+def test_repeated_modbus_exceptions_in_the_heartbeat_stop_the_bench(hil):
+    hil.bench.start_output()
+    hil.emu.amplifier.faults.modbus_exception, hil.emu.amplifier.faults.modbus_exception_count = 6, 3
+    assert wait_until(lambda: hil.bench.faults)
+    assert "SERVER DEVICE BUSY" in hil.bench.faults[0].message and hil.bench.faults[0].output_off
+    assert not hil.emu.generator.state["output"]
+
+
+def test_scpi_error_in_the_queue_names_the_command(hil):
+    hil.bench.start_output()
+    hil.emu.generator.push_error(-222)
+    with pytest.raises(ScpiError, match=r"'FREQ 100' -> -222,\"Data out of range\""):
+        hil.bench.configure("signal_generator", frequency_hz=100.0)
+    assert output_is_off(hil)
+
+
+def test_slow_and_missing_replies(hil_factory):
+    hil = hil_factory(**{"charge_amplifier.timeout_s": "0.2", "current_amplifier.timeout_s": "0.2"})
+    ca = hil.bench.charge_amp
+    hil.emu.charge_amp.faults.reply_delay_s = 0.05  # slow but in time
+    assert ca.query("scale_n_per_v") == 50.0
+    hil.emu.charge_amp.faults.reply_delay_s = 0.4  # too slow
+    with pytest.raises(InstrumentTimeout, match=r"charge_amplifier: no answer to 'SC\?' within 0.2 s"):
+        ca.query("scale_n_per_v")
+    hil.emu.charge_amp.faults.reply_delay_s = 0.0
+    time.sleep(0.3)
+    assert ca.query("time_constant") == "LONG"  # the late reply was not taken for this one
+    hil.bench.heartbeat_paused.set()
+    time.sleep(2 * hil.config.heartbeat_s)
+    hil.emu.amplifier.faults.drop_replies = 1  # a missing Modbus reply
+    amp = hil.bench.amplifier
+    with pytest.raises(InstrumentTimeout, match=r"no answer to 'read 1 register\(s\) from 5 \(gain\)'"):
+        amp.read("gain")
+    assert amp.read("gain") == 0.5
+
+
+def test_garbage_on_a_command_channel_is_a_protocol_error(hil):
+    hil.bench.heartbeat_paused.set()
+    time.sleep(2 * hil.config.heartbeat_s)
+    hil.emu.generator.faults.garbage = b"\x07\x13junk"
+    with pytest.raises(ProtocolError, match=r"signal_generator: unexpected answer to 'OUTP\?'"):
+        hil.bench.generator.query("output")
+    assert hil.bench.generator.query("output") is False
+
+
+def test_amplifier_fault_bits_stop_the_output(hil):
+    hil.bench.start_output()
+    hil.emu.amplifier.trip("OVERTEMP")
+    assert wait_until(lambda: hil.bench.faults)
+    assert "OVERTEMP" in hil.bench.faults[0].message
+    assert output_is_off(hil) and not hil.emu.generator.state["output"]
+    with pytest.raises(InstrumentError, match="OVERTEMP"):
+        hil.bench.acquire(0.1)
+
+
+def test_current_limit_trips_the_amplifier(hil):
+    hil.bench.configure("current_amplifier", current_limit_a=0.5)  # the sine peaks at 0.7 A
+    hil.bench.start_output()
+    assert wait_until(lambda: hil.bench.faults)
+    assert "OVERCURRENT" in hil.bench.faults[0].message and output_is_off(hil)
+
+
+def test_watchdog_disables_the_amplifier_when_the_host_falls_silent(hil):
+    hil.bench.start_output()
+    streams_flowing(hil.bench)
+    hil.bench.heartbeat_paused.set()
+    assert wait_until(lambda: hil.emu.amplifier.latched, timeout_s=2.0)
+    assert not hil.emu.rig.output_enabled
+    t_trip = hil.truth.blocks[-1].end_index + hil.emu.block_samples  # the block after the trip
+    stream = hil.bench.streams["current_amplifier"]
+    tail = []
+    deadline = time.monotonic() + 3.0
+    while (not tail or tail[-1].end_index < t_trip + 5000) and time.monotonic() < deadline:
+        if (b := stream.read(0.1)) is not None:
+            tail.append(b)
+    after = np.concatenate([b.channels["current_A"][max(0, t_trip - b.first_index):] for b in tail
+                            if b.end_index > t_trip])
+    assert after.size and np.max(np.abs(after)) < 5e-3  # sensor noise only (the sine peaked at 0.7 A)
+    st = hil.bench.amplifier.read_status()
+    assert st.faults == ("WATCHDOG",) and not st.values["enabled"]
+
+
+def test_charge_amplifier_overload_flags_clip_but_keeps_running(hil):
+    hil.bench.configure("charge_amplifier", scale_n_per_v=10.0)  # 220 N -> 22 V: beyond +-10 V
+    hil.bench.start_output()
+    runs = hil.bench.acquire(0.05)
+    assert runs[0].flags & BlockFlags.CLIP
+    assert np.max(runs[0].channels["force_N"]) == pytest.approx(100.0)  # 10 V x 10 N/V
+    assert "OVERLOAD" in hil.bench.charge_amp.status().faults and not hil.bench.faults
+
+
+def test_integrator_bus_off_raises_with_the_output_already_off(hil_factory):
+    hil = hil_factory(**{"flux_integrator.timeout_s": "0.2"})
+    hil.bench.start_output()
+    streams_flowing(hil.bench)
+    hil.emu.integrator.disconnect()
+    with pytest.raises(InstrumentError) as info:
+        hil.bench.acquire(5.0, timeout_s=8.0)
+    assert "flux_integrator" in str(info.value)
+    assert output_is_off(hil) and hil.bench.faults[0].output_off
+
+
+def test_safety_limits_are_refused_before_anything_is_sent(hil):
+    bench, emu = hil.bench, hil.emu
+    sent = len(emu.generator.commands_seen)
+    with pytest.raises(SafetyLimitError, match="exceeds max_current_a = 2 A"):
+        bench.configure("signal_generator", amplitude_vpp=9.0)  # 4.5 V x 0.5 A/V = 2.25 A
+    with pytest.raises(SafetyLimitError):
+        bench.configure("current_amplifier", gain_a_per_v=1.5)  # 1.4 V x 1.5 A/V = 2.1 A
+    with pytest.raises(SafetyLimitError):
+        bench.configure("current_amplifier", current_limit_a=2.5)
+    with pytest.raises(SafetyLimitError):
+        bench.generator.upload_waveform(np.linspace(-1.0, 4.5, 256), 320.0)
+    assert len(emu.generator.commands_seen) == sent
+    assert emu.generator.state["amplitude_vpp"] == 2.8 and emu.amplifier.gain_a_per_v == 0.5
+    assert not bench.faults  # a refusal changes nothing, so it is not a fault
+
+
+def test_serial_instrument_silent_for_a_moment_gives_an_exact_gap_and_no_stop(hil):
+    hil.bench.start_output()
+    streams = streams_flowing(hil.bench)
+    hil.emu.charge_amp.disconnect()  # serial cable out: no replies, no frames
+    threading.Timer(0.2, hil.emu.charge_amp.reconnect).start()
+    runs = hil.bench.acquire(0.6)
+    gap = check_runs(hil, runs)
+    assert gap > 0 and gap % 500 == 0 and streams["charge_amplifier"].stats.gap_samples == gap
+    assert not hil.bench.faults and hil.emu.rig.output_enabled  # the other heartbeats kept the watchdog fed
