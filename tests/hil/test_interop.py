@@ -76,7 +76,8 @@ def test_pymodbus_client_reads_register_0_over_tcp_and_rtu(emu):
 def test_mbpoll_reads_register_0(emu):
     a = emu.addresses["current_amplifier"]
     host, port = hostport(a["modbus_tcp"])
-    out = subprocess.run(["mbpoll", "-m", "tcp", "-a", str(a["unit"]), "-r", "1", "-c", "1", "-1", "-0",
+    # mbpoll's usual 1-based reference 1 is holding register address 0 (40001)
+    out = subprocess.run(["mbpoll", "-m", "tcp", "-a", str(a["unit"]), "-r", "1", "-c", "1", "-1",
                           "-p", str(port), host], capture_output=True, text=True, timeout=10)
     assert f"{MODEL_ID}" in out.stdout, out.stdout + out.stderr
 
