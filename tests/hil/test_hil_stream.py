@@ -51,9 +51,13 @@ def test_one_second_at_100ks_through_the_drivers(hil):
     for name in ("hysteresis", "instrument", "total"):
         tol = 5 * np.hypot(got.delays_std_s[name], direct.delays_std_s[name]) + 10e-9
         assert got.delays_s[name] == pytest.approx(direct.delays_s[name], abs=tol), name
-    # ... and against the instrument model (load cell + frame + charge amplifier), paper Fig. 9
+    # ... and against the instrument model (load cell + frame + charge amplifier), paper Fig. 9.
+    # With the Preisach iron the method itself is biased by ~-50 ns: around the magnet's bias the
+    # loop is asymmetric, the flux carries a 2nd harmonic, and the force's quadratic term mixes it
+    # back into the fundamental (with no instrument at all force-behind-flux reads -52 ns; with
+    # linear iron, 0). 0.006 deg at 320 Hz: far below the paper's one-sample resolution (10 us).
     model = presets.instrument(hil.emu.rig.preset).delay_s(got.frequency_hz)
-    assert got.delays_s["instrument"] == pytest.approx(float(model), abs=5 * got.delays_std_s["instrument"] + 10e-9)
+    assert got.delays_s["instrument"] == pytest.approx(float(model), abs=5 * got.delays_std_s["instrument"] + 80e-9)
     assert got.delays_s["hysteresis"] > 0  # eddy currents: flux lags current
 
 

@@ -8,7 +8,6 @@ generator's and amplifier's settings set the rig's excitation, gain and output e
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 import os
 import threading
@@ -28,14 +27,6 @@ __all__ = ["EmulatedBench"]
 _channels = itertools.count()
 
 
-def _default_effects(effects: dict[str, Any]) -> dict[str, Any]:
-    """Iron hysteresis needs physics/hysteresis.py; while it is missing, keep those effects off."""
-    out = dict(effects)
-    if importlib.util.find_spec("hystbench.physics.hysteresis") is None:
-        out.update({"static_hysteresis": False, "iron_saturation": False})
-    return out
-
-
 class EmulatedBench:
     """``with EmulatedBench(config) as emu: emu.addresses`` -> where each instrument listens."""
 
@@ -46,7 +37,7 @@ class EmulatedBench:
         self.block_samples = int(sim["block_samples"])
         self.pace = sim["pace"]
         self.rig = SimulatedRig(sim["rig"], fs_hz=self.fs_hz, seed=int(sim["seed"]),
-                                effects=_default_effects(sim["effects"]))
+                                effects=dict(sim["effects"]))
         self.rig.output_enabled = False
         self._rig_lock = threading.RLock()
         amp_settings = self.config.instruments["current_amplifier"].settings
