@@ -156,7 +156,7 @@ def _si(value: float, unit: str = "s") -> str:
 
 
 def _print_table(result: dict) -> None:
-    from rich.console import Console
+    from hystbench.acquisition.console import console
     from rich.table import Table
 
     cfg = result["config"]
@@ -182,12 +182,10 @@ def _print_table(result: dict) -> None:
             _si(c["rms_cov_s"]),
             "[green]pass[/]" if c["pass"] else "[red]FAIL[/]",
         )
-    console = Console()
-    if not console.is_terminal:  # a file or pipe: do not squeeze the table into 80 columns
-        console = Console(width=120)
-    console.print(table)
+    out = console()
+    out.print(table)
     verdict = "all cells pass" if result["all_pass"] else "SOME CELLS FAIL"
-    console.print(
+    out.print(
         f"{verdict}; limits RMS <= {cfg['rms_limit']} √CRLB, |bias| <= {cfg['bias_limit']} √CRLB; "
         f"ratio known to ±{196 / math.sqrt(2 * cfg['trials']):.1f} % (95 %); {result['elapsed_s']:.1f} s"
     )

@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
-    from rich.console import Console
+    from hystbench.acquisition.console import console
     from rich.table import Table
 
     table = Table(title=f"simulated rig at {result['fs_hz']:g} S/s, blocks of {result['block_size']}")
@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     for r in result["rigs"]:
         table.add_row(r["rig"], str(len(r["effects"])), f"{r['seconds_simulated']:g}",
                       f"{r['wall_s']:.3f}", f"{r['realtime_factor']:.1f}")
-    Console().print(table)
+    console().print(table)
     verdict = "meets" if result["passed"] else "MISSES"
     print(f"{result['rig']}: {result['realtime_factor']:.1f}x real time {verdict} the {TARGET_REALTIME_FACTOR:g}x target")
     return 0

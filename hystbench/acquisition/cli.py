@@ -74,8 +74,9 @@ def cmd_simulate_sweep(args) -> int:
 
 
 def cmd_effects(args) -> int:
-    from rich.console import Console
     from rich.table import Table
+
+    from .console import console
 
     from ..sim_backend.effects import CATALOGUE
 
@@ -85,7 +86,7 @@ def cmd_effects(args) -> int:
     for e in CATALOGUE.values():
         params = ", ".join(f"{k}={v}" + (" *" if k == e.primary else "") for k, v in e.defaults.items())
         table.add_row(e.name, e.description, params)
-    Console().print(table)
+    console().print(table)
     print("* the parameter that NAME=<number> sets")
     return 0
 
@@ -97,8 +98,9 @@ def cmd_rigs(args) -> int:
     if args.json:
         print(json.dumps(rows, indent=2))
         return 0
-    from rich.console import Console
     from rich.table import Table
+
+    from .console import console
 
     table = Table(title="rig presets at their operating points (static MEC, Eq. 1)")
     for col in ("rig", "actuator", "f (Hz)", "I (A-pp)", "force min (N)", "force max (N)", "paper"):
@@ -106,7 +108,7 @@ def cmd_rigs(args) -> int:
     for r in rows:
         table.add_row(r["rig"], r["actuator"], f"{r['frequency_Hz']:g}", f"{r['current_pp_A']:g}",
                       _fmt(r.get("force_min_N")), _fmt(r.get("force_max_N")), r.get("paper", ""))
-    Console().print(table)
+    console().print(table)
     return 0
 
 

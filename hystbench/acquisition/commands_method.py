@@ -17,9 +17,9 @@ __all__ = ["register", "identify_folder"]
 
 
 def _console():
-    from rich.console import Console
+    from .console import console
 
-    return Console()
+    return console()
 
 
 def _fmt(x: float, digits: int = 4) -> str:
