@@ -203,10 +203,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("rest", nargs=argparse.REMAINDER, help="arguments for the benchmark (e.g. --json)")
     p.set_defaults(func=cmd_bench)
 
-    from . import commands_bench, commands_method
+    from . import commands_bench, commands_compensator, commands_method
 
     commands_method.register(sub)  # estimate, identify, paper
     commands_bench.register(sub)  # emulate
+    commands_compensator.register(sub)  # model fit|predict, compensate
 
     p = sub.add_parser("demo", help="the main job on the embedded simulated rig")
     p.add_argument("--out", default="demo-output")

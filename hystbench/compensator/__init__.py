@@ -1,1 +1,35 @@
-"""compensator"""
+"""compensator: force models, their inverses and the learning correction (issue 6).
+
+    PeriodData            one operating point as period averages (built by acquisition from a recording)
+    StaticLaw             F = k0 + k1 j + k2 j^2 (Eq. 1) and its inverse, reachable range
+    NonHysteretic         Eq. 1 with the MEC (the paper's analytical model)
+    PaperModel            Eq. 6: Eq. 1 with the current delayed by theta_hyst(f)
+    HysteresisEddyModel   ours: identified Preisach iron + eddy term, then the static law
+    ModelSet, fit_models  all three from one sweep; JSON file of ``hystbench model fit``
+    predict_measured      a model's force as the load cell reports it (instrument applied)
+    ForceReference        a periodic force to track: sine with offset, multi-sine, any table
+    LearningController    iterative learning on the instrument-corrected force error, with its guard
+    Actuation, RigActuation   what drives the actuator (SimulatedRig now; drivers: pending)
+    run_closed_loop       feed-forward plus learning on an Actuation, per-iteration report
+    CompensatorStage      the online stage: follows the live theta_hyst estimate (pipeline hook API)
+
+Imports: physics, config and the shared vocabulary only (docs/architecture.md).
+"""
+
+from .actuation import Actuation, RigActuation
+from .data import PeriodData
+from .errors import CompensatorError, LearningStopped, UnreachableReference
+from .hysteresis_eddy import HysteresisEddyModel, IronScaling
+from .learning import IterationReport, LearningConfig, LearningController
+from .loop import LoopResult, run_closed_loop
+from .models import (FORMAT, MODEL_KINDS, ForceModel, ModelSet, NonHysteretic, PaperModel, fit_models, force_error,
+                     predict_measured)
+from .reference import ForceReference
+from .stage import CompensatorStage
+from .static import StaticLaw
+
+__all__ = ["PeriodData", "StaticLaw", "ForceModel", "NonHysteretic", "PaperModel", "HysteresisEddyModel",
+           "IronScaling", "ModelSet", "fit_models", "predict_measured", "force_error", "FORMAT", "MODEL_KINDS",
+           "ForceReference", "LearningConfig", "LearningController", "IterationReport", "Actuation",
+           "RigActuation", "run_closed_loop", "LoopResult", "CompensatorStage", "CompensatorError",
+           "UnreachableReference", "LearningStopped"]

@@ -1,0 +1,82 @@
+"""What the compensator drives: the :class:`Actuation` protocol, and its simulated-rig implementation.
+
+An actuation plays a current (a periodic table, or a sine), switches the output off, and hands
+back sample blocks with at least ``force_N``, ``current_A`` and ``command_V`` (the generator's
+output monitor: the meter finds the table's phase in it).  ``current_limit_a`` is the most it
+may be asked for; an implementation refuses a table above it before anything is sent.
+
+:class:`RigActuation` drives a :class:`~hystbench.sim_backend.rig.SimulatedRig` directly (duck
+typed, so this package does not import the simulator).
+
+Pending (drivers and pipeline land in parallel): a ``BenchActuation`` over ``drivers.Bench``
+-- ``set_waveform`` = ``signal_generator.upload_waveform(current / gain_a_per_v, f)`` then
+``bench.start_output()``, ``set_sine`` = ``signal_generator.set_sine``, ``output_off`` =
+``bench.safe_off()``, ``read(n)`` = ``bench.acquire(n / fs)`` concatenated -- so that
+``hystbench compensate`` runs through the emulated instruments' protocols.  Until then it runs on
+the simulated rig directly and says so.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from ..blocks import SampleBlock
+from .errors import CompensatorError
+
+__all__ = ["Actuation", "RigActuation"]
+
+
+@runtime_checkable
+class Actuation(Protocol):
+    name: str
+    fs_hz: float
+    current_limit_a: float
+
+    def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None: ...
+
+    def set_sine(self, frequency_hz: float, current_pp_a: float, offset_a: float = 0.0) -> None: ...
+
+    def output_off(self) -> None: ...
+
+    def read(self, n: int) -> SampleBlock: ...
+
+
+class RigActuation:
+    """:class:`Actuation` on a simulated rig: its ``set_waveform``, ``set_excitation``,
+    ``output_enabled`` and ``read``."""
+
+    def __init__(self, rig: Any, current_limit_a: float) -> None:
+        if not current_limit_a > 0:
+            raise CompensatorError(f"current_limit_a must be > 0, got {current_limit_a!r}")
+        self.rig = rig
+        self.name = f"simulated rig {getattr(rig, 'name', '?')} (direct, no instrument protocols)"
+        self.fs_hz = float(rig.fs_hz)
+        self.current_limit_a = float(current_limit_a)
+
+    def _check(self, peak_a: float, what: str) -> None:
+        if not np.isfinite(peak_a) or peak_a > self.current_limit_a * (1 + 1e-9):
+            raise CompensatorError(f"{self.name}: refused {what}: peak {peak_a:.4g} A exceeds the "
+                                   f"{self.current_limit_a:g} A limit")
+
+    def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
+        table = np.asarray(current_a, dtype=float)
+        self._check(float(np.max(np.abs(table))) if table.size else np.nan, f"a {table.size}-point waveform")
+        self.rig.set_waveform(table, float(frequency_hz))
+        self.rig.output_enabled = True
+
+    def set_sine(self, frequency_hz: float, current_pp_a: float, offset_a: float = 0.0) -> None:
+        self._check(abs(offset_a) + 0.5 * current_pp_a, f"a sine of {current_pp_a:g} A-pp at {offset_a:+g} A")
+        self.rig.set_excitation(float(frequency_hz), float(current_pp_a), float(offset_a))
+        self.rig.output_enabled = True
+
+    def output_off(self) -> None:
+        self.rig.output_enabled = False
+
+    @property
+    def output_on(self) -> bool:
+        return bool(self.rig.output_enabled)
+
+    def read(self, n: int) -> SampleBlock:
+        return self.rig.read(int(n))

@@ -1,0 +1,260 @@
+"""The force models, one interface: fitted from a sweep, predict the force for a current, invert.
+
+- ``nonhysteretic``: the paper's Eq. 1, the MEC with the preset's linearised iron, F = law(i);
+- ``paper``: Eq. 6, the same law with the current delayed by theta_hyst(f) measured per frequency
+  (flux behind current, the paper's Sec. VII), interpolated in frequency;
+- ``best``: ours, :class:`~.hysteresis_eddy.HysteresisEddyModel`.
+
+Every model works on one period (``force_period``: current -> the actuator's force;
+``current_period``: force -> current, which is the feed-forward).  What the load cell reports is
+the model's force through the instrument's response (:func:`predict_measured`): the instrument is
+corrected in the measurement, never put into the actuator's command.
+
+A :class:`ModelSet` is what ``hystbench model fit`` writes: the rig, the instrument model used,
+the three models and how well each fits the sweep (JSON, ``FORMAT``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..physics import presets
+from ..physics.instrument import InstrumentModel
+from ..physics.phase_delay_model import PhaseDelayModel
+from .data import PeriodData
+from .errors import CompensatorError
+from .hysteresis_eddy import HysteresisEddyModel, IronScaling
+from .periodic import apply_response, denoise, shift
+from .static import StaticLaw
+
+__all__ = ["ForceModel", "NonHysteretic", "PaperModel", "ModelSet", "MODEL_KINDS", "FORMAT", "fit_models",
+           "predict_measured", "force_error", "model_from_dict", "phase_delay_bound_n"]
+
+FORMAT = "hystbench-force-models/1"
+MODEL_KINDS = ("nonhysteretic", "paper", "best")
+
+
+@runtime_checkable
+class ForceModel(Protocol):
+    kind: str
+    name: str
+    law: StaticLaw
+
+    def force_period(self, current_a: np.ndarray, frequency_hz: float) -> np.ndarray: ...
+
+    def current_period(self, force_n: np.ndarray, frequency_hz: float,
+                       current_limit_a: float | None = None) -> np.ndarray: ...
+
+    def to_dict(self) -> dict: ...
+
+
+@dataclass(frozen=True)
+class NonHysteretic:
+    """Eq. 1: the force follows the current through the static law, with no delay."""
+
+    law: StaticLaw
+    kind: str = "nonhysteretic"
+    name: str = "eq1_mec"
+
+    def force_period(self, current_a, frequency_hz):
+        return self.law.force(current_a)
+
+    def current_period(self, force_n, frequency_hz, current_limit_a=None):
+        return self.law.invert(force_n, current_limit_a=current_limit_a)
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "name": self.name, "law": self.law.to_dict()}
+
+
+@dataclass(frozen=True)
+class PaperModel:
+    """Eq. 6: the current delayed by theta_hyst(f) as a whole, then Eq. 1; its inverse advances
+    the static inverse by theta (the phase lead for the actuator's delay)."""
+
+    law: StaticLaw
+    freq_hz: tuple[float, ...]
+    theta_rad: tuple[float, ...]
+    kind: str = "paper"
+    name: str = "eq6_phase_delay"
+
+    @property
+    def phase(self) -> PhaseDelayModel:
+        return PhaseDelayModel.from_phases(self.law.coefficients, self.freq_hz, self.theta_rad)
+
+    def theta(self, frequency_hz: float) -> float:
+        return float(self.phase.theta(float(frequency_hz)))
+
+    def force_period(self, current_a, frequency_hz):
+        return self.law.force(shift(current_a, self.theta(frequency_hz) / (2 * np.pi)))
+
+    def current_period(self, force_n, frequency_hz, current_limit_a=None):
+        j = self.law.invert(force_n, current_limit_a=current_limit_a)
+        return shift(j, -self.theta(frequency_hz) / (2 * np.pi))
+
+    def with_theta(self, frequency_hz: float, theta_rad: float) -> "PaperModel":
+        """The model with theta at ``frequency_hz`` replaced (the live estimate)."""
+        f, th = list(self.freq_hz), list(self.theta_rad)
+        near = [k for k, x in enumerate(f) if abs(x - frequency_hz) <= 1e-3 * frequency_hz]
+        if near:
+            th[near[0]] = float(theta_rad)
+        else:
+            f.append(float(frequency_hz))
+            th.append(float(theta_rad))
+        order = np.argsort(f)
+        return replace(self, freq_hz=tuple(float(f[k]) for k in order), theta_rad=tuple(float(th[k]) for k in order))
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "name": self.name, "law": self.law.to_dict(),
+                "frequency_Hz": list(self.freq_hz), "theta_hyst_rad": list(self.theta_rad)}
+
+
+def model_from_dict(d: Mapping[str, Any]) -> ForceModel:
+    kind = d.get("kind")
+    if kind == "nonhysteretic":
+        return NonHysteretic(StaticLaw.from_dict(d["law"]))
+    if kind == "paper":
+        return PaperModel(StaticLaw.from_dict(d["law"]), tuple(map(float, d["frequency_Hz"])),
+                          tuple(map(float, d["theta_hyst_rad"])))
+    if kind == "best":
+        return HysteresisEddyModel.from_dict(dict(d))
+    raise ConfigError(f"unknown force model kind {kind!r}; known: {', '.join(MODEL_KINDS)}")
+
+
+# --- what the load cell reports ------------------------------------------------------------------
+def predict_measured(model: ForceModel, current_a: np.ndarray, frequency_hz: float, instrument: InstrumentModel,
+                     *, current_noise_a: float = math.nan) -> np.ndarray:
+    """The force the load cell would report for one period of measured current: the model's
+    force through the instrument.  ``current_noise_a`` (noise of one point of the averaged
+    current) lets :func:`~.periodic.denoise` drop harmonics that are only noise first."""
+    i = denoise(current_a, current_noise_a)
+    return apply_response(model.force_period(i, frequency_hz), frequency_hz, instrument.frequency_response)
+
+
+def force_error(model: ForceModel, point: PeriodData, instrument: InstrumentModel) -> dict:
+    """Eq. 5 in the measurement domain for one recording: measured minus predicted-as-measured,
+    with the paper's accuracy 100 % (1 - max|dF| / range) on the period average."""
+    pred = predict_measured(model, point.current_a, point.frequency_hz, instrument,
+                            current_noise_a=point.average_noise_a())
+    err = np.asarray(point.force_n) - pred
+    rng = point.force_range_n
+    return {"recording": point.name, "model": model.kind, "frequency_Hz": point.nominal_frequency_hz,
+            "current_pp_A": point.current_pp_a, "force_range_N": rng, "max_abs_error_N": float(np.max(np.abs(err))),
+            "accuracy_pct": 100.0 * (1.0 - float(np.max(np.abs(err))) / rng),
+            "mean_error_N": float(np.mean(err)), "error_N": err, "predicted_N": pred}
+
+
+# --- a set of models for one rig -----------------------------------------------------------------
+@dataclass
+class ModelSet:
+    rig: str
+    instrument: InstrumentModel
+    models: dict[str, ForceModel]
+    report: dict = field(default_factory=dict)
+
+    def __getitem__(self, kind: str) -> ForceModel:
+        if kind not in self.models:
+            raise ConfigError(f"no {kind!r} model in this set; it has {', '.join(self.models)}")
+        return self.models[kind]
+
+    def to_dict(self) -> dict:
+        ins = self.instrument
+        return {"format": FORMAT, "rig": self.rig,
+                "instrument": {"fn_Hz": ins.fn_hz, "zeta_n": ins.zeta_n, "f0_Hz": ins.f0_hz, "zeta_0": ins.zeta_0},
+                "models": {k: m.to_dict() for k, m in self.models.items()}, "report": self.report}
+
+    def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
+        path = Path(path)
+        if path.exists() and not overwrite:
+            raise ConfigError(f"{path}: exists; give --overwrite to replace it")
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_text(json.dumps(self.to_dict(), indent=1, default=_json_default) + "\n")
+        os.replace(tmp, path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "ModelSet":
+        path = Path(path)
+        try:
+            d = json.loads(path.read_text())
+        except OSError as err:
+            raise ConfigError(f"{path}: cannot read the model file: {err}") from err
+        except json.JSONDecodeError as err:
+            raise ConfigError(f"{path}: not JSON: {err}") from err
+        if not isinstance(d, dict) or d.get("format") != FORMAT:
+            raise ConfigError(f"{path}: not a hystbench model file (format {FORMAT!r} expected)")
+        try:
+            ins = d["instrument"]
+            instrument = InstrumentModel(float(ins["fn_Hz"]), float(ins["zeta_n"]), float(ins["f0_Hz"]),
+                                         float(ins["zeta_0"]))
+            models = {k: model_from_dict(m) for k, m in d["models"].items()}
+        except (KeyError, TypeError, ValueError) as err:
+            raise ConfigError(f"{path}: malformed model file: {err!r}") from err
+        return cls(str(d["rig"]), instrument, models, dict(d.get("report", {})))
+
+
+def _json_default(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
+
+
+def fit_models(points: Sequence[PeriodData], preset: Mapping[str, Any],
+               instrument: InstrumentModel | None = None, *, kinds: Sequence[str] = MODEL_KINDS) -> ModelSet:
+    """Every model of ``kinds`` from one rig's sweep (``points``: its recordings as period averages)."""
+    rig = str(preset.get("name"))
+    if preset.get("actuator") != "ecore":
+        raise CompensatorError(f"rig {rig!r} is a {preset.get('actuator')}, not an E-core: the force models are "
+                               "the E-core's")
+    if not points:
+        raise CompensatorError(f"{rig}: no recordings to fit the force models on")
+    instrument = instrument or presets.instrument(preset)
+    magnet = "magnet" in preset
+    linear = presets.ecore_mec(preset, linear_iron=True)
+    law = StaticLaw.from_coefficients(linear.force_coefficients(linear.geometry.airgap_m), magnet)
+    models: dict[str, ForceModel] = {}
+    if "nonhysteretic" in kinds:
+        models["nonhysteretic"] = NonHysteretic(law)
+    if "paper" in kinds:
+        th = [(p.nominal_frequency_hz, p.theta_hyst_rad) for p in points if np.isfinite(p.theta_hyst_rad)]
+        if not th:
+            raise CompensatorError(f"{rig}: no theta_hyst measured in the sweep; the paper's Eq. 6 needs it")
+        pm = PhaseDelayModel.from_phases(law.coefficients, [f for f, _ in th], [t for _, t in th])
+        models["paper"] = PaperModel(law, tuple(map(float, pm.freq_hz)), tuple(map(float, pm.theta_rad)))
+    if "best" in kinds:
+        from .identify import fit_hysteresis_eddy
+
+        ideal_mec = presets.ecore_mec(preset)
+        ideal = StaticLaw.from_coefficients(ideal_mec.force_coefficients(ideal_mec.geometry.airgap_m), magnet)
+        models["best"] = fit_hysteresis_eddy(points, ideal, IronScaling.from_mec(ideal_mec),
+                                             instrument.frequency_response)
+    fit = {k: [_summary(force_error(m, p, instrument)) for p in points] for k, m in models.items()}
+    return ModelSet(rig, instrument, models, {"recordings": [p.name for p in points], "training_error": fit})
+
+
+def phase_delay_bound_n(point: PeriodData, instrument: InstrumentModel, *, max_theta_deg: float = 4.0,
+                        steps: int = 161) -> float:
+    """The smallest max|dF| any model of Eq. 6's form can reach on ``point`` itself: the current
+    delayed by theta (grid search), then k0 + k1 i + k2 i^2 fitted by least squares to the very
+    recording, through the instrument.  A bound, not a model: it sees the answer."""
+    best = np.inf
+    for theta_deg in np.linspace(0.0, max_theta_deg, steps):
+        i = shift(point.current_a, theta_deg / 360.0)
+        a = np.stack([apply_response(c, point.frequency_hz, instrument.frequency_response)
+                      for c in (np.ones_like(i), i, i * i)], axis=1)
+        coef = np.linalg.lstsq(a, point.force_n, rcond=None)[0]
+        best = min(best, float(np.max(np.abs(point.force_n - a @ coef))))
+    return best
+
+
+def _summary(e: dict) -> dict:
+    return {k: v for k, v in e.items() if not isinstance(v, np.ndarray)}

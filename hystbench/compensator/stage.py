@@ -1,0 +1,114 @@
+"""The online compensator: follows the live hysteresis-delay estimate and re-shapes the current.
+
+It has the pipeline's compensator interface (``acquisition.stages.CompensatorHook``):
+``update(estimate) -> state | None``, where ``estimate`` is one window of the method's delays
+(``frequency_Hz``, ``delays_s['hysteresis']`` = flux behind current, ``error``).  The state it
+returns is published on the ``compensator`` topic; when it holds ``waveform_A`` (one period of
+current) and ``frequency_Hz`` the hook uploads it to the source.
+
+Following the live theta_hyst (smoothed, exponential weight ``smoothing``):
+
+- the paper's model takes it as its theta at the operating frequency (Eq. 6 as the paper uses it);
+- our model compares it with the flux lag it predicts for the current it commands; a difference
+  is put into its eddy time constant tau (the rate-dependent part: a warming core conducts less,
+  and tau follows the iron's conductivity), tau += dtheta / (2 pi f).
+
+The table is recomputed and re-sent only when the theta used moves by more than ``retune_deg``
+(so estimation noise does not keep the generator busy).  The closed-loop learning needs period
+averages of the force, which the hook does not carry yet: pending with the pipeline (it runs in
+``hystbench compensate`` through :func:`~.loop.run_closed_loop`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any, Mapping
+
+import numpy as np
+
+from .errors import UnreachableReference
+from .hysteresis_eddy import HysteresisEddyModel
+from .models import ForceModel, PaperModel
+from .reference import ForceReference
+
+__all__ = ["CompensatorStage"]
+
+
+class CompensatorStage:
+    def __init__(self, model: ForceModel, reference: ForceReference, *, current_limit_a: float,
+                 smoothing: float = 0.3, retune_deg: float = 0.02) -> None:
+        if not 0 < smoothing <= 1:
+            raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
+        self.model, self.reference = model, reference
+        self.limit_a, self.smoothing, self.retune_rad = float(current_limit_a), float(smoothing), math.radians(retune_deg)
+        self.theta_live: float | None = None
+        self.theta_used: float | None = None
+        self.updates = 0  # tables sent
+        self.estimates = 0
+        self.status = "starting"
+        self.current_a = self.model.current_period(reference.force_n, reference.frequency_hz,
+                                                   current_limit_a=self.limit_a)
+        self._sent = False
+
+    def _model_theta(self) -> float:
+        f = self.reference.frequency_hz
+        if isinstance(self.model, PaperModel):
+            return self.model.theta(f)
+        if isinstance(self.model, HysteresisEddyModel):
+            return self.model.flux_lag_rad(self.current_a, f)
+        return 0.0
+
+    def _follow(self, theta: float) -> None:
+        f = self.reference.frequency_hz
+        if isinstance(self.model, PaperModel):
+            self.model = self.model.with_theta(f, theta)
+        elif isinstance(self.model, HysteresisEddyModel):
+            tau = max(0.0, self.model.tau_s + (theta - self._model_theta()) / (2 * math.pi * f))
+            old, self.model = self.model, replace(self.model, tau_s=tau)
+            if "iron" in old.__dict__:  # same iron: keep its built tables
+                self.model.__dict__["iron"] = old.__dict__["iron"]
+        self.current_a = self.model.current_period(self.reference.force_n, f, current_limit_a=self.limit_a)
+        self.theta_used = theta
+
+    def update(self, estimate: Mapping[str, Any]) -> dict | None:
+        """One estimate in, the state (with a new table when it changed) out."""
+        if estimate.get("error"):
+            self.status = f"waiting: estimate refused ({estimate['error']})"
+            return None
+        try:
+            delay = float(estimate["delays_s"]["hysteresis"])
+            f_est = float(estimate.get("frequency_Hz", self.reference.frequency_hz))
+        except (KeyError, TypeError, ValueError):
+            self.status = "waiting: estimate without a hysteresis delay"
+            return None
+        self.estimates += 1
+        theta = 2 * math.pi * f_est * delay
+        self.theta_live = theta if self.theta_live is None else (
+            (1 - self.smoothing) * self.theta_live + self.smoothing * theta)
+        send = not self._sent
+        if self.theta_used is None or abs(self.theta_live - self.theta_used) > self.retune_rad:
+            try:
+                self._follow(self.theta_live)
+                send = True
+                self.status = "following"
+            except UnreachableReference as err:
+                self.status = f"holding the last table: {err}"
+        if send:
+            self._sent = True
+            self.updates += 1
+        state = self.state()
+        if send:
+            state["waveform_A"] = self.current_a.copy()
+        return state
+
+    def state(self) -> dict:
+        th_model = self._model_theta()
+        out = {"model": self.model.kind, "frequency_Hz": self.reference.frequency_hz,
+               "reference": self.reference.description, "status": self.status,
+               "theta_live_deg": None if self.theta_live is None else math.degrees(self.theta_live),
+               "theta_model_deg": math.degrees(th_model), "peak_current_A": float(np.max(np.abs(self.current_a))),
+               "tables_sent": self.updates, "estimates": self.estimates}
+        if isinstance(self.model, HysteresisEddyModel):
+            out["tau_s"] = self.model.tau_s
+        return out

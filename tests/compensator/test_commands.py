@@ -1,0 +1,89 @@
+"""``hystbench model fit|predict`` and ``hystbench compensate`` end to end (argparse as the CLI has it)."""
+
+import argparse
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from hystbench.acquisition.commands_compensator import register, simulated_sweep
+from hystbench.acquisition.recording import read_recording, write_recording, write_sweep
+from hystbench.errors import BenchError
+
+
+def run(argv):
+    """What ``hystbench`` does with these subcommands: BenchError -> exit 2, message on stderr."""
+    parser = argparse.ArgumentParser(prog="hystbench")
+    register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except BenchError as err:
+        print(f"hystbench {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    root = tmp_path_factory.mktemp("comp")
+    write_sweep(simulated_sweep("ecore_pm", (80.0, 480.0), (0.4, 0.9, 1.5), seed=300), root / "sweep")
+    out = root / "models.json"
+    assert run(["model", "fit", str(root / "sweep"), "--out", str(out), "--json"]) == 0
+    return out
+
+
+def test_model_fit_writes_all_three_models(model_file, capsys):
+    d = json.loads(model_file.read_text())
+    assert d["rig"] == "ecore_pm" and set(d["models"]) == {"nonhysteretic", "paper", "best"}
+    assert len(d["report"]["recordings"]) == 6
+    best = [r["accuracy_pct"] for r in d["report"]["training_error"]["best"]]
+    assert min(best) > 99.8
+
+
+def test_model_predict_writes_time_and_force(model_file, tmp_path, capsys):
+    rec = simulated_sweep("ecore_pm", [320.0], [1.0], seed=77, duration_s=0.2)[0]
+    write_recording(rec, tmp_path / "r320")
+    out = tmp_path / "pred.csv"
+    assert run(["model", "predict", str(model_file), str(tmp_path / "r320.csv"), "--kind", "best", "--out", str(out)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert out.read_text().splitlines()[0] == "time_s,force_N"
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    back = read_recording(tmp_path / "r320.csv")
+    assert data.shape == (back.n, 2)
+    assert data[:, 0] == pytest.approx(back.time_s())
+    resid = back.channels["force_N"] - data[:, 1]
+    assert np.std(resid) < 0.04 and abs(np.mean(resid)) < 0.01  # the sensor's 0.03 N noise, nothing more
+    assert run(["model", "predict", str(model_file), str(tmp_path / "r320.csv"), "--out", str(out)]) == 2
+    assert "exists; give --overwrite" in capsys.readouterr().err
+
+
+def test_model_predict_refuses_another_rigs_recording(model_file, tmp_path, capsys):
+    rec = simulated_sweep("ecore", [320.0], [1.0], seed=1, duration_s=0.05)[0]
+    write_recording(rec, tmp_path / "other")
+    assert run(["model", "predict", str(model_file), str(tmp_path / "other.csv"), "--out", str(tmp_path / "p.csv")]) == 2
+    assert "a 'ecore' recording, but the models are of 'ecore_pm'" in capsys.readouterr().err
+
+
+def test_compensate_learns_and_reports_each_iteration(model_file, capsys):
+    argv = ["compensate", "--rig", "ecore_pm", "--force", "offset=170,amp=40,freq=320", "--learn", "--iterations", "3",
+            "--model", str(model_file), "--json"]
+    assert run(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    its = out["iterations"]
+    assert [r["iteration"] for r in its] == [0, 1, 2, 3]
+    assert its[-1]["ratio"] < 2.0 and its[-1]["max_error_n"] < its[0]["max_error_n"]
+    assert out["output_on"] is False and "simulated rig" in out["driven_through"]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--rig", "ecore", "--force", "offset=0.5,amp=1,freq=320"], "only attracts"),
+    (["--rig", "ecore_pm", "--force", "offset=170,amp=150,freq=320"], "above the 1.8 A limit; reachable"),
+    (["--rig", "ecore_pm", "--force", "offset=170,amp=40"], "missing freq="),
+    (["--rig", "ecore_pm"], "give --force"),
+    (["--rig", "ecore_pm", "--force-file", "x.csv"], "--force-file needs --freq"),
+    (["--rig", "ecore", "--force", "offset=2,amp=1,freq=320"], "models of 'ecore_pm', but --rig is 'ecore'"),
+])
+def test_compensate_refuses_what_the_actuator_cannot_do(model_file, capsys, argv, message):
+    assert run(["compensate", *argv, "--model", str(model_file)]) == 2
+    assert message in capsys.readouterr().err

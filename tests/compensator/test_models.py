@@ -1,0 +1,83 @@
+"""The three force models: fitted from one sweep, saved and loaded, inverses consistent, bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from hystbench.compensator import (CompensatorError, ForceReference, ModelSet, PeriodData, fit_models,
+                                   predict_measured)
+from hystbench.config import load_rig
+from hystbench.errors import ConfigError
+
+
+def test_model_file_round_trip(models_pm, tmp_path):
+    path = models_pm.save(tmp_path / "m.json")
+    with pytest.raises(ConfigError, match="exists; give --overwrite"):
+        models_pm.save(path)
+    back = ModelSet.load(path)
+    assert back.rig == "ecore_pm" and set(back.models) == {"nonhysteretic", "paper", "best"}
+    i = 0.1 + 0.6 * np.sin(2 * np.pi * np.arange(500) / 500)
+    for kind in back.models:
+        a = predict_measured(models_pm[kind], i, 320.0, models_pm.instrument)
+        b = predict_measured(back[kind], i, 320.0, back.instrument)
+        assert b == pytest.approx(a, abs=1e-9)
+    assert json.loads(path.read_text())["format"] == "hystbench-force-models/1"
+
+
+@pytest.mark.parametrize("text, match", [("{", "not JSON"), ('{"format": "x"}', "not a hystbench model file"),
+                                         ('{"format": "hystbench-force-models/1", "rig": "ecore"}', "malformed")])
+def test_bad_model_files_are_refused(tmp_path, text, match):
+    path = tmp_path / "bad.json"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=match):
+        ModelSet.load(path)
+    with pytest.raises(ConfigError, match="cannot read"):
+        ModelSet.load(tmp_path / "missing.json")
+
+
+@pytest.mark.parametrize("kind", ["nonhysteretic", "paper", "best"])
+@pytest.mark.parametrize("spec", ["offset=170,amp=40,freq=320", "offset=170,amp=30,freq=160,h2=10@45,h3=5"])
+def test_each_inverse_gives_back_its_force(models_pm, kind, spec):
+    ref = ForceReference.parse(spec)
+    model = models_pm[kind]
+    i = model.current_period(ref.force_n, ref.frequency_hz)
+    assert model.force_period(i, ref.frequency_hz) == pytest.approx(ref.force_n, abs=2e-6 * 170)
+
+
+def test_the_inverse_leads_the_static_one(models_pm):
+    """Phase lead for the actuator's delay: the compensated current's fundamental leads the
+    non-hysteretic one by about theta_hyst (flux behind current), never by the instrument's delay."""
+    ref = ForceReference.parse("offset=170,amp=40,freq=320")
+    lead = {}
+    for kind in ("nonhysteretic", "paper", "best"):
+        i = models_pm[kind].current_period(ref.force_n, 320.0)
+        lead[kind] = np.degrees(np.angle(np.fft.rfft(i)[1] / np.fft.rfft(ref.force_n)[1]))
+    theta = np.degrees(models_pm["paper"].theta(320.0))
+    assert lead["nonhysteretic"] == pytest.approx(0.0, abs=1e-9)
+    assert lead["paper"] == pytest.approx(theta, abs=1e-6)
+    assert 0.5 * theta < lead["best"] < 1.5 * theta  # the same lag, but shaped, not a pure delay
+    assert 1.0 < theta < 2.0
+
+
+def test_best_model_identified_parameters_are_physical(models_pm, models_ecore):
+    for ms in (models_pm, models_ecore):
+        best = ms["best"]
+        assert 2e-6 < best.tau_s < 1e-5  # lamination (and magnet) eddy currents, ~5 us
+        assert best.report["flux_calibration"]["p2_relative_spread"] < 0.02  # force quadratic in the flux
+        comps = best.material["components"]
+        assert all(5.0 < c[2] < 200.0 for c in comps)  # switching fields of a soft SiFe, A/m
+
+
+def test_fit_refuses_other_rigs_and_empty_sweeps(models_pm):
+    with pytest.raises(CompensatorError, match="is a voicecoil, not an E-core"):
+        fit_models([], load_rig("voicecoil_ferrite"))
+    with pytest.raises(CompensatorError, match="no recordings"):
+        fit_models([], load_rig("ecore_pm"))
+    flat = PeriodData("x", 320.0, 320.0, 1.0, np.zeros(64), np.zeros(64), np.zeros(64))
+    with pytest.raises(CompensatorError, match="needs at least 2 recordings"):
+        fit_models([flat], load_rig("ecore_pm"), kinds=("best",))
+    with pytest.raises(CompensatorError, match="no theta_hyst measured"):
+        fit_models([flat], load_rig("ecore_pm"), kinds=("paper",))
+    with pytest.raises(ValueError, match="periods of one length"):
+        PeriodData("x", 320.0, 320.0, 1.0, np.zeros(64), np.zeros(63), np.zeros(64))

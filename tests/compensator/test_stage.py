@@ -1,0 +1,62 @@
+"""The online stage: the pipeline's compensator interface, following the live theta_hyst."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hystbench.compensator import CompensatorStage, ForceReference
+
+REF = "offset=170,amp=40,freq=320"
+
+
+def estimate(theta_deg, f=320.008, error=None):
+    return {"error": error, "frequency_Hz": f, "nominal_frequency_Hz": 320.0, "first_index": 0, "end_index": 1,
+            "delays_s": {"hysteresis": math.radians(theta_deg) / (2 * math.pi * f), "instrument": 6e-6, "total": 1.8e-5}}
+
+
+def test_paper_model_follows_the_live_theta_and_resends_only_on_change(models_pm):
+    stage = CompensatorStage(models_pm["paper"], ForceReference.parse(REF), current_limit_a=1.8)
+    first = stage.update(estimate(1.50))
+    assert first["waveform_A"].shape == (1000,) and first["frequency_Hz"] == 320.0
+    assert first["theta_live_deg"] == pytest.approx(1.50) and first["theta_model_deg"] == pytest.approx(1.50)
+    assert "waveform_A" not in stage.update(estimate(1.50))
+    assert "waveform_A" not in stage.update(estimate(1.55))  # 0.3 x 0.05 deg: below the retune step
+    moved = stage.update(estimate(1.80))
+    assert "waveform_A" in moved and moved["theta_model_deg"] == pytest.approx(moved["theta_live_deg"])
+    lead = lambda w: np.degrees(np.angle(np.fft.rfft(w)[1]))  # noqa: E731
+    assert lead(moved["waveform_A"]) > lead(first["waveform_A"])  # more lag measured, more lead given
+    assert stage.update(estimate(1.5, error="flat channel")) is None
+    assert "refused" in stage.state()["status"] and stage.state()["tables_sent"] == 2
+
+
+def test_our_model_puts_a_drift_of_theta_into_its_eddy_time_constant(models_pm):
+    stage = CompensatorStage(models_pm["best"], ForceReference.parse(REF), current_limit_a=1.8)
+    own = stage.state()["theta_model_deg"]
+    tau0 = stage.state()["tau_s"]
+    s = stage.update(estimate(own + 0.3))
+    assert s["tau_s"] > tau0 and "waveform_A" in s
+    assert s["theta_model_deg"] == pytest.approx(own + 0.3, abs=0.05)
+
+
+def test_stage_with_the_live_estimator(models_pm):
+    """Blocks of the simulated rig through the pipeline's window estimator into the stage; the
+    tables it returns are played, as the pipeline's compensator hook does."""
+    stages = pytest.importorskip("hystbench.acquisition.stages")
+    if not hasattr(stages, "WindowEstimator"):
+        pytest.skip("the pipeline's window estimator is not there yet")
+    from hystbench.sim_backend.rig import SimulatedRig
+
+    rig = SimulatedRig("ecore_pm", seed=3, frequency_hz=320.0, current_pp_a=1.4)
+    est = stages.WindowEstimator(rig.fs_hz, rig.metadata(), periods=20)
+    stage = CompensatorStage(models_pm["paper"], ForceReference.parse(REF), current_limit_a=1.8)
+    states = []
+    for _ in range(12):
+        for e in est.push(rig.read(5000)):
+            s = stage.update(e)
+            if s is not None:
+                states.append(s)
+                if "waveform_A" in s:
+                    rig.set_waveform(s.pop("waveform_A"), s["frequency_Hz"])
+    assert states and states[0]["tables_sent"] == 1
+    assert 1.0 < states[-1]["theta_live_deg"] < 1.8  # flux behind current at 320 Hz with magnet
