@@ -213,9 +213,10 @@ def _precheck(rig: str, ref, limit_a: float) -> None:
 
 
 def cmd_compensate(args) -> int:
-    from ..compensator import LearningConfig, LearningStopped, ModelSet, RigActuation, run_closed_loop
+    from contextlib import ExitStack
+
+    from ..compensator import ModelSet
     from ..sim_backend.effects import parse_effect_args
-    from ..sim_backend.rig import SimulatedRig
 
     ref = _reference(args)
     effects = parse_effect_args(args.effect)
@@ -232,9 +233,39 @@ def cmd_compensate(args) -> int:
         f_s, i_s = FIT_GRID
         source = (f"models identified on the simulated rig first: {len(f_s) * len(i_s)} recordings "
                   f"({', '.join(f'{f:g}' for f in f_s)} Hz x {min(i_s):g}-{max(i_s):g} A-pp)")
-    # a bench just switched on: the output is on at zero current, the iron demagnetised under the magnet
-    sim = SimulatedRig(args.rig, seed=args.seed, effects=effects, frequency_hz=ref.frequency_hz, current_pp_a=0.0)
-    act = RigActuation(sim, limit)
+    with ExitStack() as stack:
+        act = _actuation(args, stack, effects, ref, limit)
+        return _closed_loop(args, act, models, source, ref, limit, con)
+
+
+def _actuation(args, stack, effects, ref, limit):
+    """The emulated instruments in front of a simulated rig, driven through the real drivers (the
+    shipped bench file with the rig, seed and effects of the command line); ``--direct``: the rig
+    alone.  Either way a bench just switched on: zero current, the iron demagnetised."""
+    from ..compensator import BenchActuation, RigActuation
+    from ..sim_backend.rig import SimulatedRig
+
+    if args.direct:
+        sim = SimulatedRig(args.rig, seed=args.seed, effects=effects, frequency_hz=ref.frequency_hz,
+                           current_pp_a=0.0)
+        return RigActuation(sim, limit)
+    import dataclasses
+
+    from ..drivers.bench import Bench
+    from ..drivers.protocols.bench_config import load_bench_config
+    from ..sim_backend.emulators.bench import EmulatedBench
+
+    config = load_bench_config()
+    config = dataclasses.replace(config, sim={**config.sim, "rig": args.rig, "seed": args.seed,
+                                              "effects": {**config.sim["effects"], **effects}})
+    emu = stack.enter_context(EmulatedBench(config))
+    bench = stack.enter_context(Bench(config.resolved(emu.addresses)))
+    return BenchActuation(bench, limit)
+
+
+def _closed_loop(args, act, models, source, ref, limit, con) -> int:
+    from ..compensator import LearningConfig, LearningStopped, run_closed_loop
+
     config = LearningConfig(gain=args.gain, iterations=args.iterations)
     rows: list[dict] = []
 
@@ -247,8 +278,7 @@ def cmd_compensate(args) -> int:
 
     if con is not None:
         con.print(f"{args.rig}: {ref.description}; {args.kind} model, {source}; current limit {limit:g} A")
-        con.print("note: driven on the SimulatedRig directly; through the emulated instruments' protocols once the "
-                  "driver-backed Actuation lands (pending)")
+        con.print(f"driven through: {act.name}")
     try:
         result = run_closed_loop(act, models[args.kind], ref, models.instrument, learn=args.learn, config=config,
                                  measure_s=args.measure, on_iteration=show)
@@ -307,5 +337,7 @@ def register(subparsers) -> None:
     p.add_argument("--max-current", type=float, help="current limit, A (default: config/bench.toml)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="simulated-rig effect switch")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--direct", action="store_true",
+                   help="drive the simulated rig directly instead of through the emulated instruments' drivers")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_compensate)

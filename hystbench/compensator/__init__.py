@@ -9,14 +9,14 @@
     predict_measured      a model's force as the load cell reports it (instrument applied)
     ForceReference        a periodic force to track: sine with offset, multi-sine, any table
     LearningController    iterative learning on the instrument-corrected force error, with its guard
-    Actuation, RigActuation   what drives the actuator (SimulatedRig now; drivers: pending)
+    Actuation, RigActuation, BenchActuation   what drives the actuator (a SimulatedRig; the drivers)
     run_closed_loop       feed-forward plus learning on an Actuation, per-iteration report
     CompensatorStage      the online stage: follows the live theta_hyst estimate (pipeline hook API)
 
 Imports: physics, config and the shared vocabulary only (docs/architecture.md).
 """
 
-from .actuation import Actuation, RigActuation
+from .actuation import Actuation, BenchActuation, RigActuation
 from .data import PeriodData
 from .errors import CompensatorError, LearningStopped, UnreachableReference
 from .hysteresis_eddy import HysteresisEddyModel, IronScaling
@@ -31,5 +31,6 @@ from .static import StaticLaw
 __all__ = ["PeriodData", "StaticLaw", "ForceModel", "NonHysteretic", "PaperModel", "HysteresisEddyModel",
            "IronScaling", "ModelSet", "fit_models", "predict_measured", "force_error", "FORMAT", "MODEL_KINDS",
            "ForceReference", "LearningConfig", "LearningController", "IterationReport", "Actuation",
-           "RigActuation", "run_closed_loop", "LoopResult", "CompensatorStage", "CompensatorError",
+           "RigActuation",
+    "BenchActuation", "run_closed_loop", "LoopResult", "CompensatorStage", "CompensatorError",
            "UnreachableReference", "LearningStopped"]

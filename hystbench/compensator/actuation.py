@@ -8,12 +8,9 @@ may be asked for; an implementation refuses a table above it before anything is 
 :class:`RigActuation` drives a :class:`~hystbench.sim_backend.rig.SimulatedRig` directly (duck
 typed, so this package does not import the simulator).
 
-Pending (drivers and pipeline land in parallel): a ``BenchActuation`` over ``drivers.Bench``
--- ``set_waveform`` = ``signal_generator.upload_waveform(current / gain_a_per_v, f)`` then
-``bench.start_output()``, ``set_sine`` = ``signal_generator.set_sine``, ``output_off`` =
-``bench.safe_off()``, ``read(n)`` = ``bench.acquire(n / fs)`` concatenated -- so that
-``hystbench compensate`` runs through the emulated instruments' protocols.  Until then it runs on
-the simulated rig directly and says so.
+:class:`BenchActuation` drives a ``drivers.bench.Bench`` (duck typed likewise): the table goes to
+the signal generator as an arbitrary waveform over SCPI, the samples come back through the four
+instruments' streams -- real hardware, or the emulated instruments in front of a simulated rig.
 """
 
 from __future__ import annotations
@@ -25,7 +22,7 @@ import numpy as np
 from ..blocks import SampleBlock
 from .errors import CompensatorError
 
-__all__ = ["Actuation", "RigActuation"]
+__all__ = ["Actuation", "RigActuation", "BenchActuation"]
 
 
 @runtime_checkable
@@ -80,3 +77,52 @@ class RigActuation:
 
     def read(self, n: int) -> SampleBlock:
         return self.rig.read(int(n))
+
+
+class BenchActuation:
+    """:class:`Actuation` through the instrument drivers: ``set_waveform`` uploads ``current /
+    gain`` volts to the generator (SCPI ``DATA:ARB``), ``set_sine`` sets its sine, ``output_off`` is
+    the bench's safe-off (output off first), ``read`` acquires from the streams and refuses a gap."""
+
+    def __init__(self, bench: Any, current_limit_a: float) -> None:
+        if not current_limit_a > 0:
+            raise CompensatorError(f"current_limit_a must be > 0, got {current_limit_a!r}")
+        self.bench = bench
+        self.gain_a_per_v = float(bench.budget.gain_a_per_v)
+        self.fs_hz = float(bench.config.fs_hz)
+        self.current_limit_a = min(float(current_limit_a), float(bench.budget.max_current_a))
+        self.name = f"bench {bench.config.source} through the drivers"
+        self.output_on = False
+
+    def _check(self, peak_a: float, what: str) -> None:
+        if not np.isfinite(peak_a) or peak_a > self.current_limit_a * (1 + 1e-9):
+            raise CompensatorError(f"{self.name}: refused {what}: peak {peak_a:.4g} A exceeds the "
+                                   f"{self.current_limit_a:g} A limit")
+
+    def _start(self) -> None:
+        if not self.output_on:
+            self.bench.start_output()
+            self.output_on = True
+
+    def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
+        table = np.asarray(current_a, dtype=float)
+        self._check(float(np.max(np.abs(table))) if table.size else np.nan, f"a {table.size}-point waveform")
+        self.bench.generator.upload_waveform(table / self.gain_a_per_v, float(frequency_hz))
+        self._start()
+
+    def set_sine(self, frequency_hz: float, current_pp_a: float, offset_a: float = 0.0) -> None:
+        self._check(abs(offset_a) + 0.5 * current_pp_a, f"a sine of {current_pp_a:g} A-pp at {offset_a:+g} A")
+        self.bench.generator.set_sine(float(frequency_hz), current_pp_a / self.gain_a_per_v,
+                                      offset_a / self.gain_a_per_v)
+        self._start()
+
+    def output_off(self) -> None:
+        self.bench.safe_off()
+        self.output_on = False
+
+    def read(self, n: int) -> SampleBlock:
+        runs = self.bench.acquire(int(n) / self.fs_hz)
+        if len(runs) != 1 or runs[0].n != int(n):
+            raise CompensatorError(f"{self.name}: the streams had gaps while measuring: "
+                                   f"{[(r.first_index, r.n, r.gap_samples) for r in runs]}")
+        return runs[0]

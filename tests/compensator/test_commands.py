@@ -73,7 +73,7 @@ def test_compensate_learns_and_reports_each_iteration(model_file, capsys):
     its = out["iterations"]
     assert [r["iteration"] for r in its] == [0, 1, 2, 3]
     assert its[-1]["ratio"] < 2.0 and its[-1]["max_error_n"] < its[0]["max_error_n"]
-    assert out["output_on"] is False and "simulated rig" in out["driven_through"]
+    assert out["output_on"] is False and "through the drivers" in out["driven_through"]
 
 
 @pytest.mark.parametrize("argv, message", [

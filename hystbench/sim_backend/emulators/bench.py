@@ -36,8 +36,9 @@ class EmulatedBench:
         self.fs_hz = self.config.fs_hz
         self.block_samples = int(sim["block_samples"])
         self.pace = sim["pace"]
+        # powered on with the amplifier disabled: the rig has seen no current (demagnetised iron)
         self.rig = SimulatedRig(sim["rig"], fs_hz=self.fs_hz, seed=int(sim["seed"]),
-                                effects=dict(sim["effects"]))
+                                effects=dict(sim["effects"]), current_pp_a=0.0)
         self.rig.output_enabled = False
         self._rig_lock = threading.RLock()
         amp_settings = self.config.instruments["current_amplifier"].settings
