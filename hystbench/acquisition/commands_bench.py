@@ -1,19 +1,16 @@
 """``hystbench emulate``: the emulated bench instruments, standalone.
 
 Prints on the FIRST line of stdout one JSON object saying where each instrument listens, then runs
-until SIGINT or SIGTERM.  The CLI adds it with ``commands_bench.register(sub)``; until then
-``python -m hystbench.acquisition.commands_bench emulate`` runs it the same way.
+until SIGINT or SIGTERM.  ``python -m hystbench emulate`` is the same command.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import signal
 import sys
 import threading
 
-from ..errors import BenchError
 
 __all__ = ["register", "cmd_emulate", "main"]
 
@@ -47,19 +44,3 @@ def cmd_emulate(args) -> int:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Standalone entry point with the CLI's error convention (BenchError -> status 2)."""
-    parser = argparse.ArgumentParser(prog="hystbench")
-    register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return args.func(args)
-    except BenchError as err:
-        print(f"hystbench {args.command}: error: {err}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

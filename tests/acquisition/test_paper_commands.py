@@ -1,28 +1,14 @@
 """The method's commands end to end: estimate, identify and paper (on a reduced grid)."""
 
-import argparse
 import json
-import sys
 
 import numpy as np
 import pytest
 
-from hystbench.acquisition.commands_method import register
+from hystbench.acquisition.cli import main as run  # the hystbench command: BenchError -> exit 2
 from hystbench.acquisition.paper import PAPER, simulate_ecore, simulate_voice_coil_sweep
 from hystbench.acquisition.recording import write_recording, write_sweep
 from hystbench.errors import BenchError
-
-
-def run(argv):
-    """What ``hystbench`` does with these subcommands: BenchError -> exit 2, message on stderr."""
-    parser = argparse.ArgumentParser(prog="hystbench")
-    register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return args.func(args)
-    except BenchError as err:
-        print(f"hystbench {args.command}: error: {err}", file=sys.stderr)
-        return 2
 
 
 @pytest.fixture(scope="module")

@@ -1,27 +1,14 @@
 """``hystbench model fit|predict`` and ``hystbench compensate`` end to end (argparse as the CLI has it)."""
 
-import argparse
 import json
-import sys
 
 import numpy as np
 import pytest
 
-from hystbench.acquisition.commands_compensator import register, simulated_sweep
+from hystbench.acquisition.cli import main as run  # the hystbench command: BenchError -> exit 2
+from hystbench.acquisition.commands_compensator import simulated_sweep
 from hystbench.acquisition.recording import read_recording, write_recording, write_sweep
 from hystbench.errors import BenchError
-
-
-def run(argv):
-    """What ``hystbench`` does with these subcommands: BenchError -> exit 2, message on stderr."""
-    parser = argparse.ArgumentParser(prog="hystbench")
-    register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    try:
-        return args.func(args)
-    except BenchError as err:
-        print(f"hystbench {args.command}: error: {err}", file=sys.stderr)
-        return 2
 
 
 @pytest.fixture(scope="module")

@@ -98,7 +98,7 @@ def first_line(proc, timeout_s):
 
 
 def test_emulate_command_prints_addresses_then_runs_until_sigterm(tmp_path):
-    cmd = [sys.executable, "-m", "hystbench.acquisition.commands_bench", "emulate", "--config",
+    cmd = [sys.executable, "-m", "hystbench", "emulate", "--config",
            str(bench_file(tmp_path))]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
@@ -120,7 +120,7 @@ def test_emulate_command_prints_addresses_then_runs_until_sigterm(tmp_path):
 def test_emulate_bad_config_exits_2_naming_file_and_key(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_text(bench_file(tmp_path).read_text().replace("[sim]", "[sim]\nspeed = 3\n", 1))
-    proc = subprocess.run([sys.executable, "-m", "hystbench.acquisition.commands_bench", "emulate",
+    proc = subprocess.run([sys.executable, "-m", "hystbench", "emulate",
                            "--config", str(bad)], capture_output=True, text=True, timeout=20)
     assert proc.returncode == 2
     assert f"{bad} [sim]: unknown key 'speed'" in proc.stderr

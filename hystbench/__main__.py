@@ -1,0 +1,7 @@
+"""``python -m hystbench`` is the ``hystbench`` command."""
+
+import sys
+
+from .acquisition.cli import main
+
+sys.exit(main())
