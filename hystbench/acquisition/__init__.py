@@ -1,2 +1,2 @@
-"""Recordings, estimators, the paper's measurement method, reports and the command line
-(later: ring buffer, pipeline, MCAP, zenoh, the daemon)."""
+"""Recordings, estimators, the paper's measurement method, the real-time pipeline (ring buffer,
+stages, MCAP, zenoh, the daemon), reports and the command line."""

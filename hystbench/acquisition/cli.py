@@ -152,11 +152,18 @@ def cmd_bench(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    """The main job: the paper's sweeps as recordings with their delays, then the whole method."""
+    """The main job: the bench service live (a sweep through the emulated instruments, estimates
+    over zenoh, an MCAP log), the paper's sweeps as recordings with their delays, the whole method."""
     from .commands_method import cmd_paper
+    from .commands_pipeline import demo_live
+    from .console import console
     from .demo import run_demo
 
     out = Path(args.out)
+    console().rule("live: the daemon's pipeline, a sweep through the emulated instruments, estimates over zenoh")
+    live = demo_live(out / "live", seconds=6.0)
+    console().print(f"{live['estimates']} live estimates ({live['refused']} refused while settling); "
+                    f"MCAP log: {', '.join(live['log'])}")
     status = run_demo(out)
     return status or cmd_paper(argparse.Namespace(out=str(out / "paper"), quick=False, save_recordings=False))
 
@@ -203,10 +210,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("rest", nargs=argparse.REMAINDER, help="arguments for the benchmark (e.g. --json)")
     p.set_defaults(func=cmd_bench)
 
-    from . import commands_bench, commands_compensator, commands_method
+    from . import commands_bench, commands_compensator, commands_method, commands_pipeline
 
     commands_method.register(sub)  # estimate, identify, paper
     commands_bench.register(sub)  # emulate
+    commands_pipeline.register(sub)  # watch, record, replay, export, recover, daemon
     commands_compensator.register(sub)  # model fit|predict, compensate
 
     p = sub.add_parser("demo", help="the main job on the embedded simulated rig")

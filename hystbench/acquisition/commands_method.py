@@ -32,9 +32,12 @@ def cmd_estimate(args) -> int:
     from .recording import read_recording
 
     if Path(args.path).suffix.lower() == ".mcap":
-        raise RecordingError(f"{args.path}: MCAP input is not supported yet (it comes with the MCAP logging "
-                             "issue); give a recording in the CSV + JSON interchange format")
-    result = estimate(read_recording(args.path))
+        from .mcaplog import read_mcap_recording
+
+        rec = read_mcap_recording(args.path, segment=args.segment)
+    else:
+        rec = read_recording(args.path)
+    result = estimate(rec)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
@@ -204,7 +207,8 @@ def cmd_paper(args) -> int:
 def register(subparsers) -> None:
     """Add ``estimate``, ``identify`` and ``paper`` to the ``hystbench`` subcommands."""
     p = subparsers.add_parser("estimate", help="the method's three delays from one recording (paper Sec. III)")
-    p.add_argument("path", help="recording: STEM, STEM.csv or STEM.json (MCAP logs: not yet)")
+    p.add_argument("path", help="recording: STEM, STEM.csv or STEM.json, or an MCAP log (LOG.mcap)")
+    p.add_argument("--segment", type=int, help="which operating point of an MCAP log (default: its only one)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(func=cmd_estimate)
 

@@ -34,9 +34,25 @@ def test_estimate_table(ecore_stem, capsys):
     assert "hysteresis" in out and "flux behind" in out and "Eq. 3" in out and "theta_hyst" in out
 
 
-def test_estimate_refuses_mcap_and_bad_recordings(tmp_path, ecore_stem, capsys):
+def test_estimate_reads_an_mcap_log_as_its_csv_export(tmp_path, capsys):
+    log = tmp_path / "run.mcap"
+    assert run(["record", "--out", str(log), "--seconds", "0.4", "--source", "sim", "--pace", "max"]) == 0
+    capsys.readouterr()
+    assert run(["estimate", str(log), "--json"]) == 0
+    from_log = json.loads(capsys.readouterr().out)
+    assert run(["export", str(log), "--out", str(tmp_path / "csv")]) == 0
+    capsys.readouterr()
+    (stem,) = sorted((tmp_path / "csv").glob("*.csv"))
+    assert run(["estimate", str(stem), "--json"]) == 0
+    from_csv = json.loads(capsys.readouterr().out)
+    for name in ("hysteresis", "instrument", "total"):
+        assert from_log["delays_s"][name] == pytest.approx(from_csv["delays_s"][name], rel=1e-12, abs=1e-15)
+    assert from_log["frequency_Hz"] == pytest.approx(from_csv["frequency_Hz"], rel=1e-12)
+
+
+def test_estimate_refuses_missing_logs_and_bad_recordings(tmp_path, ecore_stem, capsys):
     assert run(["estimate", str(tmp_path / "log.mcap")]) == 2
-    assert "MCAP input is not supported yet" in capsys.readouterr().err
+    assert "log.mcap" in capsys.readouterr().err
     lines = (ecore_stem.with_suffix(".csv")).read_text().splitlines()
     bad = tmp_path / "bad"
     (tmp_path / "bad.json").write_text(ecore_stem.with_suffix(".json").read_text())

@@ -1,0 +1,423 @@
+"""The bench daemon: the pipeline, its log and its zenoh face, run as a systemd service.
+
+``hystbench daemon --config daemon.toml``: every key is checked (a misspelt or mistyped one is
+refused with the file and key named), the source is the simulated rig unless instruments are
+configured, and the process speaks systemd's notify protocol (READY, RELOADING, STOPPING,
+WATCHDOG).  SIGTERM/SIGINT: output off, pipeline drained, log finished, exit 0.  SIGHUP: the file
+is read again; a bad one is refused and the running configuration stays; a good one restarts
+the pipeline (a new log part) and, if its [zenoh] section changed, the zenoh session.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import logging
+import signal
+import threading
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .. import __version__
+from ..errors import BenchError, ConfigError
+from .mcaplog.recorder import COMPRESSIONS
+from .sd_notify import Notifier
+
+__all__ = ["load_daemon_config", "DaemonConfig", "BenchService", "run_daemon", "DEFAULTS"]
+
+log = logging.getLogger("hystbench.daemon")
+
+_NUM = (int, float)
+#: No new samples for this long and the watchdog is no longer fed.
+STALL_S = 5.0
+#: section -> key -> (type, default, allowed values or None).  Numbers must be > 0 unless 0 is listed.
+DEFAULTS: dict[str, dict[str, tuple[Any, Any, Any]]] = {
+    "daemon": {"bench": (str, "bench1", None), "log_dir": (str, "hystbench-logs", None),
+               "stats_interval_s": (_NUM, 1.0, None)},
+    "source": {"kind": (str, "bench", ("bench", "sim", "synthetic")), "rig": (str, "ecore_pm", None),
+               "fs_hz": (_NUM, 100_000.0, None), "block_samples": (int, 1000, None), "seed": (int, 0, (0,)),
+               "frequency_hz": (_NUM, 320.0, None), "current_pp_a": (_NUM, 1.4, (0,)),
+               "pace": (str, "realtime", ("realtime", "max")), "effects": (dict, {}, None),
+               "ring_seconds": (_NUM, 2.0, None), "bench_file": (str, "", None)},
+    "estimation": {"enabled": (bool, True, None), "periods": (_NUM, 10.0, None), "hop_periods": (_NUM, 10.0, None),
+                   "min_hop_s": (_NUM, 0.1, (0,)), "settle_periods": (_NUM, 2.0, (0,)),
+                   "max_fs_hz": (_NUM, 100_000.0, None)},
+    "recording": {"enabled": (bool, True, None), "compression": (str, "zstd", COMPRESSIONS),
+                  "chunk_kib": (int, 256, None), "flush_interval_s": (_NUM, 0.5, None),
+                  "rotate_mib": (_NUM, 1024.0, None), "rotate_minutes": (_NUM, 60.0, None)},
+    "zenoh": {"enabled": (bool, True, None), "config": (str, "", None), "listen": (list, ["tcp/127.0.0.1:7447"], None),
+              "connect": (list, [], None), "publish_raw": (bool, True, None),
+              "raw_per_channel": (bool, False, None)},
+    "sweep": {"frequencies_hz": (list, [40.0, 80.0, 160.0, 320.0, 480.0], None), "current_pp_a": (_NUM, 1.4, (0,)),
+              "dwell_s": (_NUM, 1.0, None), "autostart": (bool, False, None)},
+    "compensator": {"enabled": (bool, False, None), "factory": (str, "", None)},
+}
+
+
+@dataclass(frozen=True)
+class DaemonConfig:
+    """The checked configuration: ``values[section][key]``, every key present; ``given`` holds the
+    keys the file set (so a zenoh config file keeps its endpoints unless the TOML names them)."""
+
+    values: dict[str, dict[str, Any]]
+    given: frozenset[tuple[str, str]]
+    source: str
+
+    def __getitem__(self, section: str) -> dict[str, Any]:
+        return self.values[section]
+
+    def as_dict(self) -> dict[str, Any]:
+        return copy.deepcopy(self.values)
+
+
+def _check(section: str, k: str, v: Any, where: str) -> Any:
+    kind, default, allowed = DEFAULTS[section][k]
+    name = f"{where} [{section}] {k}"
+    if isinstance(v, bool) and kind is not bool or not isinstance(v, kind):
+        want = "a number" if kind is _NUM else kind.__name__
+        raise ConfigError(f"{name}: must be {want}, got {v!r}")
+    if isinstance(v, str) and allowed and v not in allowed:
+        raise ConfigError(f"{name}: must be one of {', '.join(allowed)}, got {v!r}")
+    if isinstance(v, (int, float)) and not isinstance(v, bool) and not (v > 0 or (allowed and v in allowed and v >= 0)):
+        raise ConfigError(f"{name}: must be > 0{' (or 0)' if allowed else ''}, got {v!r}")
+    if section == "sweep" and k == "frequencies_hz" and (not v or not all(isinstance(f, _NUM) and f > 0 for f in v)):
+        raise ConfigError(f"{name}: must be a non-empty list of frequencies > 0 Hz, got {v!r}")
+    if section == "zenoh" and k in ("listen", "connect") and not all(isinstance(e, str) for e in v):
+        raise ConfigError(f"{name}: must be a list of endpoints like 'tcp/127.0.0.1:7447', got {v!r}")
+    return float(v) if kind is _NUM else v
+
+
+def load_daemon_config(path: str | Path | None) -> DaemonConfig:
+    """Read and check a daemon TOML file (None: the defaults)."""
+    where = str(path) if path is not None else "(defaults)"
+    data: dict[str, Any] = {}
+    if path is not None:
+        try:
+            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        except FileNotFoundError as err:
+            raise ConfigError(f"{path}: no such file") from err
+        except (OSError, UnicodeDecodeError) as err:
+            raise ConfigError(f"{path}: cannot read: {err}") from err
+        except tomllib.TOMLDecodeError as err:
+            raise ConfigError(f"{path}: not valid TOML: {err}") from err
+    values = {s: {k: copy.deepcopy(d[1]) for k, d in keys.items()} for s, keys in DEFAULTS.items()}
+    given = set()
+    for section, table in data.items():
+        if section not in DEFAULTS:
+            raise ConfigError(f"{where}: unknown section [{section}]; known: {', '.join(DEFAULTS)}")
+        if not isinstance(table, dict):
+            raise ConfigError(f"{where}: [{section}] must be a table")
+        for k, v in table.items():
+            if k not in DEFAULTS[section]:
+                raise ConfigError(f"{where} [{section}]: unknown key {k!r}; known: {', '.join(DEFAULTS[section])}")
+            values[section][k] = _check(section, k, v, where)
+            given.add((section, k))
+    from .zenoh_bus import key
+
+    try:
+        key(values["daemon"]["bench"])
+    except ConfigError as err:
+        raise ConfigError(f"{where} [daemon] bench: {err}") from None
+    from ..config import load_rig
+
+    try:  # every kind: the rig names the recordings (the interchange format's 'rig' key)
+        load_rig(values["source"]["rig"])
+    except ConfigError as err:
+        raise ConfigError(f"{where} [source] rig: {err}") from None
+    return DaemonConfig(values, frozenset(given), where)
+
+
+def build_source(cfg: DaemonConfig):
+    """The configured source (the simulated rig when no instruments are configured)."""
+    from .stages import RigSource, SyntheticSource, bench_source
+
+    s = cfg["source"]
+    if s["kind"] == "synthetic":
+        return SyntheticSource(fs_hz=s["fs_hz"], frequency_hz=s["frequency_hz"], block_samples=s["block_samples"],
+                               pace=s["pace"], rig=s["rig"], current_pp_a=s["current_pp_a"], seed=s["seed"])
+    if s["kind"] == "bench":
+        return bench_source(s["bench_file"] or None, rig=s["rig"])
+    from ..sim_backend.rig import SimulatedRig
+
+    try:
+        rig = SimulatedRig(s["rig"], fs_hz=s["fs_hz"], seed=s["seed"], effects=s["effects"] or None,
+                           frequency_hz=s["frequency_hz"], current_pp_a=s["current_pp_a"])
+    except ConfigError as err:
+        raise ConfigError(f"{cfg.source} [source]: {err}") from None
+    rig.output_enabled = False  # nothing is driven until a sweep or a command says so
+    return RigSource(rig, block_samples=s["block_samples"], pace=s["pace"])
+
+
+def zenoh_config(cfg: DaemonConfig):
+    from .zenoh_bus import load_zenoh_config
+
+    z = cfg["zenoh"]
+    src = z["config"] or None
+    listen = z["listen"] if (src is None or ("zenoh", "listen") in cfg.given) else None
+    connect = z["connect"] if (src is None or ("zenoh", "connect") in cfg.given) else None
+    return load_zenoh_config(src, listen=listen, connect=connect)
+
+
+def _load_compensator(factory: str, source):
+    """``module:callable`` -> the callable's result wrapped in a CompensatorHook."""
+    import importlib
+
+    from .pipeline import CompensatorHook
+
+    mod, _, attr = factory.partition(":")
+    try:
+        obj = getattr(importlib.import_module(mod), attr or "make_compensator")
+    except (ImportError, AttributeError) as err:
+        raise ConfigError(f"[compensator] factory {factory!r}: {err}") from err
+    return CompensatorHook(obj(), source)
+
+
+def _log_path(folder: Path, bench: str) -> Path:
+    """``<bench>-<start time>.mcap`` (parts ``...-0001.mcap``), made unique within the second."""
+    stem = f"{bench}-{time.strftime('%Y%m%d-%H%M%S')}"
+    k = 1
+    while (folder / f"{stem}-0001.mcap").exists() or (folder / f"{stem}.mcap").exists():
+        k += 1
+        stem = f"{bench}-{time.strftime('%Y%m%d-%H%M%S')}.{k}"
+    return folder / f"{stem}.mcap"
+
+
+class BenchService:
+    """One configuration running: source -> pipeline -> MCAP log + zenoh, with sweeps and commands.
+
+    ``session`` (optional) is a zenoh session to reuse (the daemon keeps it across reloads whose
+    [zenoh] section did not change); otherwise one is opened from the config and owned here."""
+
+    def __init__(self, cfg: DaemonConfig, *, session=None) -> None:
+        self.cfg = cfg
+        self.source = build_source(cfg)
+        self.session = session
+        self.pipeline = None
+        self.recorder = None
+        self.bus = None
+        self.started = time.monotonic()
+        self._sweep_stop = threading.Event()
+        self._sweep: threading.Thread | None = None
+        self.state = "starting"
+        self.estimates = 0
+        self.last_error = ""
+
+    def start(self) -> "BenchService":
+        from .mcaplog.recorder import McapRecorder
+        from .pipeline import Pipeline
+        from .stages import WindowEstimator
+        from .zenoh_bus import ZenohBus
+
+        c = self.cfg
+        meta = {"recording": self.source.metadata(), "config": c.as_dict()}
+        rig = getattr(getattr(self.source, "rig", None), "preset", None)
+        if rig:
+            meta["rig"] = {k: v for k, v in rig.items() if not k.startswith("_")}
+        try:
+            e = c["estimation"]
+            est = WindowEstimator(self.source.fs_hz, self.source.metadata(), periods=e["periods"],
+                                  hop_periods=e["hop_periods"], min_hop_s=e["min_hop_s"],
+                                  settle_periods=e["settle_periods"], max_fs_hz=e["max_fs_hz"]) if e["enabled"] else None
+            comp = _load_compensator(c["compensator"]["factory"], self.source) if c["compensator"]["enabled"] else None
+            if c["recording"]["enabled"]:
+                r = c["recording"]
+                self.recorder = McapRecorder(_log_path(Path(c["daemon"]["log_dir"]), c["daemon"]["bench"]),
+                                             metadata=meta, compression=r["compression"], chunk_size=r["chunk_kib"] * 1024,
+                                             flush_interval_s=r["flush_interval_s"],
+                                             rotate_bytes=int(r["rotate_mib"] * 2**20), rotate_s=r["rotate_minutes"] * 60)
+                self.recorder.start()
+            if c["zenoh"]["enabled"]:
+                self.bus = ZenohBus(c["daemon"]["bench"], None if self.session else zenoh_config(c),
+                                    on_command=self.command, config_provider=c.as_dict,
+                                    health_provider=self.health, session=self.session,
+                                    per_channel=c["zenoh"]["raw_per_channel"]).open()
+            self.pipeline = Pipeline(self.source, estimator=est, recorder=self.recorder, bus=self.bus, compensator=comp,
+                                     ring_seconds=c["source"]["ring_seconds"], stats_interval_s=c["daemon"]["stats_interval_s"],
+                                     publish_raw=c["zenoh"]["publish_raw"])
+            self.pipeline.listeners.append(self._count)
+            self.pipeline.start()
+        except BaseException:
+            self.stop()
+            raise
+        self.state = "running"
+        if c["sweep"]["autostart"]:
+            self.command("start_sweep", {})
+        return self
+
+    def _count(self, topic: str, obj: dict) -> None:
+        if topic == "/estimate":
+            self.estimates += 1
+            if obj.get("error"):
+                self.last_error = str(obj["error"])
+
+    def stop(self, timeout_s: float = 10.0) -> list[Path]:
+        """Output off first, then the pipeline drains, the log is finished, zenoh is closed."""
+        self.state = "stopping"
+        self._sweep_stop.set()
+        if hasattr(self.source, "set_output"):
+            self.source.set_output(False)
+        if self._sweep is not None:
+            self._sweep.join(timeout=2.0)
+        if self.pipeline is not None:
+            self.pipeline.status("info", "stopping", "output off, finishing the log")
+            self.pipeline.stop(timeout_s)
+        self.source.close()
+        paths = self.recorder.finish() if self.recorder is not None else []
+        if self.bus is not None:
+            self.bus.close()
+        self.state = "stopped"
+        return paths
+
+    # --- commands (zenoh cmd/<verb>) -------------------------------------------------------------
+    def _controllable(self):
+        from .stages import Controllable
+
+        if not isinstance(self.source, Controllable):
+            raise ConfigError(f"source {self.source.name!r} takes no commands")
+        return self.source
+
+    def command(self, verb: str, args: dict) -> dict:
+        if self.pipeline is None or self.state not in ("running", "sweeping"):
+            raise ConfigError(f"bench is {self.state}; try again when it is running")
+        src = self._controllable()
+        if verb == "set_excitation":
+            unknown = set(args) - {"frequency_hz", "current_pp_a", "offset_a"}
+            if unknown:
+                raise ConfigError(f"set_excitation: unknown argument(s) {sorted(unknown)}")
+            src.set_excitation(**{k: float(v) for k, v in args.items()})
+            return {"applied": args}
+        if verb == "output":
+            src.set_output(bool(args.get("on", False)))
+            return {"output_on": bool(args.get("on", False))}
+        if verb == "stop_sweep":
+            self._sweep_stop.set()
+            src.set_output(False)
+            return {"stopped": True}
+        if verb == "start_sweep":
+            sw = self.cfg["sweep"]
+            freqs = [float(f) for f in args.get("frequencies_hz", sw["frequencies_hz"])]
+            ipp, dwell = float(args.get("current_pp_a", sw["current_pp_a"])), float(args.get("dwell_s", sw["dwell_s"]))
+            if not freqs or any(not 0 < f < self.source.fs_hz / 2 for f in freqs) or ipp < 0 or dwell <= 0:
+                raise ConfigError(f"start_sweep: frequencies in (0, fs/2), current_pp_a >= 0 and dwell_s > 0 needed; "
+                                  f"got {freqs}, {ipp}, {dwell}")
+            if self._sweep is not None and self._sweep.is_alive():
+                raise ConfigError("start_sweep: a sweep is running; stop_sweep first")
+            self._sweep_stop = threading.Event()
+            self._sweep = threading.Thread(target=self._run_sweep, args=(freqs, ipp, dwell, self._sweep_stop),
+                                           name="sweep", daemon=True)
+            self._sweep.start()
+            return {"points": len(freqs), "duration_s": len(freqs) * dwell}
+        raise ConfigError(f"unknown command {verb!r}")
+
+    def _run_sweep(self, freqs: list[float], ipp: float, dwell: float, stop: threading.Event) -> None:
+        src, p = self.source, self.pipeline
+        self.state = "sweeping"
+        p.status("info", "sweep_started", f"{len(freqs)} points at {ipp:g} A-pp, {dwell:g} s each")
+        try:
+            for k, f in enumerate(freqs):
+                src.set_excitation(frequency_hz=f, current_pp_a=ipp)
+                src.set_output(True)
+                p.status("info", "sweep_point", f"{f:g} Hz, {ipp:g} A-pp", point=k, frequency_Hz=f, current_pp_A=ipp)
+                if stop.wait(dwell):
+                    p.status("info", "sweep_stopped", f"stopped at point {k}")
+                    return
+            p.status("info", "sweep_done", f"{len(freqs)} points")
+        finally:
+            src.set_output(False)
+            if self.state == "sweeping":
+                self.state = "running"
+
+    def health(self) -> dict:
+        p = self.pipeline
+        return {"bench": self.cfg["daemon"]["bench"], "state": self.state, "version": __version__,
+                "uptime_s": time.monotonic() - self.started, "source": self.source.name,
+                "log": str(self.recorder.paths[-1]) if self.recorder and self.recorder.paths else None,
+                "samples": p.stats["source"].samples if p else 0, "estimates": self.estimates,
+                "pipeline_error": repr(p.error) if p and p.error else None, "last_estimate_error": self.last_error}
+
+
+def run_daemon(config_path: str | Path | None) -> int:
+    """The service's main loop; returns the exit status (0 after SIGTERM)."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    cfg = load_daemon_config(config_path)
+    notifier = Notifier()
+    wake = threading.Event()
+    flags = {"stop": False, "reload": False}
+
+    def on_signal(signum, _frame) -> None:
+        flags["reload" if signum == signal.SIGHUP else "stop"] = True
+        wake.set()
+
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        signal.signal(sig, on_signal)
+    session = _open_session(cfg)
+    svc = BenchService(cfg, session=session).start()
+    log.info("serving bench %r (config %s)", cfg["daemon"]["bench"], cfg.source)
+    notifier.ready(f"bench {cfg['daemon']['bench']}: {svc.state}")
+    status = 0
+    seen, progress_t = -1, time.monotonic()
+    while not flags["stop"]:
+        wake.wait(min(notifier.watchdog_s or 1.0, 1.0))
+        wake.clear()
+        if svc.pipeline.error is not None:
+            log.error("pipeline failed: %r; stopping", svc.pipeline.error)
+            status = 1
+            break
+        samples = svc.pipeline.stats["source"].samples
+        if samples != seen:
+            seen, progress_t = samples, time.monotonic()
+        if time.monotonic() - progress_t < STALL_S:  # a stalled source stops the pings: systemd restarts us
+            notifier.ping()
+        if flags["reload"] and not flags["stop"]:
+            flags["reload"] = False
+            notifier.reloading()
+            svc, cfg, session = _reload(config_path, svc, cfg, session)
+            notifier.ready(f"bench {cfg['daemon']['bench']}: {svc.state}")
+    notifier.stopping("output off, finishing the log")
+    paths = svc.stop()
+    if session is not None:
+        session.close()
+    log.info("stopped; log %s", ", ".join(map(str, paths)) or "(none)")
+    return status
+
+
+def _open_session(cfg: DaemonConfig):
+    if not cfg["zenoh"]["enabled"]:
+        return None
+    from .zenoh_bus import open_session
+
+    return open_session(zenoh_config(cfg))
+
+
+def _reload(path, svc: BenchService, cfg: DaemonConfig, session):
+    """Check the file again; a bad one is refused (the old config keeps running)."""
+    try:
+        new = load_daemon_config(path)
+        if new["source"]["kind"] != "bench":  # instruments cannot be opened twice: checked at start
+            build_source(new).close()  # fails here, not after the old service is gone
+    except BenchError as err:
+        log.error("reload refused, keeping the running configuration: %s", err)
+        svc.pipeline.status("error", "reload_refused", str(err))
+        return svc, cfg, session
+    svc.stop()
+    zenoh_changed = new["zenoh"] != cfg["zenoh"]
+    try:
+        if zenoh_changed:
+            if session is not None:
+                session.close()
+            session = None
+            session = _open_session(new)
+        svc = BenchService(new, session=session).start()
+    except BenchError as err:  # e.g. the new port is taken, the log folder not writable
+        log.error("reload failed (%s); restarting the previous configuration", err)
+        if zenoh_changed:
+            if session is not None:
+                session.close()
+            session = _open_session(cfg)
+        return BenchService(cfg, session=session).start(), cfg, session
+    svc.pipeline.status("info", "reloaded", f"config {new.source}")
+    log.info("reloaded %s", new.source)
+    return svc, new, session

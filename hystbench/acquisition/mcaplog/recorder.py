@@ -1,0 +1,182 @@
+"""The MCAP recorder: one log per session, small chunks, rotated by size or time.
+
+Life cycle as mcap's own writer, plus a context manager: ``start()`` -> ``add_block`` /
+``add_message`` ... -> ``finish()``.  Crash safety comes from the chunking: a chunk is closed and
+handed to the OS at least every ``flush_interval_s`` (and whenever it reaches ``chunk_size``), so
+after a ``kill -9`` everything but the open chunk is on disk and ``hystbench recover`` salvages it.
+Each part of a rotated log starts with the same schemas and metadata, so each stands alone.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Mapping
+
+from ... import __version__
+from ...blocks import SampleBlock
+from ...errors import RecordingError
+from .schemas import RAW, SCHEMAS, TOPICS, encode_block, json_bytes, schema_bytes
+
+__all__ = ["McapRecorder", "COMPRESSIONS"]
+
+COMPRESSIONS = ("zstd", "lz4", "none")
+PROFILE = "hystbench"
+
+
+def _metadata_record(obj: Mapping[str, Any]) -> dict[str, str]:
+    """MCAP metadata is str -> str: the whole object as JSON under ``json`` (what readers use),
+    beside each top-level key as display text (what Foxglove shows)."""
+    out = {"json": json.dumps(obj, default=str)}
+    for k, v in obj.items():
+        out[str(k)] = v if isinstance(v, str) else json.dumps(v, default=str)
+    return out
+
+
+class McapRecorder:
+    """Writes one session's log to ``path`` (or, rotated, ``STEM-0001.mcap``, ``STEM-0002.mcap``...).
+
+    ``metadata`` maps a record name (``recording``, ``config``, ``rig``...) to a JSON-able dict,
+    written into every part; ``epoch_ns`` is the wall-clock time of sample index 0, so raw
+    blocks get ``log_time = epoch_ns + first_index / fs``.
+    """
+
+    def __init__(self, path: str | Path, *, metadata: Mapping[str, Mapping[str, Any]] | None = None,
+                 compression: str = "zstd", chunk_size: int = 256 * 1024, flush_interval_s: float = 0.5,
+                 rotate_bytes: int | None = None, rotate_s: float | None = None, epoch_ns: int | None = None,
+                 units: Mapping[str, str] | None = None, overwrite: bool = False) -> None:
+        if compression not in COMPRESSIONS:
+            raise RecordingError(f"{path}: compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}")
+        for name, v in (("rotate_bytes", rotate_bytes), ("rotate_s", rotate_s), ("flush_interval_s", flush_interval_s)):
+            if v is not None and not v > 0:
+                raise RecordingError(f"{path}: {name} must be > 0, got {v!r}")
+        self.path = Path(path)
+        self.metadata = {k: dict(v) for k, v in (metadata or {}).items()}
+        self.compression = compression
+        self.chunk_size = int(chunk_size)
+        self.flush_interval_s = float(flush_interval_s)
+        self.rotate_bytes, self.rotate_s = rotate_bytes, rotate_s
+        self.epoch_ns = time.time_ns() if epoch_ns is None else int(epoch_ns)
+        self.units = dict(units or {})
+        self.overwrite = overwrite
+        self.paths: list[Path] = []
+        self.messages = 0
+        self.bytes_in = 0  # message bytes handed to the writer (before compression)
+        self._writer = None
+        self._fh = None
+        self._channel_ids: dict[str, int] = {}
+        self._part_started = 0.0
+        self._last_flush = 0.0
+
+    # --- life cycle ------------------------------------------------------------------------------
+    def _part_path(self, part: int) -> Path:
+        if self.rotate_bytes is None and self.rotate_s is None:
+            return self.path
+        stem = self.path.with_suffix("") if self.path.suffix == ".mcap" else self.path
+        return stem.with_name(f"{stem.name}-{part:04d}.mcap")
+
+    def start(self) -> "McapRecorder":
+        if self._writer is not None:
+            raise RecordingError(f"{self.path}: recorder already started")
+        self._open_part()
+        return self
+
+    def _open_part(self) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        path = self._part_path(len(self.paths) + 1)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(path, "wb" if self.overwrite else "xb")
+        except FileExistsError as err:
+            raise RecordingError(f"{path}: already exists; choose another name or pass overwrite") from err
+        except OSError as err:
+            raise RecordingError(f"{path}: cannot create the log: {err.strerror}") from err
+        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+        w = Writer(self._fh, chunk_size=self.chunk_size, compression=comp[self.compression])
+        w.start(profile=PROFILE, library=f"hystbench {__version__}")
+        self._channel_ids = {}
+        for topic in TOPICS:
+            name, _ = SCHEMAS[topic]
+            sid = w.register_schema(name=name, encoding="jsonschema", data=schema_bytes(topic))
+            self._channel_ids[topic] = w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
+        part = len(self.paths) + 1
+        session = {"software": f"hystbench {__version__}", "created_utc": datetime.now(timezone.utc).isoformat(),
+                   "epoch_ns": self.epoch_ns, "part": part,
+                   "previous_part": self.paths[-1].name if self.paths else ""}
+        w.add_metadata("hystbench", _metadata_record(session))
+        for name, obj in self.metadata.items():
+            w.add_metadata(name, _metadata_record(obj))
+        w.flush()  # schemas and channels on disk before any data
+        self._writer = w
+        self.paths.append(path)
+        self._part_started = self._last_flush = time.monotonic()
+
+    def finish(self) -> list[Path]:
+        """Close the log (summary, indexes, footer); returns the parts written.  Idempotent."""
+        if self._writer is not None:
+            w, fh = self._writer, self._fh
+            self._writer = self._fh = None
+            try:
+                w.finish()
+                fh.flush()
+                os.fsync(fh.fileno())
+            finally:
+                fh.close()
+        return list(self.paths)
+
+    def __enter__(self) -> "McapRecorder":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.finish()
+
+    # --- messages --------------------------------------------------------------------------------
+    def add_block(self, block: SampleBlock) -> None:
+        """One raw block (every channel)."""
+        self._add(RAW, encode_block(block, self.units), self.epoch_ns + block.t0_ns)
+
+    def add_message(self, topic: str, obj: Mapping[str, Any], log_time_ns: int | None = None) -> None:
+        """A JSON message on one of :data:`TOPICS` (``/estimate``, ``/compensator``, ``/status``...)."""
+        if topic not in self._channel_ids and self._writer is not None:
+            raise RecordingError(f"{self.path}: unknown topic {topic!r}; known: {', '.join(TOPICS)}")
+        t = time.time_ns() if log_time_ns is None else int(log_time_ns)
+        self._add(topic, json_bytes(obj), t)
+
+    def index_time_ns(self, index: int, fs_hz: float) -> int:
+        """The log time of sample ``index`` (what raw blocks and estimates are stamped with)."""
+        return self.epoch_ns + round(index * 1e9 / fs_hz)
+
+    def _add(self, topic: str, data: bytes, log_time_ns: int) -> None:
+        if self._writer is None:
+            raise RecordingError(f"{self.path}: recorder not started (or already finished)")
+        now = time.monotonic()
+        if self._should_rotate(now):
+            self.finish()
+            self._open_part()
+        self._writer.add_message(self._channel_ids[topic], log_time=log_time_ns, data=data,
+                                 publish_time=time.time_ns(), sequence=self.messages)
+        self.messages += 1
+        self.bytes_in += len(data)
+        self.tick(now)
+
+    def tick(self, now: float | None = None) -> None:
+        """Close the open chunk if it is older than ``flush_interval_s`` (call this when idle, too)."""
+        now = time.monotonic() if now is None else now
+        if self._writer is not None and now - self._last_flush >= self.flush_interval_s:
+            self._writer.flush()
+            self._last_flush = now
+
+    def _should_rotate(self, now: float) -> bool:
+        if self.rotate_s is not None and now - self._part_started >= self.rotate_s:
+            return True
+        return self.rotate_bytes is not None and self._fh is not None and self._fh.tell() >= self.rotate_bytes
+
+    @property
+    def bytes_written(self) -> int:
+        """Bytes in the finished parts and the open one (compressed, as on disk)."""
+        done = sum(p.stat().st_size for p in self.paths[:-1] if p.exists())
+        return done + (self._fh.tell() if self._fh is not None else 0)

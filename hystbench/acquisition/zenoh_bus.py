@@ -1,0 +1,350 @@
+"""The bench on zenoh: a documented key space, payload codecs, the daemon's side and a client's.
+
+Key space (``<bench>`` is the daemon's bench name, see docs/zenoh.md)::
+
+    hystbench/<bench>/raw             sample blocks (every channel), binary with a JSON header (below)
+    hystbench/<bench>/raw/<channel>   the same, one channel per message (``raw_per_channel = true``)
+    hystbench/<bench>/estimate        JSON: delays over each window of whole periods
+    hystbench/<bench>/compensator     JSON: the compensator's state
+    hystbench/<bench>/status          JSON: events (started, sweep point, errors, config reloaded)
+    hystbench/<bench>/stats           JSON: per-stage throughput, latency and drop counters
+    hystbench/<bench>/config          queryable: the running configuration
+    hystbench/<bench>/health          queryable: state, uptime, counters
+    hystbench/<bench>/cmd/<verb>      queryable: start_sweep, stop_sweep, set_excitation, output
+
+Raw payload: ``u32 little-endian header length H``, ``H`` bytes of UTF-8 JSON header, then for
+each channel of ``header["channels"]`` in order, ``n`` little-endian values of its ``dtype``
+(``float32`` or ``float64``).  The header holds ``first_index``, ``n``, ``fs_hz``, ``t0_ns``,
+``flags``, ``gap_samples`` and, per channel, ``name``, ``unit`` and ``dtype``.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import socket
+import struct
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator, Mapping
+
+import numpy as np
+
+from ..blocks import CHANNEL_UNITS, BlockFlags, SampleBlock
+from ..errors import BenchError, ConfigError
+from .mcaplog.schemas import json_bytes
+
+__all__ = ["PREFIX", "key", "encode_raw", "decode_raw", "peer_config", "load_zenoh_config", "ZenohBus",
+           "Subscription", "send_command", "query_json", "free_port", "open_session", "COMMANDS"]
+
+PREFIX = "hystbench"
+COMMANDS = ("start_sweep", "stop_sweep", "set_excitation", "output")
+_DTYPES = {"float32": np.dtype("<f4"), "float64": np.dtype("<f8")}
+RAW_ENCODING = "application/octet-stream;hystbench.raw.v1"
+
+
+def key(bench: str, *parts: str) -> str:
+    """``hystbench/<bench>/<parts...>``; a bench name must be one key chunk (no '/', '*', '$', '?', '#')."""
+    if not bench or any(ch in bench for ch in "/*$?#"):
+        raise ConfigError(f"bench name {bench!r} must be non-empty and contain none of / * $ ? #")
+    return "/".join((PREFIX, bench, *parts))
+
+
+# --- payload codecs -----------------------------------------------------------------------------
+def encode_raw(block: SampleBlock, channels: list[str] | None = None, units: Mapping[str, str] | None = None) -> bytes:
+    names = list(block.channels) if channels is None else channels
+    arrays, descs = [], []
+    for name in names:
+        x = np.asarray(block.channels[name])
+        dt = "float32" if x.dtype == np.float32 else "float64"
+        arrays.append(np.ascontiguousarray(x, dtype=_DTYPES[dt]))
+        unit = (units or {}).get(name) or CHANNEL_UNITS.get(name) or name.rsplit("_", 1)[-1]
+        descs.append({"name": name, "unit": unit, "dtype": dt})
+    head = json.dumps({"v": 1, "first_index": int(block.first_index), "n": int(block.n), "fs_hz": float(block.fs_hz),
+                       "t0_ns": int(block.t0_ns), "flags": int(block.flags), "gap_samples": int(block.gap_samples),
+                       "channels": descs}).encode()
+    return b"".join([struct.pack("<I", len(head)), head, *(a.data for a in arrays)])
+
+
+def decode_raw(payload: bytes | bytearray | memoryview) -> SampleBlock:
+    """The inverse of :func:`encode_raw` (arrays are views of ``payload``, read-only)."""
+    buf = memoryview(payload)
+    try:
+        (h,) = struct.unpack_from("<I", buf, 0)
+        head = json.loads(bytes(buf[4:4 + h]))
+        off, n, channels = 4 + h, int(head["n"]), {}
+        for ch in head["channels"]:
+            dt = _DTYPES[ch["dtype"]]
+            channels[ch["name"]] = np.frombuffer(buf, dtype=dt, count=n, offset=off)
+            off += n * dt.itemsize
+        if off != len(buf):
+            raise ValueError(f"payload has {len(buf)} bytes, the header describes {off}")
+        return SampleBlock(int(head["first_index"]), float(head["fs_hz"]), channels,
+                           flags=BlockFlags(int(head["flags"])), gap_samples=int(head["gap_samples"]))
+    except (ValueError, KeyError, TypeError, struct.error) as err:
+        raise BenchError(f"not a hystbench raw payload: {err}") from err
+
+
+# --- configuration ----------------------------------------------------------------------------------
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago (tests: never the default 7447)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+#: Room for bursts of raw blocks: 16 batches of 64 KiB per priority (zenoh's default is 2, 128
+#: KiB, which a publisher held up by one 10-ms GIL slice overflows at 16 MB/s), and 5 ms before a
+#: put is dropped rather than 1.  Also set in the shipped zenoh*.json5 files.
+TX_QUEUE = {"size": {"data": 16, "data_high": 4, "data_low": 4},
+            "congestion_control": {"drop": {"wait_before_drop": 5000}}}
+
+
+def peer_config(*, listen: list[str] | None = None, connect: list[str] | None = None,
+                user: str | None = None, password: str | None = None) -> dict:
+    """An embedded peer: listens where told (default nowhere), connects where told, no multicast
+    scouting and no gossip (so nothing is found that was not configured)."""
+    cfg: dict[str, Any] = {"mode": "peer", "listen": {"endpoints": list(listen or [])},
+                           "connect": {"endpoints": list(connect or [])},
+                           "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+                           "transport": {"link": {"tx": {"queue": TX_QUEUE}}}}
+    if user is not None:
+        cfg["transport"]["auth"] = {"usrpwd": {"user": user, "password": password or ""}}
+    return cfg
+
+
+def load_zenoh_config(source: str | Path | Mapping | None, *, listen: list[str] | None = None,
+                      connect: list[str] | None = None):
+    """A ``zenoh.Config`` from a json5 file, a dict or (None) :func:`peer_config`; ``listen`` and
+    ``connect``, when given, replace the file's endpoints (tests put ephemeral ports there)."""
+    import zenoh
+
+    try:
+        if source is None:
+            cfg = zenoh.Config.from_json5(json.dumps(peer_config(listen=listen, connect=connect)))
+            return cfg
+        if isinstance(source, Mapping):
+            cfg = zenoh.Config.from_json5(json.dumps(dict(source)))
+        else:
+            path = Path(source)
+            if not path.is_file():
+                raise ConfigError(f"{path}: zenoh config file not found")
+            cfg = zenoh.Config.from_file(str(path))
+        if listen is not None:
+            cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        if connect is not None:
+            cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        return cfg
+    except ConfigError:
+        raise
+    except Exception as err:  # zenoh.ZError and friends: say which config
+        raise ConfigError(f"zenoh config {source if source is not None else '(built-in)'}: {err}") from err
+
+
+def open_session(config) -> Any:
+    import zenoh
+
+    try:
+        return zenoh.open(config)
+    except Exception as err:
+        raise ConfigError(f"cannot open the zenoh session: {err}") from err
+
+
+# --- the daemon's side -----------------------------------------------------------------------------------
+class ZenohBus:
+    """Publishes a bench's data and serves its queryables and commands.
+
+    ``on_command(verb, args) -> dict`` runs a command (raise :class:`BenchError` to refuse it);
+    ``config()`` and ``health()`` answer the queryables.  Publishing never blocks the pipeline:
+    raw blocks use congestion control DROP, and a failed put is counted, not raised.
+    """
+
+    def __init__(self, bench: str, config, *, on_command: Callable[[str, dict], dict] | None = None,
+                 config_provider: Callable[[], dict] | None = None,
+                 health_provider: Callable[[], dict] | None = None, session=None,
+                 per_channel: bool = False) -> None:
+        self.bench = bench
+        self.per_channel = per_channel
+        key(bench)  # validates the name
+        self._zconfig = config
+        self.on_command, self.config_provider, self.health_provider = on_command, config_provider, health_provider
+        self.session = session
+        self._own_session = session is None
+        self._pubs: dict[str, Any] = {}
+        self._lock = threading.Lock()
+        self._decls: list[Any] = []
+        self.put_errors = 0
+        self.published = 0
+        self.commands = 0
+
+    def open(self) -> "ZenohBus":
+        import zenoh
+
+        if self.session is None:
+            self.session = open_session(self._zconfig)
+        s = self.session
+        self._cc_drop = zenoh.CongestionControl.DROP
+        self._decls.append(s.declare_queryable(key(self.bench, "config"), self._reply(lambda q: self.config_provider() if self.config_provider else {})))
+        self._decls.append(s.declare_queryable(key(self.bench, "health"), self._reply(lambda q: self.health_provider() if self.health_provider else {})))
+        self._decls.append(s.declare_queryable(key(self.bench, "cmd", "*"), self._command))
+        return self
+
+    def close(self) -> None:
+        for d in self._decls + list(self._pubs.values()):
+            try:
+                d.undeclare()
+            except Exception:
+                pass
+        self._decls, self._pubs = [], {}
+        if self._own_session and self.session is not None:
+            self.session.close()
+        self.session = None
+
+    def __enter__(self) -> "ZenohBus":
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _publisher(self, *parts: str, express: bool = False):
+        k = "/".join(parts)
+        pub = self._pubs.get(k)
+        if pub is None:
+            import zenoh
+
+            with self._lock:  # several pipeline threads publish
+                pub = self._pubs.get(k)
+                if pub is None:
+                    pub = self._pubs[k] = self.session.declare_publisher(
+                        key(self.bench, *parts), congestion_control=zenoh.CongestionControl.DROP, express=express)
+        return pub
+
+    def publish_block(self, block: SampleBlock, units: Mapping[str, str] | None = None) -> None:
+        """The block on ``raw`` as one message (every channel), or with ``per_channel`` one message
+        per channel on ``raw/<channel>``; express (no batching delay).  One put per block is the
+        default because each put costs a release and re-acquisition of the GIL: four per block
+        doubled the p99 latency at 4 x 1 MS/s (docs/pipeline.md)."""
+        if not self.per_channel:
+            self._put(self._publisher("raw", express=True), encode_raw(block, None, units), RAW_ENCODING)
+            return
+        for name in block.channels:
+            self._put(self._publisher("raw", name, express=True), encode_raw(block, [name], units), RAW_ENCODING)
+
+    def publish(self, topic: str, obj: Mapping[str, Any]) -> None:
+        """A JSON message on ``estimate``, ``compensator``, ``status`` or ``stats``."""
+        self._put(self._publisher(topic), json_bytes(obj), "application/json")
+
+    def _put(self, pub, payload: bytes, encoding: str) -> None:
+        try:
+            pub.put(payload, encoding=encoding)
+            self.published += 1
+        except Exception:  # a closed session during shutdown, a full queue: count, never raise
+            self.put_errors += 1
+
+    def _reply(self, make: Callable[[Any], dict]) -> Callable[[Any], None]:
+        def handler(query) -> None:
+            with query:
+                try:
+                    query.reply(query.key_expr, json_bytes(make(query)), encoding="application/json")
+                except Exception as err:
+                    query.reply_err(json_bytes({"error": str(err)}))
+        return handler
+
+    def _command(self, query) -> None:
+        with query:
+            verb = str(query.key_expr).rsplit("/", 1)[-1]
+            try:
+                args = json.loads(query.payload.to_bytes()) if query.payload else {}
+                if not isinstance(args, dict):
+                    raise ConfigError(f"cmd/{verb}: the payload must be a JSON object, got {type(args).__name__}")
+                if verb not in COMMANDS:
+                    raise ConfigError(f"unknown command {verb!r}; known: {', '.join(COMMANDS)}")
+                if self.on_command is None:
+                    raise ConfigError("this bench takes no commands")
+                result = self.on_command(verb, args)
+                self.commands += 1
+                query.reply(query.key_expr, json_bytes({"ok": True, **(result or {})}), encoding="application/json")
+            except (BenchError, ValueError) as err:
+                query.reply_err(json_bytes({"ok": False, "error": str(err)}), encoding="application/json")
+
+
+# --- a client's side ---------------------------------------------------------------------------------------
+class Subscription:
+    """Samples of a key expression, queued (bounded: the oldest are dropped and counted) so that a
+    slow reader never holds up zenoh; iterate with a timeout."""
+
+    def __init__(self, session, keyexpr: str, maxsize: int = 10_000) -> None:
+        self._q: queue.Queue = queue.Queue(maxsize)
+        self.dropped = 0
+        self._sub = session.declare_subscriber(keyexpr, self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        item = (str(sample.key_expr), sample.payload.to_bytes(), time.monotonic_ns())
+        while True:
+            try:
+                self._q.put_nowait(item)
+                return
+            except queue.Full:
+                try:
+                    self._q.get_nowait()
+                    self.dropped += 1
+                except queue.Empty:
+                    pass
+
+    def get(self, timeout_s: float) -> tuple[str, bytes, int] | None:
+        """(key, payload, receive time in monotonic ns), or None after ``timeout_s``."""
+        try:
+            return self._q.get(timeout=max(0.0, timeout_s))
+        except queue.Empty:
+            return None
+
+    def iter(self, *, count: int | None = None, seconds: float | None = None,
+             stop: threading.Event | None = None) -> Iterator[tuple[str, bytes, int]]:
+        deadline = None if seconds is None else time.monotonic() + seconds
+        got = 0
+        while (count is None or got < count) and not (stop is not None and stop.is_set()):
+            left = 0.2 if deadline is None else min(0.2, deadline - time.monotonic())
+            if deadline is not None and left <= 0:
+                return
+            item = self.get(left)
+            if item is not None:
+                got += 1
+                yield item
+
+    def close(self) -> None:
+        try:
+            self._sub.undeclare()
+        except Exception:
+            pass
+
+
+def query_json(session, keyexpr: str, payload: Mapping[str, Any] | None = None, *,
+               timeout_s: float = 2.0) -> list[dict]:
+    """Every reply to a query, decoded: ``{"ok": ...}`` objects; an error reply is included with
+    ``ok: False``.  An empty list means nobody answered (or access control dropped the query)."""
+    kwargs: dict[str, Any] = {"timeout": timeout_s}
+    if payload is not None:
+        kwargs["payload"] = json.dumps(dict(payload)).encode()
+    out = []
+    for reply in session.get(keyexpr, **kwargs):
+        if reply.ok is not None:
+            out.append(json.loads(reply.ok.payload.to_bytes()))
+        else:
+            err = json.loads(reply.err.payload.to_bytes())
+            out.append(err if isinstance(err, dict) and "ok" in err else {"ok": False, "error": err})
+    return out
+
+
+def send_command(session, bench: str, verb: str, args: Mapping[str, Any] | None = None, *,
+                 timeout_s: float = 2.0) -> dict:
+    """Run ``cmd/<verb>`` on a bench; raises BenchError if refused or unanswered (timeout, or
+    denied by access control: a denied query is dropped, not answered)."""
+    replies = query_json(session, key(bench, "cmd", verb), args or {}, timeout_s=timeout_s)
+    if not replies:
+        raise BenchError(f"bench {bench!r}: no reply to cmd/{verb} within {timeout_s:g} s "
+                         "(daemon not reachable, or access control denies this subject)")
+    r = replies[0]
+    if not r.get("ok"):
+        raise BenchError(f"bench {bench!r}: cmd/{verb} refused: {r.get('error')}")
+    return r

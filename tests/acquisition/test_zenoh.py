@@ -1,0 +1,167 @@
+"""The bench on zenoh: payload codec, key space, queryables and commands, the shipped access
+control (a denied subject cannot start a sweep), and ``hystbench watch`` from another process.
+Every session listens on an ephemeral port of 127.0.0.1 (never 7447); every wait is bounded."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.acquisition.zenoh_bus import (Subscription, decode_raw, encode_raw, free_port, key, load_zenoh_config,
+                                             open_session, peer_config, query_json, send_command)
+from hystbench.blocks import BlockFlags, SampleBlock
+from hystbench.config import CONFIG_DIR
+from hystbench.errors import BenchError, ConfigError
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@settings(max_examples=50, deadline=None)
+@given(n=st.integers(0, 200), dtype=st.sampled_from([np.float32, np.float64]), first=st.integers(-10**9, 10**12),
+       flags=st.sampled_from(list(BlockFlags)), gap=st.integers(0, 10**6))
+def test_raw_payload_round_trip(n, dtype, first, flags, gap) -> None:
+    rng = np.random.default_rng(n)
+    blk = SampleBlock(first, 100_000.0, {"current_A": rng.standard_normal(n).astype(dtype),
+                                         "flux_Wb": rng.standard_normal(n).astype(dtype)}, flags=flags, gap_samples=gap)
+    payload = encode_raw(blk, ["flux_Wb"])
+    (h,) = np.frombuffer(payload[:4], "<u4")  # the documented layout, read by hand
+    head = json.loads(payload[4:4 + h])
+    assert head["channels"] == [{"name": "flux_Wb", "unit": "Wb", "dtype": np.dtype(dtype).name}]
+    assert len(payload) == 4 + h + n * np.dtype(dtype).itemsize
+    back = decode_raw(payload)
+    assert (back.first_index, back.flags, back.gap_samples, list(back.channels)) == (first, flags, gap, ["flux_Wb"])
+    assert back.channels["flux_Wb"].tobytes() == blk.channels["flux_Wb"].tobytes()
+
+
+def test_key_space_and_bad_payloads() -> None:
+    assert key("bench1", "raw", "force_N") == "hystbench/bench1/raw/force_N"
+    for bad in ("", "a/b", "x*", "q?"):
+        with pytest.raises(ConfigError, match="bench name"):
+            key(bad)
+    with pytest.raises(BenchError, match="raw payload"):
+        decode_raw(b"\x05\x00\x00\x00{}")
+
+
+def service(tmp_path: Path, extra: str = "", **kw) -> tuple[BenchService, int]:
+    port = free_port()
+    toml = tmp_path / "daemon.toml"
+    toml.write_text(f'[daemon]\nbench = "t"\nlog_dir = "{tmp_path.as_posix()}"\nstats_interval_s = 0.3\n'
+                    f'[source]\nkind = "sim"\n[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n'
+                    f'[sweep]\nfrequencies_hz = [160.0, 320.0]\ndwell_s = 0.4\n' + extra, encoding="utf-8")
+    return BenchService(load_daemon_config(toml), **kw).start(), port
+
+
+def client(port: int, **auth):
+    return open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"], **auth)))
+
+
+def test_bench_on_zenoh_publishes_answers_and_obeys(tmp_path: Path) -> None:
+    svc, port = service(tmp_path)
+    s = client(port)
+    try:
+        raw = Subscription(s, "hystbench/t/raw/**")
+        est = Subscription(s, "hystbench/t/estimate")
+        status = Subscription(s, "hystbench/t/status")
+        stats = Subscription(s, "hystbench/t/stats")
+        time.sleep(0.3)
+        health = query_json(s, "hystbench/t/health", timeout_s=2.0)
+        assert health and health[0]["state"] == "running" and health[0]["bench"] == "t"
+        assert query_json(s, "hystbench/t/config")[0]["sweep"]["frequencies_hz"] == [160.0, 320.0]
+        with pytest.raises(BenchError, match="unknown command"):
+            send_command(s, "t", "self_destruct")
+        with pytest.raises(BenchError, match="frequencies"):
+            send_command(s, "t", "start_sweep", {"frequencies_hz": [1e9]})
+        assert send_command(s, "t", "start_sweep")["points"] == 2
+        with pytest.raises(BenchError, match="a sweep is running"):
+            send_command(s, "t", "start_sweep")
+        got = [json.loads(p) for _, p, _ in est.iter(count=4, seconds=5.0)]
+        assert len(got) == 4 and all(not e["error"] for e in got)
+        assert {e["nominal_frequency_Hz"] for e in got} <= {160.0, 320.0}
+        k, payload, _ = raw.get(2.0)
+        blk = decode_raw(payload)
+        assert k == "hystbench/t/raw" and blk.n == 1000 and blk.fs_hz == 100_000.0
+        assert list(blk.channels) == ["current_A", "force_N", "flux_Wb", "sense_V", "command_V"]
+        events = [json.loads(p)["event"] for _, p, _ in status.iter(seconds=0.5)]
+        assert "sweep_point" in events
+        st_ = json.loads(stats.get(2.0)[1])
+        assert st_["stages"]["source"]["samples"] > 0 and "latency_ms_p99" in st_["stages"]["publish"]
+        assert send_command(s, "t", "stop_sweep")["stopped"]
+        assert send_command(s, "t", "set_excitation", {"frequency_hz": 80.0})["applied"] == {"frequency_hz": 80.0}
+        with pytest.raises(BenchError, match="unknown argument"):
+            send_command(s, "t", "set_excitation", {"volume": 11})
+    finally:
+        s.close()
+        paths = svc.stop()
+    assert paths and paths[0].stat().st_size > 0
+
+
+def _acl_config(tmp_path: Path) -> Path:
+    """The shipped ACL config with its users file pointed at a temporary one."""
+    users = tmp_path / "users.txt"
+    users.write_text("operator:op-secret\nviewer:view-secret\n", encoding="utf-8")
+    os.chmod(users, 0o600)
+    import zenoh
+
+    cfg = zenoh.Config.from_file(str(CONFIG_DIR / "zenoh-acl.json5"))
+    assert json.loads(cfg.get_json("access_control/default_permission")) == "deny"
+    text = (CONFIG_DIR / "zenoh-acl.json5").read_text(encoding="utf-8")
+    out = tmp_path / "zenoh-acl.json5"
+    out.write_text(text.replace("/etc/hystbench/zenoh-users.txt", users.as_posix()), encoding="utf-8")
+    return out
+
+
+def test_access_control_denies_commands_to_unlisted_subjects(tmp_path: Path) -> None:
+    acl = _acl_config(tmp_path)
+    port = free_port()
+    toml = tmp_path / "acl.toml"
+    toml.write_text(f'[daemon]\nbench = "t"\nlog_dir = "{tmp_path.as_posix()}"\n[source]\nkind = "sim"\n'
+                    f'[zenoh]\nconfig = "{acl.as_posix()}"\nlisten = ["tcp/127.0.0.1:{port}"]\n'
+                    f'[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 5.0\n', encoding="utf-8")
+    svc = BenchService(load_daemon_config(toml)).start()
+    viewer = client(port, user="viewer", password="view-secret")
+    try:
+        status = Subscription(viewer, "hystbench/t/status")
+        time.sleep(0.3)
+        assert query_json(viewer, "hystbench/t/health", timeout_s=2.0)[0]["state"] == "running"  # may watch
+        with pytest.raises(BenchError, match="access control"):
+            send_command(viewer, "t", "start_sweep", timeout_s=1.0)
+        assert svc.state == "running" and not svc.source.rig.output_enabled  # nothing was driven
+        assert "sweep_started" not in [json.loads(p)["event"] for _, p, _ in status.iter(seconds=0.3)]
+        operator = client(port, user="operator", password="op-secret")
+        try:
+            assert send_command(operator, "t", "start_sweep", timeout_s=2.0)["points"] == 1
+            events = [json.loads(p)["event"] for _, p, _ in status.iter(seconds=1.0)]
+            assert "sweep_started" in events  # the viewer sees it happen, but could not start it
+        finally:
+            operator.close()
+        intruder = client(port, user="nobody", password="x")  # not in the users file: not connected
+        try:
+            assert query_json(intruder, "hystbench/t/health", timeout_s=0.5) == []
+        finally:
+            intruder.close()
+    finally:
+        viewer.close()
+        svc.stop()
+
+
+def test_watch_prints_live_estimates_from_another_process(tmp_path: Path) -> None:
+    svc, port = service(tmp_path, "autostart = true\n")
+    try:
+        proc = subprocess.run([sys.executable, "-m", "hystbench", "watch",
+                               "hystbench/t/estimate", "--connect", f"tcp/127.0.0.1:{port}", "--count", "3",
+                               "--seconds", "20"], capture_output=True, text=True, timeout=40, cwd=ROOT)
+    finally:
+        svc.stop()
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert len(lines) == 3 and all("hysteresis" in ln and "deg" in ln for ln in lines)
