@@ -53,7 +53,9 @@ DEFAULTS: dict[str, dict[str, tuple[Any, Any, Any]]] = {
               "raw_per_channel": (bool, False, None)},
     "sweep": {"frequencies_hz": (list, [40.0, 80.0, 160.0, 320.0, 480.0], None), "current_pp_a": (_NUM, 1.4, (0,)),
               "dwell_s": (_NUM, 1.0, None), "autostart": (bool, False, None)},
-    "compensator": {"enabled": (bool, False, None), "factory": (str, "", None)},
+    "compensator": {"enabled": (bool, False, None), "factory": (str, "", None), "model": (str, "", None),
+                    "kind": (str, "best", ("nonhysteretic", "paper", "best")), "force": (str, "", None),
+                    "current_limit_a": (_NUM, 1.8, (0,))},
 }
 
 
@@ -161,12 +163,26 @@ def zenoh_config(cfg: DaemonConfig):
     return load_zenoh_config(src, listen=listen, connect=connect)
 
 
-def _load_compensator(factory: str, source):
-    """``module:callable`` -> the callable's result wrapped in a CompensatorHook."""
+def _load_compensator(c: dict, source):
+    """The compensator stage in a CompensatorHook: from ``model`` (a `hystbench model fit` file),
+    ``kind`` and ``force`` (a reference such as "offset=170,amp=40,freq=320"), or from a
+    ``factory = "module:callable"`` for anything else."""
     import importlib
 
     from .pipeline import CompensatorHook
 
+    factory = c["factory"]
+    if not factory:
+        from ..compensator import CompensatorStage, ForceReference, ModelSet
+
+        if not c["model"] or not c["force"]:
+            raise ConfigError("[compensator] enabled: give model and force (or a factory)")
+        try:
+            reference = ForceReference.parse(c["force"])
+        except ValueError as err:
+            raise ConfigError(f"[compensator] force {c['force']!r}: {err}") from err
+        model = ModelSet.load(c["model"])[c["kind"]]
+        return CompensatorHook(CompensatorStage(model, reference, current_limit_a=c["current_limit_a"]), source)
     mod, _, attr = factory.partition(":")
     try:
         obj = getattr(importlib.import_module(mod), attr or "make_compensator")
@@ -221,7 +237,7 @@ class BenchService:
             est = WindowEstimator(self.source.fs_hz, self.source.metadata(), periods=e["periods"],
                                   hop_periods=e["hop_periods"], min_hop_s=e["min_hop_s"],
                                   settle_periods=e["settle_periods"], max_fs_hz=e["max_fs_hz"]) if e["enabled"] else None
-            comp = _load_compensator(c["compensator"]["factory"], self.source) if c["compensator"]["enabled"] else None
+            comp = _load_compensator(c["compensator"], self.source) if c["compensator"]["enabled"] else None
             if c["recording"]["enabled"]:
                 r = c["recording"]
                 self.recorder = McapRecorder(_log_path(Path(c["daemon"]["log_dir"]), c["daemon"]["bench"]),

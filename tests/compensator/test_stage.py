@@ -60,3 +60,42 @@ def test_stage_with_the_live_estimator(models_pm):
                     rig.set_waveform(s.pop("waveform_A"), s["frequency_Hz"])
     assert states and states[0]["tables_sent"] == 1
     assert 1.0 < states[-1]["theta_live_deg"] < 1.8  # flux behind current at 320 Hz with magnet
+
+
+def test_the_daemon_runs_the_compensator_from_its_config_and_logs_its_state(models_pm, tmp_path):
+    """Online: the daemon's pipeline feeds live estimates to the stage, which uploads its current
+    table to the source and whose state lands in the MCAP log's /compensator topic."""
+    import time
+
+    from hystbench.acquisition.daemon import BenchService, load_daemon_config
+    from hystbench.acquisition.mcaplog import COMPENSATOR, iter_log
+
+    model = models_pm.save(tmp_path / "models.json")
+    cfg = tmp_path / "daemon.toml"
+    cfg.write_text(f'[daemon]\nbench = "t"\nlog_dir = "{(tmp_path / "logs").as_posix()}"\n'
+                   '[source]\nkind = "sim"\nfrequency_hz = 320.0\ncurrent_pp_a = 1.4\n'
+                   '[estimation]\nperiods = 10\nhop_periods = 10\n[zenoh]\nenabled = false\n'
+                   '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 8.0\nautostart = true\n'  # output on
+                   f'[compensator]\nenabled = true\nmodel = "{model.as_posix()}"\nkind = "paper"\n'
+                   'force = "offset=170,amp=40,freq=320"\n', encoding="utf-8")
+    svc = BenchService(load_daemon_config(cfg)).start()
+    try:
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and getattr(svc.source.rig, "_waveform", None) is None:
+            time.sleep(0.1)
+        assert svc.source.rig._waveform is not None  # the stage's table reached the generator
+    finally:
+        logs = svc.stop()
+    states = [m.json() for log in logs for m in iter_log(log, [COMPENSATOR])]
+    assert states and any("theta" in str(s) for s in states)
+
+
+def test_a_compensator_without_model_or_force_is_refused_naming_the_key(tmp_path):
+    from hystbench.acquisition.daemon import BenchService, load_daemon_config
+    from hystbench.errors import ConfigError
+
+    cfg = tmp_path / "daemon.toml"
+    cfg.write_text('[source]\nkind = "sim"\n[zenoh]\nenabled = false\n[recording]\nenabled = false\n'
+                   '[compensator]\nenabled = true\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"\[compensator\].*model and force"):
+        BenchService(load_daemon_config(cfg)).start()
