@@ -99,3 +99,28 @@ def test_a_compensator_without_model_or_force_is_refused_naming_the_key(tmp_path
                    '[compensator]\nenabled = true\n', encoding="utf-8")
     with pytest.raises(ConfigError, match=r"\[compensator\].*model and force"):
         BenchService(load_daemon_config(cfg)).start()
+
+
+def test_the_daemon_compensator_drives_the_generator_through_its_driver(models_pm, tmp_path):
+    """The same, with the daemon's default source: the table reaches the emulated signal generator
+    as an arbitrary waveform over SCPI."""
+    import time
+
+    from hystbench.acquisition.daemon import BenchService, load_daemon_config
+
+    model = models_pm.save(tmp_path / "models.json")
+    cfg = tmp_path / "daemon.toml"
+    cfg.write_text(f'[daemon]\nbench = "t"\nlog_dir = "{(tmp_path / "logs").as_posix()}"\n'
+                   '[source]\nkind = "bench"\nfrequency_hz = 320.0\ncurrent_pp_a = 1.4\n[zenoh]\nenabled = false\n'
+                   '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 8.0\nautostart = true\n'
+                   f'[compensator]\nenabled = true\nmodel = "{model.as_posix()}"\nkind = "paper"\n'
+                   'force = "offset=170,amp=40,freq=320"\n', encoding="utf-8")
+    svc = BenchService(load_daemon_config(cfg)).start()
+    try:
+        deadline = time.monotonic() + 15.0
+        while time.monotonic() < deadline and svc.source.emu.generator.state.get("function") != "ARB":
+            time.sleep(0.1)
+        assert svc.source.emu.generator.state.get("function") == "ARB"
+        assert svc.pipeline.compensator.errors == 0
+    finally:
+        svc.stop()
