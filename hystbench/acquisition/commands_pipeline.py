@@ -45,18 +45,7 @@ def record_log(source, out: str | Path, *, estimation: dict | None = None, compr
     est = WindowEstimator(source.fs_hz, source.metadata(), **settings)
     with McapRecorder(out, metadata=meta, compression=compression, overwrite=overwrite) as rec:
         pipe = Pipeline(source, estimator=est, recorder=rec)
-        estimates: list[dict] = []
-        pipe.listeners.append(lambda t, o: estimates.append(dict(o)) if t == "/estimate" else None)
-        if on_message is not None:
-            pipe.listeners.append(on_message)
-        pipe.start()
-        try:
-            if not pipe.join(timeout_s):
-                pipe.stop()
-        except KeyboardInterrupt:
-            pipe.stop()
-        if pipe.error is not None:
-            raise BenchError(f"{out}: recording failed: {pipe.error}") from pipe.error
+        estimates = _run_collecting(pipe, on_message, timeout_s, f"{out}: recording failed")
     return {"log": [str(p) for p in rec.paths], "samples": pipe.stats["source"].samples, "estimates": estimates,
             "bytes": sum(Path(p).stat().st_size for p in rec.paths), "stats": pipe.stats_dict()}
 
@@ -75,17 +64,23 @@ def replay_log(path: str | Path, *, speed: str = "max", out: str | Path | None =
                           on_message=on_message)["estimates"]
     est = WindowEstimator(src.fs_hz, src.metadata(), **_estimation_settings(src.config))
     pipe = Pipeline(src, estimator=est, dtype=src.dtype)
+    return _run_collecting(pipe, on_message, None, f"{path}: replay failed")
+
+
+def _run_collecting(pipe, on_message, timeout_s: float | None, failure: str) -> list[dict]:
+    """Run the pipeline to its end (Ctrl-C or ``timeout_s`` stop it); its estimates, in order."""
     estimates: list[dict] = []
     pipe.listeners.append(lambda t, o: estimates.append(dict(o)) if t == "/estimate" else None)
     if on_message is not None:
         pipe.listeners.append(on_message)
     pipe.start()
     try:
-        pipe.join()
+        if not pipe.join(timeout_s):
+            pipe.stop()
     except KeyboardInterrupt:
         pipe.stop()
     if pipe.error is not None:
-        raise BenchError(f"{path}: replay failed: {pipe.error}") from pipe.error
+        raise BenchError(f"{failure}: {pipe.error}") from pipe.error
     return estimates
 
 

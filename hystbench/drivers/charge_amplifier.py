@@ -12,7 +12,7 @@ from typing import Any
 from ..errors import ConfigError, InstrumentError
 from .base import Backoff, Instrument, InstrumentStatus
 from .protocols.charge_amp import COMMANDS, ERRORS, OK, STATUS, parse_reply_error
-from .stream import SampleStream, SerialFrameSource, TcpFrameSource, parse_stream_url
+from .stream import SampleStream, frame_source
 from .transport import SerialLink
 
 __all__ = ["ChargeAmplifier", "ChargeAmpError", "CHARGE_AMP_STREAM_ID"]
@@ -107,9 +107,7 @@ class ChargeAmplifier(Instrument):
         if not self.stream_url:
             raise ConfigError(f"{self.name}: no stream_url configured")
         self.settings["scale_n_per_v"] = self.query("scale_n_per_v")
-        kind, where = parse_stream_url(self.stream_url)
-        source = (TcpFrameSource(where, stream_id=CHARGE_AMP_STREAM_ID, channels=1) if kind == "tcp"
-                  else SerialFrameSource(where, stream_id=CHARGE_AMP_STREAM_ID, channels=1))
+        source = frame_source(self.stream_url, CHARGE_AMP_STREAM_ID)
         stream = SampleStream(self.name, source, ["force_N"], self.fs_hz,
                               scale={"force_N": self.settings["scale_n_per_v"]}, skew_s=skew_s,
                               stall_timeout_s=stall_timeout_s, backoff=backoff or self.backoff).start()

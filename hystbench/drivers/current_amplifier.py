@@ -15,7 +15,7 @@ from ..errors import ConfigError, InstrumentError, InstrumentTimeout, ProtocolEr
 from .base import Backoff, Instrument, InstrumentStatus
 from .protocols.modbus_map import CONTROL, EXCEPTIONS, FAULTS, MODEL_ID, REGISTERS, STATUS
 from .safety import CurrentBudget
-from .stream import SampleStream, SerialFrameSource, TcpFrameSource, parse_stream_url
+from .stream import SampleStream, frame_source
 
 __all__ = ["ModbusCurrentAmplifier", "ModbusError", "AMPLIFIER_STREAM_ID"]
 
@@ -157,9 +157,7 @@ class ModbusCurrentAmplifier(Instrument):
         """The output current monitor (``current_A``, amperes) on the common sample clock."""
         if not self.stream_url:
             raise ConfigError(f"{self.name}: no stream_url configured")
-        kind, where = parse_stream_url(self.stream_url)
-        source = (TcpFrameSource(where, stream_id=AMPLIFIER_STREAM_ID, channels=1) if kind == "tcp"
-                  else SerialFrameSource(where, stream_id=AMPLIFIER_STREAM_ID, channels=1))
+        source = frame_source(self.stream_url, AMPLIFIER_STREAM_ID)
         return SampleStream(self.name, source, ["current_A"], self.fs_hz, skew_s=skew_s,
                             stall_timeout_s=stall_timeout_s, backoff=backoff or self.backoff).start()
 

@@ -17,7 +17,7 @@ from .base import Backoff, Instrument, InstrumentStatus
 from .protocols import scpi
 from .protocols.scpi import GENERATOR
 from .safety import CurrentBudget
-from .stream import SampleStream, TcpFrameSource, SerialFrameSource, parse_stream_url
+from .stream import SampleStream, frame_source
 from .transport import SerialLink
 
 __all__ = ["ScpiSignalGenerator", "ScpiError", "GENERATOR_STREAM_ID"]
@@ -159,9 +159,7 @@ class ScpiSignalGenerator(Instrument):
         """The generator's output monitor (``command_V``) on the common sample clock."""
         if not self.stream_url:
             raise ConfigError(f"{self.name}: no stream_url configured")
-        kind, where = parse_stream_url(self.stream_url)
-        source = (TcpFrameSource(where, stream_id=GENERATOR_STREAM_ID, channels=1) if kind == "tcp"
-                  else SerialFrameSource(where, stream_id=GENERATOR_STREAM_ID, channels=1))
+        source = frame_source(self.stream_url, GENERATOR_STREAM_ID)
         return SampleStream(self.name, source, ["command_V"], self.fs_hz, skew_s=skew_s,
                             stall_timeout_s=stall_timeout_s, backoff=backoff or self.backoff).start()
 

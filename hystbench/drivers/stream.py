@@ -38,6 +38,14 @@ def parse_stream_url(url: str) -> tuple[str, str]:
     return "serial", url
 
 
+def frame_source(url: str, stream_id: int, channels: int = 1) -> "FrameSource":
+    """The frame source a stream URL names: length-prefixed frames over TCP, or COBS over serial."""
+    kind, where = parse_stream_url(url)
+    if kind == "tcp":
+        return TcpFrameSource(where, stream_id=stream_id, channels=channels)
+    return SerialFrameSource(where, stream_id=stream_id, channels=channels)
+
+
 class FrameSource(abc.ABC):
     """Where frames come from.  ``read_frames`` waits at most ``timeout_s``; transport loss raises."""
 
