@@ -154,10 +154,7 @@ def targets(res: dict) -> list[dict]:
 
 
 def figures(res: dict, folder: Path) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from hystbench.acquisition.figures import plt, save_figure
 
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -177,10 +174,7 @@ def figures(res: dict, folder: Path) -> list[Path]:
                ylabel="100 % - accuracy (%)")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    paths.append(folder / "compensator_accuracy.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(save_figure(fig, folder / "compensator_accuracy.png"))
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     for ax, (rig, r) in zip(axes, res["rigs"].items()):
@@ -190,10 +184,7 @@ def figures(res: dict, folder: Path) -> list[Path]:
                ylabel="dF (N)")
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    paths.append(folder / "compensator_error_320Hz.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(save_figure(fig, folder / "compensator_error_320Hz.png"))
 
     fig, axes = plt.subplots(2, 2, figsize=(12, 8))
     for row, (rig, r) in zip(axes, res["rigs"].items()):
@@ -205,10 +196,7 @@ def figures(res: dict, folder: Path) -> list[Path]:
                    ylabel="d = i - j (mA)")
             ax.grid(True, alpha=0.3)
             ax.legend(fontsize=7)
-    fig.tight_layout()
-    paths.append(folder / "compensator_iron_loops.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(save_figure(fig, folder / "compensator_iron_loops.png"))
 
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
     for c in res["closed_loop"]:
@@ -221,10 +209,7 @@ def figures(res: dict, folder: Path) -> list[Path]:
            ylabel="error / noise floor")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=6)
-    fig.tight_layout()
-    paths.append(folder / "compensator_learning.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(save_figure(fig, folder / "compensator_learning.png"))
     return paths
 
 

@@ -12,7 +12,7 @@ import sys
 import threading
 
 
-__all__ = ["register", "cmd_emulate", "main"]
+__all__ = ["register", "cmd_emulate"]
 
 
 def register(subparsers) -> None:

@@ -11,7 +11,6 @@ the pipeline (a new log part) and, if its [zenoh] section changed, the zenoh ses
 from __future__ import annotations
 
 import copy
-import json
 import logging
 import signal
 import threading

@@ -8,7 +8,6 @@ blocks continue each other exactly.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, Mapping, Protocol
 

@@ -8,7 +8,6 @@ import pytest
 from hystbench.acquisition.cli import main as run  # the hystbench command: BenchError -> exit 2
 from hystbench.acquisition.commands_compensator import simulated_sweep
 from hystbench.acquisition.recording import read_recording, write_recording, write_sweep
-from hystbench.errors import BenchError
 
 
 @pytest.fixture(scope="module")
