@@ -54,7 +54,8 @@ DEFAULTS: dict[str, dict[str, tuple[Any, Any, Any]]] = {
               "dwell_s": (_NUM, 1.0, None), "autostart": (bool, False, None)},
     "compensator": {"enabled": (bool, False, None), "factory": (str, "", None), "model": (str, "", None),
                     "kind": (str, "best", ("nonhysteretic", "paper", "best")), "force": (str, "", None),
-                    "current_limit_a": (_NUM, 1.8, (0,))},
+                    "current_limit_a": (_NUM, 1.8, (0,)), "learn": (bool, False, None),
+                    "learning_gain": (_NUM, 0.8, (0,))},
 }
 
 
@@ -172,7 +173,7 @@ def _load_compensator(c: dict, source):
 
     factory = c["factory"]
     if not factory:
-        from ..compensator import CompensatorStage, ForceReference, ModelSet
+        from ..compensator import CompensatorStage, ForceReference, LearningConfig, ModelSet
 
         if not c["model"] or not c["force"]:
             raise ConfigError("[compensator] enabled: give model and force (or a factory)")
@@ -180,8 +181,14 @@ def _load_compensator(c: dict, source):
             reference = ForceReference.parse(c["force"])
         except ValueError as err:
             raise ConfigError(f"[compensator] force {c['force']!r}: {err}") from err
-        model = ModelSet.load(c["model"])[c["kind"]]
-        return CompensatorHook(CompensatorStage(model, reference, current_limit_a=c["current_limit_a"]), source)
+        models = ModelSet.load(c["model"])
+        try:
+            learning = LearningConfig(gain=c["learning_gain"]) if c["learn"] else None
+        except ValueError as err:
+            raise ConfigError(f"[compensator] learning_gain: {err}") from err
+        stage = CompensatorStage(models[c["kind"]], reference, current_limit_a=c["current_limit_a"],
+                                 learning=learning, instrument=models.instrument)
+        return CompensatorHook(stage, source)
     mod, _, attr = factory.partition(":")
     try:
         obj = getattr(importlib.import_module(mod), attr or "make_compensator")
@@ -233,10 +240,11 @@ class BenchService:
             meta["rig"] = {k: v for k, v in rig.items() if not k.startswith("_")}
         try:
             e = c["estimation"]
+            comp = _load_compensator(c["compensator"], self.source) if c["compensator"]["enabled"] else None
             est = WindowEstimator(self.source.fs_hz, self.source.metadata(), periods=e["periods"],
                                   hop_periods=e["hop_periods"], min_hop_s=e["min_hop_s"],
-                                  settle_periods=e["settle_periods"], max_fs_hz=e["max_fs_hz"]) if e["enabled"] else None
-            comp = _load_compensator(c["compensator"], self.source) if c["compensator"]["enabled"] else None
+                                  settle_periods=e["settle_periods"], max_fs_hz=e["max_fs_hz"],
+                                  keep_windows=bool(comp and comp.wants_windows)) if e["enabled"] else None
             if c["recording"]["enabled"]:
                 r = c["recording"]
                 self.recorder = McapRecorder(_log_path(Path(c["daemon"]["log_dir"]), c["daemon"]["bench"]),

@@ -71,11 +71,12 @@ class Pipeline:
 
     ``recorder`` is a started :class:`~.mcaplog.McapRecorder` (or None), ``bus`` an open
     :class:`~.zenoh_bus.ZenohBus` (or None), ``estimator`` a :class:`WindowEstimator` (or None),
-    ``compensator`` a callable estimate -> state (e.g. :class:`~.stages.CompensatorHook`).
+    ``compensator`` a callable (estimate, window) -> state (e.g. :class:`CompensatorHook`); the
+    window is the estimate's samples when the estimator keeps them, else None.
     """
 
     def __init__(self, source, *, estimator: WindowEstimator | None = None, recorder=None, bus=None,
-                 compensator: Callable[[Mapping[str, Any]], dict | None] | None = None,
+                 compensator: Callable[[Mapping[str, Any], Mapping[str, Any] | None], dict | None] | None = None,
                  ring_seconds: float = 2.0, dtype: Any = np.float32, queue_size: int = 1024,
                  stats_interval_s: float = 1.0, publish_raw: bool = True,
                  gil_switch_s: float | None = 0.0005, background_nice: int = 10) -> None:
@@ -260,9 +261,10 @@ class Pipeline:
             st.samples += got.n
             for e in est.estimates():
                 e["t_ns"] = self.index_time_ns(e["end_index"])
+                window = e.pop("window", None)  # samples for a learning compensator, never published
                 self.emit(ESTIMATE, e)
                 if self.compensator is not None:
-                    state = self.compensator(e)
+                    state = self.compensator(e, window)
                     if state:
                         self.emit(COMPENSATOR, {"t_ns": e["t_ns"], "first_index": e["first_index"], **state})
             st.busy_s += time.monotonic() - t0
@@ -323,23 +325,30 @@ class CompensatorHook:
     """Hands each estimate to the compensator (when there is one) and applies what it asks for.
 
     The compensator is any object with ``update(estimate: dict) -> dict | None``; the dict it
-    returns is its state, published on ``compensator``.  If that state holds ``waveform_A`` (one
-    period of current, uniformly sampled) and ``frequency_Hz``, the waveform is uploaded to the
-    source (a :class:`Controllable`).  A compensator that raises is reported, never fatal.
+    returns is its state, published on ``compensator``.  One that ``learns`` (a true attribute)
+    also gets the estimate's samples, under ``window``: the estimator must keep them
+    (``wants_windows``).  If the state says ``output_off`` the source's output goes off before
+    anything else; if it holds ``waveform_A`` (one period of current, uniformly sampled) and
+    ``frequency_Hz``, the waveform is uploaded to the source (a :class:`Controllable`).  A
+    compensator that raises is reported, never fatal.
     """
 
     def __init__(self, compensator: Any, source: Any = None) -> None:
         if not callable(getattr(compensator, "update", None)):
             raise ConfigError(f"compensator {compensator!r} has no update(estimate) method")
         self.compensator, self.source = compensator, source
+        self.wants_windows = bool(getattr(compensator, "learns", False))
         self.errors = 0
         self.last_error = ""
 
-    def __call__(self, estimate: Mapping[str, Any]) -> dict | None:
+    def __call__(self, estimate: Mapping[str, Any], window: Mapping[str, Any] | None = None) -> dict | None:
         if estimate.get("error"):
             return None
+        payload = dict(estimate)
+        if window is not None and self.wants_windows:
+            payload["window"] = window
         try:
-            state = self.compensator.update(dict(estimate))
+            state = self.compensator.update(payload)
         except Exception as err:  # the compensator is someone else's code: report, carry on
             self.errors += 1
             self.last_error = f"{type(err).__name__}: {err}"
@@ -347,6 +356,9 @@ class CompensatorHook:
         if not state:
             return None
         state = dict(state)
+        if state.pop("output_off", False) and isinstance(self.source, Controllable):
+            self.source.set_output(False)
+            state["output_switched_off"] = True
         wave = state.pop("waveform_A", None)
         if wave is not None and isinstance(self.source, Controllable):
             self.source.set_waveform(np.asarray(wave, dtype=float), float(state.get("frequency_Hz", estimate["nominal_frequency_Hz"])))

@@ -62,11 +62,12 @@ class Controllable(Protocol):
 
 
 def operating_meta(frequency_hz: float, current_pp_a: float, offset_a: float, output_on: bool,
-                   settling: bool = False) -> dict[str, float]:
+                   settling: bool = False, table: int = 0) -> dict[str, float]:
     """Block meta naming the operating point; ``settling`` marks samples that may still be from
-    before the last command (instruments apply it somewhere in their stream's latency)."""
+    before the last command (instruments apply it somewhere in their stream's latency); ``table``
+    counts the waveforms uploaded so far, so samples are known to belong to one table."""
     meta = {"frequency_hz": float(frequency_hz), "current_pp_a": float(current_pp_a),
-            "offset_a": float(offset_a), "output_on": 1.0 if output_on else 0.0}
+            "offset_a": float(offset_a), "output_on": 1.0 if output_on else 0.0, "table": float(table)}
     if settling:
         meta["settling"] = 1.0
     return meta
@@ -106,6 +107,7 @@ class RigSource:
         self.block_samples, self.pace, self.duration_s = int(block_samples), pace, duration_s
         self.dtype = np.dtype(dtype)
         self._commands: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        self._tables = 0  # waveforms applied
 
     def metadata(self) -> dict:
         return self.rig.metadata()
@@ -122,7 +124,11 @@ class RigSource:
 
     def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
         table = np.array(current_a, dtype=float)
-        self._commands.put(lambda: self.rig.set_waveform(table, frequency_hz))
+
+        def apply() -> None:
+            self.rig.set_waveform(table, frequency_hz)
+            self._tables += 1
+        self._commands.put(apply)
 
     def _apply(self) -> None:
         while True:
@@ -140,7 +146,7 @@ class RigSource:
             n = self.block_samples if left is None else min(self.block_samples, left)
             b = self.rig.read(n)
             r = self.rig
-            meta = operating_meta(r.frequency_hz, r.current_pp_a, r.offset_a, r.output_enabled)
+            meta = operating_meta(r.frequency_hz, r.current_pp_a, r.offset_a, r.output_enabled, table=self._tables)
             yield SampleBlock(b.first_index, b.fs_hz, {k: v.astype(self.dtype, copy=False) for k, v in b.channels.items()},
                               flags=b.flags, gap_samples=b.gap_samples, meta=meta)
             if left is not None:
@@ -241,6 +247,7 @@ class BenchSource:
         self.duration_s = duration_s
         self.settle_s = 0.1  # a command takes effect somewhere within the streams' latency
         self._output = False
+        self._tables = 0  # waveforms uploaded
         self.name = f"bench {cfg.source}" + (" (emulated instruments)" if self.emu else "")
         self._commands: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
 
@@ -269,7 +276,11 @@ class BenchSource:
 
     def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
         volts = np.asarray(current_a, dtype=float) / self.gain
-        self._commands.put(lambda: self.bench.generator.upload_waveform(volts, frequency_hz))
+
+        def apply() -> None:
+            self.bench.generator.upload_waveform(volts, frequency_hz)
+            self._tables += 1
+        self._commands.put(apply)
 
     def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]:
         from ..drivers.align import StreamAligner
@@ -299,6 +310,7 @@ class BenchSource:
             g = self.bench.generator.state
             point = (g["frequency_hz"], g["amplitude_vpp"] * self.gain, g["offset_v"] * self.gain,
                      bool(g["output"]) and self._output)
+            tables = self._tables
             while left is None or left > 0:
                 limit = left  # a block ends where settling does, so each has one meta
                 cursor = aligner.cursor or 0
@@ -308,7 +320,7 @@ class BenchSource:
                     break
                 if left is not None:
                     left -= b.n
-                meta = operating_meta(*point, settling=b.first_index < settle_until)
+                meta = operating_meta(*point, settling=b.first_index < settle_until, table=tables)
                 yield SampleBlock(b.first_index, b.fs_hz, b.channels, flags=b.flags, gap_samples=b.gap_samples,
                                   meta={**b.meta, **meta})
 
@@ -327,7 +339,7 @@ def bench_source(bench_file: str | None = None, rig: str | None = None,
 
 
 _METHOD_CHANNELS = ("current_A", "flux_Wb", "force_N")
-_POINT_KEYS = ("frequency_hz", "current_pp_a", "offset_a", "output_on", "settling")
+_POINT_KEYS = ("frequency_hz", "current_pp_a", "offset_a", "output_on", "settling", "table")
 
 
 class WindowEstimator:
@@ -345,11 +357,16 @@ class WindowEstimator:
     returns the windows completed since.  E-core rigs get :func:`~.method.measure_delays` with all
     its checks; other rigs the plain :func:`~.estimation.phase_delay` of force (and flux) behind
     current.  A window the method refuses gives an estimate with ``error`` set.
+
+    Each estimate names the waveform ``table`` its samples were played with.  With
+    ``keep_windows`` it also carries its samples under ``window`` (``fs_Hz`` and ``channels``,
+    ``command_V`` included when the source has it): a learning compensator averages them; the
+    pipeline takes them out before the estimate is published.
     """
 
     def __init__(self, fs_hz: float, metadata: Mapping[str, Any], *, periods: float = 10.0,
                  hop_periods: float | None = None, min_hop_s: float = 0.1, settle_periods: float = 2.0,
-                 max_fs_hz: float = 100_000.0) -> None:
+                 max_fs_hz: float = 100_000.0, keep_windows: bool = False) -> None:
         if not periods >= 2:
             raise ConfigError(f"estimation periods must be >= 2, got {periods}")
         self.fs_hz = float(fs_hz)
@@ -357,6 +374,7 @@ class WindowEstimator:
         self.periods, self.hop_periods = float(periods), float(hop_periods or periods)
         self.min_hop_s, self.settle_periods = float(min_hop_s), float(settle_periods)
         self.decimate = max(1, int(self.fs_hz // max_fs_hz))
+        self.keep_windows = bool(keep_windows)
         rig = str(self.metadata.get("rig", ""))
         try:
             preset = load_rig(rig)
@@ -374,6 +392,7 @@ class WindowEstimator:
     def reset(self) -> None:
         """Forget the run in progress (after torn or lost samples)."""
         self._key: tuple | None = None
+        self._table = 0
         self._buf: dict[str, np.ndarray] = {}
         self._start = 0  # source index of _buf[...][0]
         self._fill = 0
@@ -394,8 +413,9 @@ class WindowEstimator:
         self._hop = max(k, int(round(max(self.hop_periods * spp, self.min_hop_s * self.fs_hz) / k)) * k)
         self._run_start = block.first_index
         self._next_end = block.first_index + int(round(self.settle_periods * spp)) + self._win
-        self._names = [c for c in (_METHOD_CHANNELS if self.method else ("current_A", "flux_Wb", "force_N"))
-                       if c in block.channels]
+        wanted = _METHOD_CHANNELS + (("command_V",) if self.keep_windows else ())
+        self._names = [c for c in wanted if c in block.channels]
+        self._table = int(m.get("table") or 0)
         cap = self._win + self._hop + block.n
         self._buf = {c: np.empty(cap, dtype=np.float64) for c in self._names}
         self._start, self._fill = block.first_index, 0
@@ -407,7 +427,7 @@ class WindowEstimator:
         if key != self._key or block.first_index != self._end:
             self._begin(block)
         self._end = block.end_index
-        if not self._on or len(self._names) < 2:
+        if not self._on or len([c for c in self._names if c in _METHOD_CHANNELS]) < 2:
             return
         need = self._fill + block.n
         cap = next(iter(self._buf.values())).size
@@ -448,7 +468,11 @@ class WindowEstimator:
         phase_delay, measure_delays = self._phase_delay, self._measure_delays
         chans, fs = self._window(a, b)
         out: dict[str, Any] = {"first_index": int(a), "end_index": int(b), "t_ns": round(b * 1e9 / self.fs_hz),
-                               "nominal_frequency_Hz": self._f, "current_pp_A": self._ipp, "error": None}
+                               "nominal_frequency_Hz": self._f, "current_pp_A": self._ipp, "table": self._table,
+                               "error": None}
+        if self.keep_windows:
+            out["window"] = {"fs_Hz": fs, "channels": {c: x.copy() for c, x in chans.items()}}
+            chans = {c: x for c, x in chans.items() if c in _METHOD_CHANNELS}
         meta = {**{k: v for k, v in self.metadata.items() if k in ("rig",)}, "frequency_Hz": self._f,
                 "sample_rate_Hz": fs, "current_pp_A": self._ipp}
         try:

@@ -81,11 +81,12 @@ class LearningController:
         self.limit_a, self.config = float(current_limit_a), config
         self.f_hz = reference.frequency_hz
         self.command_force_n = reference.force_n.copy()
-        self.current_a = self._current(self.command_force_n)  # UnreachableReference for a bad reference
+        self.current_a = self.current_for(self.command_force_n)  # UnreachableReference for a bad reference
         self.best_error_n = np.inf
         self.history: list[IterationReport] = []
 
-    def _current(self, force_n: np.ndarray) -> np.ndarray:
+    def current_for(self, force_n: np.ndarray) -> np.ndarray:
+        """The current table for a force command, refused beyond the current limit."""
         i = self.model.current_period(force_n, self.f_hz, current_limit_a=self.limit_a)
         peak = float(np.max(np.abs(i)))
         if peak > self.limit_a:
@@ -138,7 +139,7 @@ class LearningController:
         step = resample(e_true, self.command_force_n.size)
         candidate = self.command_force_n - self.config.gain * step
         try:
-            current = self._current(candidate)
+            current = self.current_for(candidate)
         except UnreachableReference as err:
             raise LearningStopped(f"the learned command is out of reach: {err}; learning stopped", self.history) from err
         self.command_force_n, self.current_a = candidate, current

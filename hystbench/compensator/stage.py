@@ -14,9 +14,15 @@ Following the live theta_hyst (smoothed, exponential weight ``smoothing``):
   and tau follows the iron's conductivity), tau += dtheta / (2 pi f).
 
 The table is recomputed and re-sent only when the theta used moves by more than ``retune_deg``
-(so estimation noise does not keep the generator busy).  The closed-loop learning needs period
-averages of the force, which the hook does not carry yet: pending with the pipeline (it runs in
-``hystbench compensate`` through :func:`~.loop.run_closed_loop`).
+(so estimation noise does not keep the generator busy).
+
+Learning online (``learning`` given): each estimate then carries its window of samples; a window
+played entirely with the last table sent (its ``table`` count is past the one seen when sending)
+is averaged over its whole periods (:func:`~.periodic.measure_period`, aligned to the table by
+``command_V``) and handed to the same :class:`~.learning.LearningController` as the offline loop,
+which returns the next table.  It is repetitive control: it runs as long as the stage does.  If
+the controller stops itself (diverging, out of reach, not finite) the state asks for the output
+off (``output_off``, which the hook applies first) and the stage sends nothing more.
 """
 
 from __future__ import annotations
@@ -27,9 +33,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .errors import UnreachableReference
+from ..physics.instrument import InstrumentModel
+from .errors import LearningStopped, UnreachableReference
 from .hysteresis_eddy import HysteresisEddyModel
+from .learning import LearningConfig, LearningController
 from .models import ForceModel, PaperModel
+from .periodic import measure_period
 from .reference import ForceReference
 
 __all__ = ["CompensatorStage"]
@@ -37,9 +46,12 @@ __all__ = ["CompensatorStage"]
 
 class CompensatorStage:
     def __init__(self, model: ForceModel, reference: ForceReference, *, current_limit_a: float,
-                 smoothing: float = 0.3, retune_deg: float = 0.02) -> None:
+                 smoothing: float = 0.3, retune_deg: float = 0.02, learning: LearningConfig | None = None,
+                 instrument: InstrumentModel | None = None) -> None:
         if not 0 < smoothing <= 1:
             raise ValueError(f"smoothing must be in (0, 1], got {smoothing}")
+        if learning is not None and instrument is None:
+            raise ValueError("learning needs the force instrument's model (instrument=)")
         self.model, self.reference = model, reference
         self.limit_a, self.smoothing, self.retune_rad = float(current_limit_a), float(smoothing), math.radians(retune_deg)
         self.theta_live: float | None = None
@@ -47,9 +59,12 @@ class CompensatorStage:
         self.updates = 0  # tables sent
         self.estimates = 0
         self.status = "starting"
-        self.current_a = self.model.current_period(reference.force_n, reference.frequency_hz,
-                                                   current_limit_a=self.limit_a)
+        self.learner = None if learning is None else LearningController(model, reference, instrument, self.limit_a, learning)
+        self.learns = self.learner is not None  # the pipeline's hook then hands over each window's samples
+        self.stopped = False
+        self.current_a = self._table()
         self._sent = False
+        self._table_sent = -1  # the source's table count when the last table was sent
 
     def _model_theta(self) -> float:
         f = self.reference.frequency_hz
@@ -68,11 +83,38 @@ class CompensatorStage:
             old, self.model = self.model, replace(self.model, tau_s=tau)
             if "iron" in old.__dict__:  # same iron: keep its built tables
                 self.model.__dict__["iron"] = old.__dict__["iron"]
-        self.current_a = self.model.current_period(self.reference.force_n, f, current_limit_a=self.limit_a)
+        self.current_a = self._table()
         self.theta_used = theta
+
+    def _table(self) -> np.ndarray:
+        """The current period for the reference (or, learning, for the learned force command)."""
+        if self.learner is None:
+            return self.model.current_period(self.reference.force_n, self.reference.frequency_hz,
+                                              current_limit_a=self.limit_a)
+        self.learner.model = self.model
+        self.learner.current_a = self.learner.current_for(self.learner.command_force_n)
+        return self.learner.current_a
+
+    def _learn(self, estimate: Mapping[str, Any]) -> bool:
+        """One learning step on the estimate's window, if it was played with the last table; True
+        when it gave a new table.  LearningStopped propagates."""
+        window = estimate.get("window")
+        if self.learner is None or not window or int(estimate.get("table", -1)) <= self._table_sent:
+            return False
+        chans = {c: np.asarray(x, float) for c, x in window["channels"].items()
+                 if c in ("force_N", "current_A", "command_V")}
+        ref = "command_V" if "command_V" in chans else "current_A"
+        m = measure_period(chans, float(window["fs_Hz"]), float(estimate["frequency_Hz"]), self.current_a,
+                           reference=ref)
+        self.learner.assess(m, len(self.learner.history))
+        self.current_a = self.learner.update(m)
+        self.status = "learning"
+        return True
 
     def update(self, estimate: Mapping[str, Any]) -> dict | None:
         """One estimate in, the state (with a new table when it changed) out."""
+        if self.stopped:
+            return None
         if estimate.get("error"):
             self.status = f"waiting: estimate refused ({estimate['error']})"
             return None
@@ -94,9 +136,17 @@ class CompensatorStage:
                 self.status = "following"
             except UnreachableReference as err:
                 self.status = f"holding the last table: {err}"
+        if not send:
+            try:
+                send = self._learn(estimate)
+            except LearningStopped as err:
+                self.stopped = True
+                self.status = f"stopped, output off: {err}"
+                return {**self.state(), "output_off": True}
         if send:
             self._sent = True
             self.updates += 1
+            self._table_sent = int(estimate.get("table", 0))
         state = self.state()
         if send:
             state["waveform_A"] = self.current_a.copy()
@@ -111,4 +161,8 @@ class CompensatorStage:
                "tables_sent": self.updates, "estimates": self.estimates}
         if isinstance(self.model, HysteresisEddyModel):
             out["tau_s"] = self.model.tau_s
+        if self.learner is not None and self.learner.history:
+            rep = self.learner.history[-1]
+            out["learning"] = {"iteration": rep.iteration, "error_N": rep.max_error_n,
+                               "noise_floor_N": rep.noise_floor_n, "ratio": rep.ratio, "status": rep.status}
         return out
