@@ -73,7 +73,8 @@ def subscriber(port: int, seconds: float) -> None:
 def run_once(fs_hz: float, seconds: float, out_dir: Path, *, block_s: float = 0.01) -> dict:
     from hystbench.acquisition.mcaplog import McapRecorder
     from hystbench.acquisition.pipeline import Pipeline
-    from hystbench.acquisition.stages import SyntheticSource, WindowEstimator
+    from hystbench.acquisition.sources import SyntheticSource
+    from hystbench.acquisition.stages import WindowEstimator
     from hystbench.acquisition.zenoh_bus import ZenohBus, free_port, load_zenoh_config
 
     block = int(round(block_s * fs_hz))

@@ -143,13 +143,13 @@ def cmd_watch(args) -> int:
 
 
 def _source_from_args(args):
-    from .stages import RigSource, SyntheticSource
+    from .sources import RigSource, SyntheticSource
 
     if args.source == "synthetic":
         return SyntheticSource(fs_hz=args.fs, frequency_hz=args.freq, block_samples=args.block, pace=args.pace,
                                duration_s=args.seconds, rig=args.rig, current_pp_a=args.ipp, seed=args.seed)
     if args.source == "bench":
-        from .stages import bench_source
+        from .sources import bench_source
 
         src = bench_source(args.bench_file, rig=args.rig, duration_s=args.seconds)
         src.set_excitation(frequency_hz=args.freq, current_pp_a=args.ipp)

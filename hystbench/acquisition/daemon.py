@@ -134,7 +134,7 @@ def load_daemon_config(path: str | Path | None) -> DaemonConfig:
 
 def build_source(cfg: DaemonConfig):
     """The configured source (the simulated rig when no instruments are configured)."""
-    from .stages import RigSource, SyntheticSource, bench_source
+    from .sources import RigSource, SyntheticSource, bench_source
 
     s = cfg["source"]
     if s["kind"] == "synthetic":
@@ -296,7 +296,7 @@ class BenchService:
 
     # --- commands (zenoh cmd/<verb>) -------------------------------------------------------------
     def _controllable(self):
-        from .stages import Controllable
+        from .sources import Controllable
 
         if not isinstance(self.source, Controllable):
             raise ConfigError(f"source {self.source.name!r} takes no commands")

@@ -34,7 +34,8 @@ from ..blocks import SampleBlock
 from ..errors import ConfigError
 from .mcaplog.schemas import COMPENSATOR, ESTIMATE, STATS, STATUS
 from .ring import RingBuffer, RingReader
-from .stages import Controllable, WindowEstimator
+from .sources import Controllable
+from .stages import WindowEstimator
 
 __all__ = ["Pipeline", "StageStats", "CompensatorHook"]
 

@@ -1,6 +1,6 @@
 """The online compensator: follows the live hysteresis-delay estimate and re-shapes the current.
 
-It has the pipeline's compensator interface (``acquisition.stages.CompensatorHook``):
+It has the pipeline's compensator interface (``acquisition.pipeline.CompensatorHook``):
 ``update(estimate) -> state | None``, where ``estimate`` is one window of the method's delays
 (``frequency_Hz``, ``delays_s['hysteresis']`` = flux behind current, ``error``).  The state it
 returns is published on the ``compensator`` topic; when it holds ``waveform_A`` (one period of

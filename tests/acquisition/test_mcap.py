@@ -17,7 +17,7 @@ from hystbench.acquisition.mcaplog import (ESTIMATE, RAW, STATUS, TOPICS, McapRe
                                            iter_blocks, iter_log, log_metadata, read_mcap_recording,
                                            read_mcap_segments, recover)
 from hystbench.acquisition.recording import read_recording
-from hystbench.acquisition.stages import operating_meta
+from hystbench.acquisition.sources import operating_meta
 from hystbench.blocks import BlockFlags, SampleBlock
 from hystbench.errors import RecordingError
 

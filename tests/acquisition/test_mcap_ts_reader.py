@@ -18,7 +18,7 @@ import pytest
 
 from hystbench.acquisition.commands_pipeline import record_log
 from hystbench.acquisition.mcaplog import iter_blocks, iter_log, log_metadata
-from hystbench.acquisition.stages import SyntheticSource
+from hystbench.acquisition.sources import SyntheticSource
 
 PACKAGES = ["@mcap/core@2", "@foxglove/wasm-zstd@1"]
 

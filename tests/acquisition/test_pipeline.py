@@ -16,7 +16,8 @@ from hystbench.acquisition.commands_pipeline import record_log, replay_log
 from hystbench.acquisition.mcaplog import ESTIMATE, STATS, iter_blocks, iter_log, read_mcap_recording
 from hystbench.acquisition.method import measure_delays
 from hystbench.acquisition.pipeline import CompensatorHook, Pipeline
-from hystbench.acquisition.stages import Controllable, RigSource, Source, SyntheticSource, WindowEstimator
+from hystbench.acquisition.sources import Controllable, RigSource, Source, SyntheticSource
+from hystbench.acquisition.stages import WindowEstimator
 from hystbench.blocks import SampleBlock, concatenate
 from hystbench.sim_backend.rig import SimulatedRig
 

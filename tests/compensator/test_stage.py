@@ -42,13 +42,11 @@ def test_our_model_puts_a_drift_of_theta_into_its_eddy_time_constant(models_pm):
 def test_stage_with_the_live_estimator(models_pm):
     """Blocks of the simulated rig through the pipeline's window estimator into the stage; the
     tables it returns are played, as the pipeline's compensator hook does."""
-    stages = pytest.importorskip("hystbench.acquisition.stages")
-    if not hasattr(stages, "WindowEstimator"):
-        pytest.skip("the pipeline's window estimator is not there yet")
+    from hystbench.acquisition.stages import WindowEstimator
     from hystbench.sim_backend.rig import SimulatedRig
 
     rig = SimulatedRig("ecore_pm", seed=3, frequency_hz=320.0, current_pp_a=1.4)
-    est = stages.WindowEstimator(rig.fs_hz, rig.metadata(), periods=20)
+    est = WindowEstimator(rig.fs_hz, rig.metadata(), periods=20)
     stage = CompensatorStage(models_pm["paper"], ForceReference.parse(REF), current_limit_a=1.8)
     states = []
     for _ in range(12):
@@ -131,7 +129,8 @@ def run_online(stage, blocks: int):
     estimator that keeps its samples, each estimate and window through the compensator hook,
     which uploads the tables (applied by the source at its next block, as live)."""
     from hystbench.acquisition.pipeline import CompensatorHook
-    from hystbench.acquisition.stages import RigSource, WindowEstimator
+    from hystbench.acquisition.sources import RigSource
+    from hystbench.acquisition.stages import WindowEstimator
     from hystbench.sim_backend.rig import SimulatedRig
 
     rig = SimulatedRig("ecore_pm", seed=11, frequency_hz=320.0)  # the preset sine: estimates from the start

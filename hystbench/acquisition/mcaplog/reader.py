@@ -18,7 +18,8 @@ from typing import Any, Iterable, Iterator
 from ...blocks import SampleBlock
 from ...errors import RecordingError
 from ..recording import Recording
-from .schemas import OPERATING_KEYS, RAW, decode_block
+from ..sources import OPERATING_KEYS
+from .schemas import RAW, decode_block
 
 __all__ = ["LogMessage", "iter_log", "iter_blocks", "log_metadata", "read_mcap_segments",
            "read_mcap_recording", "McapSource", "Segment"]

@@ -20,12 +20,10 @@ from ...blocks import CHANNEL_UNITS, BlockFlags, SampleBlock
 from ...errors import RecordingError
 
 __all__ = ["RAW", "ESTIMATE", "COMPENSATOR", "STATUS", "STATS", "TOPICS", "SCHEMAS",
-           "encode_block", "decode_block", "OPERATING_KEYS"]
+           "encode_block", "decode_block"]
 
 RAW, ESTIMATE, COMPENSATOR, STATUS, STATS = "/raw", "/estimate", "/compensator", "/status", "/stats"
 
-#: Block meta keys that name the operating point: a change of any of them starts a new segment.
-OPERATING_KEYS = ("frequency_hz", "current_pp_a", "offset_a", "output_on", "settling")
 
 _DTYPES = {"float32": np.dtype("<f4"), "float64": np.dtype("<f8")}
 

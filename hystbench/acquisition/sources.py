@@ -1,0 +1,336 @@
+"""Sources of the pipeline: where sample blocks come from, and the commands that drive the bench.
+
+A *source* yields :class:`SampleBlock` s (the :class:`Source` protocol); sources that drive the
+bench also take commands (:class:`Controllable`), applied between blocks so that every block has
+one operating point, stated in its ``meta`` (``frequency_hz``, ``current_pp_a``, ``offset_a``,
+``output_on``, ``table``).  Logs keep that meta, so a replay cuts windows where the live run did.
+
+- :class:`RigSource` — the simulated rig directly;
+- :class:`SyntheticSource` — precomputed blocks replayed from memory (benchmarks, fast tests);
+- :class:`~.mcaplog.McapSource` — a log (``replay``);
+- the drivers' bench (emulated or real instruments): see :func:`bench_source`.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from typing import Any, Callable, Iterator, Protocol, runtime_checkable
+
+import numpy as np
+
+from ..blocks import SampleBlock
+from ..errors import ConfigError
+
+__all__ = ["Source", "Controllable", "RigSource", "SyntheticSource", "BenchSource", "bench_source", "operating_meta",
+           "OPERATING_KEYS"]
+
+#: Block meta keys that name the operating point: a change of any of them starts a new run of the
+#: estimator and a new segment of a log.
+OPERATING_KEYS = ("frequency_hz", "current_pp_a", "offset_a", "output_on", "settling", "table")
+
+
+@runtime_checkable
+class Source(Protocol):
+    """Where samples come from.  ``blocks`` ends when the source does or ``stop`` is set."""
+
+    name: str
+    channels: list[str]
+    fs_hz: float
+
+    def metadata(self) -> dict: ...  # the recording sidecar: rig, frequency_Hz, sample_rate_Hz, ...
+
+    def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]: ...
+
+    def close(self) -> None: ...
+
+
+@runtime_checkable
+class Controllable(Protocol):
+    """A source that drives the bench: commands take effect at the next block boundary."""
+
+    def set_excitation(self, frequency_hz: float | None = None, current_pp_a: float | None = None,
+                       offset_a: float | None = None) -> None: ...
+
+    def set_output(self, on: bool) -> None: ...
+
+    def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None: ...
+
+
+def operating_meta(frequency_hz: float, current_pp_a: float, offset_a: float, output_on: bool,
+                   settling: bool = False, table: int = 0) -> dict[str, float]:
+    """Block meta naming the operating point; ``settling`` marks samples that may still be from
+    before the last command (instruments apply it somewhere in their stream's latency); ``table``
+    counts the waveforms uploaded so far, so samples are known to belong to one table."""
+    meta = {"frequency_hz": float(frequency_hz), "current_pp_a": float(current_pp_a),
+            "offset_a": float(offset_a), "output_on": 1.0 if output_on else 0.0, "table": float(table)}
+    if settling:
+        meta["settling"] = 1.0
+    return meta
+
+
+def _paced(blocks: Iterator[SampleBlock], fs_hz: float, pace: str, stop: threading.Event | None) -> Iterator[SampleBlock]:
+    """Hold each block until real time has caught up with its last sample."""
+    t0, i0 = time.monotonic(), None
+    for b in blocks:
+        if stop is not None and stop.is_set():
+            return
+        if pace == "realtime":
+            i0 = b.first_index if i0 is None else i0
+            wait = t0 + (b.end_index - i0) / fs_hz - time.monotonic()
+            if wait > 0:
+                if stop is not None:
+                    if stop.wait(wait):
+                        return
+                else:
+                    time.sleep(wait)
+        yield b
+
+
+class RigSource:
+    """The simulated rig as a source; commands are queued and applied between blocks."""
+
+    def __init__(self, rig, *, block_samples: int = 1000, pace: str = "realtime",
+                 duration_s: float | None = None, dtype: Any = np.float32) -> None:
+        if pace not in ("max", "realtime"):
+            raise ConfigError(f"pace must be 'max' or 'realtime', got {pace!r}")
+        if block_samples < 1:
+            raise ConfigError(f"block_samples must be >= 1, got {block_samples}")
+        self.rig = rig
+        self.name = f"simulated rig {rig.name}"
+        self.channels = list(rig.channels)
+        self.fs_hz = rig.fs_hz
+        self.block_samples, self.pace, self.duration_s = int(block_samples), pace, duration_s
+        self.dtype = np.dtype(dtype)
+        self._commands: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        self._tables = 0  # waveforms applied
+
+    def metadata(self) -> dict:
+        return self.rig.metadata()
+
+    def set_excitation(self, frequency_hz=None, current_pp_a=None, offset_a=None) -> None:
+        if frequency_hz is not None and not 0 < frequency_hz < self.fs_hz / 2:  # refuse now, not later
+            raise ConfigError(f"frequency_hz {frequency_hz} must be in (0, {self.fs_hz / 2:g}) Hz")
+        if current_pp_a is not None and current_pp_a < 0:
+            raise ConfigError(f"current_pp_a must be >= 0, got {current_pp_a}")
+        self._commands.put(lambda: self.rig.set_excitation(frequency_hz, current_pp_a, offset_a))
+
+    def set_output(self, on: bool) -> None:
+        self._commands.put(lambda: setattr(self.rig, "output_enabled", bool(on)))
+
+    def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
+        table = np.array(current_a, dtype=float)
+
+        def apply() -> None:
+            self.rig.set_waveform(table, frequency_hz)
+            self._tables += 1
+        self._commands.put(apply)
+
+    def _apply(self) -> None:
+        while True:
+            try:
+                self._commands.get_nowait()()
+            except queue.Empty:
+                return
+
+    def _raw(self, stop: threading.Event | None) -> Iterator[SampleBlock]:
+        left = None if self.duration_s is None else int(round(self.duration_s * self.fs_hz))
+        while left is None or left > 0:
+            if stop is not None and stop.is_set():
+                return
+            self._apply()
+            n = self.block_samples if left is None else min(self.block_samples, left)
+            b = self.rig.read(n)
+            r = self.rig
+            meta = operating_meta(r.frequency_hz, r.current_pp_a, r.offset_a, r.output_enabled, table=self._tables)
+            yield SampleBlock(b.first_index, b.fs_hz, {k: v.astype(self.dtype, copy=False) for k, v in b.channels.items()},
+                              flags=b.flags, gap_samples=b.gap_samples, meta=meta)
+            if left is not None:
+                left -= n
+
+    def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]:
+        return _paced(self._raw(stop), self.fs_hz, self.pace, stop)
+
+    def close(self) -> None:
+        self.rig.output_enabled = False
+
+
+class SyntheticSource:
+    """Sines with known delays, precomputed once and replayed from memory (no physics per block).
+
+    The excitation is set to ``fs / P`` with P whole samples per period, and the buffer holds a
+    whole number of periods and of blocks, so the replayed stream is continuous forever.  Flux
+    lags current by ``flux_lag_s``, force lags flux by ``force_lag_s`` (with-magnet E-core shape).
+    """
+
+    def __init__(self, *, fs_hz: float = 1e6, frequency_hz: float = 320.0, block_samples: int = 10_000,
+                 channels: tuple[str, ...] = ("current_A", "force_N", "flux_Wb", "command_V"),
+                 pace: str = "realtime", duration_s: float | None = None, dtype: Any = np.float32,
+                 flux_lag_s: float = 10e-6, force_lag_s: float = 12e-6, noise: float = 1e-3, seed: int = 0,
+                 rig: str = "ecore_pm", current_pp_a: float = 1.4) -> None:
+        period = max(4, int(round(fs_hz / frequency_hz)))
+        self.fs_hz, self.frequency_hz = float(fs_hz), float(fs_hz) / period
+        self.block_samples, self.pace, self.duration_s = int(block_samples), pace, duration_s
+        self.channels, self.rig, self.current_pp_a = list(channels), rig, float(current_pp_a)
+        self.name = f"synthetic {self.frequency_hz:g} Hz at {self.fs_hz:g} S/s"
+        length = period * self.block_samples // math.gcd(period, self.block_samples)
+        while length < 4 * self.block_samples:
+            length *= 2
+        t = np.arange(length) / self.fs_hz
+        w = 2 * np.pi * self.frequency_hz
+        rng = np.random.default_rng(seed)
+        amp = 0.5 * current_pp_a
+        shapes = {"current_A": amp * np.sin(w * t), "flux_Wb": 5e-5 * np.sin(w * (t - flux_lag_s)),
+                  "force_N": 175.0 + 45.0 * np.sin(w * (t - flux_lag_s - force_lag_s)),
+                  "command_V": 2 * amp * np.sin(w * t), "sense_V": 0.1 * np.cos(w * (t - flux_lag_s))}
+        self._buf = {}
+        for c in self.channels:
+            x = shapes.get(c, np.sin(w * t))
+            self._buf[c] = (x + noise * np.std(x) * rng.standard_normal(length)).astype(dtype)
+        self._length = length
+
+    def metadata(self) -> dict:
+        return {"rig": self.rig, "frequency_Hz": self.frequency_hz, "sample_rate_Hz": self.fs_hz,
+                "current_pp_A": self.current_pp_a, "source": self.name}
+
+    def _raw(self, stop: threading.Event | None) -> Iterator[SampleBlock]:
+        meta = operating_meta(self.frequency_hz, self.current_pp_a, 0.0, True)
+        total = None if self.duration_s is None else int(round(self.duration_s * self.fs_hz))
+        first = 0
+        while total is None or first < total:
+            if stop is not None and stop.is_set():
+                return
+            n = self.block_samples if total is None else min(self.block_samples, total - first)
+            s = first % self._length
+            yield SampleBlock(first, self.fs_hz, {c: x[s:s + n] for c, x in self._buf.items()}, meta=meta)
+            first += n
+
+    def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]:
+        return _paced(self._raw(stop), self.fs_hz, self.pace, stop)
+
+    def close(self) -> None:
+        pass
+
+
+class BenchSource:
+    """The instruments through the drivers: the bench file's four sample streams, aligned on the
+    common clock (``drivers.StreamAligner``; gaps come out exact, as ``GAP`` blocks).  Instruments
+    with ``backend = "sim"`` are the emulators (``EmulatedBench``), started here behind their
+    real protocols.  Commands go to the generator and the amplifier between blocks; the output is
+    off until ``set_output(True)``."""
+
+    def __init__(self, bench_file: str | None = None, *, rig: str | None = None,
+                 duration_s: float | None = None) -> None:
+        from ..drivers.bench import Bench
+        from ..drivers.protocols.bench_config import load_bench_config
+
+        cfg = load_bench_config(bench_file or None)
+        self.emu = None
+        if cfg.any_sim:
+            from ..sim_backend.emulators.bench import EmulatedBench
+
+            self.emu = EmulatedBench(cfg).start()
+            cfg = cfg.resolved(self.emu.addresses)
+        try:
+            self.bench = Bench(cfg).open()
+        except BaseException:
+            self.close()
+            raise
+        self.fs_hz = cfg.fs_hz
+        self.rig = self.emu.rig.name if self.emu is not None else (rig or "ecore_pm")  # hardware: say which
+        self.gain = float(cfg.instruments["current_amplifier"].settings.get("gain_a_per_v", 0.5))
+        self.channels = ["current_A", "force_N", "flux_Wb", "command_V"]
+        self.duration_s = duration_s
+        self.settle_s = 0.1  # a command takes effect somewhere within the streams' latency
+        self._output = False
+        self._tables = 0  # waveforms uploaded
+        self.name = f"bench {cfg.source}" + (" (emulated instruments)" if self.emu else "")
+        self._commands: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+
+    def metadata(self) -> dict:
+        g = self.bench.generator.state
+        base = self.emu.rig.metadata() if self.emu is not None else {}
+        return {**base, "rig": self.rig, "frequency_Hz": float(g["frequency_hz"]), "sample_rate_Hz": self.fs_hz,
+                "current_pp_A": float(g["amplitude_vpp"]) * self.gain, "source": self.name}
+
+    def set_excitation(self, frequency_hz=None, current_pp_a=None, offset_a=None) -> None:
+        g = self.bench.generator
+        self._commands.put(lambda: g.set_sine(
+            g.state["frequency_hz"] if frequency_hz is None else frequency_hz,
+            g.state["amplitude_vpp"] if current_pp_a is None else current_pp_a / self.gain,
+            g.state["offset_v"] if offset_a is None else offset_a / self.gain))
+
+    def set_output(self, on: bool) -> None:
+        def apply() -> None:
+            self._output = False  # off first: a failing start_output leaves it off
+            if on:
+                self.bench.start_output()
+                self._output = True
+            else:
+                self.bench.safe_off()
+        self._commands.put(apply)
+
+    def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
+        volts = np.asarray(current_a, dtype=float) / self.gain
+
+        def apply() -> None:
+            self.bench.generator.upload_waveform(volts, frequency_hz)
+            self._tables += 1
+        self._commands.put(apply)
+
+    def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]:
+        from ..drivers.align import StreamAligner
+
+        streams = self.bench.open_streams()
+        aligner = StreamAligner(streams)
+        left = None if self.duration_s is None else int(round(self.duration_s * self.fs_hz))
+        settle_until = -1  # samples before this index may predate the last command
+        while (stop is None or not stop.is_set()) and (left is None or left > 0):
+            applied = False
+            while True:
+                try:
+                    self._commands.get_nowait()()
+                    applied = True
+                except queue.Empty:
+                    break
+            if applied:  # every sample the instruments may still hold is marked settling
+                settle_until = (aligner.cursor or 0) + int(self.settle_s * self.fs_hz)
+            self.bench.raise_if_faulted()
+            got = False
+            for name, s in streams.items():  # drain every stream, then wait a little if none had data
+                while (b := s.read(timeout_s=0.0)) is not None:
+                    aligner.push(name, b)
+                    got = True
+            if not got:
+                (stop.wait(0.002) if stop is not None else time.sleep(0.002))
+            g = self.bench.generator.state
+            point = (g["frequency_hz"], g["amplitude_vpp"] * self.gain, g["offset_v"] * self.gain,
+                     bool(g["output"]) and self._output)
+            tables = self._tables
+            while left is None or left > 0:
+                limit = left  # a block ends where settling does, so each has one meta
+                cursor = aligner.cursor or 0
+                if cursor < settle_until:
+                    limit = settle_until - cursor if limit is None else min(limit, settle_until - cursor)
+                if (b := aligner.pop(limit)) is None:
+                    break
+                if left is not None:
+                    left -= b.n
+                meta = operating_meta(*point, settling=b.first_index < settle_until, table=tables)
+                yield SampleBlock(b.first_index, b.fs_hz, b.channels, flags=b.flags, gap_samples=b.gap_samples,
+                                  meta={**b.meta, **meta})
+
+    def close(self) -> None:
+        """Output off and everything closed (the drivers switch the output off first)."""
+        if getattr(self, "bench", None) is not None:
+            self.bench.close()
+        if self.emu is not None:
+            self.emu.close()
+
+
+def bench_source(bench_file: str | None = None, rig: str | None = None,
+                 duration_s: float | None = None) -> BenchSource:
+    """The instruments of a bench file (default: the shipped ``config/bench.toml``) as a source."""
+    return BenchSource(bench_file, rig=rig, duration_s=duration_s)
