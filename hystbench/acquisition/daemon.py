@@ -129,6 +129,9 @@ def load_daemon_config(path: str | Path | None) -> DaemonConfig:
         load_rig(values["source"]["rig"])
     except ConfigError as err:
         raise ConfigError(f"{where} [source] rig: {err}") from None
+    if values["compensator"]["enabled"] and not values["estimation"]["enabled"]:
+        raise ConfigError(f"{where} [compensator] enabled needs [estimation] enabled: the compensator follows "
+                          "the live estimates (and learns on their windows)")
     return DaemonConfig(values, frozenset(given), where)
 
 
@@ -302,10 +305,17 @@ class BenchService:
             raise ConfigError(f"source {self.source.name!r} takes no commands")
         return self.source
 
+    def _tripped(self) -> str:
+        """Why the compensator switched the output off, or ''."""
+        return str(getattr(getattr(self.pipeline, "compensator", None), "tripped", "") or "")
+
     def command(self, verb: str, args: dict) -> dict:
         if self.pipeline is None or self.state not in ("running", "sweeping"):
             raise ConfigError(f"bench is {self.state}; try again when it is running")
         src = self._controllable()
+        if (verb == "start_sweep" or verb == "output" and args.get("on")) and self._tripped():
+            raise ConfigError(f"{verb}: refused, the compensator switched the output off ({self._tripped()}); "
+                              "reload the configuration (SIGHUP) to start again")
         if verb == "set_excitation":
             unknown = set(args) - {"frequency_hz", "current_pp_a", "offset_a"}
             if unknown:
@@ -341,6 +351,9 @@ class BenchService:
         p.status("info", "sweep_started", f"{len(freqs)} points at {ipp:g} A-pp, {dwell:g} s each")
         try:
             for k, f in enumerate(freqs):
+                if self._tripped():
+                    p.status("warning", "sweep_stopped", f"stopped at point {k}: {self._tripped()}")
+                    return
                 src.set_excitation(frequency_hz=f, current_pp_a=ipp)
                 src.set_output(True)
                 p.status("info", "sweep_point", f"{f:g} Hz, {ipp:g} A-pp", point=k, frequency_Hz=f, current_pp_A=ipp)

@@ -256,6 +256,7 @@ class Pipeline:
             est.append(got.block)
             if not r.release(got):  # lapped while copying: what was copied may be torn
                 est.reset()
+                est.estimates()  # and so may the windows just cut from it: dropped
                 self.status("warning", "estimator_overrun", f"estimation lost {got.n} samples at {got.block.first_index}")
             st.lost_samples = r.lost_samples
             st.blocks += 1
@@ -330,8 +331,9 @@ class CompensatorHook:
     also gets the estimate's samples, under ``window``: the estimator must keep them
     (``wants_windows``).  If the state says ``output_off`` the source's output goes off before
     anything else; if it holds ``waveform_A`` (one period of current, uniformly sampled) and
-    ``frequency_Hz``, the waveform is uploaded to the source (a :class:`Controllable`).  A
-    compensator that raises is reported, never fatal.
+    ``frequency_Hz``, the waveform is uploaded to the source (a :class:`Controllable`).  After an
+    output off, ``tripped`` says why, and the daemon refuses to switch the output on again until
+    it is reloaded.  A compensator that raises is reported, never fatal.
     """
 
     def __init__(self, compensator: Any, source: Any = None) -> None:
@@ -341,6 +343,7 @@ class CompensatorHook:
         self.wants_windows = bool(getattr(compensator, "learns", False))
         self.errors = 0
         self.last_error = ""
+        self.tripped = ""  # why the compensator switched the output off (then it stays off)
 
     def __call__(self, estimate: Mapping[str, Any], window: Mapping[str, Any] | None = None) -> dict | None:
         if estimate.get("error"):
@@ -357,9 +360,11 @@ class CompensatorHook:
         if not state:
             return None
         state = dict(state)
-        if state.pop("output_off", False) and isinstance(self.source, Controllable):
-            self.source.set_output(False)
-            state["output_switched_off"] = True
+        if state.pop("output_off", False):
+            self.tripped = str(state.get("status") or "the compensator asked for the output off")
+            if isinstance(self.source, Controllable):
+                self.source.set_output(False)
+                state["output_switched_off"] = True
         wave = state.pop("waveform_A", None)
         if wave is not None and isinstance(self.source, Controllable):
             self.source.set_waveform(np.asarray(wave, dtype=float), float(state.get("frequency_Hz", estimate["nominal_frequency_Hz"])))

@@ -63,12 +63,22 @@ def operating_meta(frequency_hz: float, current_pp_a: float, offset_a: float, ou
                    settling: bool = False, table: int = 0) -> dict[str, float]:
     """Block meta naming the operating point; ``settling`` marks samples that may still be from
     before the last command (instruments apply it somewhere in their stream's latency); ``table``
-    counts the waveforms uploaded so far, so samples are known to belong to one table."""
+    counts the changes of what the generator plays (a sine set, a waveform uploaded), so samples
+    with one count were played with one waveform."""
     meta = {"frequency_hz": float(frequency_hz), "current_pp_a": float(current_pp_a),
             "offset_a": float(offset_a), "output_on": 1.0 if output_on else 0.0, "table": float(table)}
     if settling:
         meta["settling"] = 1.0
     return meta
+
+
+def _counted(source: Any, command: Callable[[], None]) -> Callable[[], None]:
+    """``command`` changes what the generator plays: once applied, the source's ``_tables`` count
+    (the ``table`` of its blocks' meta) moves on."""
+    def apply() -> None:
+        command()
+        source._tables += 1
+    return apply
 
 
 def _paced(blocks: Iterator[SampleBlock], fs_hz: float, pace: str, stop: threading.Event | None) -> Iterator[SampleBlock]:
@@ -105,7 +115,7 @@ class RigSource:
         self.block_samples, self.pace, self.duration_s = int(block_samples), pace, duration_s
         self.dtype = np.dtype(dtype)
         self._commands: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
-        self._tables = 0  # waveforms applied
+        self._tables = 0  # changes of what the generator plays
 
     def metadata(self) -> dict:
         return self.rig.metadata()
@@ -115,18 +125,15 @@ class RigSource:
             raise ConfigError(f"frequency_hz {frequency_hz} must be in (0, {self.fs_hz / 2:g}) Hz")
         if current_pp_a is not None and current_pp_a < 0:
             raise ConfigError(f"current_pp_a must be >= 0, got {current_pp_a}")
-        self._commands.put(lambda: self.rig.set_excitation(frequency_hz, current_pp_a, offset_a))
+        self._commands.put(_counted(self, lambda: self.rig.set_excitation(frequency_hz, current_pp_a, offset_a)))
 
     def set_output(self, on: bool) -> None:
         self._commands.put(lambda: setattr(self.rig, "output_enabled", bool(on)))
 
     def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
         table = np.array(current_a, dtype=float)
+        self._commands.put(_counted(self, lambda: self.rig.set_waveform(table, frequency_hz)))
 
-        def apply() -> None:
-            self.rig.set_waveform(table, frequency_hz)
-            self._tables += 1
-        self._commands.put(apply)
 
     def _apply(self) -> None:
         while True:
@@ -245,7 +252,7 @@ class BenchSource:
         self.duration_s = duration_s
         self.settle_s = 0.1  # a command takes effect somewhere within the streams' latency
         self._output = False
-        self._tables = 0  # waveforms uploaded
+        self._tables = 0  # changes of what the generator plays
         self.name = f"bench {cfg.source}" + (" (emulated instruments)" if self.emu else "")
         self._commands: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
 
@@ -257,10 +264,10 @@ class BenchSource:
 
     def set_excitation(self, frequency_hz=None, current_pp_a=None, offset_a=None) -> None:
         g = self.bench.generator
-        self._commands.put(lambda: g.set_sine(
+        self._commands.put(_counted(self, lambda: g.set_sine(
             g.state["frequency_hz"] if frequency_hz is None else frequency_hz,
             g.state["amplitude_vpp"] if current_pp_a is None else current_pp_a / self.gain,
-            g.state["offset_v"] if offset_a is None else offset_a / self.gain))
+            g.state["offset_v"] if offset_a is None else offset_a / self.gain)))
 
     def set_output(self, on: bool) -> None:
         def apply() -> None:
@@ -274,11 +281,7 @@ class BenchSource:
 
     def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
         volts = np.asarray(current_a, dtype=float) / self.gain
-
-        def apply() -> None:
-            self.bench.generator.upload_waveform(volts, frequency_hz)
-            self._tables += 1
-        self._commands.put(apply)
+        self._commands.put(_counted(self, lambda: self.bench.generator.upload_waveform(volts, frequency_hz)))
 
     def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]:
         from ..drivers.align import StreamAligner

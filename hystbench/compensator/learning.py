@@ -85,18 +85,27 @@ class LearningController:
         self.best_error_n = np.inf
         self.history: list[IterationReport] = []
 
-    def current_for(self, force_n: np.ndarray) -> np.ndarray:
-        """The current table for a force command, refused beyond the current limit."""
-        i = self.model.current_period(force_n, self.f_hz, current_limit_a=self.limit_a)
+    def current_for(self, force_n: np.ndarray, model: ForceModel | None = None) -> np.ndarray:
+        """The current table for a force command (with ``model``, default the controller's),
+        refused beyond the current limit."""
+        model = model or self.model
+        i = model.current_period(force_n, self.f_hz, current_limit_a=self.limit_a)
         peak = float(np.max(np.abs(i)))
         if peak > self.limit_a:
-            lo, hi = self.model.law.reachable_n(self.limit_a)
+            lo, hi = model.law.reachable_n(self.limit_a)
             raise UnreachableReference(
                 f"the reference ({force_n.min():.4g} to {force_n.max():.4g} N at {self.f_hz:g} Hz) needs a peak "
-                f"current of {peak:.4g} A with the {self.model.kind} model, above the {self.limit_a:g} A limit; "
+                f"current of {peak:.4g} A with the {model.kind} model, above the {self.limit_a:g} A limit; "
                 f"reachable statically {lo:.4g} to {hi:.4g} N, a little less at speed (the iron's share and "
                 "the eddy lead)", (lo, hi))
         return i
+
+    def retarget(self, model: ForceModel) -> np.ndarray:
+        """Keep the learned force command, map it through another model (the online stage's,
+        after it followed the live delay); nothing changes if that is out of reach."""
+        current = self.current_for(self.command_force_n, model)
+        self.model, self.current_a = model, current
+        return current
 
     @property
     def band_harmonic(self) -> int:

@@ -17,10 +17,11 @@ The table is recomputed and re-sent only when the theta used moves by more than 
 (so estimation noise does not keep the generator busy).
 
 Learning online (``learning`` given): each estimate then carries its window of samples; a window
-played entirely with the last table sent (its ``table`` count is past the one seen when sending)
-is averaged over its whole periods (:func:`~.periodic.measure_period`, aligned to the table by
+played entirely with the last table sent (its ``table`` count is the one that table gets when the
+source applies it; a window of an older table, or of someone else's command, is skipped) is averaged over its whole periods (:func:`~.periodic.measure_period`, aligned to the table by
 ``command_V``) and handed to the same :class:`~.learning.LearningController` as the offline loop,
-which returns the next table.  It is repetitive control: it runs as long as the stage does.  If
+which returns the next table.  It is repetitive control: it runs as long as the stage does
+(``LearningConfig.iterations`` bounds only the offline loop).  If
 the controller stops itself (diverging, out of reach, not finite) the state asks for the output
 off (``output_off``, which the hook applies first) and the stage sends nothing more.
 """
@@ -62,9 +63,9 @@ class CompensatorStage:
         self.learner = None if learning is None else LearningController(model, reference, instrument, self.limit_a, learning)
         self.learns = self.learner is not None  # the pipeline's hook then hands over each window's samples
         self.stopped = False
-        self.current_a = self._table()
+        self.current_a = self._table(model)
         self._sent = False
-        self._table_sent = -1  # the source's table count when the last table was sent
+        self._table_expected = -1  # the source's table count once it plays the last table sent
 
     def _model_theta(self) -> float:
         f = self.reference.frequency_hz
@@ -75,32 +76,32 @@ class CompensatorStage:
         return 0.0
 
     def _follow(self, theta: float) -> None:
+        """Move the model to ``theta``; nothing changes if its table would be out of reach."""
         f = self.reference.frequency_hz
-        if isinstance(self.model, PaperModel):
-            self.model = self.model.with_theta(f, theta)
-        elif isinstance(self.model, HysteresisEddyModel):
-            tau = max(0.0, self.model.tau_s + (theta - self._model_theta()) / (2 * math.pi * f))
-            old, self.model = self.model, replace(self.model, tau_s=tau)
-            if "iron" in old.__dict__:  # same iron: keep its built tables
-                self.model.__dict__["iron"] = old.__dict__["iron"]
-        self.current_a = self._table()
-        self.theta_used = theta
+        model = self.model
+        if isinstance(model, PaperModel):
+            model = model.with_theta(f, theta)
+        elif isinstance(model, HysteresisEddyModel):
+            tau = max(0.0, model.tau_s + (theta - self._model_theta()) / (2 * math.pi * f))
+            model = replace(model, tau_s=tau)
+            if "iron" in self.model.__dict__:  # same iron: keep its built tables
+                model.__dict__["iron"] = self.model.__dict__["iron"]
+        self.current_a = self._table(model)  # UnreachableReference: the stage is left as it was
+        self.model, self.theta_used = model, theta
 
-    def _table(self) -> np.ndarray:
+    def _table(self, model: ForceModel) -> np.ndarray:
         """The current period for the reference (or, learning, for the learned force command)."""
         if self.learner is None:
-            return self.model.current_period(self.reference.force_n, self.reference.frequency_hz,
-                                              current_limit_a=self.limit_a)
-        self.learner.model = self.model
-        self.learner.current_a = self.learner.current_for(self.learner.command_force_n)
-        return self.learner.current_a
+            return model.current_period(self.reference.force_n, self.reference.frequency_hz,
+                                        current_limit_a=self.limit_a)
+        return self.learner.retarget(model)
 
     def _learn(self, estimate: Mapping[str, Any]) -> bool:
         """One learning step on the estimate's window, if it was played with the last table; True
         when it gave a new table.  LearningStopped propagates."""
         window = estimate.get("window")
-        if self.learner is None or not window or int(estimate.get("table", -1)) <= self._table_sent:
-            return False
+        if self.learner is None or not window or int(estimate.get("table", -1)) != self._table_expected:
+            return False  # another waveform (ours not yet applied, or someone else's command) played
         chans = {c: np.asarray(x, float) for c, x in window["channels"].items()
                  if c in ("force_N", "current_A", "command_V")}
         ref = "command_V" if "command_V" in chans else "current_A"
@@ -146,7 +147,8 @@ class CompensatorStage:
         if send:
             self._sent = True
             self.updates += 1
-            self._table_sent = int(estimate.get("table", 0))
+            # the source applies sends in order: each moves its count on by one
+            self._table_expected = max(self._table_expected, int(estimate.get("table", 0))) + 1
         state = self.state()
         if send:
             state["waveform_A"] = self.current_a.copy()

@@ -146,6 +146,8 @@ def test_bad_config_at_start_is_refused_naming_the_key(tmp_path: Path) -> None:
     ('[daemon]\nbench = "a/b"\n', r"\[daemon\] bench: bench name 'a/b'"),
     ('[zenoh]\nlisten = [7447]\n', r"\[zenoh\] listen: must be a list of endpoints"),
     ('[nonsense]\n', r"unknown section \[nonsense\]"),
+    ('[estimation]\nenabled = false\n[compensator]\nenabled = true\nlearn = true\n',
+     r"\[compensator\] enabled needs \[estimation\] enabled"),
     ('[daemon\n', r"not valid TOML"),
 ])
 def test_config_errors_name_file_and_key(tmp_path: Path, text: str, match: str) -> None:
@@ -242,3 +244,33 @@ def test_daemon_default_source_is_the_emulated_bench(tmp_path: Path) -> None:
         d.close()
     (log,) = list(logs.glob("*.mcap"))
     assert sum(b.n for b in iter_blocks(log)) > 50_000
+
+
+def test_after_the_compensator_switched_the_output_off_it_stays_off(tmp_path: Path) -> None:
+    """A learning loop that stopped itself switched the output off: a sweep point or an 'output on'
+    command must not drive the bench open loop; a reload (a new service) clears it."""
+    from hystbench.acquisition.daemon import BenchService
+    from hystbench.acquisition.pipeline import CompensatorHook
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[source]\nkind = "sim"\npace = "max"\n[zenoh]\nenabled = false\n[recording]\nenabled = false\n'
+                   '[estimation]\nenabled = false\n', encoding="utf-8")
+    svc = BenchService(load_daemon_config(cfg)).start()
+    try:
+        assert svc.command("output", {"on": True}) == {"output_on": True}  # nothing tripped yet
+        hook = CompensatorHook(type("Stopped", (), {"update": lambda self, e: {"output_off": True,
+                                                                                "status": "stopped: diverging"}})(),
+                               svc.source)
+        assert hook({"error": None}) == {"status": "stopped: diverging", "output_switched_off": True}
+        deadline = time.monotonic() + 5.0
+        while svc.source.rig.output_enabled and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert not svc.source.rig.output_enabled  # applied by the source at its next block
+        svc.pipeline.compensator = hook
+        for verb, args in (("output", {"on": True}), ("start_sweep", {})):
+            with pytest.raises(ConfigError, match=rf"{verb}: refused, the compensator switched the output off "
+                                                  r"\(stopped: diverging\)"):
+                svc.command(verb, args)
+        assert svc.command("output", {"on": False}) == {"output_on": False}  # off is always allowed
+    finally:
+        svc.stop()

@@ -226,3 +226,49 @@ def test_the_pipeline_gives_back_the_interpreter_switch_interval() -> None:
     assert sys.getswitchinterval() < before
     assert pipe.join(10.0)
     assert sys.getswitchinterval() == before
+
+
+def test_every_change_of_what_the_generator_plays_starts_a_new_run() -> None:
+    """A waveform upload, and a sine set again after it, each move the blocks' ``table`` count on,
+    so the estimator never mixes two waveforms in one window (the learning compensator relies on
+    it); estimates name their table."""
+    rig = SimulatedRig("ecore_pm", seed=2, frequency_hz=320.0, current_pp_a=1.4)
+    src = RigSource(rig, block_samples=5000, pace="max")
+    est = WindowEstimator(src.fs_hz, src.metadata(), periods=10, settle_periods=1, min_hop_s=0)
+    table = 0.7 * np.sin(np.linspace(0, 2 * np.pi, 500, endpoint=False))
+    blocks, out, span = src.blocks(), [], 3 * 5000  # each waveform plays for three blocks
+    for step in range(9):
+        if step == 3:
+            src.set_waveform(table, 320.0)
+        if step == 6:
+            src.set_excitation(frequency_hz=320.0)  # the same sine again: the table is gone
+        b = next(blocks)
+        assert b.meta["table"] == step // 3
+        out += est.push(b)
+    for e in out:  # every window lies within the blocks of its own waveform
+        assert e["table"] == e["first_index"] // span == (e["end_index"] - 1) // span, e
+    assert {e["table"] for e in out} == {0, 1, 2}
+
+
+def test_a_learning_hook_gets_the_windows_and_the_published_estimates_do_not() -> None:
+    src = rig_source(0.6)
+    got = []
+
+    class Learner:
+        learns = True
+
+        def update(self, estimate: dict) -> None:
+            got.append(estimate)
+
+    hook = CompensatorHook(Learner(), src)
+    est = WindowEstimator(src.fs_hz, src.metadata(), keep_windows=hook.wants_windows)
+    pipe = Pipeline(src, estimator=est, compensator=hook)
+    published = []
+    pipe.listeners.append(lambda t, o: published.append(o) if t == ESTIMATE else None)
+    pipe.start()
+    assert pipe.join(30) and pipe.error is None
+    assert published and all("window" not in e and e["table"] == 0 for e in published)
+    w = got[0]["window"]
+    n = got[0]["end_index"] - got[0]["first_index"]
+    assert set(w["channels"]) >= {"current_A", "force_N", "flux_Wb", "command_V"} and w["fs_Hz"] == src.fs_hz
+    assert all(x.size == n for x in w["channels"].values())

@@ -189,6 +189,7 @@ def test_learning_needs_the_instrument_model(models_pm):
         CompensatorStage(models_pm["best"], ForceReference.parse(REF), current_limit_a=1.8, learning=LearningConfig())
 
 
+@pytest.mark.slow
 def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tmp_path):
     """[compensator] learn = true in the daemon: the windows of the live stream (charge amplifier,
     flux integrator, current monitor, generator output, all over their protocols) correct the
@@ -197,7 +198,7 @@ def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tm
     import time
 
     from hystbench.acquisition.daemon import BenchService, load_daemon_config
-    from hystbench.acquisition.mcaplog import COMPENSATOR, iter_log
+    from hystbench.acquisition.mcaplog import COMPENSATOR, ESTIMATE, iter_log
 
     model = models_pm.save(tmp_path / "models.json")
     cfg = tmp_path / "daemon.toml"
@@ -225,3 +226,46 @@ def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tm
     assert any(r <= 2.0 for r in ratios[1:11]), ratios
     logged = [m.json() for log in logs for m in iter_log(log, [COMPENSATOR])]
     assert any("learning" in s for s in logged)
+    estimates = [m.json() for log in logs for m in iter_log(log, [ESTIMATE])]
+    assert estimates and all("window" not in e and "table" in e for e in estimates)  # samples stay private
+    assert len({e["table"] for e in estimates}) >= 4  # the sine, then a table per step
+
+
+def period_window(table: np.ndarray, fs: float = 100_000.0, f: float = 320.0, periods: int = 20) -> dict:
+    """A window of samples playing ``table`` (current and generator output) and a force at the
+    reference, as the estimator hands it over."""
+    t = np.arange(int(periods * fs / f)) / fs
+    phase = np.mod(t * f, 1.0)
+    cur = np.interp(phase, np.arange(table.size + 1) / table.size, np.append(table, table[0]))
+    force = 170.0 + 40.0 * np.sin(2 * np.pi * phase)
+    return {"fs_Hz": fs, "channels": {"current_A": cur, "command_V": 2 * cur, "force_N": force}}
+
+
+def test_learning_uses_only_windows_of_the_last_table_sent(models_pm):
+    """The source applies tables in order, each moving its count on by one.  A late estimate
+    (of the table before) can make the stage send again before its first table was applied: the
+    windows of that first table must then be skipped, and only the last one's learned from."""
+    stage = CompensatorStage(models_pm["paper"], ForceReference.parse(REF), current_limit_a=1.8, smoothing=1.0,
+                             learning=LearningConfig(), instrument=models_pm.instrument)  # theta: the last estimate's
+    win = period_window(stage.current_a)
+    learned = lambda: len(stage.learner.history)  # noqa: E731
+    first = stage.update({**estimate(1.5), "table": 0, "window": win})
+    assert "waveform_A" in first and learned() == 0  # the sine's window: nothing to learn from
+    late = stage.update({**estimate(2.5), "table": 0, "window": win})  # theta moved: a second table
+    assert "waveform_A" in late and learned() == 0
+    assert stage.update({**estimate(2.5), "table": 1, "window": win}) is not None and learned() == 0  # the first
+    s = stage.update({**estimate(2.5), "table": 2, "window": period_window(stage.current_a)})
+    assert learned() == 1 and "waveform_A" in s and s["learning"]["iteration"] == 0
+    stage.update({**estimate(2.5), "table": 5, "window": win})  # someone else's command played
+    assert learned() == 1
+
+
+def test_a_retune_out_of_reach_leaves_the_stage_as_it_was(models_pm):
+    stage = CompensatorStage(models_pm["best"], ForceReference.parse("offset=170,amp=40,freq=320"),
+                             current_limit_a=1.8, learning=LearningConfig(), instrument=models_pm.instrument)
+    stage.update(estimate(stage.state()["theta_model_deg"]))
+    model, table = stage.model, stage.current_a.copy()
+    stage.limit_a = stage.learner.limit_a = 0.1  # any new table is now out of reach
+    s = stage.update(estimate(stage.state()["theta_model_deg"] + 5.0))
+    assert "holding the last table" in s["status"] and "waveform_A" not in s
+    assert stage.model is model and stage.learner.model is model and np.array_equal(stage.current_a, table)

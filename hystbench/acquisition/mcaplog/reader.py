@@ -123,6 +123,8 @@ class Segment:
                 meta[meta_key] = float(m[key])
         meta["sample_rate_Hz"] = self.blocks[0].fs_hz
         meta["mcap_source"] = {"log": str(path), "first_index": self.first_index, "samples": self.n}
+        if "table" in m:  # which waveform the generator played (a count of changes, see sources)
+            meta["mcap_source"]["table"] = int(m["table"])
         try:
             rec = Recording.from_blocks(self.blocks, meta)
         except RecordingError as err:
@@ -169,7 +171,9 @@ def read_mcap_recording(path: str | Path, segment: int | None = None) -> Recordi
     recs = read_mcap_segments(path)
     if segment is None:
         if len(recs) > 1:
-            points = ", ".join(f"{r.frequency_hz:g} Hz/{r.current_pp_a:g} A-pp" for r in recs[:6])
+            points = ", ".join(f"{r.frequency_hz:g} Hz/{r.current_pp_a:g} A-pp" + (
+                f" table {r.metadata['mcap_source']['table']}" if "table" in r.metadata["mcap_source"] else "")
+                for r in recs[:6])
             raise RecordingError(f"{path}: {len(recs)} segments (operating points or gaps: {points}"
                                  f"{', ...' if len(recs) > 6 else ''}); choose one, or "
                                  f"`hystbench export {path} --out DIR` writes each")

@@ -67,7 +67,7 @@ _ESTIMATE_SCHEMA = {
         "first_index": {"type": "integer"}, "end_index": {"type": "integer"}, "t_ns": {"type": "integer"},
         "frequency_Hz": {"type": "number"}, "frequency_std_Hz": {"type": "number"},
         "nominal_frequency_Hz": {"type": "number"}, "current_pp_A": {"type": "number"},
-        "harmonic": {"type": "integer"},
+        "harmonic": {"type": "integer"}, "table": {"type": "integer"},
         "delays_s": _NUM_MAP, "delays_std_s": _NUM_MAP, "phases_deg": _NUM_MAP, "phases_std_deg": _NUM_MAP,
         "error": {"type": ["string", "null"]},
     },
