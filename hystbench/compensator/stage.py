@@ -64,7 +64,6 @@ class CompensatorStage:
         self.learns = self.learner is not None  # the pipeline's hook then hands over each window's samples
         self.stopped = False
         self.current_a = self._table(model)
-        self._sent = False
         self._table_expected = -1  # the source's table count once it plays the last table sent
 
     def _model_theta(self) -> float:
@@ -129,7 +128,7 @@ class CompensatorStage:
         theta = 2 * math.pi * f_est * delay
         self.theta_live = theta if self.theta_live is None else (
             (1 - self.smoothing) * self.theta_live + self.smoothing * theta)
-        send = not self._sent
+        send = self.updates == 0  # the first table goes out with the first estimate
         if self.theta_used is None or abs(self.theta_live - self.theta_used) > self.retune_rad:
             try:
                 self._follow(self.theta_live)
@@ -145,7 +144,6 @@ class CompensatorStage:
                 self.status = f"stopped, output off: {err}"
                 return {**self.state(), "output_off": True}
         if send:
-            self._sent = True
             self.updates += 1
             # the source applies sends in order: each moves its count on by one
             self._table_expected = max(self._table_expected, int(estimate.get("table", 0))) + 1
