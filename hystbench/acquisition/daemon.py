@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
+from ..config.schema import NUM, Key
 from ..errors import BenchError, ConfigError
 from .mcaplog.recorder import COMPRESSIONS
 from .sd_notify import Notifier
@@ -29,33 +30,77 @@ __all__ = ["load_daemon_config", "DaemonConfig", "BenchService", "run_daemon", "
 
 log = logging.getLogger("hystbench.daemon")
 
-_NUM = (int, float)
+_NUM = NUM
 #: No new samples for this long and the watchdog is no longer fed.
 STALL_S = 5.0
-#: section -> key -> (type, default, allowed values or None).  Numbers must be > 0 unless 0 is listed.
-DEFAULTS: dict[str, dict[str, tuple[Any, Any, Any]]] = {
-    "daemon": {"bench": (str, "bench1", None), "log_dir": (str, "hystbench-logs", None),
-               "stats_interval_s": (_NUM, 1.0, None)},
-    "source": {"kind": (str, "bench", ("bench", "sim", "synthetic")), "rig": (str, "ecore_pm", None),
-               "fs_hz": (_NUM, 100_000.0, None), "block_samples": (int, 1000, None), "seed": (int, 0, (0,)),
-               "frequency_hz": (_NUM, 320.0, None), "current_pp_a": (_NUM, 1.4, (0,)),
-               "pace": (str, "realtime", ("realtime", "max")), "effects": (dict, {}, None),
-               "ring_seconds": (_NUM, 2.0, None), "bench_file": (str, "", None)},
-    "estimation": {"enabled": (bool, True, None), "periods": (_NUM, 10.0, None), "hop_periods": (_NUM, 10.0, None),
-                   "min_hop_s": (_NUM, 0.1, (0,)), "settle_periods": (_NUM, 2.0, (0,)),
-                   "max_fs_hz": (_NUM, 100_000.0, None)},
-    "recording": {"enabled": (bool, True, None), "compression": (str, "zstd", COMPRESSIONS),
-                  "chunk_kib": (int, 256, None), "flush_interval_s": (_NUM, 0.5, None),
-                  "rotate_mib": (_NUM, 1024.0, None), "rotate_minutes": (_NUM, 60.0, None)},
-    "zenoh": {"enabled": (bool, True, None), "config": (str, "", None), "listen": (list, ["tcp/127.0.0.1:7447"], None),
-              "connect": (list, [], None), "publish_raw": (bool, True, None),
-              "raw_per_channel": (bool, False, None)},
-    "sweep": {"frequencies_hz": (list, [40.0, 80.0, 160.0, 320.0, 480.0], None), "current_pp_a": (_NUM, 1.4, (0,)),
-              "dwell_s": (_NUM, 1.0, None), "autostart": (bool, False, None)},
-    "compensator": {"enabled": (bool, False, None), "factory": (str, "", None), "model": (str, "", None),
-                    "kind": (str, "best", ("nonhysteretic", "paper", "best")), "force": (str, "", None),
-                    "current_limit_a": (_NUM, 1.8, (0,)), "learn": (bool, False, None),
-                    "learning_gain": (_NUM, 0.8, (0,))},
+#: section -> key -> :class:`Key` (type, default, unit, legal range, meaning).  docs/config.md is
+#: generated from this table (``python -m hystbench.config_reference``).
+DEFAULTS: dict[str, dict[str, Key]] = {
+    "daemon": {
+        "bench": Key(str, "bench1", "the bench's name: the zenoh key space is hystbench/<bench>/... (no / * $ ? #)"),
+        "log_dir": Key(str, "hystbench-logs", "folder of the MCAP logs, one per session: <bench>-<start time>-NNNN.mcap"),
+        "stats_interval_s": Key(_NUM, 1.0, "period of the pipeline counters on hystbench/<bench>/stats", "s", gt=0),
+    },
+    "source": {
+        "kind": Key(str, "bench", "bench: the instruments of bench_file through the drivers; sim: the simulated "
+                    "rig directly (cheap); synthetic: precomputed sines", choices=("bench", "sim", "synthetic")),
+        "rig": Key(str, "ecore_pm", "the rig preset (hystbench/config/rigs) or a .toml path; names the recordings"),
+        "fs_hz": Key(_NUM, 100_000.0, "sample rate (kind = sim, synthetic; a bench file sets its own)", "Hz", gt=0),
+        "block_samples": Key(int, 1000, "samples per block (kind = sim, synthetic)", "samples", gt=0),
+        "seed": Key(int, 0, "random seed of the simulated rig's noise", ge=0),
+        "frequency_hz": Key(_NUM, 320.0, "excitation frequency when the output is switched on without a sweep",
+                            "Hz", gt=0),
+        "current_pp_a": Key(_NUM, 1.4, "excitation current, peak to peak, without a sweep", "A", ge=0),
+        "pace": Key(str, "realtime", "realtime: blocks at the sample clock; max: as fast as computed",
+                    choices=("realtime", "max")),
+        "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false }"),
+        "ring_seconds": Key(_NUM, 2.0, "how far a stage may fall behind before it loses samples", "s", gt=0),
+        "bench_file": Key(str, "", "kind = bench: the bench file (\"\": hystbench/config/bench.toml, every "
+                          "instrument emulated)"),
+    },
+    "estimation": {
+        "enabled": Key(bool, True, "estimate the delays live (hystbench/<bench>/estimate)"),
+        "periods": Key(_NUM, 10.0, "window length in whole periods of the excitation", "periods", gt=0),
+        "hop_periods": Key(_NUM, 10.0, "one estimate per this many periods ...", "periods", gt=0),
+        "min_hop_s": Key(_NUM, 0.1, "... but at most one per this time", "s", ge=0),
+        "settle_periods": Key(_NUM, 2.0, "skipped after each change of operating point", "periods", ge=0),
+        "max_fs_hz": Key(_NUM, 100_000.0, "above this rate channels are averaged down before fitting", "Hz", gt=0),
+    },
+    "recording": {
+        "enabled": Key(bool, True, "write the MCAP log"),
+        "compression": Key(str, "zstd", "chunk compression", choices=COMPRESSIONS),
+        "chunk_kib": Key(int, 256, "chunk size: a crash loses at most the open chunk", "KiB", gt=0),
+        "flush_interval_s": Key(_NUM, 0.5, "the open chunk is written at least this often", "s", gt=0),
+        "rotate_mib": Key(_NUM, 1024.0, "a new log part when the current one reaches this size", "MiB", gt=0),
+        "rotate_minutes": Key(_NUM, 60.0, "... or this age", "min", gt=0),
+    },
+    "zenoh": {
+        "enabled": Key(bool, True, "publish on zenoh and answer queries and commands"),
+        "config": Key(str, "", "a zenoh json5 file (e.g. hystbench/config/zenoh-acl.json5); \"\": an embedded "
+                      "peer, multicast scouting off"),
+        "listen": Key(list, ["tcp/127.0.0.1:7447"], "endpoints to listen on (replace the config file's when given)"),
+        "connect": Key(list, [], "endpoints to connect to (replace the config file's when given)"),
+        "publish_raw": Key(bool, True, "raw blocks on hystbench/<bench>/raw, one message per block"),
+        "raw_per_channel": Key(bool, False, "... or one per channel on hystbench/<bench>/raw/<channel>"),
+    },
+    "sweep": {
+        "frequencies_hz": Key(list, [40.0, 80.0, 160.0, 320.0, 480.0], "what cmd/start_sweep runs when not told "
+                              "otherwise: a non-empty list of frequencies > 0", "Hz"),
+        "current_pp_a": Key(_NUM, 1.4, "sweep current, peak to peak", "A", ge=0),
+        "dwell_s": Key(_NUM, 1.0, "time at each frequency", "s", gt=0),
+        "autostart": Key(bool, False, "start one sweep when the daemon starts"),
+    },
+    "compensator": {
+        "enabled": Key(bool, False, "feed-forward: follows the live hysteresis delay, uploads its current table"),
+        "factory": Key(str, "", "or \"module:callable\" returning an object with update(estimate) -> state"),
+        "model": Key(str, "", "a file from `hystbench model fit SWEEP_DIR --out MODEL.json`"),
+        "kind": Key(str, "best", "which model of the file", choices=("nonhysteretic", "paper", "best")),
+        "force": Key(str, "", "the force reference, e.g. \"offset=170,amp=40,freq=320\""),
+        "current_limit_a": Key(_NUM, 1.8, "the compensator never commands more than this", "A", gt=0),
+        "learn": Key(bool, False, "repetitive control on each estimate window's period-averaged force"),
+        "learning_gain": Key(_NUM, 0.8, "gain of the learning loop; it stops itself, output off, if it diverges",
+                             gt=0, le=1.5),
+    },
 }
 
 
@@ -76,20 +121,17 @@ class DaemonConfig:
 
 
 def _check(section: str, k: str, v: Any, where: str) -> Any:
-    kind, default, allowed = DEFAULTS[section][k]
+    spec = DEFAULTS[section][k]
     name = f"{where} [{section}] {k}"
-    if isinstance(v, bool) and kind is not bool or not isinstance(v, kind):
-        want = "a number" if kind is _NUM else kind.__name__
-        raise ConfigError(f"{name}: must be {want}, got {v!r}")
-    if isinstance(v, str) and allowed and v not in allowed:
-        raise ConfigError(f"{name}: must be one of {', '.join(allowed)}, got {v!r}")
-    if isinstance(v, (int, float)) and not isinstance(v, bool) and not (v > 0 or (allowed and v in allowed and v >= 0)):
-        raise ConfigError(f"{name}: must be > 0{' (or 0)' if allowed else ''}, got {v!r}")
-    if section == "sweep" and k == "frequencies_hz" and (not v or not all(isinstance(f, _NUM) and f > 0 for f in v)):
+    bad = spec.problem(v)
+    if bad:
+        raise ConfigError(f"{name}: {bad}, got {v!r}")
+    if section == "sweep" and k == "frequencies_hz" and (not v or not all(
+            isinstance(f, _NUM) and not isinstance(f, bool) and f > 0 for f in v)):
         raise ConfigError(f"{name}: must be a non-empty list of frequencies > 0 Hz, got {v!r}")
     if section == "zenoh" and k in ("listen", "connect") and not all(isinstance(e, str) for e in v):
         raise ConfigError(f"{name}: must be a list of endpoints like 'tcp/127.0.0.1:7447', got {v!r}")
-    return float(v) if kind is _NUM else v
+    return float(v) if spec.kind is _NUM else v
 
 
 def load_daemon_config(path: str | Path | None) -> DaemonConfig:
@@ -105,7 +147,7 @@ def load_daemon_config(path: str | Path | None) -> DaemonConfig:
             raise ConfigError(f"{path}: cannot read: {err}") from err
         except tomllib.TOMLDecodeError as err:
             raise ConfigError(f"{path}: not valid TOML: {err}") from err
-    values = {s: {k: copy.deepcopy(d[1]) for k, d in keys.items()} for s, keys in DEFAULTS.items()}
+    values = {s: {k: copy.deepcopy(d.default) for k, d in keys.items()} for s, keys in DEFAULTS.items()}
     given = set()
     for section, table in data.items():
         if section not in DEFAULTS:

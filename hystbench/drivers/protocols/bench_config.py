@@ -14,37 +14,86 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from ...config import CONFIG_DIR, read_toml
+from ...config.schema import NUM, Key
 from ...errors import ConfigError
 from . import can_integrator, charge_amp, modbus_map, scpi
 
-__all__ = ["InstrumentConfig", "BenchConfig", "load_bench_config", "INSTRUMENTS", "DEFAULT_BENCH"]
+__all__ = ["InstrumentConfig", "BenchConfig", "load_bench_config", "INSTRUMENTS", "DEFAULT_BENCH", "SCHEMA", "SETTINGS"]
 
 DEFAULT_BENCH = CONFIG_DIR / "bench.toml"
 INSTRUMENTS = ("signal_generator", "current_amplifier", "charge_amplifier", "flux_integrator")
-_BACKENDS = ("sim", "hardware")
 
-# options per instrument: key -> (type, default)
-_OPTIONS: dict[str, dict[str, tuple[type | tuple[type, ...], Any]]] = {
-    "signal_generator": {"transport": (str, "tcp"), "url": (str, ""), "stream_url": (str, ""),
-                         "baudrate": (int, 115200), "reset_on_open": (bool, True)},
-    "current_amplifier": {"transport": (str, "tcp"), "host": (str, ""), "port": (int, 502), "unit": (int, 1),
-                          "serial_port": (str, ""), "baudrate": (int, 19200), "stream_url": (str, "")},
-    "charge_amplifier": {"url": (str, ""), "stream_url": (str, ""), "baudrate": (int, 115200)},
-    "flux_integrator": {"interface": (str, "virtual"), "channel": (str, ""), "node": (int, 0x10),
-                        "fd": (bool, True)},
+# options per instrument: key -> Key (type, default, meaning, unit, legal values)
+_OPTIONS: dict[str, dict[str, Key]] = {
+    "signal_generator": {
+        "transport": Key(str, "tcp", "tcp: SCPI over LAN (url = \"socket://HOST:5025\"); serial: url = a serial "
+                         "port", choices=("tcp", "serial")),
+        "url": Key(str, "", "the SCPI port (required with backend = \"hardware\")"),
+        "stream_url": Key(str, "", "the command_V monitor stream, e.g. \"tcp://HOST:5026\""),
+        "baudrate": Key(int, 115200, "serial transport: line speed", "baud", gt=0),
+        "reset_on_open": Key(bool, True, "send *RST when the bench opens"),
+    },
+    "current_amplifier": {
+        "transport": Key(str, "tcp", "tcp: Modbus TCP (host, port); rtu: Modbus RTU (serial_port, baudrate)",
+                         choices=("tcp", "rtu")),
+        "host": Key(str, "", "Modbus TCP host (required with backend = \"hardware\", transport = \"tcp\")"),
+        "port": Key(int, 502, "Modbus TCP port", ge=1, le=65535),
+        "unit": Key(int, 1, "Modbus unit (slave) id", ge=0, le=255),
+        "serial_port": Key(str, "", "Modbus RTU serial port (required with transport = \"rtu\" on hardware)"),
+        "baudrate": Key(int, 19200, "Modbus RTU line speed", "baud", gt=0),
+        "stream_url": Key(str, "", "the current_A monitor stream, e.g. \"tcp://HOST:5027\""),
+    },
+    "charge_amplifier": {
+        "url": Key(str, "", "the command serial port (required with backend = \"hardware\")"),
+        "stream_url": Key(str, "", "the force stream's serial port (COBS frames)"),
+        "baudrate": Key(int, 115200, "line speed", "baud", gt=0),
+    },
+    "flux_integrator": {
+        "interface": Key(str, "virtual", "python-can interface; \"socketcan\" with channel = \"can0\" on hardware"),
+        "channel": Key(str, "", "CAN channel (required with backend = \"hardware\"; \"\" with sim: a private "
+                       "virtual channel)"),
+        "node": Key(int, 0x10, "CAN node id (commands on 0x600 + node)", ge=1, le=127),
+        "fd": Key(bool, True, "CAN FD (the sample stream needs 64-byte frames)"),
+    },
 }
-_COMMON = {"backend": (str, "sim"), "skew_s": ((int, float), 0.0), "timeout_s": ((int, float), 0.0)}
-_TRANSPORTS = {"signal_generator": ("tcp", "serial"), "current_amplifier": ("tcp", "rtu")}
+_COMMON = {
+    "backend": Key(str, "sim", "sim: the emulated instrument; hardware: the address given here",
+                   choices=("sim", "hardware")),
+    "skew_s": Key(NUM, 0.0, "this instrument's stream lags the common clock by this much", "s"),
+    "timeout_s": Key(NUM, 0.0, "reply deadline of this instrument (0: [bench] timeout_s)", "s", ge=0),
+}
 _REQUIRED_HW = {"signal_generator": ("url",), "current_amplifier": (),
                 "charge_amplifier": ("url",), "flux_integrator": ("channel",)}
 
-_BENCH = {"max_current_a": ((int, float), None), "fs_hz": ((int, float), 100_000.0),
-          "timeout_s": ((int, float), 1.0), "stall_timeout_s": ((int, float), 0.5),
-          "heartbeat_s": ((int, float), 0.1), "backoff": (dict, {})}
-_BACKOFF = {"initial_s": ((int, float), 0.05), "factor": ((int, float), 2.0), "max_s": ((int, float), 1.0),
-            "attempts": (int, 6)}
-_SIM = {"rig": (str, "ecore_pm"), "seed": (int, 0), "block_samples": (int, 1000), "pace": (str, "realtime"),
-        "effects": (dict, {}), "load_cell_pc_per_n": ((int, float), 3.5), "samples_per_frame": (int, 500)}
+_BENCH = {
+    "max_current_a": Key(NUM, None, "the driver layer refuses any command that could drive more than this",
+                         "A", gt=0),
+    "fs_hz": Key(NUM, 100_000.0, "the common sample clock of every stream", "Hz", gt=0),
+    "timeout_s": Key(NUM, 1.0, "reply deadline of every command", "s", gt=0),
+    "stall_timeout_s": Key(NUM, 0.5, "a stream silent this long is reconnected", "s", gt=0),
+    "heartbeat_s": Key(NUM, 0.1, "status poll period (feeds the amplifier's watchdog, detects faults)", "s", gt=0),
+    "backoff": Key(dict, {}, "the reconnection schedule: [bench.backoff]"),
+}
+_BACKOFF = {
+    "initial_s": Key(NUM, 0.05, "first wait before reconnecting", "s", gt=0),
+    "factor": Key(NUM, 2.0, "each wait is this times the previous one ...", ge=1),
+    "max_s": Key(NUM, 1.0, "... capped at this", "s", gt=0),
+    "attempts": Key(int, 6, "reconnection attempts before the stream gives up", ge=1),
+}
+_SIM = {
+    "rig": Key(str, "ecore_pm", "the simulated rig preset behind the emulated instruments"),
+    "seed": Key(int, 0, "random seed of the simulated noise", ge=0),
+    "block_samples": Key(int, 1000, "samples per clock tick (10 ms at 100 kS/s)", "samples", gt=0),
+    "pace": Key(str, "realtime", "realtime: at the sample clock; max: as fast as computed",
+                choices=("realtime", "max")),
+    "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false }"),
+    "load_cell_pc_per_n": Key(NUM, 3.5, "the emulated load cell's true sensitivity", "pC/N", gt=0),
+    "samples_per_frame": Key(int, 500, "TCP/serial stream frames (CAN FD frames hold 10)", "samples", gt=0),
+}
+#: table name -> its keys, in the file's order (docs/config.md is generated from this).
+SCHEMA: dict[str, dict[str, Key]] = {"bench": {k: v for k, v in _BENCH.items() if k != "backoff"},
+                                     "bench.backoff": _BACKOFF, "sim": _SIM,
+                                     **{n: {**_COMMON, **_OPTIONS[n]} for n in INSTRUMENTS}}
 
 
 def _setting_check(instrument: str, key: str, value: Any) -> None:
@@ -72,6 +121,35 @@ _SETTING_KEYS = {
     "charge_amplifier": ("sensitivity_pc_per_n", "scale_n_per_v", "time_constant", "lowpass_hz"),
     "flux_integrator": ("gain_v_per_wb", "turns"),
 }
+
+
+def _settings_schema() -> dict[str, dict[str, Key]]:
+    """The settings' legal values, read from the instruments' own command tables (which
+    ``_setting_check`` enforces), as Keys for docs/config.md (default None: not sent)."""
+    out: dict[str, dict[str, Key]] = {}
+    for key in _SETTING_KEYS["signal_generator"]:
+        c = scpi.GENERATOR[key]
+        out.setdefault("signal_generator", {})[key] = Key(NUM, None, c.doc, c.unit, ge=c.minimum, le=c.maximum)
+    regs = {"gain_a_per_v": "A/V", "current_limit_a": "A", "watchdog_s": "s"}
+    for key, unit in regs.items():
+        r = modbus_map.REGISTERS[{"gain_a_per_v": "gain", "current_limit_a": "current_limit",
+                                  "watchdog_s": "watchdog"}[key]]
+        out.setdefault("current_amplifier", {})[key] = Key(NUM, None, r.doc, unit, ge=r.minimum * r.scale,
+                                                           le=r.maximum * r.scale)
+    for key in _SETTING_KEYS["charge_amplifier"]:
+        m = charge_amp.COMMANDS[key]
+        out.setdefault("charge_amplifier", {})[key] = (
+            Key(str, None, m.doc, choices=m.choices) if m.kind == "choice"
+            else Key(NUM, None, m.doc, m.unit, ge=m.minimum, le=m.maximum))
+    for key, (op, unit) in {"gain_v_per_wb": ("set_gain", "V/Wb"), "turns": ("set_turns", "")}.items():
+        o = can_integrator.OPS[op]
+        out.setdefault("flux_integrator", {})[key] = Key(int if o.value == "u32" else NUM, None, o.doc, unit,
+                                                         ge=o.minimum, le=o.maximum)
+    return out
+
+
+#: instrument -> its ``settings`` keys and their ranges (from the instruments' command tables).
+SETTINGS: dict[str, dict[str, Key]] = _settings_schema()
 
 
 @dataclass(frozen=True)
@@ -129,22 +207,23 @@ class BenchConfig:
         return replace(self, instruments=out)
 
 
-def _table(data: Any, where: str, schema: Mapping[str, tuple[Any, Any]]) -> dict[str, Any]:
+def _table(data: Any, where: str, schema: Mapping[str, Key]) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: must be a table")
     unknown = sorted(set(data) - set(schema))
     if unknown:
         raise ConfigError(f"{where}: unknown key {unknown[0]!r}; known: {', '.join(schema)}")
     out = {}
-    for key, (kind, default) in schema.items():
+    for key, spec in schema.items():
         if key not in data:
-            if default is None:
+            if spec.default is None:
                 raise ConfigError(f"{where}: missing key {key!r}")
-            out[key] = copy.deepcopy(default)
+            out[key] = copy.deepcopy(spec.default)
             continue
         value = data[key]
-        if (isinstance(value, bool) and kind is not bool) or not isinstance(value, kind):
-            raise ConfigError(f"{where}: key {key!r} must be {getattr(kind, '__name__', kind)}, got {value!r}")
+        bad = spec.problem(value)
+        if bad:
+            raise ConfigError(f"{where}: key {key!r} {bad}, got {value!r}")
         out[key] = value
     return out
 
@@ -156,10 +235,6 @@ def _instrument(name: str, data: Any, src: str) -> InstrumentConfig:
     body = dict(data)
     settings = body.pop("settings", {})
     opts = _table(body, where, {**_COMMON, **_OPTIONS[name]})
-    if opts["backend"] not in _BACKENDS:
-        raise ConfigError(f"{where}: key 'backend' must be one of {_BACKENDS}, got {opts['backend']!r}")
-    if name in _TRANSPORTS and opts["transport"] not in _TRANSPORTS[name]:
-        raise ConfigError(f"{where}: key 'transport' must be one of {_TRANSPORTS[name]}, got {opts['transport']!r}")
     if opts["backend"] == "hardware":
         need = list(_REQUIRED_HW[name])
         if name == "current_amplifier":
@@ -190,12 +265,7 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
         raise ConfigError(f"{src}: unknown table [{unknown[0]}]; known: bench, sim, {', '.join(INSTRUMENTS)}")
     bench = _table(data.get("bench", {}), f"{src} [bench]", _BENCH)
     backoff = _table(bench.pop("backoff"), f"{src} [bench.backoff]", _BACKOFF)
-    for key in ("max_current_a", "fs_hz", "timeout_s", "stall_timeout_s", "heartbeat_s"):
-        if not bench[key] > 0:
-            raise ConfigError(f"{src} [bench]: key {key!r} must be > 0, got {bench[key]!r}")
     sim = _table(data.get("sim", {}), f"{src} [sim]", _SIM)
-    if sim["pace"] not in ("realtime", "max"):
-        raise ConfigError(f"{src} [sim]: key 'pace' must be 'realtime' or 'max', got {sim['pace']!r}")
     missing = [n for n in INSTRUMENTS if n not in data]
     if missing:
         raise ConfigError(f"{src}: missing table [{missing[0]}]")
