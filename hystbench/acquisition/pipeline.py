@@ -2,13 +2,16 @@
 
 Threads, each with a bounded hand-off and counters of what it had to drop:
 
-- *source*: pulls blocks from the source, writes them into the ring (which never blocks the
-  writer) and publishes them on zenoh right there, so raw data reaches subscribers with no
-  hand-off at all;
+- *source*: pulls blocks from the source, writes them into the ring and publishes them on zenoh
+  right there, so raw data reaches subscribers with no hand-off at all.  Live, the ring never
+  blocks the writer (a stage that falls behind loses counted samples); a ``lossless`` pipeline
+  (the default for a source paced ``max``: a replay, a simulation) holds the source back until
+  the slowest stage has room instead, so it loses nothing and gives what the live run gave;
 - *estimate*: a ring reader; copies each run into the :class:`WindowEstimator` and releases the
   view (a lapped view resets the estimator: nothing torn is estimated), then emits estimates and
   the compensator's state;
-- *record*: a ring reader writing raw blocks to MCAP, plus the JSON messages others emit through
+- *record*: a ring reader writing raw blocks to MCAP, cut where the source cut them (so a log
+  replayed and recorded again has the same blocks), plus the JSON messages others emit through
   a bounded queue (full: the message is dropped and counted);
 - *stats*: every ``stats_interval_s`` publishes per-stage counters on ``stats`` (and logs them).
 
@@ -30,10 +33,10 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from ..blocks import SampleBlock
+from ..blocks import BlockFlags, SampleBlock
 from ..errors import ConfigError
 from .mcaplog.schemas import COMPENSATOR, ESTIMATE, STATS, STATUS
-from .ring import RingBuffer, RingReader
+from .ring import RingBuffer, RingRead, RingReader
 from .sources import Controllable
 from .stages import WindowEstimator
 
@@ -54,6 +57,7 @@ class StageStats:
     dropped_messages: int = 0
     errors: int = 0
     busy_s: float = 0.0
+    waited_s: float = 0.0  # a lossless source, held back by the slowest stage
     latencies_ms: deque = field(default_factory=lambda: deque(maxlen=4096))
     started: float = field(default_factory=time.monotonic)
 
@@ -63,6 +67,7 @@ class StageStats:
         return {"blocks": self.blocks, "samples": self.samples, "samples_per_s": self.samples / up,
                 "lost_samples": self.lost_samples, "dropped_messages": self.dropped_messages,
                 "errors": self.errors, "busy_fraction": self.busy_s / up,
+                "waited_fraction": self.waited_s / up,
                 "latency_ms_p50": float(np.percentile(lat, 50)), "latency_ms_p99": float(np.percentile(lat, 99)),
                 "latency_ms_max": float(lat.max())}
 
@@ -73,15 +78,20 @@ class Pipeline:
     ``recorder`` is a started :class:`~.mcaplog.McapRecorder` (or None), ``bus`` an open
     :class:`~.zenoh_bus.ZenohBus` (or None), ``estimator`` a :class:`WindowEstimator` (or None),
     ``compensator`` a callable (estimate, window) -> state (e.g. :class:`CompensatorHook`); the
-    window is the estimate's samples when the estimator keeps them, else None.
+    window is the estimate's samples when the estimator keeps them, else None.  ``lossless``
+    (default: whether the source's ``pace`` is ``"max"``) makes the source wait for the slowest
+    stage instead of overrunning it; ``backpressure`` is set while it waits.
     """
 
     def __init__(self, source, *, estimator: WindowEstimator | None = None, recorder=None, bus=None,
                  compensator: Callable[[Mapping[str, Any], Mapping[str, Any] | None], dict | None] | None = None,
                  ring_seconds: float = 2.0, dtype: Any = np.float32, queue_size: int = 1024,
                  stats_interval_s: float = 1.0, publish_raw: bool = True,
-                 gil_switch_s: float | None = 0.0005, background_nice: int = 10) -> None:
+                 gil_switch_s: float | None = 0.0005, background_nice: int = 10,
+                 lossless: bool | None = None) -> None:
         self.source, self.estimator, self.recorder, self.bus = source, estimator, recorder, bus
+        self.lossless = getattr(source, "pace", None) == "max" if lossless is None else bool(lossless)
+        self.backpressure = threading.Event()  # set while a lossless source waits for a stage
         self.compensator = compensator
         self.publish_raw = publish_raw
         self.gil_switch_s = gil_switch_s
@@ -208,21 +218,65 @@ class Pipeline:
                     pub.samples += block.n
                     pub.busy_s += now - t_in
                     pub.latencies_ms.append(1e3 * (now - t_in))
-                t0 = time.monotonic()
-                self.ring.write(block)
-                k = self._n_arrivals % self._arr_pos.size
-                self._arr_pos[k], self._arr_t[k] = self.ring.head, t_in
+                t0, waited = time.monotonic(), 0.0
+                k = self._n_arrivals % self._arr_pos.size  # logged first: a reader that sees the
+                self._arr_pos[k], self._arr_t[k] = self.ring.head + block.n, t_in  # samples finds it
                 self._n_arrivals += 1
+                if self.lossless:
+                    waited = self._write_waiting(block)
+                    if waited is None:
+                        break
+                    st.waited_s += waited
+                else:
+                    self.ring.write(block)
                 st.blocks += 1
                 st.samples += block.n
                 now = time.monotonic()
-                st.busy_s += now - t0
+                st.busy_s += now - t0 - waited
                 st.latencies_ms.append(1e3 * (now - t_in))
                 if self._stop.is_set():
                     break
         finally:
             self.ring.close()
             self._source_done.set()
+
+    def _write_waiting(self, block: SampleBlock) -> float | None:
+        """Write ``block`` once every reader has room for it (in pieces of at most half the ring);
+        the seconds it waited, or None if the pipeline stopped or the ring closed (a stage died)
+        while it waited."""
+        step = max(1, self.ring.capacity // 2)
+        waited = 0.0
+        for k in range(0, block.n, step):
+            piece = block if block.n <= step else SampleBlock(
+                block.first_index + k, block.fs_hz, {c: x[k:k + step] for c, x in block.channels.items()},
+                flags=block.flags if k == 0 else block.flags & ~BlockFlags.GAP,
+                gap_samples=block.gap_samples if k == 0 else 0, meta=block.meta)
+            if not self.ring.wait_for_room(piece.n, timeout_s=0.0):
+                self.backpressure.set()
+                t_wait = time.monotonic()
+                while not self.ring.wait_for_room(piece.n, timeout_s=0.1):
+                    if self._stop.is_set() or self.ring.closed:
+                        self.backpressure.clear()
+                        return None
+                waited += time.monotonic() - t_wait
+                self.backpressure.clear()
+            self.ring.write(piece)
+        return waited
+
+    def _block_end(self, pos: int) -> int | None:
+        """Ring position where the source block holding position ``pos`` ends (None: not logged
+        yet, or already forgotten)."""
+        n, m = self._n_arrivals, self._arr_pos.size
+        lo, hi = max(0, n - m), n - 1
+        if hi < lo or self._arr_pos[hi % m] <= pos or (n > m and self._arr_pos[lo % m] > pos):
+            return None  # the block is not logged yet, or its end was forgotten
+        while lo < hi:  # the first block ending after pos
+            mid = (lo + hi) // 2
+            if self._arr_pos[mid % m] > pos:
+                hi = mid
+            else:
+                lo = mid + 1
+        return int(self._arr_pos[lo % m])
 
     def _arrived(self, end_pos: int) -> float | None:
         """Arrival time of the source block holding ring position ``end_pos - 1`` (a binary search
@@ -253,6 +307,9 @@ class Pipeline:
                     return
                 continue
             t0 = time.monotonic()
+            if got.lost:  # lapped before this read: the estimator's run restarts after the gap
+                self.status("warning", "estimator_overrun", f"estimation lost {got.lost} samples before sample "
+                            f"{got.block.first_index}")
             est.append(got.block)
             if not r.release(got):  # lapped while copying: what was copied may be torn
                 est.reset()
@@ -281,14 +338,43 @@ class Pipeline:
                 return
             rec.add_message(topic, obj, obj.get("t_ns"))
 
+    def _read_source_blocks(self, r: RingReader) -> list[RingRead]:
+        """The next source block (or what is left of it), cut where the source cut it and joined
+        again where the ring's wrap point split it (copied: the views are not contiguous there).
+        A plain read when the block's end is not known; two reads if the ring lapped in between."""
+        end = self._block_end(r.cursor)
+        cap = self.ring.capacity
+        if end is None or r.cursor // cap == (end - 1) // cap:
+            got = r.read(None if end is None else end - r.cursor)
+            return [] if got is None else [got]
+        parts: list[RingRead] = []
+        while (not parts or parts[-1].end < end) and r.lag > 0:
+            more = r.read(end - r.cursor, copy=True)
+            if more is None:
+                break
+            if parts and (more.lost or more.block.first_index != parts[-1].block.end_index):
+                return [self._joined(parts), more]  # lapped in between (live): the rest comes as it is
+            parts.append(more)
+        return [self._joined(parts)] if parts else []
+
+    @staticmethod
+    def _joined(parts: list[RingRead]) -> RingRead:
+        if len(parts) == 1:
+            return parts[0]
+        b = parts[0].block
+        block = SampleBlock(b.first_index, b.fs_hz, {c: np.concatenate([p.block.channels[c] for p in parts])
+                                                     for c in b.channels},
+                            flags=b.flags, gap_samples=b.gap_samples, meta=b.meta)
+        return RingRead(block, parts[0].lost, parts[0].start, parts[-1].end)
+
     def _run_record(self) -> None:
         st, r, rec = self.stats["record"], self._readers["record"], self.recorder
         estimating = [t for t in self._threads if t.name == "pipeline-estimate"]
         last_lost = 0
         while True:
-            got = r.read(timeout_s=0.1)
+            reads = self._read_source_blocks(r) if r.wait(0.1) else []
             t0 = time.monotonic()
-            if got is not None:
+            for got in reads:
                 rec.add_block(got.block)
                 st.blocks += 1
                 st.samples += got.n
@@ -299,8 +385,8 @@ class Pipeline:
             self._drain_messages()
             rec.tick()
             st.busy_s += time.monotonic() - t0
-            if got is not None:
-                self._latency(st, got.end)
+            if reads:
+                self._latency(st, reads[-1].end)
             elif self.ring.closed and r.lag <= 0:
                 if not any(t.is_alive() for t in estimating):  # its last estimates are queued
                     self._drain_messages()

@@ -2,11 +2,14 @@
 
 The writer never waits.  Each reader has its own cursor; one that falls more than ``capacity``
 samples behind loses the oldest ones and is told exactly how many (``RingRead.lost``, its block
-flagged ``OVERRUN``), so nothing stale or torn is ever handed out as good data:
+flagged ``OVERRUN``), so nothing stale or torn is ever handed out as good data.  A writer that
+must lose nothing (an offline replay) asks :meth:`RingBuffer.wait_for_room` first: it returns once
+no reader would be lapped, counting the views a reader still holds.
 
 - reads are views into the buffer (no copy).  A view stays intact until the writer laps it;
   ``reader.release(r)`` says afterwards whether it did (then the result computed from it must be
-  dropped, and the samples count as lost).  ``read(copy=True)`` copies and checks at once,
+  dropped, and the samples count as lost).  A reader holds its last views until it releases them
+  or reads again.  ``read(copy=True)`` copies and checks at once,
   trimming any samples overwritten during the copy.
 - the writer moves ``_tail`` (the oldest intact position) *before* it overwrites anything, and
   publishes ``_head`` only after the copy, so a reader comparing its range against ``_tail``
@@ -90,7 +93,10 @@ class RingBuffer:
         self._rec_tail = 0  # start of the oldest record still kept
         self._tail = 0  # oldest intact position: max(reserve - capacity, rec_tail)
         self._src_end: int | None = None  # source index one past the last written sample
-        self._cond = threading.Condition(threading.Lock())
+        lock = threading.Lock()
+        self._cond = threading.Condition(lock)  # readers wait on it for data
+        self._room = threading.Condition(lock)  # a waiting writer, for readers to move on
+        self._readers: list[RingReader] = []
         self.closed = False
         self.written = 0  # samples written (== _head)
 
@@ -152,6 +158,29 @@ class RingBuffer:
         with self._cond:
             self.closed = True
             self._cond.notify_all()
+            self._room.notify_all()
+
+    def wait_for_room(self, n: int, timeout_s: float | None = None) -> bool:
+        """Wait until ``n`` more samples (at most ``capacity``) can be written without lapping any
+        reader, counting the views each still holds and the run records a new one would push out.
+        False if ``timeout_s`` ran out or the ring was closed first (the writer then writes anyway
+        or gives up: its choice)."""
+        if not 0 < n <= self.capacity:
+            raise ValueError(f"n must be in 1..{self.capacity} (the capacity), got {n}")
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                if self.closed:
+                    return False
+                need = self._head + n - self.capacity  # the oldest position such a write keeps
+                if self._nrec >= self.max_records:  # and a new run would drop the oldest record
+                    need = max(need, int(self._rec_pos[(self._nrec + 1) % self.max_records]))
+                if all(r._floor() >= need for r in self._readers):
+                    return True
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    return False
+                self._room.wait(left)
 
     # --- readers -------------------------------------------------------------------------------
     def reader(self, name: str = "", *, start: str = "oldest") -> RingReader:
@@ -160,7 +189,9 @@ class RingBuffer:
             raise ValueError(f"start must be 'oldest' or 'newest', got {start!r}")
         with self._cond:
             pos = self._tail if start == "oldest" else self._head
-        return RingReader(self, name, pos)
+            reader = RingReader(self, name, pos)
+            self._readers.append(reader)
+        return reader
 
     @property
     def head(self) -> int:
@@ -195,11 +226,29 @@ class RingReader:
         self._rec_hint = 0
         self._pending_lost = 0  # lost since the last read handed out (reported with the next one)
         self._last_end: int | None = None  # source index one past the last block handed out
+        self._held: int | None = None  # ring position of the views handed out and not released
+
+    def _floor(self) -> int:
+        """The oldest position this reader may still use (caller holds the ring's lock)."""
+        return self.cursor if self._held is None else self._held
 
     @property
     def lag(self) -> int:
         """Samples written that this reader has not read yet."""
         return self.ring._head - self.cursor
+
+    def wait(self, timeout_s: float | None = None) -> bool:
+        """Wait until there is something to read (True), or ``timeout_s`` ran out or the ring is
+        closed and drained (False); reads nothing."""
+        ring = self.ring
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        with ring._cond:
+            while ring._head <= self.cursor:
+                left = None if deadline is None else deadline - time.monotonic()
+                if ring.closed or (left is not None and left <= 0):
+                    return False
+                ring._cond.wait(left)
+            return True
 
     def read(self, max_samples: int | None = None, timeout_s: float | None = 0.0, *,
              copy: bool = False) -> RingRead | None:
@@ -212,6 +261,9 @@ class RingReader:
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             with ring._cond:
+                if self._held is not None:  # reading again: done with the last views
+                    self._held = None
+                    ring._room.notify_all()
                 while True:
                     if ring._tail > self.cursor:  # lapped: the samples in between are gone
                         self._pending_lost += ring._tail - self.cursor
@@ -224,6 +276,8 @@ class RingReader:
                         return None
                     ring._cond.wait(left)
                 start, end, block = self._take(max_samples)
+                if not copy:
+                    self._held = start
             if copy:
                 block = SampleBlock(block.first_index, block.fs_hz,
                                     {k: v.copy() for k, v in block.channels.items()},
@@ -290,6 +344,10 @@ class RingReader:
     def release(self, r: RingRead) -> bool:
         """Done with the views of ``r``: True if they were intact throughout; if not, its samples
         are counted lost and whatever was computed from them must be dropped."""
+        with self.ring._cond:
+            if self._held is not None:
+                self._held = None
+                self.ring._room.notify_all()
         ok = self.valid(r)
         if not ok:
             self.lost_samples += r.n

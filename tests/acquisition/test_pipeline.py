@@ -4,6 +4,7 @@ compensator hook."""
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 
@@ -13,7 +14,8 @@ from hypothesis import strategies as st
 
 from hystbench.acquisition.cli import main as pipeline_main
 from hystbench.acquisition.commands_pipeline import record_log, replay_log
-from hystbench.acquisition.mcaplog import ESTIMATE, STATS, iter_blocks, iter_log, read_mcap_recording
+from hystbench.acquisition.mcaplog import (ESTIMATE, STATS, McapRecorder, McapSource, iter_blocks, iter_log,
+                                           read_mcap_recording)
 from hystbench.acquisition.method import measure_delays
 from hystbench.acquisition.pipeline import CompensatorHook, Pipeline
 from hystbench.acquisition.sources import Controllable, RigSource, Source, SyntheticSource
@@ -102,21 +104,44 @@ def test_estimator_runs_reset_at_changes_gaps_and_output_off() -> None:
     assert bad and "flat" in bad[0]["error"]
 
 
-def test_a_lagging_stage_loses_counted_samples_and_never_estimates_torn_data(tmp_path: Path) -> None:
-    src = SyntheticSource(fs_hz=100_000.0, block_samples=2000, pace="max", duration_s=1.0)
-    est = WindowEstimator(src.fs_hz, src.metadata(), periods=4, settle_periods=0, min_hop_s=0)
+class _Finished(SyntheticSource):
+    """A synthetic source that says when it has handed out its last block."""
+
+    def __init__(self, **kw) -> None:
+        super().__init__(**kw)
+        self.done = threading.Event()
+
+    def blocks(self, stop=None):
+        yield from super().blocks(stop)
+        self.done.set()
+
+
+def gated(est: WindowEstimator, gate: threading.Event) -> WindowEstimator:
+    """The estimator, stuck in its first ``append`` until ``gate`` is set: the slowest stage there
+    can be, without any timing."""
     real_append = est.append
 
     def slow_append(block):
-        time.sleep(0.004)  # slower than the source: the ring (0.05 s) laps this stage
+        assert gate.wait(60), "the gate never opened"
         real_append(block)
 
     est.append = slow_append
-    pipe = Pipeline(src, estimator=est, ring_seconds=0.05)
+    return est
+
+
+def test_a_lagging_live_stage_loses_counted_samples_and_never_estimates_torn_data() -> None:
+    """Live (not lossless), the source never waits: a stage stuck until the source has finished is
+    lapped by the ring; what it lost is counted and nothing torn is estimated."""
+    src = _Finished(fs_hz=100_000.0, block_samples=2000, pace="max", duration_s=1.0)
+    gate = threading.Event()
+    est = gated(WindowEstimator(src.fs_hz, src.metadata(), periods=4, settle_periods=0, min_hop_s=0), gate)
+    pipe = Pipeline(src, estimator=est, ring_seconds=0.05, lossless=False)
     got = []
     pipe.listeners.append(lambda t, o: got.append(o))
     pipe.start()
-    assert pipe.join(30)
+    assert src.done.wait(60)
+    gate.set()
+    assert pipe.join(60)
     st_ = pipe.stats["estimate"]
     r = pipe._readers["estimate"]
     assert r.lost_samples > 0 and r.read_samples + r.lost_samples == 100_000
@@ -125,6 +150,72 @@ def test_a_lagging_stage_loses_counted_samples_and_never_estimates_torn_data(tmp
     for e in ests:  # every estimate that came out is right (synthetic flux lag: 10 us)
         assert abs(e["delays_s"]["hysteresis"] - 10e-6) < 0.5e-6
     assert st_.lost_samples == r.lost_samples
+    assert any(o.get("event") == "estimator_overrun" for o in got)
+
+
+def _same_blocks(a: Path, b: Path) -> None:
+    """The two logs hold the same raw blocks, block for block: indices, flags, meta and samples."""
+    x, y = list(iter_blocks(a)), list(iter_blocks(b))
+    assert len(x) == len(y) and x
+    for p, q in zip(x, y):
+        assert (p.first_index, p.n, int(p.flags), p.gap_samples, dict(p.meta)) == \
+               (q.first_index, q.n, int(q.flags), q.gap_samples, dict(q.meta))
+        assert set(p.channels) == set(q.channels)
+        for c in p.channels:
+            np.testing.assert_array_equal(p.channels[c], q.channels[c])
+
+
+class _WatchedReplay(McapSource):
+    """The replay source, saying when it has handed out its last block."""
+
+    def __init__(self, *a, **kw) -> None:
+        super().__init__(*a, **kw)
+        self.done = threading.Event()
+
+    def blocks(self, stop=None):
+        yield from super().blocks(stop)
+        self.done.set()
+
+
+def test_replay_is_lossless_and_equals_live_block_for_block_at_both_speeds(tmp_path: Path) -> None:
+    """Issue 10: a replay at --speed max overran its estimator and lost estimates.  Offline, the
+    source now waits for the slowest stage: with an estimator stuck until the source is either
+    held back (lossless) or done (it lapped the stage), the replay gives every live estimate and
+    records every raw block as the live run did; the realtime replay does too."""
+    src = SyntheticSource(fs_hz=20_000.0, block_samples=500, pace="max", duration_s=0.5, noise=1e-3, seed=4)
+    settings_ = {"periods": 4.0, "min_hop_s": 0.0, "settle_periods": 0.0}
+    live_log = tmp_path / "live.mcap"
+    res = record_log(src, live_log, estimation=settings_, timeout_s=60)
+    live = [m.json() for m in iter_log(live_log, [ESTIMATE])]
+    assert len(live) == len(res["estimates"]) >= 30 and not any(e["error"] for e in live)
+    assert concatenate(list(iter_blocks(live_log))).n == 10_000
+
+    # max speed, with the slowest stage there is: the ring (1200 samples) is far shorter than the log
+    replay = _WatchedReplay(live_log, pace="max")
+    gate = threading.Event()
+    est = gated(WindowEstimator(replay.fs_hz, replay.metadata(), **settings_), gate)
+    with McapRecorder(tmp_path / "max.mcap", metadata={"recording": replay.metadata()}) as rec:
+        pipe = Pipeline(replay, estimator=est, recorder=rec, dtype=replay.dtype, ring_seconds=0.06)
+        assert pipe.lossless  # a source paced "max" is offline
+        opener = threading.Thread(target=lambda: (getattr(pipe, "backpressure", replay.done).wait(60) or
+                                                  replay.done.wait(60), gate.set()))
+        ests = []
+        pipe.listeners.append(lambda t, o: ests.append(o) if t == ESTIMATE else None)
+        pipe.start()
+        opener.start()
+        assert pipe.join(60) and pipe.error is None
+        opener.join(60)
+    assert pipe.stats["estimate"].lost_samples == 0 and pipe.stats["record"].lost_samples == 0
+    same_estimates(ests, live)
+    _same_blocks(tmp_path / "max.mcap", live_log)
+
+    # realtime keeps the live behaviour (a stage that keeps up loses nothing) and gives the same
+    realtime = replay_log(live_log, speed="realtime", out=tmp_path / "rt.mcap")
+    same_estimates(realtime, live)
+    _same_blocks(tmp_path / "rt.mcap", live_log)
+    assert not Pipeline(McapSource(live_log, pace="realtime")).lossless
+    # ... and so does the plain replay command's path at max speed
+    same_estimates(replay_log(live_log), live)
 
 
 class FakeCompensator:
