@@ -3,7 +3,7 @@
 import pytest
 
 from hystbench.errors import ConfigError
-from hystbench.sim_backend.effects import CATALOGUE, parse_effect_args, resolve_effects
+from hystbench.sim_backend.effects import CATALOGUE, parse_effect_args, resolve_effects, validate_effects
 
 DESIGN_NAMES = {  # ../shared/design.md, "Names of physical effects (a public interface)"
     "static_hysteresis", "lamination_eddy_currents", "magnet_eddy_currents", "iron_saturation",
@@ -50,3 +50,67 @@ def test_bad_effect_arguments_name_the_argument(arg, words):
 def test_unknown_parameter_in_a_preset_names_file_and_table():
     with pytest.raises(ConfigError, match=r"rig.toml \[effects.sensor_noise\].*'volume'"):
         resolve_effects({"sensor_noise": {"volume": 3}}, where="rig.toml")
+
+
+# --- ranges (issue 10): a value outside a parameter's physical range is refused, wherever it comes from
+def test_every_parameter_has_a_range_that_holds_its_default():
+    for e in CATALOGUE.values():
+        assert set(e.ranges) == set(e.defaults), e.name
+        for k, v in e.defaults.items():
+            for item in (v if isinstance(v, list) else [v]):
+                assert e.ranges[k].problem(item, 100_000.0) is None, f"{e.name}.{k} = {item}"
+
+
+@pytest.mark.parametrize("name, param, bad", [
+    ("charge_amp_highpass", "time_constant_s", 0.0),  # a time constant is > 0
+    ("integrator_leak", "time_constant_s", -1.0),
+    ("load_cell_compliance", "stiffness_n_per_m", 0.0),
+    ("mains_pickup", "third_harmonic", 1.0),  # a fraction in [0, 1)
+    ("sensor_noise", "force_n", -0.01),  # an rms is >= 0
+    ("channel_skew", "force_N", -2e-6),  # a delay: the ADC cannot sample before the event
+    ("adc_quantisation", "bits", 12.5),
+    ("adc_quantisation", "force_n", 0.0),  # a full scale is > 0
+    ("frame_resonance", "depth", -1.0),  # gain 1 + depth at the mode: 0 would be a perfect notch
+    ("magnet_thermal_drift", "remanence_tc_per_k", 0.001),  # magnets lose remanence when warmed
+    ("force_offset_drift", "offset_n", float("nan")),
+    ("amplifier_distortion", "second", float("inf")),
+])
+def test_a_value_outside_its_range_names_effect_param_value_and_range(name, param, bad):
+    rng = str(CATALOGUE[name].ranges[param])
+    for call in (lambda: parse_effect_args([f"{name}.{param}={bad}"]),
+                 lambda: resolve_effects({name: {param: bad}}, where="rig.toml"),
+                 lambda: validate_effects({name: {param: bad}}, "daemon.toml [source] effects")):
+        with pytest.raises(ConfigError) as err:
+            call()
+        msg = str(err.value)
+        assert f"{name}.{param} = {bad!r}" in msg and rng in msg, msg
+
+
+def test_frequencies_must_be_below_half_the_sample_rate_once_it_is_known():
+    table = {"frame_resonance": {"frequencies_hz": [850.0, 30_000.0]}}
+    assert validate_effects(table, "x")["frame_resonance"]["frequencies_hz"] == [850.0, 30_000.0]
+    with pytest.raises(ConfigError, match=r"frequencies_hz = 30000.0 is not below fs/2 = 25000 Hz"):
+        validate_effects(table, "x", fs_hz=50_000.0)
+
+
+def test_the_daemons_effects_table_takes_switches_numbers_and_tables():
+    """daemon.toml documents { sensor_noise = false, frame_resonance = -0.2 }: a bare number is the
+    primary parameter (the depth of the frame modes: -0.2 is a dip of 20 % at each mode)."""
+    on = validate_effects({"sensor_noise": False, "frame_resonance": -0.2, "mains_pickup": True,
+                           "charge_amp_highpass": {"time_constant_s": 0.5}}, "daemon.toml [source] effects")
+    assert set(on) == {"frame_resonance", "mains_pickup", "charge_amp_highpass"}
+    assert on["frame_resonance"]["depth"] == -0.2 and on["frame_resonance"]["zeta"] == 0.02
+    assert on["charge_amp_highpass"]["time_constant_s"] == 0.5
+    for bad, words in [({"sensor_noise": "loud"}, "true/false, a number or a table"),
+                       ({"channel_skew": 1e-6}, "several parameters"),
+                       ({"bogus": True}, "unknown effect 'bogus'"),
+                       ({"sensor_noise": {"force_n": True}}, "is not a number")]:
+        with pytest.raises(ConfigError, match=words) as err:
+            validate_effects(bad, "daemon.toml [source] effects")
+        assert str(err.value).startswith("daemon.toml [source] effects")
+
+
+def test_0_and_1_are_numbers_not_switches():
+    """mains_pickup=1 meant "on, 0.2 mV" before; a number sets the primary parameter: 1 V."""
+    assert parse_effect_args(["mains_pickup=1"]) == {"mains_pickup": {"sense_v": 1.0}}
+    assert parse_effect_args(["sensor_noise=0"]) == {"sensor_noise": {"force_n": 0.0}}
