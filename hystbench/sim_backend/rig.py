@@ -29,6 +29,12 @@ DEFAULT_FS_HZ = 100_000.0
 DEFAULT_GENERATOR_CLOCK_PPM = 25.0
 
 
+def _check_duration(rig: str, duration_s: float) -> None:
+    """At least one sample's worth of a finite duration (0 s would be an empty recording)."""
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise ConfigError(f"{rig}: the duration must be a finite number of seconds > 0, got {duration_s}")
+
+
 class SimulatedRig:
     """One bench: a rig preset with its effects, excited by a sine (or one-period waveform)."""
 
@@ -40,11 +46,11 @@ class SimulatedRig:
         self.preset = dict(load_rig(rig) if isinstance(rig, str) else rig)
         self.name = str(self.preset.get("name"))
         where = str(self.preset.get("_source", self.name))
-        if not fs_hz > 0:
-            raise ConfigError(f"fs_hz must be positive, got {fs_hz}")
+        if not (math.isfinite(fs_hz) and fs_hz > 0):
+            raise ConfigError(f"{where}: the sample rate must be a finite number of Hz > 0, got {fs_hz}")
         self.fs_hz = float(fs_hz)
         self.seed = int(seed)
-        self.effects = resolve_effects(self.preset.get("effects", {}), effects, where)
+        self.effects = resolve_effects(self.preset.get("effects", {}), effects, where, fs_hz=self.fs_hz)
         self.generator_clock_ppm = float(generator_clock_ppm)
         self.amplifier_gain_a_per_v = float(require(self.preset.get("amplifier", {}), "gain_a_per_v",
                                                     f"{where} [amplifier]"))
@@ -61,9 +67,12 @@ class SimulatedRig:
         self.output_enabled = True
         self._waveform: np.ndarray | None = None
         self._cycle = 0.0  # generator phase at the next sample, in cycles [0, 1)
-        self.set_excitation(float(frequency_hz or exc.get("frequency_hz", 320.0)),
-                            float(current_pp_a if current_pp_a is not None else exc.get("current_pp_a", 1.0)),
+        # None (not 0, not any falsy value) means "the preset's": a 0 Hz request must be refused
+        self.set_excitation(float(exc.get("frequency_hz", 320.0) if frequency_hz is None else frequency_hz),
+                            float(exc.get("current_pp_a", 1.0) if current_pp_a is None else current_pp_a),
                             offset_a)
+        if warmup_s is not None and not (math.isfinite(warmup_s) and warmup_s >= 0):
+            raise ConfigError(f"{self.name}: warmup_s must be a finite number of seconds >= 0, got {warmup_s}")
         warm = warmup_s if warmup_s is not None else max(0.05, 5.0 / self.frequency_hz)
         self._next_index = -int(math.ceil(warm * self.fs_hz))
         while self._next_index < 0:  # settle hysteresis memory and filters before sample 0
@@ -74,14 +83,17 @@ class SimulatedRig:
                        offset_a: float | None = None) -> None:
         """Sine current command; the phase runs on continuously across changes, as a generator's does."""
         if frequency_hz is not None:
-            if not 0 < frequency_hz < self.fs_hz / 2:
-                raise ConfigError(f"excitation frequency {frequency_hz} Hz must be in (0, fs/2 = {self.fs_hz / 2} Hz)")
+            if not 0 < frequency_hz < self.fs_hz / 2:  # also refuses NaN and inf
+                raise ConfigError(f"{self.name}: excitation frequency {frequency_hz} Hz must be in "
+                                  f"(0, fs/2 = {self.fs_hz / 2} Hz)")
             self.frequency_hz = float(frequency_hz)
         if current_pp_a is not None:
-            if current_pp_a < 0:
-                raise ConfigError(f"current_pp_a must be >= 0, got {current_pp_a}")
+            if not (math.isfinite(current_pp_a) and current_pp_a >= 0):
+                raise ConfigError(f"{self.name}: current_pp_a must be a finite number of A >= 0, got {current_pp_a}")
             self.current_pp_a = float(current_pp_a)
         if offset_a is not None:
+            if not math.isfinite(offset_a):
+                raise ConfigError(f"{self.name}: offset_a must be a finite number of A, got {offset_a}")
             self.offset_a = float(offset_a)
         self._waveform = None
         self._dc_flux = self.actuator.dc_flux_wb(self.offset_a)
@@ -153,15 +165,17 @@ class SimulatedRig:
     # --- streaming ---------------------------------------------------------------------------------
     def read(self, n: int) -> SampleBlock:
         """The next ``n`` samples of every channel."""
-        if n <= 0:
-            raise ValueError(f"n must be positive, got {n}")
+        if not n > 0:
+            raise ConfigError(f"{self.name}: the number of samples to read must be >= 1, got {n}")
         return self._generate(int(n))
 
     def blocks(self, block_size: int = 10_000, duration_s: float | None = None,
                pace: str = "max") -> Iterator[SampleBlock]:
         """Consecutive blocks; ``pace='realtime'`` sleeps so samples leave no faster than the ADC's."""
         if pace not in ("max", "realtime"):
-            raise ValueError(f"pace must be 'max' or 'realtime', got {pace!r}")
+            raise ConfigError(f"{self.name}: pace must be 'max' or 'realtime', got {pace!r}")
+        if duration_s is not None:
+            _check_duration(self.name, duration_s)
         remaining = None if duration_s is None else int(round(duration_s * self.fs_hz))
         start_wall, start_index = time.monotonic(), self._next_index
         while remaining is None or remaining > 0:
@@ -176,6 +190,7 @@ class SimulatedRig:
 
     def record(self, duration_s: float, block_size: int = 50_000) -> SampleBlock:
         """``duration_s`` of samples as one block (as fast as possible)."""
+        _check_duration(self.name, duration_s)
         return concatenate(list(self.blocks(block_size, duration_s)))
 
     def metadata(self) -> dict[str, Any]:
