@@ -3,7 +3,9 @@
 The contract is ``recording-format.md``.  Reading is strict because the files come from scopes,
 DAQ software and spreadsheets: every defect is a :class:`RecordingError` naming the file, and the
 line and column where there is one; nothing is dropped, rescaled or guessed.  The numbers go
-through numpy in bulk; a pass per line runs only on the error path, to say where the defect is.
+through numpy in bulk, a chunk of lines at a time into one array, so memory is the samples' float64
+size plus a chunk, not a multiple of the text; a pass per line runs only on the error path, to
+say where the defect is.
 Writing is lossless (shortest round-trip float text) and replaces files atomically.
 """
 
@@ -11,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import json
 import math
 import numbers
@@ -19,13 +22,14 @@ import re
 import secrets
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, TextIO
+from typing import Any, BinaryIO, Callable, Iterable, Iterator, Mapping, TextIO
 
 import numpy as np
 
 from ..blocks import CHANNEL_UNITS, BlockFlags, SampleBlock, concatenate
 from ..config import rig_names
 from ..errors import RecordingError
+from .text_chunks import count_line_ends, text_chunks
 
 __all__ = ["REQUIRED_KEYS", "TIME_TOL_PERIODS", "Recording", "read_recording", "write_recording",
            "read_sweep", "write_sweep", "sweep_stem"]
@@ -44,6 +48,7 @@ TIME_TOL_PERIODS = 1e-3
 
 _SUFFIXES = (".csv", ".json")
 _ROWS_PER_CHUNK = 65536  # bounds the text held in memory while writing
+_TIME_BLOCK = 8192  # samples per step of the time check: its temporaries stay small
 _KNOWN = {name.rsplit("_", 1)[0]: name for name in CHANNEL_UNITS}  # 'force' -> 'force_N'
 _COLUMN = re.compile(r"(?P<channel>[^\W\d_]\w*)_(?P<unit>(?:[^\W\d_]|[%°])[^\s_,\"]*)")
 # The numbers numpy's loadtxt accepts (ASCII, no underscores), to find the bad field on error.
@@ -196,7 +201,7 @@ def _check_sidecar(meta: Any, where: str) -> None:
 
 
 def _read_text(path: Path) -> str:
-    """UTF-8 text with '\n' line ends; a spreadsheet's BOM is not part of the first name."""
+    """UTF-8 text with '\n' line ends, for the sidecar (the samples are read by :func:`text_chunks`)."""
     try:
         raw = path.read_bytes()
     except OSError as err:
@@ -257,9 +262,9 @@ def _parse_header(line: str, where: str) -> list[str]:
     return names
 
 
-def _locate_bad_line(body: str, names: list[str], where: str) -> RecordingError | None:
+def _locate_bad_line(body: str, names: list[str], where: str, first_line: int) -> RecordingError | None:
     """The error path: walk the lines to name the first one loadtxt refused or skipped."""
-    for lineno, line in enumerate(body.split("\n"), start=2):
+    for lineno, line in enumerate(body.split("\n"), start=first_line):
         if not line.strip():
             return RecordingError(f"{where}:{lineno}: empty line between samples")
         fields = line.split(",")
@@ -272,39 +277,82 @@ def _locate_bad_line(body: str, names: list[str], where: str) -> RecordingError 
     return None
 
 
-def _parse_samples(text: str, where: str) -> tuple[list[str], np.ndarray]:
-    """Header names and the (rows, columns) float64 array, checked for shape and finiteness."""
-    if not text.strip():
-        raise RecordingError(f"{where}: empty file; expected a header line 'time_s,...' and samples")
-    header, _, body = text.partition("\n")
-    names = _parse_header(header, where)
-    body = body.rstrip()  # trailing blank lines hold no sample; blank lines between rows are errors
-    if not body:
-        raise RecordingError(f"{where}: header only, no samples")
+def _parse_rows(body: str, names: list[str], where: str, first_line: int) -> np.ndarray:
+    """The (rows, columns) float64 array of ``body``, whole lines from file line ``first_line``
+    on, checked for shape and finiteness."""
     rows = body.count("\n") + 1
     try:
         data = np.loadtxt(io.StringIO(body), delimiter=",", comments=None, ndmin=2, dtype=np.float64)
     except ValueError as err:
-        raise (_locate_bad_line(body, names, where)
-               or RecordingError(f"{where}: cannot read the samples: {err}")) from err
+        raise (_locate_bad_line(body, names, where, first_line)
+               or RecordingError(f"{where}:{first_line}: cannot read the samples from here on: {err}")) from err
     if data.shape != (rows, len(names)):  # loadtxt skips empty lines; a constant extra field passes
-        raise (_locate_bad_line(body, names, where)
-               or RecordingError(f"{where}: read {data.shape} samples, expected ({rows}, {len(names)})"))
+        raise (_locate_bad_line(body, names, where, first_line)
+               or RecordingError(f"{where}:{first_line}: read {data.shape} samples, expected ({rows}, {len(names)})"))
     bad = ~np.isfinite(data)
     if bad.any():
         r, c = divmod(int(np.argmax(bad)), data.shape[1])
         field = body.split("\n", r + 1)[r].split(",")[c].strip()
-        raise RecordingError(f"{where}:{r + 2}: column {c + 1} ({names[c]}): {field!r} is not a finite number")
-    return names, data
+        raise RecordingError(f"{where}:{first_line + r}: column {c + 1} ({names[c]}): "
+                             f"{field!r} is not a finite number")
+    return data
+
+
+def _read_header(chunks: Iterator[tuple[int, str]], where: str) -> tuple[list[str], str]:
+    """The header's names and the rest of the first chunk (from line 2 on)."""
+    first = next(chunks, (1, ""))[1]
+    header, _, rest = first.partition("\n")
+    if not header.strip() and not rest.strip() and not any(text.strip() for _, text in chunks):
+        raise RecordingError(f"{where}: empty file; expected a header line 'time_s,...' and samples")
+    return _parse_header(header, where), rest
+
+
+def _parse_samples(fh: BinaryIO, where: str) -> tuple[list[str], np.ndarray]:
+    """Header names and the (columns, rows) float64 array of the CSV ``fh``, read a chunk of
+    lines at a time into one array sized by a first pass that counts the lines: the memory is
+    that array plus a chunk, not a multiple of the text.  The first defect in the file is named."""
+    capacity = count_line_ends(fh) + 1
+    fh.seek(0)
+    chunks = text_chunks(fh, where)
+    names, rest = _read_header(chunks, where)
+    out = np.empty((len(names), capacity), dtype=np.float64)
+    n = 0
+    blank: int | None = None  # the first of the whitespace-only lines after the last sample so far
+    for first_line, text in itertools.chain([(2, rest)], chunks):
+        body = text.rstrip()  # whitespace-only lines at the end of the file hold no sample
+        if not body:
+            blank = first_line if blank is None and text else blank
+            continue
+        if blank is not None:
+            raise RecordingError(f"{where}:{blank}: empty line between samples")
+        data = _parse_rows(body, names, where, first_line)
+        if n + data.shape[0] > capacity:
+            raise RecordingError(f"{where}: the file grew while being read")
+        out[:, n:n + data.shape[0]] = data.T
+        n += data.shape[0]
+        end = text.find("\n", len(body)) + 1  # just after the line of the last sample
+        blank = first_line + data.shape[0] if 0 < end < len(text) else None
+    if n == 0:
+        raise RecordingError(f"{where}: header only, no samples")
+    return names, out[:, :n]
+
+
+def _max_time_deviation(t: np.ndarray, period: float) -> float:
+    """``max |t[i] - (t[0] + i period)|``, a block at a time: no temporary the size of the column."""
+    worst = 0.0
+    for start in range(0, t.size, _TIME_BLOCK):
+        i = np.arange(start, min(start + _TIME_BLOCK, t.size))
+        worst = max(worst, float(np.max(np.abs(t[i[0]:i[-1] + 1] - (t[0] + i * period)))))
+    return worst
 
 
 def _check_time(t: np.ndarray, fs: float, where: str, sidecar: str) -> None:
     """time_s must sit on t[0] + i / fs within TIME_TOL_PERIODS; say which line leaves it, and why."""
     period = 1.0 / fs
     tol = TIME_TOL_PERIODS * period
-    dev = t - (t[0] + np.arange(t.size) * period)
-    if t.size < 2 or np.max(np.abs(dev)) <= tol:
+    if t.size < 2 or _max_time_deviation(t, period) <= tol:
         return
+    dev = t - (t[0] + np.arange(t.size) * period)  # the error path: whole-column temporaries are fine
     steps = np.diff(t)
     step = float(np.median(steps))
     off = (steps <= 0) | (np.abs(steps - step) > 2 * tol)  # one rounded value moves two steps
@@ -330,10 +378,14 @@ def read_recording(path: str | Path) -> Recording:
     meta = _read_sidecar(json_path)
     if not csv_path.is_file():
         raise RecordingError(f"{csv_path}: missing samples for sidecar {json_path.name}")
-    names, data = _parse_samples(_read_text(csv_path), str(csv_path))
+    try:
+        with csv_path.open("rb") as fh:
+            names, cols = _parse_samples(fh, str(csv_path))
+    except OSError as err:
+        raise RecordingError(f"{csv_path}: cannot read: {err.strerror}") from err
     fs = float(meta["sample_rate_Hz"])
-    _check_time(data[:, 0], fs, str(csv_path), json_path.name)
-    cols = data.T.copy()  # one contiguous row per column
+    _check_time(cols[0], fs, str(csv_path), json_path.name)
+    # each channel is a contiguous row of ``cols``: views, no copy
     return Recording(path=stem, fs_hz=fs, channels=dict(zip(names[1:], cols[1:])),
                      metadata=meta, t0_s=float(cols[0, 0]))
 
