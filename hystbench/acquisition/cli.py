@@ -155,16 +155,17 @@ def cmd_demo(args) -> int:
     """The main job: the bench service live (a sweep through the emulated instruments, estimates
     over zenoh, an MCAP log), the paper's sweeps as recordings with their delays, the whole method."""
     from .commands_method import cmd_paper
-    from .commands_pipeline import demo_live
+    from .commands_pipeline import demo_live, demo_sweeps
     from .console import console
-    from .demo import run_demo
 
     out = Path(args.out)
     console().rule("live: the daemon's pipeline, a sweep through the emulated instruments, estimates over zenoh")
     live = demo_live(out / "live", seconds=6.0)
-    console().print(f"{live['estimates']} live estimates ({live['refused']} refused while settling); "
-                    f"MCAP log: {', '.join(live['log'])}")
-    status = run_demo(out)
+    console().print(live["summary"])
+    status, failed = demo_sweeps(out)
+    if failed:
+        console().print(f"[bold red]the sweeps through the drivers failed[/]: {failed}\n"
+                        "(their files removed; the offline part follows)")
     return status or cmd_paper(argparse.Namespace(out=str(out / "paper"), quick=False, save_recordings=False))
 
 

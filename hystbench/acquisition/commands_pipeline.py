@@ -1,5 +1,6 @@
-"""Command-line wiring of the pipeline: ``watch``, ``record``, ``replay``, ``export``, ``recover``,
-``daemon``; and :func:`demo_live`, the live part of the demo.
+"""Command-line wiring of the pipeline: ``watch``, ``ctl``, ``record``, ``replay``, ``export``,
+``recover``, ``daemon``; and :func:`demo_live` / :func:`demo_sweeps`, the demo's parts that run
+the bench.
 
 ``register(subparsers)`` adds the commands to the ``hystbench`` parser (whose ``main`` turns a
 :class:`~hystbench.errors.BenchError` into exit status 2); ``python -m
@@ -13,11 +14,11 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 from ..errors import BenchError, RecordingError
 
-__all__ = ["register", "record_log", "replay_log", "demo_live", "format_message"]
+__all__ = ["register", "record_log", "replay_log", "demo_live", "demo_sweeps", "format_message"]
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 
@@ -115,17 +116,44 @@ def format_message(keyexpr: str, payload: bytes) -> str:
 
 
 # --- commands ----------------------------------------------------------------------------------------
-def cmd_watch(args) -> int:
-    from .zenoh_bus import Subscription, load_zenoh_config, open_session
+def _watch_items(sub, keyexpr: str, endpoint: str, *, count: int | None, seconds: float | None,
+                 quiet_after_s: float) -> Iterator[tuple[str, bytes]]:
+    """The samples of ``sub`` until ``count`` or ``seconds``; when nothing has arrived for
+    ``quiet_after_s`` (0: never), says so once on stderr and keeps waiting (said again only after
+    a message came and the line went quiet again)."""
+    start = last = time.monotonic()
+    deadline = None if seconds is None else start + seconds
+    warned = not quiet_after_s > 0
+    got = 0
+    while count is None or got < count:
+        now = time.monotonic()
+        if not warned and now - last >= quiet_after_s:  # before the deadline test: said even at the end
+            what = "no publisher seen" if got == 0 else "no message"
+            print(f"hystbench watch: {what} on {keyexpr} via {endpoint} for {now - last:.0f} s (is the daemon "
+                  "running, with that bench name and endpoint?); still waiting", file=sys.stderr, flush=True)
+            warned = True
+        if deadline is not None and now >= deadline:
+            return
+        waits = [0.2] + ([deadline - now] if deadline is not None else []) \
+            + ([last + quiet_after_s - now] if not warned else [])
+        item = sub.get(max(0.0, min(waits)))
+        if item is not None:
+            got += 1
+            last = time.monotonic()
+            warned = not quiet_after_s > 0
+            yield item[0], item[1]
 
-    connect = args.connect or ([] if args.zenoh_config else [DEFAULT_CONNECT])
-    cfg = load_zenoh_config(args.zenoh_config, listen=[] if not args.zenoh_config else None,
-                            connect=connect or None)
-    session = open_session(cfg)
+
+def cmd_watch(args) -> int:
+    from .control import describe_endpoint, open_client
+    from .zenoh_bus import Subscription
+
+    session = open_client(args.connect, args.zenoh_config)
     sub = Subscription(session, args.keyexpr)
     n = 0
     try:
-        for key_, payload, _ in sub.iter(count=args.count, seconds=args.seconds):
+        for key_, payload in _watch_items(sub, args.keyexpr, describe_endpoint(args.connect, args.zenoh_config),
+                                          count=args.count, seconds=args.seconds, quiet_after_s=args.quiet_after):
             line = json.dumps({"key": key_, **json.loads(payload)}) if args.json and not _is_raw(key_) \
                 else format_message(key_, payload)
             print(line, flush=True)
@@ -140,6 +168,108 @@ def cmd_watch(args) -> int:
               file=sys.stderr)
         return 1
     return 0
+
+
+# --- ctl: a running daemon's commands and queries ---------------------------------------------------
+def _ctl_payload(args) -> dict[str, Any]:
+    """The JSON arguments of ``args.verb`` (only what was given: the daemon fills in the rest)."""
+    named = {"start_sweep": (("frequencies_hz", "freqs"), ("current_pp_a", "ipp"), ("dwell_s", "dwell")),
+             "set_excitation": (("frequency_hz", "freq"), ("current_pp_a", "ipp"), ("offset_a", "offset"))}
+    if args.verb == "output":
+        return {"on": args.state == "on"}
+    payload = {k: getattr(args, opt) for k, opt in named.get(args.verb, ()) if getattr(args, opt) is not None}
+    if args.verb == "set_excitation" and not payload:
+        from ..errors import ConfigError
+
+        raise ConfigError("set_excitation: give at least one of --freq, --ipp, --offset")
+    return payload
+
+
+def _format_reply(bench: str, verb: str, reply: dict) -> str:
+    if verb == "config":
+        return json.dumps(reply, indent=2)
+    if verb == "health":
+        return "\n".join(f"{k}: {v}" for k, v in reply.items())
+    if verb == "status":
+        parts = [f"{reply.get('state', '?')}", f"source {reply.get('source', '?')}"]
+        if isinstance(reply.get("uptime_s"), (int, float)):
+            parts.append(f"up {reply['uptime_s']:.0f} s")
+        parts += [f"{reply.get('samples', 0)} samples", f"{reply.get('estimates', 0)} estimates",
+                  f"log {reply.get('log') or '(none)'}"]
+        parts += [f"{k} {reply[k]}" for k in ("last_fault", "pipeline_error", "last_estimate_error") if reply.get(k)]
+        return f"{bench}: " + "; ".join(parts)
+    rest = ", ".join(f"{k} {json.dumps(v)}" for k, v in reply.items() if k != "ok")
+    return f"{bench}: {verb} ok" + (f" ({rest})" if rest else "")
+
+
+def cmd_ctl(args) -> int:
+    """One command or query to a running daemon; exit 1 if it refuses (its reason on stderr),
+    2 if nobody answers within ``--timeout``."""
+    from .control import BenchControl, Refused
+
+    payload = _ctl_payload(args)
+    with BenchControl(args.bench, connect=args.connect, zenoh_config=args.zenoh_config,
+                      timeout_s=args.timeout) as ctl:
+        try:
+            reply = ctl.request("health" if args.verb == "status" else args.verb, payload)
+        except Refused as err:
+            if args.json:
+                print(json.dumps(err.reply), flush=True)
+            print(f"hystbench ctl: {err}", file=sys.stderr)
+            return 1
+    print(json.dumps(reply) if args.json else _format_reply(args.bench, args.verb, reply), flush=True)
+    return 0
+
+
+def _float_list(text: str) -> list[float]:
+    import argparse
+
+    try:
+        values = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be numbers separated by commas, got {text!r}") from None
+    if not values:
+        raise argparse.ArgumentTypeError(f"must be at least one number, got {text!r}")
+    return values
+
+
+def _register_ctl(subparsers) -> None:
+    import argparse
+
+    def client_options(p, top: bool) -> None:
+        keep = (lambda v: v) if top else (lambda v: argparse.SUPPRESS)  # given after the verb: still taken
+        p.add_argument("--bench", default=keep("bench1"), help="the daemon's [daemon] bench (default bench1)")
+        p.add_argument("--connect", action="append", metavar="ENDPOINT", default=keep(None),
+                       help=f"endpoint of the daemon (default {DEFAULT_CONNECT}; repeatable)")
+        p.add_argument("--zenoh-config", metavar="FILE", default=keep(None),
+                       help="zenoh json5 config (e.g. with user/password or TLS)")
+        p.add_argument("--timeout", type=float, default=keep(2.0), metavar="S",
+                       help="give up when no daemon answered within S seconds (exit 2; default 2)")
+        p.add_argument("--json", action="store_true", default=keep(False), help="print the reply as JSON")
+
+    p = subparsers.add_parser("ctl", help="drive a running daemon: output, sweeps, excitation, status, health, config",
+                              description="Send one command (or query) to a running `hystbench daemon` over zenoh "
+                                          "and print its reply. Exit 0: done; 1: the daemon refused (its reason on "
+                                          "stderr); 2: bad arguments, or no daemon answered.")
+    client_options(p, top=True)
+    verbs = p.add_subparsers(dest="verb", required=True, metavar="VERB")
+    shared = argparse.ArgumentParser(add_help=False)
+    client_options(shared, top=False)
+    v = verbs.add_parser("output", parents=[shared], help="generator output on or off")
+    v.add_argument("state", choices=("on", "off"))
+    v = verbs.add_parser("start_sweep", parents=[shared], help="run a sweep (defaults: the daemon's [sweep])")
+    v.add_argument("--freqs", type=_float_list, metavar="F1,F2,...", help="frequencies, Hz, comma-separated")
+    v.add_argument("--ipp", type=float, help="peak-to-peak current, A")
+    v.add_argument("--dwell", type=float, metavar="S", help="seconds at each frequency")
+    verbs.add_parser("stop_sweep", parents=[shared], help="stop the sweep, output off")
+    v = verbs.add_parser("set_excitation", parents=[shared], help="change the excitation (any of its parts)")
+    v.add_argument("--freq", type=float, help="frequency, Hz")
+    v.add_argument("--ipp", type=float, help="peak-to-peak current, A")
+    v.add_argument("--offset", type=float, help="DC offset, A")
+    verbs.add_parser("status", parents=[shared], help="one line: state, source, samples, estimates, log")
+    verbs.add_parser("health", parents=[shared], help="the health queryable, every field")
+    verbs.add_parser("config", parents=[shared], help="the running configuration (JSON)")
+    p.set_defaults(func=cmd_ctl)
 
 
 def _source_from_args(args):
@@ -246,7 +376,10 @@ def register(subparsers) -> None:
     p.add_argument("--count", type=int, help="stop after N messages (exit 1 if fewer came in --seconds)")
     p.add_argument("--seconds", type=float, help="stop after S seconds")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
+    p.add_argument("--quiet-after", type=float, default=5.0, metavar="S",
+                   help="say on stderr when nothing arrived for S seconds (default 5; 0: never)")
     p.set_defaults(func=cmd_watch)
+    _register_ctl(subparsers)
 
     p = subparsers.add_parser("record", help="record the configured source to an MCAP log (no daemon)")
     p.add_argument("--out", required=True, help="the log, e.g. run.mcap")
@@ -296,40 +429,113 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_daemon)
 
 
+def _clear_demo_live(out: Path, *, remove_dir: bool = False) -> None:
+    """Remove what :func:`demo_live` writes in ``out`` (its config and ``demo-*.mcap`` logs), so
+    the folder only ever holds the last run's log; ``remove_dir``: the folder too, if then empty."""
+    if not out.is_dir():
+        return
+    for p in [out / "demo-daemon.toml", *out.glob("demo-*.mcap")]:
+        p.unlink(missing_ok=True)
+    if remove_dir and not any(out.iterdir()):
+        out.rmdir()
+
+
+def _follow_sweep(ests, status, t_end: float, got: list[dict], errors: list[str]) -> None:
+    """Print estimates as they arrive until the sweep says it is done (or ``t_end``)."""
+    while time.monotonic() < t_end:
+        item = ests.get(min(0.1, max(0.0, t_end - time.monotonic())))
+        if item is not None:
+            got.append(json.loads(item[1]))
+            print(format_message(item[0], item[1]), flush=True)
+        while (st := status.get(0.0)) is not None:
+            obj = json.loads(st[1])
+            if obj.get("level") == "error":
+                errors.append(str(obj.get("message") or obj.get("event")))
+            if obj.get("event") in ("sweep_done", "sweep_stopped"):
+                return
+
+
 def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench") -> dict[str, Any]:
-    """The daemon's pipeline in-process: a short sweep through the emulated instruments' drivers
-    (``source="bench"``; ``"sim"``: the simulated rig directly), its live estimates printed as they
-    arrive over zenoh (an ephemeral port on 127.0.0.1), an MCAP log in ``out_dir``."""
+    """The daemon's pipeline in-process, driven the way an operator drives a bench: a short sweep
+    started with ``hystbench ctl``'s control path over zenoh (an ephemeral port on 127.0.0.1)
+    through the emulated instruments' drivers (``source="bench"``; ``"sim"``: the simulated rig
+    directly), its live estimates printed as they arrive, an MCAP log in ``out_dir``.
+
+    The result's ``summary`` is one line for the demo to print.  If the live part fails (the
+    instruments do not answer, the machine is too slow for the emulated bench, no estimate came),
+    ``error`` says why and this run leaves nothing in ``out_dir``: the demo says so and goes on."""
+    from .control import BenchControl
     from .daemon import BenchService, load_daemon_config
-    from .zenoh_bus import Subscription, free_port, key, load_zenoh_config, open_session
+    from .zenoh_bus import Subscription, free_port, key
 
     out = Path(out_dir)
+    _clear_demo_live(out)  # an earlier run's log is not this run's
     port = free_port()
     freqs = [80.0, 160.0, 320.0]
+    dwell = max(seconds / len(freqs), 0.5)
     toml = out / "demo-daemon.toml"
     out.mkdir(parents=True, exist_ok=True)
     toml.write_text(f'[daemon]\nbench = "demo"\nlog_dir = "{out.as_posix()}"\n[source]\nkind = "{source}"\n'
-                    f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n'
-                    f'[sweep]\nfrequencies_hz = {freqs}\ndwell_s = {max(seconds / len(freqs), 0.5):g}\n'
-                    f'autostart = true\n', encoding="utf-8")
-    svc = BenchService(load_daemon_config(toml)).start()
-    watcher = open_session(load_zenoh_config(None, connect=[f"tcp/127.0.0.1:{port}"]))
-    sub = Subscription(watcher, key("demo", "estimate"))
-    got: list[dict] = []
-    t_end = time.monotonic() + len(freqs) * max(seconds / len(freqs), 0.5) + 0.5
+                    f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n[sweep]\nfrequencies_hz = {freqs}\n'
+                    f'dwell_s = {dwell:g}\n', encoding="utf-8")
+    svc, paths, got, errors, error = None, [], [], [], None
     try:
-        for k, payload, _ in sub.iter(seconds=max(0.0, t_end - time.monotonic())):
-            got.append(json.loads(payload))
-            print(format_message(k, payload), flush=True)
+        svc = BenchService(load_daemon_config(toml)).start()
+        with BenchControl("demo", connect=[f"tcp/127.0.0.1:{port}"], timeout_s=10.0) as ctl:
+            ests, status = Subscription(ctl.session, key("demo", "estimate")), Subscription(ctl.session, key("demo", "status"))
+            try:
+                ctl.request("start_sweep", {"frequencies_hz": freqs, "dwell_s": dwell})
+                _follow_sweep(ests, status, time.monotonic() + len(freqs) * dwell + 10.0, got, errors)
+                health = ctl.health()
+            finally:
+                ests.close()
+                status.close()
+        if health.get("pipeline_error"):
+            error = f"the pipeline failed: {health['pipeline_error']}"
+    except BenchError as err:
+        error = str(err)
     finally:
-        sub.close()
-        watcher.close()
-        paths = svc.stop()
+        if svc is not None:
+            try:
+                paths = svc.stop()
+            except BenchError as err:
+                error = error or f"stopping the bench: {err}"
     good = [e for e in got if not e.get("error")]
+    if error is None and not good:
+        error = (f"no live estimate during the {len(freqs) * dwell:g} s sweep"
+                 + (f" ({errors[-1]})" if errors else "") + "; the machine may be too slow for the emulated "
+                 "bench at 100 kS/s")
+    if error is not None:
+        _clear_demo_live(out, remove_dir=True)
+        return {"error": error, "log": [], "estimates": len(got), "refused": len(got) - len(good),
+                "hysteresis_deg": {}, "summary": f"[bold red]live part failed[/]: {error}\n"
+                                                 "(its partial log removed; the demo goes on without it)"}
     by_f: dict[float, list] = {}
     for e in good:
-        by_f.setdefault(e["nominal_frequency_Hz"], []).append(e["phases_deg"].get("hysteresis"))
-    return {"log": [str(p) for p in paths], "estimates": len(got), "refused": len(got) - len(good),
-            "hysteresis_deg": {f"{f:g}": sum(v) / len(v) for f, v in sorted(by_f.items()) if v}}
+        if e["phases_deg"].get("hysteresis") is not None:
+            by_f.setdefault(e["nominal_frequency_Hz"], []).append(e["phases_deg"]["hysteresis"])
+    logs = [str(p) for p in paths]
+    return {"log": logs, "estimates": len(got), "refused": len(got) - len(good), "error": None,
+            "hysteresis_deg": {f"{f:g}": sum(v) / len(v) for f, v in sorted(by_f.items()) if v},
+            "summary": f"{len(got)} live estimates ({len(got) - len(good)} refused while settling); "
+                       f"MCAP log: {', '.join(logs)}"}
 
 
+def demo_sweeps(out_dir: str | Path) -> tuple[int, str | None]:
+    """The demo's sweeps through the drivers from the emulated instruments, their delays and
+    figures (:func:`.demo.run_demo`).  When the instruments fail (a machine too slow for the
+    emulated bench at 100 kS/s: "bench: only 0 of 10000 aligned samples"; gaps in the streams),
+    returns (0, why) after removing what that part writes, so no result of an earlier run is left
+    looking like this one's; the demo says so and goes on with the offline part."""
+    import shutil
+
+    from .demo import SWEEPS, run_demo
+
+    out = Path(out_dir)
+    try:
+        return run_demo(out), None
+    except (BenchError, RuntimeError) as err:
+        shutil.rmtree(out / "sweeps", ignore_errors=True)
+        for name in ["summary.json", "force_map.png", *(f"{rig}_current_force.png" for rig, _, _ in SWEEPS)]:
+            (out / name).unlink(missing_ok=True)
+        return 0, str(err)

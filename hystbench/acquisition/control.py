@@ -1,0 +1,114 @@
+"""Driving a running bench over zenoh: its commands (``cmd/<verb>``) and queries (``health``,
+``config``), as ``hystbench ctl`` and the demo send them, so nobody needs Python to drive a bench.
+
+A refusal (the daemon answered ``ok: false``) is :class:`Refused`, with the daemon's reason; no
+answer within the timeout is :class:`NoReply`, naming the key expression and the endpoint (no
+daemon there, a different bench name, or access control dropping the query).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any, Mapping, Sequence
+
+from ..errors import BenchError
+from .zenoh_bus import COMMANDS, key, load_zenoh_config, open_session, query_json
+
+__all__ = ["DEFAULT_CONNECT", "QUERIES", "NoReply", "Refused", "BenchControl", "open_client", "describe_endpoint"]
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+#: queryables that take no arguments and change nothing
+QUERIES = ("health", "config")
+_RETRY_S = 0.05  # a session still connecting answers "nobody" at once: ask again after this
+
+
+class NoReply(BenchError):
+    """Nobody answered a command or query within its timeout."""
+
+
+class Refused(BenchError):
+    """The daemon answered and refused (``reply`` is its ``{"ok": false, "error": ...}``)."""
+
+    def __init__(self, message: str, reply: Mapping[str, Any]) -> None:
+        super().__init__(message)
+        self.reply = dict(reply)
+
+
+def describe_endpoint(connect: Sequence[str] | None, zenoh_config: str | None) -> str:
+    """How this client reaches the daemon, for messages ('tcp/127.0.0.1:7447', 'zenoh config X')."""
+    if connect:
+        return ", ".join(connect)
+    return f"the endpoints of zenoh config {zenoh_config}" if zenoh_config else DEFAULT_CONNECT
+
+
+def open_client(connect: Sequence[str] | None = None, zenoh_config: str | None = None):
+    """A client session: a peer that listens nowhere and connects to ``connect`` (default
+    :data:`DEFAULT_CONNECT`, or the endpoints of ``zenoh_config`` when one is given)."""
+    endpoints = list(connect or ([] if zenoh_config else [DEFAULT_CONNECT]))
+    cfg = load_zenoh_config(zenoh_config, listen=[] if not zenoh_config else None, connect=endpoints or None)
+    return open_session(cfg)
+
+
+class BenchControl:
+    """One bench's commands and queries over one client session (a context manager).
+
+    ``session`` reuses an open session (not closed here); otherwise one is opened from
+    ``connect`` / ``zenoh_config``.  ``timeout_s`` bounds each request."""
+
+    def __init__(self, bench: str = "bench1", *, connect: Sequence[str] | None = None,
+                 zenoh_config: str | None = None, timeout_s: float = 2.0, session=None) -> None:
+        key(bench)  # a bad name is refused before anything is opened
+        if not timeout_s > 0:
+            raise BenchError(f"timeout must be > 0 s, got {timeout_s!r}")
+        self.bench, self.timeout_s = bench, float(timeout_s)
+        self.endpoint = describe_endpoint(connect, zenoh_config)
+        self._own = session is None
+        self.session = open_client(connect, zenoh_config) if session is None else session
+
+    def __enter__(self) -> "BenchControl":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._own and self.session is not None:
+            self.session.close()
+        self.session = None
+
+    def keyexpr(self, verb: str) -> str:
+        """``hystbench/<bench>/cmd/<verb>`` for a command, ``hystbench/<bench>/<verb>`` for a query."""
+        return key(self.bench, verb) if verb in QUERIES else key(self.bench, "cmd", verb)
+
+    def request(self, verb: str, args: Mapping[str, Any] | None = None) -> dict:
+        """Send ``verb`` (a command with its JSON arguments, or a query) and return the reply.
+
+        Asked again while the answer is "nobody" and time is left (a fresh session may not yet
+        know the daemon's queryables; such a query reached no one, so nothing runs twice)."""
+        if verb not in COMMANDS and verb not in QUERIES:
+            raise BenchError(f"unknown verb {verb!r}; known: {', '.join((*COMMANDS, *QUERIES))}")
+        k = self.keyexpr(verb)
+        payload = dict(args or {}) if verb in COMMANDS else None
+        deadline = time.monotonic() + self.timeout_s
+        pause = threading.Event()
+        while True:
+            left = deadline - time.monotonic()
+            replies = query_json(self.session, k, payload, timeout_s=max(left, 0.01))
+            if replies:
+                break
+            if time.monotonic() + _RETRY_S >= deadline:
+                raise NoReply(f"no daemon answered on {k} via {self.endpoint} within {self.timeout_s:g} s "
+                              f"(is `hystbench daemon` running with [daemon] bench = {self.bench!r} and that "
+                              "endpoint? access control also drops a query it denies)")
+            pause.wait(_RETRY_S)
+        reply = replies[0]
+        if not reply.get("ok", True):
+            raise Refused(f"bench {self.bench!r} refused {verb}: {reply.get('error')}", reply)
+        return reply
+
+    def health(self) -> dict:
+        return self.request("health")
+
+    def config(self) -> dict:
+        return self.request("config")

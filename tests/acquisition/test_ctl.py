@@ -1,0 +1,117 @@
+"""`hystbench ctl` and `watch` against a real BenchService (simulated rig, cheap) on a loopback zenoh
+endpoint: commands take effect, a refusal exits 1 with the daemon's reason, no daemon exits 2
+naming the key expression and endpoint, and a silent `watch` says that nobody publishes."""
+
+import json
+import queue
+from pathlib import Path
+
+import pytest
+
+from hystbench.acquisition.cli import main
+from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config, open_session
+
+SAFETY_S = 60.0  # turns a hang into a failure; nothing waits for it on success
+
+
+def run(args: list[str], capsys) -> tuple[int, str, str]:
+    try:
+        code = main(args)
+    except SystemExit as stop:  # argparse's usage error, where main does not turn it into a status
+        code = stop.code
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+@pytest.fixture
+def bench(tmp_path: Path):
+    """A running bench 't1' (kind = "sim", no log) and the endpoint it listens on."""
+    port = free_port()
+    cfg = tmp_path / "d.toml"
+    cfg.write_text(f'[daemon]\nbench = "t1"\nlog_dir = "{tmp_path.as_posix()}"\n[source]\nkind = "sim"\n'
+                   f'[recording]\nenabled = false\n[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
+    svc = BenchService(load_daemon_config(cfg)).start()
+    try:
+        yield svc, f"tcp/127.0.0.1:{port}"
+    finally:
+        svc.stop()
+
+
+def test_set_excitation_and_output_reach_the_rig(bench, capsys) -> None:
+    svc, ep = bench
+    watcher = open_session(load_zenoh_config(None, connect=[ep]))
+    sub = Subscription(watcher, "hystbench/t1/estimate")
+    try:
+        code, out, err = run(["ctl", "--connect", ep, "--bench", "t1", "set_excitation", "--freq", "160",
+                              "--ipp", "1.0"], capsys)
+        assert code == 0, err
+        assert out.startswith("t1: set_excitation ok")
+        code, out, err = run(["ctl", "--bench", "t1", "output", "on", "--connect", ep, "--json"], capsys)
+        assert code == 0, err
+        assert json.loads(out) == {"ok": True, "output_on": True}
+        # the effect, measured: an estimate at the commanded operating point, output on
+        while True:
+            item = sub.get(SAFETY_S)
+            assert item is not None, "no estimate at 160 Hz arrived"
+            e = json.loads(item[1])
+            if e["nominal_frequency_Hz"] == 160.0 and not e.get("error"):
+                break
+        assert e["current_pp_A"] == pytest.approx(1.0) and e["frequency_Hz"] == pytest.approx(160.0, rel=1e-3)
+    finally:
+        sub.close()
+        watcher.close()
+
+
+def test_sweep_refusal_status_and_config(bench, capsys) -> None:
+    svc, ep = bench
+    base = ["ctl", "--connect", ep, "--bench", "t1"]
+    code, out, err = run(base + ["start_sweep", "--freqs", "40,80", "--ipp", "1.0", "--dwell", "30"], capsys)
+    assert code == 0, err
+    assert "points 2" in out and "duration_s 60" in out
+    code, out, err = run(base + ["start_sweep"], capsys)  # one is running: the daemon refuses
+    assert code == 1 and out == ""
+    assert "hystbench ctl: bench 't1' refused start_sweep:" in err and "a sweep is running" in err
+    code, out, err = run(base + ["status"], capsys)
+    assert code == 0 and out.startswith("t1: sweeping; source ")
+    code, out, err = run(base + ["stop_sweep", "--json"], capsys)
+    assert code == 0 and json.loads(out)["ok"] is True
+    code, out, err = run(base + ["config", "--json"], capsys)
+    cfg = json.loads(out)
+    assert code == 0 and cfg["daemon"]["bench"] == "t1" and cfg["source"]["kind"] == "sim"
+    code, out, err = run(base + ["health"], capsys)
+    assert code == 0 and "state: running" in out.splitlines()
+
+
+def test_bad_arguments_exit_2_before_anything_is_sent(capsys) -> None:
+    code, out, err = run(["ctl", "--connect", "tcp/127.0.0.1:9", "set_excitation"], capsys)
+    assert code == 2 and "set_excitation: give at least one of --freq, --ipp, --offset" in err
+    code, out, err = run(["ctl", "start_sweep", "--freqs", "40,fast"], capsys)
+    assert code == 2 and "--freqs" in err
+
+
+def test_no_daemon_exits_2_naming_key_and_endpoint(capsys) -> None:
+    ep = f"tcp/127.0.0.1:{free_port()}"  # nobody listens there
+    code, out, err = run(["ctl", "--connect", ep, "--bench", "nobody", "--timeout", "1", "status"], capsys)
+    assert code == 2 and out == ""
+    assert f"hystbench ctl: error: no daemon answered on hystbench/nobody/health via {ep} within 1 s" in err
+    code, out, err = run(["ctl", "--connect", ep, "--bench", "nobody", "--timeout", "1", "output", "off"], capsys)
+    assert code == 2 and f"on hystbench/nobody/cmd/output via {ep}" in err
+
+
+def test_watch_says_once_that_no_publisher_is_seen(capsys) -> None:
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    code, out, err = run(["watch", "hystbench/none/estimate", "--connect", ep, "--quiet-after", "0.2",
+                          "--seconds", "1"], capsys)
+    assert code == 0 and out == ""
+    lines = [ln for ln in err.splitlines() if "no publisher seen" in ln]
+    assert len(lines) == 1
+    assert f"no publisher seen on hystbench/none/estimate via {ep}" in lines[0] and "still waiting" in lines[0]
+
+
+def test_watch_with_a_publisher_says_nothing_about_silence(bench, capsys) -> None:
+    svc, ep = bench
+    code, out, err = run(["watch", "hystbench/t1/stats", "--connect", ep, "--count", "1", "--quiet-after", "30",
+                          "--seconds", str(SAFETY_S)], capsys)
+    assert code == 0 and out.startswith("hystbench/t1/stats ")
+    assert "no publisher" not in err
