@@ -129,7 +129,7 @@ def _watch_items(sub, keyexpr: str, endpoint: str, *, count: int | None, seconds
         now = time.monotonic()
         if not warned and now - last >= quiet_after_s:  # before the deadline test: said even at the end
             what = "no publisher seen" if got == 0 else "no message"
-            print(f"hystbench watch: {what} on {keyexpr} via {endpoint} for {now - last:.0f} s (is the daemon "
+            print(f"hystbench watch: {what} on {keyexpr} via {endpoint} for {now - last:.1f} s (is the daemon "
                   "running, with that bench name and endpoint?); still waiting", file=sys.stderr, flush=True)
             warned = True
         if deadline is not None and now >= deadline:

@@ -115,3 +115,41 @@ def test_watch_with_a_publisher_says_nothing_about_silence(bench, capsys) -> Non
                           "--seconds", str(SAFETY_S)], capsys)
     assert code == 0 and out.startswith("hystbench/t1/stats ")
     assert "no publisher" not in err
+
+
+def test_ctl_with_a_client_config_under_access_control(tmp_path: Path, capsys) -> None:
+    """The shipped ACL config: a viewer's command is dropped (exit 2, says access control may be why),
+    an operator's runs; ctl reads user/password from --zenoh-config."""
+    from hystbench.acquisition.zenoh_bus import peer_config
+    from hystbench.config import CONFIG_DIR
+
+    users = tmp_path / "users.txt"
+    users.write_text("operator:op-secret\nviewer:view-secret\n", encoding="utf-8")
+    users.chmod(0o600)
+    acl = tmp_path / "zenoh-acl.json5"
+    acl.write_text((CONFIG_DIR / "zenoh-acl.json5").read_text(encoding="utf-8")
+                   .replace("/etc/hystbench/zenoh-users.txt", users.as_posix()), encoding="utf-8")
+    port = free_port()
+    toml = tmp_path / "acl.toml"
+    toml.write_text(f'[daemon]\nbench = "t"\nlog_dir = "{tmp_path.as_posix()}"\n[source]\nkind = "sim"\n'
+                    f'[recording]\nenabled = false\n[zenoh]\nconfig = "{acl.as_posix()}"\n'
+                    f'listen = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
+    clients = {}
+    for user in ("viewer", "operator"):
+        clients[user] = tmp_path / f"{user}.json5"
+        password = {"viewer": "view-secret", "operator": "op-secret"}[user]
+        clients[user].write_text(json.dumps(peer_config(connect=[f"tcp/127.0.0.1:{port}"], user=user,
+                                                        password=password)), encoding="utf-8")
+    svc = BenchService(load_daemon_config(toml)).start()
+    try:
+        code, out, err = run(["ctl", "--zenoh-config", str(clients["viewer"]), "--bench", "t", "status"], capsys)
+        assert code == 0 and out.startswith("t: running")  # everyone may ask
+        code, out, err = run(["ctl", "--zenoh-config", str(clients["viewer"]), "--bench", "t", "--timeout", "1",
+                              "output", "on"], capsys)
+        assert code == 2 and "no daemon answered on hystbench/t/cmd/output" in err and "access control" in err
+        assert not svc.source.rig.output_enabled  # nothing was driven
+        code, out, err = run(["ctl", "--zenoh-config", str(clients["operator"]), "--bench", "t", "output", "on"],
+                             capsys)
+        assert code == 0 and out.startswith("t: output ok")
+    finally:
+        svc.stop()
