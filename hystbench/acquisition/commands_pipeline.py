@@ -26,7 +26,7 @@ DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 # --- record / replay (also used by tests and the demo) ---------------------------------------------
 def _estimation_settings(cfg: dict | None) -> dict:
     e = dict((cfg or {}).get("estimation") or {})
-    keys = ("periods", "hop_periods", "min_hop_s", "settle_periods", "max_fs_hz")
+    keys = ("periods", "hop_periods", "min_hop_s", "settle_periods", "settle_s", "max_fs_hz")
     return {k: float(e[k]) for k in keys if k in e}
 
 
@@ -39,11 +39,12 @@ def record_log(source, out: str | Path, *, estimation: dict | None = None, compr
     from .stages import WindowEstimator
 
     settings = {"periods": 10.0, "settle_periods": 2.0, **(estimation or {})}
+    est = WindowEstimator(source.fs_hz, source.metadata(), **settings)
+    settings["settle_s"] = est.settle_s  # what the live run skipped after each change: replays skip the same
     meta = {"recording": source.metadata(), "config": {"estimation": settings, "source": source.name}}
     rig = getattr(getattr(source, "rig", None), "preset", None)
     if rig:
         meta["rig"] = {k: v for k, v in rig.items() if not k.startswith("_")}
-    est = WindowEstimator(source.fs_hz, source.metadata(), **settings)
     with McapRecorder(out, metadata=meta, compression=compression, overwrite=overwrite) as rec:
         pipe = Pipeline(source, estimator=est, recorder=rec)
         estimates = _run_collecting(pipe, on_message, timeout_s, f"{out}: recording failed")
@@ -329,7 +330,8 @@ def cmd_export(args) -> int:
     out = Path(args.out)
     stems: list[str] = []
     for k, rec in enumerate(recs):
-        stem = sweep_stem(rec)
+        off, settling = rec.metadata.get("output_on") is False, bool(rec.metadata.get("settling"))
+        stem = sweep_stem(rec) + ("_off" if off else "_settling" if settling else "")
         if stem in stems:
             stem = f"{stem}_seg{k}"
         stems.append(stem)
@@ -339,8 +341,9 @@ def cmd_export(args) -> int:
         raise RecordingError(f"{out}: cannot create the folder: {err.strerror}") from err
     for rec, stem in zip(recs, stems):
         csv_path, _ = write_recording(rec, out / stem, overwrite=args.overwrite)
-        print(f"wrote {csv_path} ({rec.n} samples at {rec.fs_hz:g} Hz, {rec.frequency_hz:g} Hz, "
-              f"{rec.current_pp_a:g} A-pp)")
+        state = "output off" if rec.metadata.get("output_on") is False else f"{rec.current_pp_a:g} A-pp"
+        state += ", settling" if rec.metadata.get("settling") else ""
+        print(f"wrote {csv_path} ({rec.n} samples at {rec.fs_hz:g} Hz, {rec.frequency_hz:g} Hz, {state})")
     return 0
 
 
@@ -413,7 +416,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("export", help="write an MCAP log's segments as interchange-format recordings")
     p.add_argument("log")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--include-idle", action="store_true", help="also segments with the output off")
+    p.add_argument("--include-idle", action="store_true",
+                   help="also segments with the output off (STEM_off) and the settling after each change (STEM_settling)")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_export)
 

@@ -292,7 +292,7 @@ class BenchSource:
         settle_until = -1  # samples before this index may predate the last command
         while (stop is None or not stop.is_set()) and (left is None or left > 0):
             applied = False
-            while True:
+            while aligner.cursor is not None:  # after the first sample: settling is counted from it
                 try:
                     self._commands.get_nowait()()
                     applied = True

@@ -8,6 +8,7 @@ every block's meta (see :mod:`.sources`).
 
 from __future__ import annotations
 
+import math
 from typing import Any, Mapping
 
 import numpy as np
@@ -16,6 +17,7 @@ from ..blocks import SampleBlock
 from ..config import load_rig
 from ..errors import BenchError, ConfigError
 from .recording import Recording
+from .settling import settling_time_s
 from .sources import OPERATING_KEYS
 
 __all__ = ["WindowEstimator"]
@@ -29,10 +31,12 @@ class WindowEstimator:
 
     A window is ``periods`` periods of the nominal frequency (rounded to whole samples); one ends
     every ``hop`` samples (``hop_periods`` periods, at least ``min_hop_s``), counted from the
-    start of the current *run*: contiguous samples at one operating point, minus
-    ``settle_periods`` for the transient after a change.  A gap, an overrun or a new operating
-    point starts a new run, so windows never straddle them; windows with the output off are not
-    estimated.  Above ``max_fs_hz`` each channel is averaged over ``decimate`` samples first (the
+    start of the current *run*: contiguous samples at one operating point, minus the transient
+    after a change: ``settle_s`` (default: the rig's :func:`~.settling.settling_time_s`, ten of
+    its instrument's slowest time constants) or ``settle_periods`` periods (the iron's loop),
+    whichever is longer.  A gap, an overrun or a new operating point starts a new run, so windows
+    never straddle them or the settling after them; windows with the output off or marked
+    ``settling`` (samples that may predate a command) are not estimated.  Above ``max_fs_hz`` each channel is averaged over ``decimate`` samples first (the
     same delay in every channel, so the delays between them are unchanged).
 
     ``append`` copies the samples in (so a ring view can be released at once); ``estimates``
@@ -48,13 +52,16 @@ class WindowEstimator:
 
     def __init__(self, fs_hz: float, metadata: Mapping[str, Any], *, periods: float = 10.0,
                  hop_periods: float | None = None, min_hop_s: float = 0.1, settle_periods: float = 2.0,
-                 max_fs_hz: float = 100_000.0, keep_windows: bool = False) -> None:
+                 max_fs_hz: float = 100_000.0, keep_windows: bool = False, settle_s: float | None = None) -> None:
         if not periods >= 2:
             raise ConfigError(f"estimation periods must be >= 2, got {periods}")
+        if settle_s is not None and not settle_s >= 0:
+            raise ConfigError(f"estimation settle_s must be >= 0, got {settle_s}")
         self.fs_hz = float(fs_hz)
         self.metadata = dict(metadata)
         self.periods, self.hop_periods = float(periods), float(hop_periods or periods)
         self.min_hop_s, self.settle_periods = float(min_hop_s), float(settle_periods)
+        self.settle_s = settling_time_s(metadata) if settle_s is None else float(settle_s)
         self.decimate = max(1, int(self.fs_hz // max_fs_hz))
         self.keep_windows = bool(keep_windows)
         rig = str(self.metadata.get("rig", ""))
@@ -94,7 +101,8 @@ class WindowEstimator:
         self._win = max(k, int(round(self.periods * spp / k)) * k)
         self._hop = max(k, int(round(max(self.hop_periods * spp, self.min_hop_s * self.fs_hz) / k)) * k)
         self._run_start = block.first_index
-        self._next_end = block.first_index + int(round(self.settle_periods * spp)) + self._win
+        settle = int(math.ceil(max(self.settle_s * self.fs_hz, self.settle_periods * spp)))
+        self._next_end = block.first_index + settle + self._win
         wanted = _METHOD_CHANNELS + (("command_V",) if self.keep_windows else ())
         self._names = [c for c in wanted if c in block.channels]
         self._table = int(m.get("table") or 0)

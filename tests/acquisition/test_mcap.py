@@ -4,6 +4,7 @@ recordings, export, and recovery of a cut-off log at any byte."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -128,6 +129,11 @@ def test_rotation_by_size_and_by_time(tmp_path: Path) -> None:
     assert len(r2.paths) == 4
 
 
+#: The frame's ring-down after a change: 10 time constants of the paper's load cell + frame
+#: (fn 4450 Hz, zeta 0.012: tau = 1 / (zeta 2 pi fn)), in samples at FS
+SETTLE = math.ceil(10 / (0.012 * 2 * math.pi * 4450.0) * FS)
+
+
 def test_log_as_recordings_segments_and_export(tmp_path: Path) -> None:
     idle = [SampleBlock(b.first_index, FS, b.channels, meta=operating_meta(320.0, 1.4, 0.0, False)) for b in blocks(2)]
     seg_a = blocks(4, freq=320.0, start=1000)
@@ -139,15 +145,23 @@ def test_log_as_recordings_segments_and_export(tmp_path: Path) -> None:
         b.meta["frequency_hz"] = 160.0
     log = tmp_path / "sweep.mcap"
     write_log(log, idle + seg_a + seg_b + seg_c)
-    recs = read_mcap_segments(log)
-    assert [(r.frequency_hz, r.n, r.t0_s * FS) for r in recs] == [(320.0, 2000, 1000), (160.0, 2000, 3000),
-                                                                 (160.0, 2000, 6000)]
-    assert len(read_mcap_segments(log, include_idle=True)) == 4
+    recs = read_mcap_segments(log)  # each starts after the bench settled from its change (or gap)
+    assert [(r.frequency_hz, r.n, round(r.t0_s * FS)) for r in recs] == [
+        (320.0, 2000 - SETTLE, 1000 + SETTLE), (160.0, 2000 - SETTLE, 3000 + SETTLE), (160.0, 2000 - SETTLE, 6000 + SETTLE)]
+    every = read_mcap_segments(log, include_idle=True)  # nothing lost: the settling is there too
+    assert [(round(r.t0_s * FS), r.n) for r in every] == [
+        (0, 1000), (1000, SETTLE), (1000 + SETTLE, 2000 - SETTLE), (3000, SETTLE), (3000 + SETTLE, 2000 - SETTLE),
+        (6000, SETTLE), (6000 + SETTLE, 2000 - SETTLE)]
+    assert [r.metadata.get("settling", False) for r in every] == [False, True, False, True, False, True, False]
+    # issue 16: the idle segment says what the blocks carried: output off, no current
+    assert every[0].metadata["output_on"] is False and every[0].current_pp_a == 0.0
+    assert every[0].metadata["generator_current_pp_A"] == 1.4
+    assert all("output_on" not in r.metadata and r.current_pp_a == 1.4 for r in every[1:])
     with pytest.raises(RecordingError, match="3 segments"):
         read_mcap_recording(log)
     one = read_mcap_recording(log, segment=1)
-    np.testing.assert_array_equal(one.channels["force_N"][:500], seg_b[0].channels["force_N"])
-    assert one.metadata["operator"] == "tests" and one.metadata["mcap_source"]["first_index"] == 3000
+    np.testing.assert_array_equal(one.channels["force_N"][:500 - SETTLE], seg_b[0].channels["force_N"][SETTLE:])
+    assert one.metadata["operator"] == "tests" and one.metadata["mcap_source"]["first_index"] == 3000 + SETTLE
     # export: one interchange-format recording per segment, lossless, metadata kept
     out = tmp_path / "exported"
     assert pipeline_main(["export", str(log), "--out", str(out)]) == 0
@@ -158,6 +172,12 @@ def test_log_as_recordings_segments_and_export(tmp_path: Path) -> None:
         np.testing.assert_array_equal(back.channels[c], one.channels[c])
     assert back.metadata["operator"] == "tests" and back.t0_s == one.t0_s
     assert pipeline_main(["export", str(log), "--out", str(out)]) == 2  # no silent overwrite
+    # with the idle segments: the output-off one's sidecar says so (it claimed 1.4 A-pp before)
+    out2 = tmp_path / "all"
+    assert pipeline_main(["export", str(log), "--out", str(out2), "--include-idle"]) == 0
+    off = json.loads((out2 / "ecore_pm_320Hz_0App_off.json").read_text())
+    assert off["output_on"] is False and off["current_pp_A"] == 0.0
+    assert len(list(out2.glob("*_settling*.csv"))) == 3
 
 
 def _messages(path: Path) -> list[tuple[str, int, bytes]]:

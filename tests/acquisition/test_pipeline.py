@@ -53,9 +53,10 @@ def test_record_then_replay_gives_the_same_estimates(tmp_path: Path) -> None:
     assert bl[0].first_index == 0 and concatenate(bl).n == 80_000
     assert next(iter(bl[0].channels.values())).dtype == np.float32
     # the live estimates are the offline method's on the same window
-    rec = read_mcap_recording(tmp_path / "run.mcap")
+    rec = read_mcap_recording(tmp_path / "run.mcap")  # the settled part: from the first window on
     e = live[2]
-    a, b = e["first_index"], e["end_index"]
+    a, b = (round(i - rec.t0_s * rec.fs_hz) for i in (e["first_index"], e["end_index"]))
+    assert 0 <= live[0]["first_index"] - rec.t0_s * rec.fs_hz < 10
     win = rec.__class__(None, rec.fs_hz, {k: v[a:b] for k, v in rec.channels.items()
                                           if k in ("current_A", "flux_Wb", "force_N")},
                         {"rig": "ecore_pm", "frequency_Hz": 160.0, "current_pp_A": 1.4})
@@ -99,7 +100,7 @@ def test_estimator_runs_reset_at_changes_gaps_and_output_off() -> None:
     off = dict(_STREAM.meta, output_on=0.0)
     assert we.push(SampleBlock(n + 100, _STREAM.fs_hz, dict(_STREAM.channels), meta=off)) == []
     flat = {c: np.full(2000, 1.0) for c in _STREAM.channels}  # output "on" but nothing there
-    bad = WindowEstimator(_STREAM.fs_hz, meta, periods=4, settle_periods=0).push(
+    bad = WindowEstimator(_STREAM.fs_hz, meta, periods=4, settle_periods=0, settle_s=0).push(
         SampleBlock(0, _STREAM.fs_hz, flat, meta=_STREAM.meta))
     assert bad and "flat" in bad[0]["error"]
 
@@ -134,7 +135,8 @@ def test_a_lagging_live_stage_loses_counted_samples_and_never_estimates_torn_dat
     lapped by the ring; what it lost is counted and nothing torn is estimated."""
     src = _Finished(fs_hz=100_000.0, block_samples=2000, pace="max", duration_s=1.0)
     gate = threading.Event()
-    est = gated(WindowEstimator(src.fs_hz, src.metadata(), periods=4, settle_periods=0, min_hop_s=0), gate)
+    est = gated(WindowEstimator(src.fs_hz, src.metadata(), periods=4, settle_periods=0, settle_s=0, min_hop_s=0),
+                gate)
     pipe = Pipeline(src, estimator=est, ring_seconds=0.05, lossless=False)
     got = []
     pipe.listeners.append(lambda t, o: got.append(o))
@@ -300,6 +302,13 @@ def test_record_through_the_drivers_and_the_emulated_instruments(tmp_path: Path,
     # on how fast the bench came up under load), and the end of the record is settled
     settling = [bool(b.meta.get("settling")) for b in bl]
     assert settling == sorted(settling, reverse=True) and not settling[-1]
+    # ... and the current really came on inside the marks (counted from the first sample, not from 0):
+    # every period after them carries the full 1.4 A-pp
+    settled = concatenate([b for b, s_ in zip(bl, settling) if not s_])
+    assert settled.meta["output_on"] == 1.0
+    i = settled.channels["current_A"]
+    period = 313  # samples of one 320 Hz period at 100 kS/s, rounded up
+    assert min(np.ptp(i[k:k + period]) for k in range(0, i.size - period, period)) > 0.95 * 1.4
     est = [m.json() for m in iter_log(log, [ESTIMATE])]
     good = [e for e in est if not e["error"]]
     assert len(good) >= 3 and all(1.2 < e["phases_deg"]["hysteresis"] < 1.5 for e in good)

@@ -1,7 +1,11 @@
 """Reading hystbench MCAP logs: messages, raw blocks, operating-point segments, recordings.
 
 A log of a whole session may hold several operating points (a sweep) and gaps; a *segment* is a
-run of contiguous raw blocks with one operating point (block meta :data:`OPERATING_KEYS`).
+run of contiguous raw blocks with one operating point (block meta :data:`OPERATING_KEYS`).  The
+start of each is the bench settling after the change (or after a gap: what happened in it is not
+known): the samples the live estimator skips (:mod:`..settling`; the log's own ``settle_s`` and
+``settle_periods`` when it records them) form a segment of their own, marked ``settling`` and
+left out like the output-off ones, so an offline estimate sees what the live one saw.
 :func:`read_mcap_recording` gives the one segment of a log as a :class:`Recording` (what
 ``hystbench estimate LOG.mcap`` needs); :func:`read_mcap_segments` gives them all (``export``).
 A log that was not finished (the writer was killed) is refused with a pointer to ``recover``.
@@ -10,14 +14,16 @@ A log that was not finished (the writer was killed) is refused with a pointer to
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
-from ...blocks import SampleBlock
+from ...blocks import BlockFlags, SampleBlock
 from ...errors import RecordingError
 from ..recording import Recording
+from ..settling import settling_time_s
 from ..sources import OPERATING_KEYS
 from .schemas import RAW, decode_block
 
@@ -96,9 +102,10 @@ def _point(block: SampleBlock) -> tuple:
 
 @dataclass
 class Segment:
-    """Contiguous blocks at one operating point."""
+    """Contiguous blocks at one operating point; ``transient``: the settling after its start."""
 
     blocks: list[SampleBlock]
+    transient: bool = False
 
     @property
     def first_index(self) -> int:
@@ -109,18 +116,52 @@ class Segment:
         return sum(b.n for b in self.blocks)
 
     @property
+    def output_off(self) -> bool:
+        return self.blocks[0].meta.get("output_on", 1.0) == 0.0
+
+    @property
+    def settling(self) -> bool:
+        """Samples that may predate a command, or the transient after the segment's start."""
+        return self.transient or bool(self.blocks[0].meta.get("settling"))
+
+    @property
     def idle(self) -> bool:
-        """Output off (nothing was excited), or settling after a command (samples may predate it)."""
-        m = self.blocks[0].meta
-        return m.get("output_on", 1.0) == 0.0 or bool(m.get("settling"))
+        """Output off (nothing was excited), or settling (no estimate may use it)."""
+        return self.output_off or self.settling
+
+    def split(self, n: int) -> tuple["Segment", "Segment | None"]:
+        """The first ``n`` samples as a transient segment, and the rest (None if nothing is left)."""
+        head: list[SampleBlock] = []
+        for k, b in enumerate(self.blocks):
+            if n <= 0:
+                return Segment(head, True), Segment(self.blocks[k:])
+            if b.n <= n:
+                head.append(b)
+                n -= b.n
+                continue
+            first = SampleBlock(b.first_index, b.fs_hz, {c: x[:n] for c, x in b.channels.items()},
+                                flags=b.flags, gap_samples=b.gap_samples, meta=b.meta)
+            rest = SampleBlock(b.first_index + n, b.fs_hz, {c: x[n:] for c, x in b.channels.items()},
+                               flags=b.flags & ~BlockFlags.GAP, meta=b.meta)
+            return Segment(head + [first], True), Segment([rest] + self.blocks[k + 1:])
+        return Segment(head, True), None
 
     def recording(self, base: dict, path: Path) -> Recording:
+        """The segment with the operating point its blocks carried (not the log's first one):
+        an output-off segment says ``output_on: false`` and 0 A-pp (the generator's setting is
+        kept as ``generator_current_pp_A``), a settling one ``settling: true``."""
         meta = dict(base)
         m = self.blocks[0].meta
         for key, meta_key in (("frequency_hz", "frequency_Hz"), ("current_pp_a", "current_pp_A"),
                               ("offset_a", "offset_A")):
             if key in m:
                 meta[meta_key] = float(m[key])
+        if self.output_off:
+            meta["generator_current_pp_A"] = meta.get("current_pp_A", 0.0)
+            meta["current_pp_A"] = 0.0
+            meta["output_on"] = False
+        if self.settling:
+            meta["settling"] = True
         meta["sample_rate_Hz"] = self.blocks[0].fs_hz
         meta["mcap_source"] = {"log": str(path), "first_index": self.first_index, "samples": self.n}
         if "table" in m:  # which waveform the generator played (a count of changes, see sources)
@@ -146,17 +187,51 @@ def _segments(blocks: Iterable[SampleBlock]) -> list[Segment]:
     return out
 
 
+def _settle(meta: dict[str, dict], base: dict):
+    """(settle_s, settle_periods) of the log: what its live estimator skipped after a change."""
+    est = (meta.get("config") or {}).get("estimation") or {}
+    try:
+        settle_s = float(est["settle_s"]) if "settle_s" in est else settling_time_s(base)
+        periods = float(est.get("settle_periods", 2.0))
+    except (TypeError, ValueError):
+        settle_s, periods = settling_time_s(base), 2.0
+    return settle_s, periods
+
+
+def _split_settling(segs: list[Segment], base: dict, settle_s: float, settle_periods: float) -> list[Segment]:
+    """Each excited segment's first samples (the settling after its start) as a segment of their own."""
+    out: list[Segment] = []
+    for s in segs:
+        if s.idle:
+            out.append(s)
+            continue
+        m = s.blocks[0].meta
+        f = float(m.get("frequency_hz") or base.get("frequency_Hz") or 0.0)
+        fs = s.blocks[0].fs_hz
+        n = int(math.ceil(max(settle_s * fs, settle_periods * fs / f if f > 0 else 0.0)))
+        if n <= 0:
+            out.append(s)
+            continue
+        head, rest = s.split(n)
+        out.append(head)
+        if rest is not None:
+            out.append(rest)
+    return out
+
+
 def read_mcap_segments(path: str | Path, *, include_idle: bool = False) -> list[Recording]:
     """Every segment of the log as a Recording (metadata: the log's ``recording`` record with the
-    segment's operating point); output-off segments only with ``include_idle``."""
+    segment's operating point); output-off and settling segments only with ``include_idle``."""
     path = Path(path)
-    base = log_metadata(path).get("recording")
+    meta = log_metadata(path)
+    base = meta.get("recording")
     if base is None:
         raise RecordingError(f"{path}: no 'recording' metadata record (rig, frequency_Hz, ...); "
                              "not a hystbench log?")
-    segs = [s for s in _segments(iter_blocks(path)) if include_idle or not s.idle]
+    segs = _split_settling(_segments(iter_blocks(path)), base, *_settle(meta, base))
+    segs = [s for s in segs if include_idle or not s.idle]
     if not segs:
-        raise RecordingError(f"{path}: no raw samples{'' if include_idle else ' with the output on'}")
+        raise RecordingError(f"{path}: no raw samples{'' if include_idle else ' with the output on and settled'}")
     recs = []
     for s in segs:
         rec = s.recording(base, path)
