@@ -155,6 +155,8 @@ def cmd_demo(args) -> int:
     """The main job: the bench service live (a sweep through the emulated instruments, estimates
     over zenoh, an MCAP log), the paper's sweeps as recordings with their delays, the whole method."""
     from .commands_method import cmd_paper
+    from rich.markup import escape
+
     from .commands_pipeline import demo_live, demo_sweeps
     from .console import console
 
@@ -164,7 +166,7 @@ def cmd_demo(args) -> int:
     console().print(live["summary"])
     status, failed = demo_sweeps(out)
     if failed:
-        console().print(f"[bold red]the sweeps through the drivers failed[/]: {failed}\n"
+        console().print(f"[bold red]the sweeps through the drivers failed[/]: {escape(failed)}\n"
                         "(their files removed; the offline part follows)")
     return status or cmd_paper(argparse.Namespace(out=str(out / "paper"), quick=False, save_recordings=False))
 

@@ -444,19 +444,27 @@ def _clear_demo_live(out: Path, *, remove_dir: bool = False) -> None:
         out.rmdir()
 
 
-def _follow_sweep(ests, status, t_end: float, got: list[dict], errors: list[str]) -> None:
-    """Print estimates as they arrive until the sweep says it is done (or ``t_end``)."""
+def _follow_sweep(ests, status, t_end: float, got: list[dict], errors: list[str]) -> list[float]:
+    """Print estimates as they arrive until the sweep says it is done (or ``t_end``), then those
+    still on their way (a source behind the wall clock delivers the last points late); the
+    frequencies the sweep announced."""
+    points: list[float] = []
+    done = False
     while time.monotonic() < t_end:
-        item = ests.get(min(0.1, max(0.0, t_end - time.monotonic())))
+        item = ests.get(min(1.0 if done else 0.1, max(0.0, t_end - time.monotonic())))
         if item is not None:
             got.append(json.loads(item[1]))
             print(format_message(item[0], item[1]), flush=True)
+        elif done:  # a second without an estimate after the sweep: the pipeline has caught up
+            break
         while (st := status.get(0.0)) is not None:
             obj = json.loads(st[1])
             if obj.get("level") == "error":
                 errors.append(str(obj.get("message") or obj.get("event")))
-            if obj.get("event") in ("sweep_done", "sweep_stopped"):
-                return
+            if obj.get("event") == "sweep_point":
+                points.append(float(obj.get("frequency_Hz", "nan")))
+            done = done or obj.get("event") in ("sweep_done", "sweep_stopped")
+    return points
 
 
 def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench") -> dict[str, Any]:
@@ -468,6 +476,8 @@ def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench") 
     The result's ``summary`` is one line for the demo to print.  If the live part fails (the
     instruments do not answer, the machine is too slow for the emulated bench, no estimate came),
     ``error`` says why and this run leaves nothing in ``out_dir``: the demo says so and goes on."""
+    from rich.markup import escape
+
     from .control import BenchControl
     from .daemon import BenchService, load_daemon_config
     from .zenoh_bus import Subscription, free_port, key
@@ -482,14 +492,14 @@ def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench") 
     toml.write_text(f'[daemon]\nbench = "demo"\nlog_dir = "{out.as_posix()}"\n[source]\nkind = "{source}"\n'
                     f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n[sweep]\nfrequencies_hz = {freqs}\n'
                     f'dwell_s = {dwell:g}\n', encoding="utf-8")
-    svc, paths, got, errors, error = None, [], [], [], None
+    svc, paths, got, errors, points, error = None, [], [], [], [], None
     try:
         svc = BenchService(load_daemon_config(toml)).start()
         with BenchControl("demo", connect=[f"tcp/127.0.0.1:{port}"], timeout_s=10.0) as ctl:
             ests, status = Subscription(ctl.session, key("demo", "estimate")), Subscription(ctl.session, key("demo", "status"))
             try:
                 ctl.request("start_sweep", {"frequencies_hz": freqs, "dwell_s": dwell})
-                _follow_sweep(ests, status, time.monotonic() + len(freqs) * dwell + 10.0, got, errors)
+                points = _follow_sweep(ests, status, time.monotonic() + len(freqs) * dwell + 10.0, got, errors)
                 health = ctl.health()
             finally:
                 ests.close()
@@ -511,18 +521,18 @@ def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench") 
                  "bench at 100 kS/s")
     if error is not None:
         _clear_demo_live(out, remove_dir=True)
-        return {"error": error, "log": [], "estimates": len(got), "refused": len(got) - len(good),
-                "hysteresis_deg": {}, "summary": f"[bold red]live part failed[/]: {error}\n"
+        return {"error": error, "log": [], "estimates": len(got), "refused": len(got) - len(good), "points": points,
+                "hysteresis_deg": {}, "summary": f"[bold red]live part failed[/]: {escape(error)}\n"
                                                  "(its partial log removed; the demo goes on without it)"}
     by_f: dict[float, list] = {}
     for e in good:
         if e["phases_deg"].get("hysteresis") is not None:
             by_f.setdefault(e["nominal_frequency_Hz"], []).append(e["phases_deg"]["hysteresis"])
     logs = [str(p) for p in paths]
-    return {"log": logs, "estimates": len(got), "refused": len(got) - len(good), "error": None,
+    return {"log": logs, "estimates": len(got), "refused": len(got) - len(good), "error": None, "points": points,
             "hysteresis_deg": {f"{f:g}": sum(v) / len(v) for f, v in sorted(by_f.items()) if v},
             "summary": f"{len(got)} live estimates ({len(got) - len(good)} refused while settling); "
-                       f"MCAP log: {', '.join(logs)}"}
+                       f"MCAP log: {escape(', '.join(logs))}"}
 
 
 def demo_sweeps(out_dir: str | Path) -> tuple[int, str | None]:

@@ -16,8 +16,11 @@ def test_live_sweep_is_commanded_over_zenoh_and_keeps_only_this_runs_log(tmp_pat
     res = demo_live(out, seconds=3.0, source="sim")
     assert res["error"] is None, res["error"]
     assert "autostart" not in (out / "demo-daemon.toml").read_text()  # only a ctl start_sweep can sweep
-    assert set(res["hysteresis_deg"]) == {"80", "160", "320"}  # every point of the commanded sweep
-    assert all(0 < d < 10 for d in res["hysteresis_deg"].values())  # a lag of a few degrees (paper Fig. 10)
+    assert res["points"] == [80.0, 160.0, 320.0]  # the commanded sweep ran, point by point
+    # estimates of its points (a busy machine may deliver too few samples for some): flux lags the
+    # current by a few degrees (paper Fig. 10)
+    assert res["hysteresis_deg"] and set(res["hysteresis_deg"]) <= {"80", "160", "320"}
+    assert all(0 < d < 10 for d in res["hysteresis_deg"].values())
     assert sorted(p.name for p in out.glob("demo-*.mcap")) == sorted(Path(p).name for p in res["log"])
     assert len(res["log"]) == 1 and "live estimates" in res["summary"]
 
@@ -48,3 +51,16 @@ def test_failing_driver_sweeps_are_reported_and_their_files_removed(tmp_path: Pa
     status, why = demo_sweeps(tmp_path)
     assert status == 0 and why == "bench: only 0 of 10000 aligned samples within the timeout"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["paper"]
+
+
+def test_a_failure_is_printed_whole(tmp_path: Path) -> None:
+    """The summary is rich markup: a '[source]' in the reason must be printed, not taken for a style."""
+    import io
+
+    from rich.console import Console
+
+    res = demo_live(tmp_path / "live", seconds=1.5, source="nonsense")
+    buf = io.StringIO()
+    Console(file=buf, width=300).print(res["summary"])
+    assert "[source] kind: must be one of bench, sim, synthetic" in buf.getvalue()
+    assert not (tmp_path / "live").exists()
