@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import time
 from pathlib import Path
 
 import numpy as np
@@ -82,18 +81,14 @@ def test_write_read_is_bit_identical(tmp_path, n, ncols, data, extra, fs, t0, ri
     assert back.path == tmp_path / "r"
 
 
-def test_one_second_at_100ks_six_channels_is_fast(tmp_path):
+def test_one_second_at_100ks_six_channels_round_trips_exactly(tmp_path):
+    """Speed is the benchmark's job (`hystbench bench csv`); here only the exact round trip."""
     rng = np.random.default_rng(1)
     rec = Recording(path=None, fs_hz=100_000.0, metadata={**META, "sample_rate_Hz": 100_000.0},
                     channels={k: rng.standard_normal(100_000) for k in
                               ["current_A", "force_N", "flux_Wb", "sense_V", "command_V", "shunt_V"]})
-    start = time.perf_counter()
     write_recording(rec, tmp_path / "big")
-    mid = time.perf_counter()
     back = read_recording(tmp_path / "big.csv")
-    end = time.perf_counter()
-    print(f"write {mid - start:.3f} s, read {end - mid:.3f} s")
-    assert end - start < 2.0
     assert all(np.array_equal(back.channels[k], rec.channels[k]) for k in rec.channels)
 
 
