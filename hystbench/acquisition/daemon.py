@@ -1,11 +1,19 @@
 """The bench daemon: the pipeline, its log and its zenoh face, run as a systemd service.
 
 ``hystbench daemon --config daemon.toml``: every key is checked (a misspelt or mistyped one is
-refused with the file and key named), the source is the simulated rig unless instruments are
-configured, and the process speaks systemd's notify protocol (READY, RELOADING, STOPPING,
-WATCHDOG).  SIGTERM/SIGINT: output off, pipeline drained, log finished, exit 0.  SIGHUP: the file
-is read again; a bad one is refused and the running configuration stays; a good one restarts
-the pipeline (a new log part) and, if its [zenoh] section changed, the zenoh session.
+refused with the file and key named; a key the source's kind does not use is refused, naming
+why), the source is the simulated rig unless instruments are configured, and the process speaks
+systemd's notify protocol (READY, RELOADING, STOPPING, WATCHDOG).  ``--config`` also takes a
+bench file (recognised by its ``[bench]`` table): the daemon's defaults with that bench.
+
+One daemon per bench (:mod:`.instance`: a lock file in the state directory and a zenoh
+liveliness token); logs in ``[daemon] log_dir`` or the state directory's ``logs`` folder.
+Commands are checked before they are answered and a fault restarts the source and pipeline,
+output off (:mod:`.service`).  SIGTERM/SIGINT: output off, pipeline drained, log finished,
+exit 0.  SIGHUP: the file is read again; a bad one is refused and the running configuration
+stays; a good one restarts the pipeline (a new log part) and, if its [zenoh] section changed,
+the zenoh session.  Exit 2: a bad configuration (systemd does not restart into it); exit 1: a
+fault the daemon could not recover from, or instruments that cannot be reached at start.
 """
 
 from __future__ import annotations
@@ -13,6 +21,7 @@ from __future__ import annotations
 import copy
 import logging
 import signal
+import sys
 import threading
 import time
 import tomllib
@@ -20,42 +29,50 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
 from ..config.schema import NUM, Key
-from ..errors import BenchError, ConfigError
-from .mcaplog.recorder import COMPRESSIONS
+from ..errors import BenchError, ConfigError, InstrumentError
+from .mcaplog.recorder import COMPRESSIONS, IDLE_RAW
 from .sd_notify import Notifier
+from .service import BenchService
+from .source_config import build_source, check_source
 
-__all__ = ["load_daemon_config", "DaemonConfig", "BenchService", "run_daemon", "DEFAULTS"]
+__all__ = ["load_daemon_config", "DaemonConfig", "BenchService", "run_daemon", "DEFAULTS", "build_source"]
 
 log = logging.getLogger("hystbench.daemon")
 
 _NUM = NUM
 #: No new samples for this long and the watchdog is no longer fed.
 STALL_S = 5.0
+#: Retention of the logs runs at start and this often.
+HOUSEKEEPING_S = 60.0
 #: section -> key -> :class:`Key` (type, default, unit, legal range, meaning).  docs/config.md is
 #: generated from this table (``python -m hystbench.config_reference``).
 DEFAULTS: dict[str, dict[str, Key]] = {
     "daemon": {
         "bench": Key(str, "bench1", "the bench's name: the zenoh key space is hystbench/<bench>/... (no / * $ ? #)"),
-        "log_dir": Key(str, "hystbench-logs", "folder of the MCAP logs, one per session: <bench>-<start time>-NNNN.mcap"),
+        "log_dir": Key(str, "", "folder of the MCAP logs, one per session: <bench>-<start time>-NNNN.mcap; \"\": "
+                       "the state directory's logs folder ($STATE_DIRECTORY under systemd, else "
+                       "$XDG_STATE_HOME/hystbench or ~/.local/state/hystbench)"),
         "stats_interval_s": Key(_NUM, 1.0, "period of the pipeline counters on hystbench/<bench>/stats", "s", gt=0),
     },
     "source": {
         "kind": Key(str, "bench", "bench: the instruments of bench_file through the drivers; sim: the simulated "
                     "rig directly (cheap); synthetic: precomputed sines", choices=("bench", "sim", "synthetic")),
-        "rig": Key(str, "ecore_pm", "the rig preset (hystbench/config/rigs) or a .toml path; names the recordings"),
+        "rig": Key(str, "ecore_pm", "the rig preset (hystbench/config/rigs) or a .toml path; names the recordings; "
+                   "kind = bench: the emulated rig (default: the bench file's [sim] rig)"),
         "fs_hz": Key(_NUM, 100_000.0, "sample rate (kind = sim, synthetic; a bench file sets its own)", "Hz", gt=0),
         "block_samples": Key(int, 1000, "samples per block (kind = sim, synthetic)", "samples", gt=0),
-        "seed": Key(int, 0, "random seed of the simulated rig's noise", ge=0),
-        "frequency_hz": Key(_NUM, 320.0, "excitation frequency when the output is switched on without a sweep",
-                            "Hz", gt=0),
-        "current_pp_a": Key(_NUM, 1.4, "excitation current, peak to peak, without a sweep", "A", ge=0),
+        "seed": Key(int, 0, "random seed of the simulated rig's noise (kind = bench: emulated only)", ge=0),
+        "frequency_hz": Key(_NUM, 320.0, "excitation frequency when the output is switched on without a sweep "
+                            "(checked against the bench: 1 Hz to fs/10)", "Hz", gt=0),
+        "current_pp_a": Key(_NUM, 1.4, "excitation current, peak to peak, without a sweep (at most twice the "
+                            "bench's current limit)", "A", ge=0),
         "pace": Key(str, "realtime", "realtime: blocks at the sample clock; max: as fast as computed",
                     choices=("realtime", "max")),
-        "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false }"),
+        "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false } (kind = bench: "
+                       "emulated only, replacing the bench file's [sim] effects)"),
         "ring_seconds": Key(_NUM, 2.0, "how far a stage may fall behind before it loses samples", "s", gt=0),
-        "bench_file": Key(str, "", "kind = bench: the bench file (\"\": hystbench/config/bench.toml, every "
+        "bench_file": Key(str, "", "kind = bench only: the bench file (\"\": hystbench/config/bench.toml, every "
                           "instrument emulated)"),
     },
     "estimation": {
@@ -73,6 +90,12 @@ DEFAULTS: dict[str, dict[str, Key]] = {
         "flush_interval_s": Key(_NUM, 0.5, "the open chunk is written at least this often", "s", gt=0),
         "rotate_mib": Key(_NUM, 1024.0, "a new log part when the current one reaches this size", "MiB", gt=0),
         "rotate_minutes": Key(_NUM, 60.0, "... or this age", "min", gt=0),
+        "idle_raw": Key(str, "decimated", "raw samples while the output is off: off (none), decimated (the first "
+                        "10 ms of every second: offsets, noise, pickup) or full", choices=IDLE_RAW),
+        "keep_days": Key(_NUM, 0.0, "retention: delete this bench's log parts older than this (0: keep them)",
+                         "days", ge=0),
+        "max_total_gib": Key(_NUM, 100.0, "retention: delete this bench's oldest log parts while they add up to "
+                             "more than this (0: no limit); the open part is never deleted", "GiB", ge=0),
     },
     "zenoh": {
         "enabled": Key(bool, True, "publish on zenoh and answer queries and commands"),
@@ -147,6 +170,7 @@ def load_daemon_config(path: str | Path | None) -> DaemonConfig:
             raise ConfigError(f"{path}: cannot read: {err}") from err
         except tomllib.TOMLDecodeError as err:
             raise ConfigError(f"{path}: not valid TOML: {err}") from err
+    data = _bench_file_as_daemon_config(data, path, where)
     values = {s: {k: copy.deepcopy(d.default) for k, d in keys.items()} for s, keys in DEFAULTS.items()}
     given = set()
     for section, table in data.items():
@@ -174,28 +198,36 @@ def load_daemon_config(path: str | Path | None) -> DaemonConfig:
     if values["compensator"]["enabled"] and not values["estimation"]["enabled"]:
         raise ConfigError(f"{where} [compensator] enabled needs [estimation] enabled: the compensator follows "
                           "the live estimates (and learns on their windows)")
+    for k in ("bench_file",):  # relative paths: from where the daemon was started, made absolute now
+        if values["source"][k]:
+            values["source"][k] = str(Path(values["source"][k]).expanduser().absolute())
+    check_source(values, given, where)
+    d = values["daemon"]
+    if d["log_dir"]:
+        d["log_dir"] = str(Path(d["log_dir"]).expanduser().absolute())
+    else:
+        from .instance import default_log_dir
+
+        d["log_dir"] = str(default_log_dir()[0])
     return DaemonConfig(values, frozenset(given), where)
 
 
-def build_source(cfg: DaemonConfig):
-    """The configured source (the simulated rig when no instruments are configured)."""
-    from .sources import RigSource, SyntheticSource, bench_source
+_BENCH_FILE_TABLES = {"bench", "sim", "signal_generator", "current_amplifier", "charge_amplifier", "flux_integrator"}
 
-    s = cfg["source"]
-    if s["kind"] == "synthetic":
-        return SyntheticSource(fs_hz=s["fs_hz"], frequency_hz=s["frequency_hz"], block_samples=s["block_samples"],
-                               pace=s["pace"], rig=s["rig"], current_pp_a=s["current_pp_a"], seed=s["seed"])
-    if s["kind"] == "bench":
-        return bench_source(s["bench_file"] or None, rig=s["rig"])
-    from ..sim_backend.rig import SimulatedRig
 
-    try:
-        rig = SimulatedRig(s["rig"], fs_hz=s["fs_hz"], seed=s["seed"], effects=s["effects"] or None,
-                           frequency_hz=s["frequency_hz"], current_pp_a=s["current_pp_a"])
-    except ConfigError as err:
-        raise ConfigError(f"{cfg.source} [source]: {err}") from None
-    rig.output_enabled = False  # nothing is driven until a sweep or a command says so
-    return RigSource(rig, block_samples=s["block_samples"], pace=s["pace"])
+def _bench_file_as_daemon_config(data: dict[str, Any], path, where: str) -> dict[str, Any]:
+    """A bench file given as the daemon's config (it has a [bench] table): the daemon's defaults
+    with ``[source] kind = "bench"`` and that file, which is checked as a bench file."""
+    if "bench" not in data or path is None:
+        return data
+    mixed = sorted(set(data) & set(DEFAULTS))
+    if mixed:
+        raise ConfigError(f"{where}: has a bench file's [bench] table and the daemon's [{mixed[0]}]; keep them "
+                          "apart and name the bench file in the daemon file's [source] bench_file")
+    other = sorted(set(data) - _BENCH_FILE_TABLES)
+    if other:
+        raise ConfigError(f"{where}: unknown table [{other[0]}] in a bench file; known: {', '.join(sorted(_BENCH_FILE_TABLES))}")
+    return {"source": {"kind": "bench", "bench_file": str(path)}}
 
 
 def zenoh_config(cfg: DaemonConfig):
@@ -208,217 +240,10 @@ def zenoh_config(cfg: DaemonConfig):
     return load_zenoh_config(src, listen=listen, connect=connect)
 
 
-def _load_compensator(c: dict, source):
-    """The compensator stage in a CompensatorHook: from ``model`` (a `hystbench model fit` file),
-    ``kind`` and ``force`` (a reference such as "offset=170,amp=40,freq=320"), or from a
-    ``factory = "module:callable"`` for anything else."""
-    import importlib
-
-    from .pipeline import CompensatorHook
-
-    factory = c["factory"]
-    if not factory:
-        from ..compensator import CompensatorStage, ForceReference, LearningConfig, ModelSet
-
-        if not c["model"] or not c["force"]:
-            raise ConfigError("[compensator] enabled: give model and force (or a factory)")
-        try:
-            reference = ForceReference.parse(c["force"])
-        except ValueError as err:
-            raise ConfigError(f"[compensator] force {c['force']!r}: {err}") from err
-        models = ModelSet.load(c["model"])
-        try:
-            learning = LearningConfig(gain=c["learning_gain"]) if c["learn"] else None
-        except ValueError as err:
-            raise ConfigError(f"[compensator] learning_gain: {err}") from err
-        stage = CompensatorStage(models[c["kind"]], reference, current_limit_a=c["current_limit_a"],
-                                 learning=learning, instrument=models.instrument)
-        return CompensatorHook(stage, source)
-    mod, _, attr = factory.partition(":")
-    try:
-        obj = getattr(importlib.import_module(mod), attr or "make_compensator")
-    except (ImportError, AttributeError) as err:
-        raise ConfigError(f"[compensator] factory {factory!r}: {err}") from err
-    return CompensatorHook(obj(), source)
-
-
-def _log_path(folder: Path, bench: str) -> Path:
-    """``<bench>-<start time>.mcap`` (parts ``...-0001.mcap``), made unique within the second."""
-    stem = f"{bench}-{time.strftime('%Y%m%d-%H%M%S')}"
-    k = 1
-    while (folder / f"{stem}-0001.mcap").exists() or (folder / f"{stem}.mcap").exists():
-        k += 1
-        stem = f"{bench}-{time.strftime('%Y%m%d-%H%M%S')}.{k}"
-    return folder / f"{stem}.mcap"
-
-
-class BenchService:
-    """One configuration running: source -> pipeline -> MCAP log + zenoh, with sweeps and commands.
-
-    ``session`` (optional) is a zenoh session to reuse (the daemon keeps it across reloads whose
-    [zenoh] section did not change); otherwise one is opened from the config and owned here."""
-
-    def __init__(self, cfg: DaemonConfig, *, session=None) -> None:
-        self.cfg = cfg
-        self.source = build_source(cfg)
-        self.session = session
-        self.pipeline = None
-        self.recorder = None
-        self.bus = None
-        self.started = time.monotonic()
-        self._sweep_stop = threading.Event()
-        self._sweep: threading.Thread | None = None
-        self.state = "starting"
-        self.estimates = 0
-        self.last_error = ""
-
-    def start(self) -> "BenchService":
-        from .mcaplog.recorder import McapRecorder
-        from .pipeline import Pipeline
-        from .stages import WindowEstimator
-        from .zenoh_bus import ZenohBus
-
-        c = self.cfg
-        meta = {"recording": self.source.metadata(), "config": c.as_dict()}
-        rig = getattr(getattr(self.source, "rig", None), "preset", None)
-        if rig:
-            meta["rig"] = {k: v for k, v in rig.items() if not k.startswith("_")}
-        try:
-            e = c["estimation"]
-            comp = _load_compensator(c["compensator"], self.source) if c["compensator"]["enabled"] else None
-            est = WindowEstimator(self.source.fs_hz, self.source.metadata(), periods=e["periods"],
-                                  hop_periods=e["hop_periods"], min_hop_s=e["min_hop_s"],
-                                  settle_periods=e["settle_periods"], max_fs_hz=e["max_fs_hz"],
-                                  keep_windows=bool(comp and comp.wants_windows)) if e["enabled"] else None
-            if c["recording"]["enabled"]:
-                r = c["recording"]
-                self.recorder = McapRecorder(_log_path(Path(c["daemon"]["log_dir"]), c["daemon"]["bench"]),
-                                             metadata=meta, compression=r["compression"], chunk_size=r["chunk_kib"] * 1024,
-                                             flush_interval_s=r["flush_interval_s"],
-                                             rotate_bytes=int(r["rotate_mib"] * 2**20), rotate_s=r["rotate_minutes"] * 60)
-                self.recorder.start()
-            if c["zenoh"]["enabled"]:
-                self.bus = ZenohBus(c["daemon"]["bench"], None if self.session else zenoh_config(c),
-                                    on_command=self.command, config_provider=c.as_dict,
-                                    health_provider=self.health, session=self.session,
-                                    per_channel=c["zenoh"]["raw_per_channel"]).open()
-            self.pipeline = Pipeline(self.source, estimator=est, recorder=self.recorder, bus=self.bus, compensator=comp,
-                                     ring_seconds=c["source"]["ring_seconds"], stats_interval_s=c["daemon"]["stats_interval_s"],
-                                     publish_raw=c["zenoh"]["publish_raw"])
-            self.pipeline.listeners.append(self._count)
-            self.pipeline.start()
-        except BaseException:
-            self.stop()
-            raise
-        self.state = "running"
-        if c["sweep"]["autostart"]:
-            self.command("start_sweep", {})
-        return self
-
-    def _count(self, topic: str, obj: dict) -> None:
-        if topic == "/estimate":
-            self.estimates += 1
-            if obj.get("error"):
-                self.last_error = str(obj["error"])
-
-    def stop(self, timeout_s: float = 10.0) -> list[Path]:
-        """Output off first, then the pipeline drains, the log is finished, zenoh is closed."""
-        self.state = "stopping"
-        self._sweep_stop.set()
-        if hasattr(self.source, "set_output"):
-            self.source.set_output(False)
-        if self._sweep is not None:
-            self._sweep.join(timeout=2.0)
-        if self.pipeline is not None:
-            self.pipeline.status("info", "stopping", "output off, finishing the log")
-            self.pipeline.stop(timeout_s)
-        self.source.close()
-        paths = self.recorder.finish() if self.recorder is not None else []
-        if self.bus is not None:
-            self.bus.close()
-        self.state = "stopped"
-        return paths
-
-    # --- commands (zenoh cmd/<verb>) -------------------------------------------------------------
-    def _controllable(self):
-        from .sources import Controllable
-
-        if not isinstance(self.source, Controllable):
-            raise ConfigError(f"source {self.source.name!r} takes no commands")
-        return self.source
-
-    def _tripped(self) -> str:
-        """Why the compensator switched the output off, or ''."""
-        return str(getattr(getattr(self.pipeline, "compensator", None), "tripped", "") or "")
-
-    def command(self, verb: str, args: dict) -> dict:
-        if self.pipeline is None or self.state not in ("running", "sweeping"):
-            raise ConfigError(f"bench is {self.state}; try again when it is running")
-        src = self._controllable()
-        if (verb == "start_sweep" or verb == "output" and args.get("on")) and self._tripped():
-            raise ConfigError(f"{verb}: refused, the compensator switched the output off ({self._tripped()}); "
-                              "reload the configuration (SIGHUP) to start again")
-        if verb == "set_excitation":
-            unknown = set(args) - {"frequency_hz", "current_pp_a", "offset_a"}
-            if unknown:
-                raise ConfigError(f"set_excitation: unknown argument(s) {sorted(unknown)}")
-            src.set_excitation(**{k: float(v) for k, v in args.items()})
-            return {"applied": args}
-        if verb == "output":
-            src.set_output(bool(args.get("on", False)))
-            return {"output_on": bool(args.get("on", False))}
-        if verb == "stop_sweep":
-            self._sweep_stop.set()
-            src.set_output(False)
-            return {"stopped": True}
-        if verb == "start_sweep":
-            sw = self.cfg["sweep"]
-            freqs = [float(f) for f in args.get("frequencies_hz", sw["frequencies_hz"])]
-            ipp, dwell = float(args.get("current_pp_a", sw["current_pp_a"])), float(args.get("dwell_s", sw["dwell_s"]))
-            if not freqs or any(not 0 < f < self.source.fs_hz / 2 for f in freqs) or ipp < 0 or dwell <= 0:
-                raise ConfigError(f"start_sweep: frequencies in (0, fs/2), current_pp_a >= 0 and dwell_s > 0 needed; "
-                                  f"got {freqs}, {ipp}, {dwell}")
-            if self._sweep is not None and self._sweep.is_alive():
-                raise ConfigError("start_sweep: a sweep is running; stop_sweep first")
-            self._sweep_stop = threading.Event()
-            self._sweep = threading.Thread(target=self._run_sweep, args=(freqs, ipp, dwell, self._sweep_stop),
-                                           name="sweep", daemon=True)
-            self._sweep.start()
-            return {"points": len(freqs), "duration_s": len(freqs) * dwell}
-        raise ConfigError(f"unknown command {verb!r}")
-
-    def _run_sweep(self, freqs: list[float], ipp: float, dwell: float, stop: threading.Event) -> None:
-        src, p = self.source, self.pipeline
-        self.state = "sweeping"
-        p.status("info", "sweep_started", f"{len(freqs)} points at {ipp:g} A-pp, {dwell:g} s each")
-        try:
-            for k, f in enumerate(freqs):
-                if self._tripped():
-                    p.status("warning", "sweep_stopped", f"stopped at point {k}: {self._tripped()}")
-                    return
-                src.set_excitation(frequency_hz=f, current_pp_a=ipp)
-                src.set_output(True)
-                p.status("info", "sweep_point", f"{f:g} Hz, {ipp:g} A-pp", point=k, frequency_Hz=f, current_pp_A=ipp)
-                if stop.wait(dwell):
-                    p.status("info", "sweep_stopped", f"stopped at point {k}")
-                    return
-            p.status("info", "sweep_done", f"{len(freqs)} points")
-        finally:
-            src.set_output(False)
-            if self.state == "sweeping":
-                self.state = "running"
-
-    def health(self) -> dict:
-        p = self.pipeline
-        return {"bench": self.cfg["daemon"]["bench"], "state": self.state, "version": __version__,
-                "uptime_s": time.monotonic() - self.started, "source": self.source.name,
-                "log": str(self.recorder.paths[-1]) if self.recorder and self.recorder.paths else None,
-                "samples": p.stats["source"].samples if p else 0, "estimates": self.estimates,
-                "pipeline_error": repr(p.error) if p and p.error else None, "last_estimate_error": self.last_error}
-
-
 def run_daemon(config_path: str | Path | None) -> int:
-    """The service's main loop; returns the exit status (0 after SIGTERM)."""
+    """The service's main loop; returns the exit status (0 after SIGTERM, 1 after a fault it could
+    not recover from or instruments it could not reach at start); a bad configuration, a bench
+    already served or a port already taken raise ConfigError (the command line's exit 2)."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     cfg = load_daemon_config(config_path)
     notifier = Notifier()
@@ -431,46 +256,129 @@ def run_daemon(config_path: str | Path | None) -> int:
 
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, on_signal)
-    session = _open_session(cfg)
-    svc = BenchService(cfg, session=session).start()
-    log.info("serving bench %r (config %s)", cfg["daemon"]["bench"], cfg.source)
+    claim = _Claim().take(cfg)
+    try:
+        svc = BenchService(cfg, session=claim.session).start()
+    except InstrumentError as err:  # not the file's fault: systemd may try again (exit 1)
+        claim.release()
+        print(f"hystbench daemon: error: {err}", file=sys.stderr)
+        return 1
+    except BaseException:
+        claim.release()
+        raise
+    _started(cfg, svc)
     notifier.ready(f"bench {cfg['daemon']['bench']}: {svc.state}")
     status = 0
-    seen, progress_t = -1, time.monotonic()
+    seen, progress_t, housekeeping_t = -1, time.monotonic(), time.monotonic()
     while not flags["stop"]:
         wake.wait(min(notifier.watchdog_s or 1.0, 1.0))
         wake.clear()
-        if svc.pipeline.error is not None:
-            log.error("pipeline failed: %r; stopping", svc.pipeline.error)
+        try:
+            if svc.recover():
+                seen = -1
+        except BenchError as err:
+            log.error("cannot recover from the fault: %s; stopping", err)
             status = 1
             break
         samples = svc.pipeline.stats["source"].samples
+        now = time.monotonic()
         if samples != seen:
-            seen, progress_t = samples, time.monotonic()
-        if time.monotonic() - progress_t < STALL_S:  # a stalled source stops the pings: systemd restarts us
+            seen, progress_t = samples, now
+        if now - progress_t < STALL_S:  # a stalled source stops the pings: systemd restarts us
             notifier.ping()
+        if now - housekeeping_t >= HOUSEKEEPING_S:
+            housekeeping_t = now
+            svc.housekeeping()
         if flags["reload"] and not flags["stop"]:
             flags["reload"] = False
             notifier.reloading()
-            svc, cfg, session = _reload(config_path, svc, cfg, session)
+            svc, cfg = _reload(config_path, svc, cfg, claim)
             notifier.ready(f"bench {cfg['daemon']['bench']}: {svc.state}")
     notifier.stopping("output off, finishing the log")
     paths = svc.stop()
-    if session is not None:
-        session.close()
+    claim.release()
     log.info("stopped; log %s", ", ".join(map(str, paths)) or "(none)")
     return status
+
+
+def _started(cfg: DaemonConfig, svc: BenchService) -> None:
+    from .instance import default_log_dir
+
+    given = cfg.source != "(defaults)" and default_log_dir()[0] != Path(cfg["daemon"]["log_dir"])
+    why = f"[daemon] log_dir of {cfg.source}" if given else f"default: {default_log_dir()[1]}"
+    log.info("serving bench %r (config %s, source %s); logs in %s (%s)", cfg["daemon"]["bench"], cfg.source,
+             svc.source.name, cfg["daemon"]["log_dir"], why)
+
+
+class _Claim:
+    """What makes this daemon the one of its bench: the lock file, the zenoh session and the
+    liveliness token on it (kept across reloads while the bench and [zenoh] stay the same)."""
+
+    def __init__(self) -> None:
+        self.lock = None
+        self.session = None
+        self.zenoh: dict | None = None  # the [zenoh] section the session was opened for
+        self.token = None
+        self.token_bench: str | None = None
+
+    def take(self, cfg: DaemonConfig) -> "_Claim":
+        """Lock, session and token for ``cfg``, keeping what stays the same; a refusal
+        (ConfigError) leaves the lock held as it was, and at worst the session closed."""
+        from .instance import BenchLock, claim_on_zenoh
+
+        bench = cfg["daemon"]["bench"]
+        lock = self.lock if self.lock is not None and self.lock.bench == bench else \
+            BenchLock(bench, endpoints=_endpoints(cfg), config=cfg.source).acquire()
+        try:
+            if self.zenoh != cfg["zenoh"]:
+                self._close_session()  # the port may stay the same: free it first
+                self.session = _open_session(cfg)
+                self.zenoh = cfg["zenoh"]
+            if self.session is not None and self.token_bench != bench:
+                if self.token is not None:
+                    self.token.undeclare()
+                self.token, self.token_bench = None, None
+                self.token = claim_on_zenoh(self.session, bench)
+                self.token_bench = bench
+        except BaseException:
+            if lock is not self.lock:
+                lock.release()
+            raise
+        if self.lock is not None and lock is not self.lock:
+            self.lock.release()
+        self.lock = lock
+        return self
+
+    def _close_session(self) -> None:
+        if self.token is not None:
+            self.token.undeclare()
+        if self.session is not None:
+            self.session.close()
+        self.token = self.session = self.zenoh = self.token_bench = None
+
+    def release(self) -> None:
+        self._close_session()
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
+
+
+def _endpoints(cfg: DaemonConfig) -> list[str]:
+    return list(cfg["zenoh"]["listen"]) if cfg["zenoh"]["enabled"] else []
 
 
 def _open_session(cfg: DaemonConfig):
     if not cfg["zenoh"]["enabled"]:
         return None
-    from .zenoh_bus import open_session
+    from .zenoh_bus import ListenError, open_session
 
-    return open_session(zenoh_config(cfg))
+    try:
+        return open_session(zenoh_config(cfg))
+    except ListenError as err:
+        raise ConfigError(f"{cfg.source} [zenoh] listen: {err}; change [zenoh] listen") from None
 
 
-def _reload(path, svc: BenchService, cfg: DaemonConfig, session):
+def _reload(path, svc: BenchService, cfg: DaemonConfig, claim: _Claim):
     """Check the file again; a bad one is refused (the old config keeps running)."""
     try:
         new = load_daemon_config(path)
@@ -479,23 +387,17 @@ def _reload(path, svc: BenchService, cfg: DaemonConfig, session):
     except BenchError as err:
         log.error("reload refused, keeping the running configuration: %s", err)
         svc.pipeline.status("error", "reload_refused", str(err))
-        return svc, cfg, session
+        return svc, cfg
     svc.stop()
-    zenoh_changed = new["zenoh"] != cfg["zenoh"]
     try:
-        if zenoh_changed:
-            if session is not None:
-                session.close()
-            session = None
-            session = _open_session(new)
-        svc = BenchService(new, session=session).start()
+        claim.take(new)
+        svc = BenchService(new, session=claim.session).start()
     except BenchError as err:  # e.g. the new port is taken, the log folder not writable
         log.error("reload failed (%s); restarting the previous configuration", err)
-        if zenoh_changed:
-            if session is not None:
-                session.close()
-            session = _open_session(cfg)
-        return BenchService(cfg, session=session).start(), cfg, session
+        claim.take(cfg)
+        svc = BenchService(cfg, session=claim.session).start()
+        svc.pipeline.status("error", "reload_failed", str(err))
+        return svc, cfg
     svc.pipeline.status("info", "reloaded", f"config {new.source}")
-    log.info("reloaded %s", new.source)
-    return svc, new, session
+    _started(new, svc)
+    return svc, new

@@ -17,7 +17,7 @@ import math
 import queue
 import threading
 import time
-from typing import Any, Callable, Iterator, Protocol, runtime_checkable
+from typing import Any, Callable, Iterator, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -103,7 +103,8 @@ class RigSource:
     """The simulated rig as a source; commands are queued and applied between blocks."""
 
     def __init__(self, rig, *, block_samples: int = 1000, pace: str = "realtime",
-                 duration_s: float | None = None, dtype: Any = np.float32) -> None:
+                 duration_s: float | None = None, dtype: Any = np.float32,
+                 max_current_a: float | None = None) -> None:
         if pace not in ("max", "realtime"):
             raise ConfigError(f"pace must be 'max' or 'realtime', got {pace!r}")
         if block_samples < 1:
@@ -116,15 +117,25 @@ class RigSource:
         self.dtype = np.dtype(dtype)
         self._commands: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
         self._tables = 0  # changes of what the generator plays
+        #: the peak coil current (|offset| + amplitude) no command may exceed; None: unchecked
+        self.max_current_a = None if max_current_a is None else float(max_current_a)
 
     def metadata(self) -> dict:
         return self.rig.metadata()
 
+    def _check_peak(self, what: str, peak_a: float) -> None:
+        if self.max_current_a is not None and not peak_a <= self.max_current_a * (1 + 1e-9):
+            raise ConfigError(f"{self.name}: refused {what}: peak {peak_a:.4g} A exceeds the bench's "
+                              f"max_current_a = {self.max_current_a:g} A")
+
     def set_excitation(self, frequency_hz=None, current_pp_a=None, offset_a=None) -> None:
         if frequency_hz is not None and not 0 < frequency_hz < self.fs_hz / 2:  # refuse now, not later
             raise ConfigError(f"frequency_hz {frequency_hz} must be in (0, {self.fs_hz / 2:g}) Hz")
-        if current_pp_a is not None and current_pp_a < 0:
+        if current_pp_a is not None and not current_pp_a >= 0:
             raise ConfigError(f"current_pp_a must be >= 0, got {current_pp_a}")
+        ipp = self.rig.current_pp_a if current_pp_a is None else current_pp_a
+        off = self.rig.offset_a if offset_a is None else offset_a
+        self._check_peak(f"{ipp:g} A-pp {off:+g} A", abs(off) + ipp / 2)
         self._commands.put(_counted(self, lambda: self.rig.set_excitation(frequency_hz, current_pp_a, offset_a)))
 
     def set_output(self, on: bool) -> None:
@@ -132,6 +143,8 @@ class RigSource:
 
     def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
         table = np.array(current_a, dtype=float)
+        if table.size:
+            self._check_peak(f"a waveform of {table.size} points", float(np.max(np.abs(table))))
         self._commands.put(_counted(self, lambda: self.rig.set_waveform(table, frequency_hz)))
 
 
@@ -229,25 +242,42 @@ class BenchSource:
     off until ``set_output(True)``."""
 
     def __init__(self, bench_file: str | None = None, *, rig: str | None = None,
-                 duration_s: float | None = None) -> None:
+                 duration_s: float | None = None, sim: Mapping[str, Any] | None = None,
+                 excitation: tuple[float, float] | None = None, clear_faults: bool = False) -> None:
+        """``sim`` replaces keys of the bench file's [sim] table (the emulated rig, its seed and
+        effects; refused for hardware); ``excitation`` = (frequency Hz, current A-pp) is set on the
+        generator once open (output off); ``clear_faults``: clear latched amplifier faults after
+        opening (a restart after a fault; the output stays off)."""
+        from dataclasses import replace
+
         from ..drivers.bench import Bench
         from ..drivers.protocols.bench_config import load_bench_config
 
         cfg = load_bench_config(bench_file or None)
         self.emu = None
+        self.bench = None
+        if sim and not cfg.any_sim:
+            raise ConfigError(f"{cfg.source}: {', '.join(sorted(sim))} apply to the emulated rig; this bench "
+                              "file has hardware instruments only")
         if cfg.any_sim:
             from ..sim_backend.emulators.bench import EmulatedBench
 
-            self.emu = EmulatedBench(cfg).start()
+            self.emu = EmulatedBench(replace(cfg, sim={**cfg.sim, **dict(sim or {})})).start()
             cfg = cfg.resolved(self.emu.addresses)
         try:
             self.bench = Bench(cfg).open()
+            if clear_faults:
+                self.bench.clear_faults()
+            self.gain = float(self.bench.budget.gain_a_per_v)
+            if excitation is not None:
+                frequency_hz, current_pp_a = excitation
+                self.bench.generator.set_sine(frequency_hz, current_pp_a / self.gain, 0.0)
         except BaseException:
             self.close()
             raise
         self.fs_hz = cfg.fs_hz
         self.rig = self.emu.rig.name if self.emu is not None else (rig or "ecore_pm")  # hardware: say which
-        self.gain = float(cfg.instruments["current_amplifier"].settings.get("gain_a_per_v", 0.5))
+        self.max_current_a = cfg.current_limit_a  # the peak coil current a command may ask
         self.channels = ["current_A", "force_N", "flux_Wb", "command_V"]
         self.duration_s = duration_s
         self.settle_s = 0.1  # a command takes effect somewhere within the streams' latency
@@ -334,6 +364,7 @@ class BenchSource:
 
 
 def bench_source(bench_file: str | None = None, rig: str | None = None,
-                 duration_s: float | None = None) -> BenchSource:
-    """The instruments of a bench file (default: the shipped ``config/bench.toml``) as a source."""
-    return BenchSource(bench_file, rig=rig, duration_s=duration_s)
+                 duration_s: float | None = None, **kw: Any) -> BenchSource:
+    """The instruments of a bench file (default: the shipped ``config/bench.toml``) as a source
+    (``kw``: see :class:`BenchSource`)."""
+    return BenchSource(bench_file, rig=rig, duration_s=duration_s, **kw)

@@ -21,7 +21,9 @@ each channel of ``header["channels"]`` in order, ``n`` little-endian values of i
 from __future__ import annotations
 
 import json
+import logging
 import queue
+import re
 import socket
 import struct
 import threading
@@ -33,13 +35,16 @@ import numpy as np
 
 from ..blocks import CHANNEL_UNITS, BlockFlags, SampleBlock
 from ..errors import BenchError, ConfigError
+from .bench_commands import COMMANDS as _COMMAND_ARGS
 from .mcaplog.schemas import json_bytes
 
 __all__ = ["PREFIX", "key", "encode_raw", "decode_raw", "peer_config", "load_zenoh_config", "ZenohBus",
-           "Subscription", "send_command", "query_json", "free_port", "open_session", "COMMANDS"]
+           "Subscription", "send_command", "query_json", "free_port", "open_session", "ListenError", "COMMANDS"]
+
+log = logging.getLogger("hystbench.zenoh")
 
 PREFIX = "hystbench"
-COMMANDS = ("start_sweep", "stop_sweep", "set_excitation", "output")
+COMMANDS = tuple(_COMMAND_ARGS)
 _DTYPES = {"float32": np.dtype("<f4"), "float64": np.dtype("<f8")}
 RAW_ENCODING = "application/octet-stream;hystbench.raw.v1"
 
@@ -142,13 +147,30 @@ def load_zenoh_config(source: str | Path | Mapping | None, *, listen: list[str] 
         raise ConfigError(f"zenoh config {source if source is not None else '(built-in)'}: {err}") from err
 
 
+class ListenError(ConfigError):
+    """An endpoint to listen on is taken (another daemon, a zenoh router) or cannot be bound."""
+
+
+def _plain(message: str) -> str:
+    """zenoh's error text without the Rust source locations it appends (`` at /root/.cargo/...rs:61.``)."""
+    return re.sub(r"\s+at\s+\S+\.rs:\d+\.?", "", message).strip()
+
+
 def open_session(config) -> Any:
+    """A zenoh session; a taken listening port is a :class:`ListenError` naming the endpoint."""
     import zenoh
 
     try:
         return zenoh.open(config)
     except Exception as err:
-        raise ConfigError(f"cannot open the zenoh session: {err}") from err
+        text = _plain(str(err))
+        bound = re.search(r"listener bound to (\S+?):\s*\[", text)
+        if "Address already in use" in text or bound:
+            endpoint = bound.group(1) if bound else "its endpoint"
+            why = "address already in use (another hystbench daemon or a zenoh router?)" \
+                if "Address already in use" in text else text
+            raise ListenError(f"cannot listen on {endpoint}: {why}") from None
+        raise ConfigError(f"cannot open the zenoh session: {text}") from None
 
 
 # --- the daemon's side -----------------------------------------------------------------------------------
@@ -267,6 +289,10 @@ class ZenohBus:
                 query.reply(query.key_expr, json_bytes({"ok": True, **(result or {})}), encoding="application/json")
             except (BenchError, ValueError) as err:
                 query.reply_err(json_bytes({"ok": False, "error": str(err)}), encoding="application/json")
+            except Exception as err:  # never let a command go unanswered (nor kill zenoh's thread)
+                log.exception("cmd/%s failed", verb)
+                query.reply_err(json_bytes({"ok": False, "error": f"cmd/{verb} failed: {type(err).__name__}: {err}"}),
+                                encoding="application/json")
 
 
 # --- a client's side ---------------------------------------------------------------------------------------

@@ -5,6 +5,7 @@ Each daemon listens on an ephemeral 127.0.0.1 port; every wait is bounded."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -29,6 +30,7 @@ FS = 100_000.0
 def write_config(path: Path, port: int, logs: Path, *, periods: float = 10.0, extra: str = "") -> None:
     path.write_text(f'[daemon]\nbench = "d1"\nlog_dir = "{logs.as_posix()}"\nstats_interval_s = 0.3\n'
                     f'[source]\nkind = "sim"\n[estimation]\nperiods = {periods}\n[recording]\nflush_interval_s = 0.25\n'
+                    'idle_raw = "full"\n'  # every sample: the crash test counts them
                     f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n'
                     f'[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 30.0\nautostart = true\n' + extra,
                     encoding="utf-8")
@@ -37,13 +39,14 @@ def write_config(path: Path, port: int, logs: Path, *, periods: float = 10.0, ex
 class Daemon:
     """The daemon in a subprocess with a notify socket of our own."""
 
-    def __init__(self, tmp: Path, config: Path) -> None:
-        self.sock_path = tmp / "notify.sock"
+    def __init__(self, tmp: Path, config: Path | str, *, state: Path | None = None, name: str = "") -> None:
+        self.sock_path = tmp / f"notify{name}.sock"
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self.sock.bind(str(self.sock_path))
         self.messages: list[str] = []
-        self.stderr_path = tmp / "daemon.stderr"
-        env = dict(os.environ, NOTIFY_SOCKET=str(self.sock_path), WATCHDOG_USEC="400000", PYTHONUNBUFFERED="1")
+        self.stderr_path = tmp / f"daemon{name}.stderr"
+        env = dict(os.environ, NOTIFY_SOCKET=str(self.sock_path), WATCHDOG_USEC="400000", PYTHONUNBUFFERED="1",
+                   STATE_DIRECTORY=str(state or tmp / "state"))
         env.pop("WATCHDOG_PID", None)
         self.proc = subprocess.Popen([sys.executable, "-m", "hystbench", "daemon",
                                       "--config", str(config)], cwd=ROOT, env=env,
@@ -232,7 +235,6 @@ def test_daemon_default_source_is_the_emulated_bench(tmp_path: Path) -> None:
         health = query_json(session, "hystbench/d2/health", timeout_s=2.0)[0]
         assert "emulated instruments" in health["source"]
         send_command(session, "d2", "start_sweep", {"frequencies_hz": [320.0], "dwell_s": 5.0})
-        import json
 
         got = [json.loads(p) for _, p, _ in est.iter(count=8, seconds=8.0)]
         assert sum(1 for e in got if not e["error"]) >= 3
@@ -274,3 +276,158 @@ def test_after_the_compensator_switched_the_output_off_it_stays_off(tmp_path: Pa
         assert svc.command("output", {"on": False}) == {"output_on": False}  # off is always allowed
     finally:
         svc.stop()
+
+
+# --- issue 16: a daemon that survives any command, one per bench, its logs in its state directory --------
+def _health(session, bench: str) -> dict:
+    for _ in range(20):  # bounded: each query has its own timeout
+        got = query_json(session, f"hystbench/{bench}/health", timeout_s=1.0)
+        if got:
+            return got[0]
+    raise AssertionError(f"no reply from hystbench/{bench}/health")
+
+
+def test_bad_commands_are_refused_and_the_daemon_stays_up(tmp_path: Path) -> None:
+    """The issue's two commands (50 A-pp on a 2 A bench) killed the daemon with exit 1; now each is
+    refused with the reason and the daemon answers the next one.  No [daemon] log_dir: the log
+    goes to $STATE_DIRECTORY/logs, and the daemon says so on start-up."""
+    from hystbench.acquisition.zenoh_bus import send_command
+    from hystbench.errors import BenchError
+
+    port, cfg, state = free_port(), tmp_path / "daemon.toml", tmp_path / "state"
+    cfg.write_text(f'[daemon]\nbench = "d3"\n[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
+    d = Daemon(tmp_path, cfg, state=state)
+    session = None
+    try:
+        d.wait_for("READY=1")
+        session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
+        for verb, args in (("set_excitation", {"frequency_hz": 320, "current_pp_a": 50}),
+                           ("start_sweep", {"frequencies_hz": [160], "current_pp_a": 50})):
+            with pytest.raises(BenchError, match=r"refused: .*25 A exceeds the bench's limit of 1\.8 A"):
+                send_command(session, "d3", verb, args, timeout_s=5.0)
+        assert send_command(session, "d3", "set_excitation", {"frequency_hz": 160, "current_pp_a": 1.0},
+                            timeout_s=5.0)["ok"]
+        health = _health(session, "d3")
+        assert health["state"] == "running" and health["pid"] == d.proc.pid and health["faults"] == 0
+        assert health["log_dir"] == str(state / "logs")
+        assert d.proc.poll() is None
+        d.proc.send_signal(signal.SIGTERM)
+        assert d.proc.wait(timeout=20) == 0
+    finally:
+        if session is not None:
+            session.close()
+        d.close()
+    (log,) = list((state / "logs").glob("d3-*.mcap"))
+    assert f"logs in {state / 'logs'} (default: $STATE_DIRECTORY/logs)" in d.stderr()
+    assert log_metadata(log)["config"]["daemon"]["log_dir"] == str(state / "logs")
+
+
+def test_a_second_daemon_of_the_same_bench_is_refused(tmp_path: Path) -> None:
+    """Same bench name, only the port changed: refused with the first one's PID and endpoint
+    (the lock file in the shared state directory).  Another state directory but connected over
+    zenoh: refused too (the liveliness token)."""
+    port1, port2, port3 = free_port(), free_port(), free_port()
+    first_cfg, second_cfg, third_cfg = tmp_path / "a.toml", tmp_path / "b.toml", tmp_path / "c.toml"
+    write_config(first_cfg, port1, tmp_path / "logs")
+    write_config(second_cfg, port2, tmp_path / "logs")
+    write_config(third_cfg, port3, tmp_path / "logs3")
+    third_cfg.write_text(third_cfg.read_text().replace(
+        f'listen = ["tcp/127.0.0.1:{port3}"]', f'listen = ["tcp/127.0.0.1:{port3}"]\nconnect = ["tcp/127.0.0.1:{port1}"]'))
+    first = Daemon(tmp_path, first_cfg, name="1")
+    try:
+        first.wait_for("READY=1")
+        env = dict(os.environ, STATE_DIRECTORY=str(tmp_path / "state"))
+        second = subprocess.run([sys.executable, "-m", "hystbench", "daemon", "--config", str(second_cfg)], cwd=ROOT,
+                                env=env, capture_output=True, text=True, timeout=60)
+        assert second.returncode == 2
+        assert f"bench 'd1' is already served by PID {first.proc.pid} (zenoh tcp/127.0.0.1:{port1}" in second.stderr
+        assert "Traceback" not in second.stderr and len(second.stderr.strip().splitlines()) == 1
+        env["STATE_DIRECTORY"] = str(tmp_path / "other-state")
+        third = subprocess.run([sys.executable, "-m", "hystbench", "daemon", "--config", str(third_cfg)], cwd=ROOT,
+                               env=env, capture_output=True, text=True, timeout=60)
+        assert third.returncode == 2
+        assert f"already served on the zenoh network by PID {first.proc.pid} (zenoh tcp/127.0.0.1:{port1}" \
+            in third.stderr, third.stderr
+        assert first.proc.poll() is None  # the first one never noticed
+    finally:
+        first.close()
+    assert not list((tmp_path / "logs3").glob("*.mcap"))  # the refused one wrote nothing
+
+
+def test_a_taken_port_names_the_key_to_change(tmp_path: Path) -> None:
+    port = free_port()
+    a, b = tmp_path / "a.toml", tmp_path / "b.toml"
+    write_config(a, port, tmp_path / "logs")
+    b.write_text(a.read_text().replace('bench = "d1"', 'bench = "d9"'), encoding="utf-8")
+    first = Daemon(tmp_path, a, name="1")
+    try:
+        first.wait_for("READY=1")
+        env = dict(os.environ, STATE_DIRECTORY=str(tmp_path / "state"))
+        second = subprocess.run([sys.executable, "-m", "hystbench", "daemon", "--config", str(b)], cwd=ROOT,
+                                env=env, capture_output=True, text=True, timeout=60)
+    finally:
+        first.close()
+    assert second.returncode == 2
+    lines = second.stderr.strip().splitlines()
+    assert lines == [f"hystbench daemon: error: {b} [zenoh] listen: cannot listen on tcp/127.0.0.1:{port}: address "
+                     "already in use (another hystbench daemon or a zenoh router?); change [zenoh] listen"], lines
+
+
+def test_a_hardware_bench_file_as_config_fails_only_at_connect(tmp_path: Path) -> None:
+    """`hystbench daemon --config bench_hardware.toml` (addresses made local and absent): accepted,
+    then one line naming the instrument and its address, exit 1 (systemd may retry: not a bad file)."""
+    text = (ROOT / "hystbench/config/bench_hardware.toml").read_text(encoding="utf-8")
+    for old in ("192.168.0.20:5025", "192.168.0.20:5026", "192.168.0.21:5027"):
+        text = text.replace(old, f"127.0.0.1:{free_port()}")
+    for dev in ("/dev/ttyUSB0", "/dev/ttyUSB1", "/dev/ttyS0"):
+        text = text.replace(dev, (tmp_path / ("absent-" + dev.rsplit("/", 1)[1])).as_posix())
+    assert "192.168." not in text
+    bench = tmp_path / "bench_hardware.toml"
+    bench.write_text(text, encoding="utf-8")
+    env = dict(os.environ, STATE_DIRECTORY=str(tmp_path / "state"))
+    proc = subprocess.run([sys.executable, "-m", "hystbench", "daemon", "--config", str(bench)], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1, proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if "error:" in ln]
+    assert len(errors) == 1 and "Traceback" not in proc.stderr
+    assert "current_amplifier" in errors[0] and str(tmp_path / "absent-ttyUSB0") in errors[0]
+
+
+def test_a_fault_in_the_source_is_survived_output_off(tmp_path: Path) -> None:
+    """A command within the bench's limit that the simulated magnet-biased E-core cannot follow
+    (3 A-pp: its iron saturates, the simulation refuses in the source thread) ended the daemon
+    ('pipeline failed ... stopping', exit 1); now the daemon's loop publishes the fault, restarts
+    the source and pipeline with the output off, and answers the next command."""
+    from hystbench.acquisition.zenoh_bus import Subscription, send_command
+
+    port, cfg = free_port(), tmp_path / "daemon.toml"
+    cfg.write_text(f'[daemon]\nbench = "d4"\nlog_dir = "{(tmp_path / "logs").as_posix()}"\n[source]\nkind = "sim"\n'
+                   f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
+    d = Daemon(tmp_path, cfg)
+    session = None
+    try:
+        d.wait_for("READY=1")
+        session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
+        status = Subscription(session, "hystbench/d4/status")
+        _health(session, "d4")  # connected: the subscription sees what follows
+        send_command(session, "d4", "set_excitation", {"current_pp_a": 3.0}, timeout_s=5.0)
+        send_command(session, "d4", "output", {"on": True}, timeout_s=5.0)
+        events: dict[str, dict] = {}
+        for _ in range(500):  # bounded; each get waits for the next message
+            got = status.get(20.0)
+            assert got is not None, f"no 'restarted' event; got {list(events)}; stderr: {d.stderr()[-1500:]}"
+            msg = json.loads(got[1])
+            events[msg["event"]] = msg
+            if msg["event"] == "restarted":
+                break
+        assert "SimulationError" in events["fault"]["message"] and "output switched off" in events["fault"]["message"]
+        assert send_command(session, "d4", "set_excitation", {"current_pp_a": 1.0}, timeout_s=5.0)["ok"]
+        health = _health(session, "d4")
+        assert health["faults"] == 1 and health["state"] == "running" and d.proc.poll() is None
+        d.proc.send_signal(signal.SIGTERM)
+        assert d.proc.wait(timeout=20) == 0
+    finally:
+        if session is not None:
+            session.close()
+        d.close()
+    assert len(list((tmp_path / "logs").glob("d4-*.mcap"))) == 2  # the fault started a new part

@@ -5,6 +5,11 @@ Life cycle as mcap's own writer, plus a context manager: ``start()`` -> ``add_bl
 handed to the OS at least every ``flush_interval_s`` (and whenever it reaches ``chunk_size``), so
 after a ``kill -9`` everything but the open chunk is on disk and ``hystbench recover`` salvages it.
 Each part of a rotated log starts with the same schemas and metadata, so each stands alone.
+
+Raw blocks recorded while the output is off (block meta ``output_on`` = 0) follow ``idle_raw``:
+``"full"`` keeps them all, ``"decimated"`` keeps a snapshot of ``IDLE_SNAPSHOT_S`` in every
+``IDLE_EVERY_S`` of sample time (offsets, noise floor and pickup at full bandwidth, ~1 % of the
+bytes), ``"off"`` none; JSON messages (estimates, status, stats) are always kept.
 """
 
 from __future__ import annotations
@@ -17,14 +22,19 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from ... import __version__
-from ...blocks import SampleBlock
+from ...blocks import BlockFlags, SampleBlock
 from ...errors import RecordingError
 from .schemas import RAW, SCHEMAS, TOPICS, encode_block, json_bytes, schema_bytes
 
-__all__ = ["McapRecorder", "COMPRESSIONS"]
+__all__ = ["McapRecorder", "COMPRESSIONS", "IDLE_RAW", "IDLE_EVERY_S", "IDLE_SNAPSHOT_S"]
 
 COMPRESSIONS = ("zstd", "lz4", "none")
 PROFILE = "hystbench"
+IDLE_RAW = ("off", "decimated", "full")
+#: ``idle_raw = "decimated"``: the first IDLE_SNAPSHOT_S of every IDLE_EVERY_S (of sample time,
+#: aligned on sample index 0, so replays cut the same snapshots).
+IDLE_EVERY_S = 1.0
+IDLE_SNAPSHOT_S = 0.01
 
 
 def _metadata_record(obj: Mapping[str, Any]) -> dict[str, str]:
@@ -47,9 +57,11 @@ class McapRecorder:
     def __init__(self, path: str | Path, *, metadata: Mapping[str, Mapping[str, Any]] | None = None,
                  compression: str = "zstd", chunk_size: int = 256 * 1024, flush_interval_s: float = 0.5,
                  rotate_bytes: int | None = None, rotate_s: float | None = None, epoch_ns: int | None = None,
-                 units: Mapping[str, str] | None = None, overwrite: bool = False) -> None:
+                 units: Mapping[str, str] | None = None, overwrite: bool = False, idle_raw: str = "full") -> None:
         if compression not in COMPRESSIONS:
             raise RecordingError(f"{path}: compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}")
+        if idle_raw not in IDLE_RAW:
+            raise RecordingError(f"{path}: idle_raw must be one of {', '.join(IDLE_RAW)}, got {idle_raw!r}")
         for name, v in (("rotate_bytes", rotate_bytes), ("rotate_s", rotate_s), ("flush_interval_s", flush_interval_s)):
             if v is not None and not v > 0:
                 raise RecordingError(f"{path}: {name} must be > 0, got {v!r}")
@@ -62,6 +74,8 @@ class McapRecorder:
         self.epoch_ns = time.time_ns() if epoch_ns is None else int(epoch_ns)
         self.units = dict(units or {})
         self.overwrite = overwrite
+        self.idle_raw = idle_raw
+        self.idle_samples_skipped = 0  # raw samples with the output off not written (idle_raw)
         self.paths: list[Path] = []
         self.messages = 0
         self.bytes_in = 0  # message bytes handed to the writer (before compression)
@@ -115,6 +129,17 @@ class McapRecorder:
         self.paths.append(path)
         self._part_started = self._last_flush = time.monotonic()
 
+    def rotate(self) -> Path:
+        """Finish the open part and start the next one (e.g. after a fault: one part per run of
+        the pipeline); returns the new part's path."""
+        if self._writer is None:
+            raise RecordingError(f"{self.path}: recorder not started (or already finished)")
+        if self.rotate_bytes is None and self.rotate_s is None:
+            raise RecordingError(f"{self.path}: a log without rotation has one part; give rotate_bytes or rotate_s")
+        self.finish()
+        self._open_part()
+        return self.paths[-1]
+
     def finish(self) -> list[Path]:
         """Close the log (summary, indexes, footer); returns the parts written.  Idempotent."""
         if self._writer is not None:
@@ -136,8 +161,29 @@ class McapRecorder:
 
     # --- messages --------------------------------------------------------------------------------
     def add_block(self, block: SampleBlock) -> None:
-        """One raw block (every channel)."""
+        """One raw block (every channel); with the output off, what ``idle_raw`` keeps of it."""
+        if self.idle_raw != "full" and not block.meta.get("output_on", 1.0):
+            for piece in self._idle_pieces(block):
+                self._add(RAW, encode_block(piece, self.units), self.epoch_ns + piece.t0_ns)
+            return
         self._add(RAW, encode_block(block, self.units), self.epoch_ns + block.t0_ns)
+
+    def _idle_pieces(self, block: SampleBlock) -> list[SampleBlock]:
+        """The parts of an idle block inside the decimation's snapshots (none with ``"off"``)."""
+        every = max(1, round(IDLE_EVERY_S * block.fs_hz))
+        length = max(1, round(IDLE_SNAPSHOT_S * block.fs_hz))
+        a, b = block.first_index, block.end_index
+        out = []
+        if self.idle_raw == "decimated":
+            for k in range(a // every, (b - 1) // every + 1):
+                lo, hi = max(a, k * every), min(b, k * every + length)
+                if lo < hi:
+                    first = lo == a
+                    out.append(SampleBlock(lo, block.fs_hz, {c: x[lo - a:hi - a] for c, x in block.channels.items()},
+                                           flags=block.flags if first else block.flags & ~BlockFlags.GAP,
+                                           gap_samples=block.gap_samples if first else 0, meta=block.meta))
+        self.idle_samples_skipped += block.n - sum(p.n for p in out)
+        return out
 
     def add_message(self, topic: str, obj: Mapping[str, Any], log_time_ns: int | None = None) -> None:
         """A JSON message on one of :data:`TOPICS` (``/estimate``, ``/compensator``, ``/status``...)."""

@@ -182,6 +182,15 @@ class BenchConfig:
     def any_sim(self) -> bool:
         return any(i.is_sim for i in self.instruments.values())
 
+    @property
+    def current_limit_a(self) -> float:
+        """The peak coil current a command may ask: ``[bench] max_current_a`` (what the drivers
+        enforce) or the amplifier's ``current_limit_a`` setting (beyond it the amplifier trips),
+        whichever is smaller."""
+        amp = self.instruments.get("current_amplifier")
+        limit = amp.settings.get("current_limit_a") if amp is not None else None
+        return min(self.max_current_a, float(limit)) if limit is not None else self.max_current_a
+
     def resolved(self, addresses: Mapping[str, Mapping[str, Any]]) -> "BenchConfig":
         """A copy in which every ``backend = "sim"`` instrument points at the emulator's addresses
         (as printed by ``hystbench emulate``)."""

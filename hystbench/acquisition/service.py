@@ -1,0 +1,338 @@
+"""One daemon configuration running: source -> pipeline -> MCAP log + zenoh, sweeps and commands.
+
+Nothing a command asks can end the service: every command is checked against the bench's limits
+before it is answered (:mod:`.bench_commands`), and a fault in a stage (an instrument fault, a
+lost connection, an error in the source thread) is met by :meth:`BenchService.recover`: the
+output goes off, the fault is published on ``status`` and written to the log, the source and
+pipeline start again (output off) in a new log part.  Only faults in quick succession
+(``MAX_FAULTS`` within ``FAULT_WINDOW_S``) or a source that cannot be opened again end it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from collections import deque
+from pathlib import Path
+
+from .. import __version__
+from ..errors import BenchError, ConfigError
+from .bench_commands import MIN_FREQUENCY_HZ, Limits, Point, check_command
+from .source_config import build_source
+
+__all__ = ["BenchService", "MAX_FAULTS", "FAULT_WINDOW_S"]
+
+log = logging.getLogger("hystbench.daemon")
+
+#: More faults than this within FAULT_WINDOW_S and the service gives up (systemd restarts it).
+MAX_FAULTS = 5
+FAULT_WINDOW_S = 60.0
+
+
+def _log_path(folder: Path, bench: str) -> Path:
+    """``<bench>-<start time>.mcap`` (parts ``...-0001.mcap``), made unique within the second."""
+    stem = f"{bench}-{time.strftime('%Y%m%d-%H%M%S')}"
+    k = 1
+    while (folder / f"{stem}-0001.mcap").exists() or (folder / f"{stem}.mcap").exists():
+        k += 1
+        stem = f"{bench}-{time.strftime('%Y%m%d-%H%M%S')}.{k}"
+    return folder / f"{stem}.mcap"
+
+
+def _load_compensator(c: dict, source):
+    """The compensator stage in a CompensatorHook: from ``model`` (a `hystbench model fit` file),
+    ``kind`` and ``force`` (a reference such as "offset=170,amp=40,freq=320"), or from a
+    ``factory = "module:callable"`` for anything else."""
+    import importlib
+
+    from .pipeline import CompensatorHook
+
+    factory = c["factory"]
+    if not factory:
+        from ..compensator import CompensatorStage, ForceReference, LearningConfig, ModelSet
+
+        if not c["model"] or not c["force"]:
+            raise ConfigError("[compensator] enabled: give model and force (or a factory)")
+        try:
+            reference = ForceReference.parse(c["force"])
+        except ValueError as err:
+            raise ConfigError(f"[compensator] force {c['force']!r}: {err}") from err
+        models = ModelSet.load(c["model"])
+        try:
+            learning = LearningConfig(gain=c["learning_gain"]) if c["learn"] else None
+        except ValueError as err:
+            raise ConfigError(f"[compensator] learning_gain: {err}") from err
+        stage = CompensatorStage(models[c["kind"]], reference, current_limit_a=c["current_limit_a"],
+                                 learning=learning, instrument=models.instrument)
+        return CompensatorHook(stage, source)
+    mod, _, attr = factory.partition(":")
+    try:
+        obj = getattr(importlib.import_module(mod), attr or "make_compensator")
+    except (ImportError, AttributeError) as err:
+        raise ConfigError(f"[compensator] factory {factory!r}: {err}") from err
+    return CompensatorHook(obj(), source)
+
+
+class BenchService:
+    """One configuration running.  ``session`` (optional) is a zenoh session to reuse (the daemon
+    keeps it across reloads whose [zenoh] section did not change); otherwise one is opened from
+    the config and owned here."""
+
+    def __init__(self, cfg, *, session=None) -> None:
+        self.cfg = cfg
+        self.source = build_source(cfg)
+        self.session = session
+        self.pipeline = None
+        self.recorder = None
+        self.bus = None
+        self.started = time.monotonic()
+        self._sweep_stop = threading.Event()
+        self._sweep: threading.Thread | None = None
+        self._lock = threading.Lock()  # the commanded operating point: commands and the sweep
+        self.state = "starting"
+        self.estimates = 0
+        self.last_error = ""
+        self.faults: deque[tuple[float, str]] = deque(maxlen=100)
+        self.last_fault = ""
+        self.retention_deleted = 0
+        self.log_dir = Path(cfg["daemon"]["log_dir"])
+        self._reset_point()
+
+    def _reset_point(self) -> None:
+        """The operating point a (new) source starts at: the configured excitation, output off."""
+        s = self.cfg["source"]
+        self.limits = Limits(self.source.fs_hz, float(getattr(self.source, "max_current_a", 0.0) or 0.0))
+        self.point = Point(s["frequency_hz"], s["current_pp_a"], 0.0)
+
+    # --- life cycle ------------------------------------------------------------------------------
+    def start(self) -> "BenchService":
+        from .mcaplog.recorder import McapRecorder
+        from .zenoh_bus import ZenohBus
+
+        c = self.cfg
+        try:
+            if c["recording"]["enabled"]:
+                r = c["recording"]
+                self.recorder = McapRecorder(_log_path(self.log_dir, c["daemon"]["bench"]), metadata=self._metadata(),
+                                             compression=r["compression"], chunk_size=r["chunk_kib"] * 1024,
+                                             flush_interval_s=r["flush_interval_s"], idle_raw=r["idle_raw"],
+                                             rotate_bytes=int(r["rotate_mib"] * 2**20), rotate_s=r["rotate_minutes"] * 60)
+                self.recorder.start()
+            if c["zenoh"]["enabled"]:
+                from .daemon import zenoh_config
+
+                self.bus = ZenohBus(c["daemon"]["bench"], None if self.session else zenoh_config(c),
+                                    on_command=self.command, config_provider=c.as_dict,
+                                    health_provider=self.health, session=self.session,
+                                    per_channel=c["zenoh"]["raw_per_channel"]).open()
+            self._start_pipeline()
+        except BaseException:
+            self.stop()
+            raise
+        self.state = "running"
+        where = str(self.recorder.paths[-1]) if self.recorder is not None else "nowhere (recording disabled)"
+        self.pipeline.status("info", "log", f"logging to {where}; folder {self.log_dir}", log_dir=str(self.log_dir),
+                             idle_raw=c["recording"]["idle_raw"])
+        self.housekeeping()
+        if c["sweep"]["autostart"]:
+            self.command("start_sweep", {})
+        return self
+
+    def _metadata(self) -> dict:
+        meta = {"recording": self.source.metadata(), "config": self.cfg.as_dict()}
+        rig = getattr(getattr(self.source, "rig", None), "preset", None)
+        if rig:
+            meta["rig"] = {k: v for k, v in rig.items() if not k.startswith("_")}
+        return meta
+
+    def _start_pipeline(self, tripped: str = "") -> None:
+        from .pipeline import Pipeline
+        from .stages import WindowEstimator
+
+        c = self.cfg
+        e = c["estimation"]
+        comp = _load_compensator(c["compensator"], self.source) if c["compensator"]["enabled"] else None
+        if comp is not None and tripped:
+            comp.tripped = tripped  # a fault does not clear it: only a reload does
+        est = WindowEstimator(self.source.fs_hz, self.source.metadata(), periods=e["periods"],
+                              hop_periods=e["hop_periods"], min_hop_s=e["min_hop_s"],
+                              settle_periods=e["settle_periods"], max_fs_hz=e["max_fs_hz"],
+                              keep_windows=bool(comp and comp.wants_windows)) if e["enabled"] else None
+        self.pipeline = Pipeline(self.source, estimator=est, recorder=self.recorder, bus=self.bus, compensator=comp,
+                                 ring_seconds=c["source"]["ring_seconds"], stats_interval_s=c["daemon"]["stats_interval_s"],
+                                 publish_raw=c["zenoh"]["publish_raw"])
+        self.pipeline.listeners.append(self._count)
+        self.pipeline.start()
+
+    def _count(self, topic: str, obj: dict) -> None:
+        if topic == "/estimate":
+            self.estimates += 1
+            if obj.get("error"):
+                self.last_error = str(obj["error"])
+
+    def stop(self, timeout_s: float = 10.0) -> list[Path]:
+        """Output off first, then the pipeline drains, the log is finished, zenoh is closed."""
+        self.state = "stopping"
+        self._sweep_stop.set()
+        if hasattr(self.source, "set_output"):
+            self.source.set_output(False)
+        if self._sweep is not None:
+            self._sweep.join(timeout=2.0)
+        if self.pipeline is not None:
+            self.pipeline.status("info", "stopping", "output off, finishing the log")
+            self.pipeline.stop(timeout_s)
+        self.source.close()
+        paths = self.recorder.finish() if self.recorder is not None else []
+        if self.bus is not None:
+            self.bus.close()
+        self.state = "stopped"
+        return paths
+
+    # --- faults ----------------------------------------------------------------------------------
+    def recover(self, timeout_s: float = 10.0) -> bool:
+        """If a pipeline stage failed: output off, the fault published and logged, the source and
+        the pipeline started again (output off) in a new log part.  Returns whether it did; raises
+        BenchError when faults come too quickly or the source cannot be opened again."""
+        from .mcaplog.schemas import STATUS
+
+        p = self.pipeline
+        if p is None or p.error is None or self.state not in ("running", "sweeping"):
+            return False
+        self.state = "recovering"
+        err = p.error
+        message = f"{type(err).__name__}: {err}"
+        self._sweep_stop.set()
+        self.source.close()  # output off before anything else (the drivers switch it off first)
+        p.stop(timeout_s)
+        if self._sweep is not None:
+            self._sweep.join(timeout=2.0)
+        now = time.monotonic()
+        self.faults.append((now, message))
+        self.last_fault = message
+        recent = sum(1 for t, _ in self.faults if now - t <= FAULT_WINDOW_S)
+        fault = {"t_ns": time.time_ns(), "level": "error", "event": "fault", "faults": len(self.faults),
+                 "message": f"{message}; output switched off, restarting the source and pipeline"}
+        log.error("fault: %s", fault["message"])
+        if self.bus is not None:
+            self.bus.publish("status", fault)
+        tripped = str(getattr(p.compensator, "tripped", "") or "")
+        if self.recorder is not None:
+            self.recorder.add_message(STATUS, fault, fault["t_ns"])
+            self.recorder.rotate()
+        if recent > MAX_FAULTS:
+            raise BenchError(f"{recent} faults within {FAULT_WINDOW_S:g} s, giving up; the last: {message}")
+        self.source = build_source(self.cfg, clear_faults=True)
+        self._reset_point()
+        self._start_pipeline(tripped)
+        self.state = "running"
+        self.pipeline.status("warning", "restarted", f"after a fault ({message}); output off", fault=message,
+                             faults=len(self.faults))
+        return True
+
+    def housekeeping(self) -> None:
+        """Retention of this bench's logs ([recording] keep_days, max_total_gib): the oldest parts
+        beyond the limits are deleted, never the open one; what went is said on ``status``."""
+        from .retention import apply_retention
+
+        r = self.cfg["recording"]
+        if self.recorder is None or not (r["keep_days"] or r["max_total_gib"]):
+            return
+        rep = apply_retention(self.log_dir, self.cfg["daemon"]["bench"], keep_days=r["keep_days"],
+                              max_total_bytes=r["max_total_gib"] * 2**30, keep=self.recorder.paths[-1:])
+        self.retention_deleted += len(rep.deleted)
+        if (rep.deleted or rep.errors) and self.pipeline is not None:
+            self.pipeline.status("warning" if rep.errors else "info", "retention",
+                                 rep.message() + ("; " + "; ".join(rep.errors) if rep.errors else ""),
+                                 deleted=[p.name for p in rep.deleted], deleted_bytes=rep.deleted_bytes)
+
+    # --- commands (zenoh cmd/<verb>) -------------------------------------------------------------
+    def _controllable(self):
+        from .sources import Controllable
+
+        if not isinstance(self.source, Controllable):
+            raise ConfigError(f"source {self.source.name!r} takes no commands")
+        return self.source
+
+    def _tripped(self) -> str:
+        """Why the compensator switched the output off, or ''."""
+        return str(getattr(getattr(self.pipeline, "compensator", None), "tripped", "") or "")
+
+    def command(self, verb: str, args: dict) -> dict:
+        """Run a command; a ConfigError (answered ``ok: false``) says why one is refused.  Every
+        argument is checked before anything is applied."""
+        if self.pipeline is None or self.state not in ("running", "sweeping"):
+            raise ConfigError(f"bench is {self.state}; try again when it is running")
+        src = self._controllable()
+        with self._lock:
+            ok, point = check_command(verb, args, self.limits, self.point, self.cfg["sweep"])
+            if (verb == "start_sweep" or verb == "output" and ok["on"]) and self._tripped():
+                raise ConfigError(f"{verb}: refused, the compensator switched the output off ({self._tripped()}); "
+                                  "reload the configuration (SIGHUP) to start again")
+            if verb == "set_excitation":
+                src.set_excitation(point.frequency_hz, point.current_pp_a, point.offset_a)
+                self.point = point
+                return {"applied": ok}
+            if verb == "output":
+                src.set_output(ok["on"])
+                return {"output_on": ok["on"]}
+            if verb == "stop_sweep":
+                self._sweep_stop.set()
+                sweep = self._sweep
+            elif self._sweep is not None and self._sweep.is_alive():
+                raise ConfigError("start_sweep: a sweep is running; stop_sweep first")
+            else:
+                self._sweep_stop = threading.Event()
+                self._sweep = threading.Thread(target=self._run_sweep, args=(ok, self._sweep_stop), name="sweep",
+                                               daemon=True)
+                self._sweep.start()
+                return {"points": len(ok["frequencies_hz"]), "duration_s": len(ok["frequencies_hz"]) * ok["dwell_s"]}
+        if sweep is not None:  # its last act (output off) must not come after the next command
+            sweep.join(timeout=5.0)
+        src.set_output(False)
+        return {"stopped": True}
+
+    def _run_sweep(self, sweep: dict, stop: threading.Event) -> None:
+        src, p = self.source, self.pipeline
+        freqs, ipp, dwell = sweep["frequencies_hz"], sweep["current_pp_a"], sweep["dwell_s"]
+        self.state = "sweeping"
+        p.status("info", "sweep_started", f"{len(freqs)} points at {ipp:g} A-pp, {dwell:g} s each")
+        try:
+            for k, f in enumerate(freqs):
+                if self._tripped():
+                    p.status("warning", "sweep_stopped", f"stopped at point {k}: {self._tripped()}")
+                    return
+                with self._lock:
+                    if stop.is_set():
+                        break
+                    self.point = Point(f, ipp, self.point.offset_a)
+                    src.set_excitation(f, ipp, self.point.offset_a)
+                    src.set_output(True)
+                p.status("info", "sweep_point", f"{f:g} Hz, {ipp:g} A-pp", point=k, frequency_Hz=f, current_pp_A=ipp)
+                if stop.wait(dwell):
+                    p.status("info", "sweep_stopped", f"stopped at point {k}")
+                    return
+            else:
+                p.status("info", "sweep_done", f"{len(freqs)} points")
+        finally:
+            src.set_output(False)
+            if self.state == "sweeping":
+                self.state = "running"
+
+    def health(self) -> dict:
+        p = self.pipeline
+        z = self.cfg["zenoh"]
+        return {"bench": self.cfg["daemon"]["bench"], "state": self.state, "version": __version__, "pid": os.getpid(),
+                "uptime_s": time.monotonic() - self.started, "source": self.source.name,
+                "listen": list(z["listen"]) if z["enabled"] else [], "config": self.cfg.source,
+                "log_dir": str(self.log_dir),
+                "log": str(self.recorder.paths[-1]) if self.recorder and self.recorder.paths else None,
+                "idle_raw": self.cfg["recording"]["idle_raw"],
+                "idle_samples_skipped": self.recorder.idle_samples_skipped if self.recorder else 0,
+                "retention_deleted": self.retention_deleted,
+                "limits": {"max_current_a": self.limits.max_current_a,
+                           "frequency_hz": [MIN_FREQUENCY_HZ, self.limits.max_frequency_hz]},
+                "samples": p.stats["source"].samples if p else 0, "estimates": self.estimates,
+                "faults": len(self.faults), "last_fault": self.last_fault,
+                "pipeline_error": repr(p.error) if p and p.error else None, "last_estimate_error": self.last_error}

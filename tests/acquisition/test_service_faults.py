@@ -1,0 +1,64 @@
+"""Issue 16 item 1: a fault in a stage switches the output off, is published and logged, and the
+service starts its source and pipeline again (output off, a new log part) and takes commands.
+
+The fault is a real one: the emulated current amplifier latches INTERLOCK (as the hardware would
+when its interlock opens); the drivers' heartbeat sees it, switch the output off and the source
+raises in the pipeline's source thread."""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.acquisition.mcaplog import STATUS, iter_log
+from hystbench.acquisition.zenoh_bus import (Subscription, free_port, load_zenoh_config, open_session, peer_config,
+                                             send_command)
+
+
+def test_a_fault_restarts_the_source_output_off_in_a_new_log_part(tmp_path: Path) -> None:
+    port = free_port()
+    toml = tmp_path / "daemon.toml"
+    toml.write_text(f'[daemon]\nbench = "f"\nlog_dir = "{tmp_path.as_posix()}"\n[source]\nkind = "bench"\n'
+                    f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
+    svc = BenchService(load_daemon_config(toml)).start()
+    client = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
+    status = Subscription(client, "hystbench/f/status")
+    try:
+        on = threading.Event()
+        svc.pipeline.listeners.append(lambda t, o: on.set() if t == "/estimate" else None)
+        send_command(client, "f", "output", {"on": True}, timeout_s=5.0)
+        assert on.wait(30.0)  # driven: estimates come only with the output on
+        first_source, first_part = svc.source, svc.recorder.paths[-1]
+        first_source.emu.amplifier.trip("INTERLOCK")
+        assert svc.pipeline.join(30.0)  # every stage ended: the source thread raised
+        assert svc.pipeline.error is not None and "INTERLOCK" in str(svc.pipeline.error)
+        assert svc.recover()
+        assert not first_source.emu.rig.output_enabled  # the old bench: off
+        assert svc.source is not first_source and svc.state == "running"
+        assert svc.recorder.paths[-1] != first_part and len(svc.recorder.paths) == 2
+        new_rig = svc.source.emu.rig
+        assert not new_rig.output_enabled  # the new bench starts with the output off
+        events = {}
+        for _ in range(200):  # the published events, in order; bounded
+            got = status.get(10.0)
+            assert got is not None, f"no 'restarted' status; got {list(events)}"
+            msg = json.loads(got[1])
+            events[msg["event"]] = msg
+            if msg["event"] == "restarted":
+                break
+        assert "INTERLOCK" in events["fault"]["message"] and events["fault"]["level"] == "error"
+        assert "output off" in events["restarted"]["message"]
+        assert send_command(client, "f", "set_excitation", {"frequency_hz": 160.0}, timeout_s=5.0)["ok"]
+        health = send_command(client, "f", "output", {"on": False}, timeout_s=5.0)
+        assert health["ok"] and svc.health()["faults"] == 1 and "INTERLOCK" in svc.health()["last_fault"]
+    finally:
+        status.close()
+        client.close()
+        paths = svc.stop()
+    assert len(paths) == 2
+    old = [m.json() for m in iter_log(paths[0], [STATUS])]
+    assert old[-1]["event"] == "fault" and "INTERLOCK" in old[-1]["message"]  # the fault closes the old part
+    new = [m.json()["event"] for m in iter_log(paths[1], [STATUS])]
+    assert "restarted" in new and new[-1] == "stopping"
