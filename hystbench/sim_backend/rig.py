@@ -29,12 +29,6 @@ DEFAULT_FS_HZ = 100_000.0
 DEFAULT_GENERATOR_CLOCK_PPM = 25.0
 
 
-def _check_duration(rig: str, duration_s: float) -> None:
-    """At least one sample's worth of a finite duration (0 s would be an empty recording)."""
-    if not (math.isfinite(duration_s) and duration_s > 0):
-        raise ConfigError(f"{rig}: the duration must be a finite number of seconds > 0, got {duration_s}")
-
-
 class SimulatedRig:
     """One bench: a rig preset with its effects, excited by a sine (or one-period waveform)."""
 
@@ -174,9 +168,7 @@ class SimulatedRig:
         """Consecutive blocks; ``pace='realtime'`` sleeps so samples leave no faster than the ADC's."""
         if pace not in ("max", "realtime"):
             raise ConfigError(f"{self.name}: pace must be 'max' or 'realtime', got {pace!r}")
-        if duration_s is not None:
-            _check_duration(self.name, duration_s)
-        remaining = None if duration_s is None else int(round(duration_s * self.fs_hz))
+        remaining = None if duration_s is None else self.samples_in(duration_s)
         start_wall, start_index = time.monotonic(), self._next_index
         while remaining is None or remaining > 0:
             n = block_size if remaining is None else min(block_size, remaining)
@@ -190,8 +182,16 @@ class SimulatedRig:
 
     def record(self, duration_s: float, block_size: int = 50_000) -> SampleBlock:
         """``duration_s`` of samples as one block (as fast as possible)."""
-        _check_duration(self.name, duration_s)
+        self.samples_in(duration_s)
         return concatenate(list(self.blocks(block_size, duration_s)))
+
+    def samples_in(self, duration_s: float) -> int:
+        """The number of samples in ``duration_s``: at least one (0 s would be an empty recording)."""
+        n = round(duration_s * self.fs_hz) if math.isfinite(duration_s) else 0
+        if not (duration_s > 0 and n >= 1):
+            raise ConfigError(f"{self.name}: the duration must be a finite number of seconds of at least one "
+                              f"sample (1/{self.fs_hz:g} s), got {duration_s}")
+        return int(n)
 
     def metadata(self) -> dict[str, Any]:
         """The recording sidecar for what this rig produces (recording-format keys plus extras)."""
