@@ -1,0 +1,125 @@
+"""Output files of a command: all or nothing.
+
+A command that fails half-way (bad input found late, a full disk, Ctrl-C) must leave no partial
+file behind, and must not replace a file the user did not ask to replace.  So every output is
+written under a temporary name beside its target (same folder, so the final rename is atomic) and
+renamed into place only when the command succeeded; an existing target is refused up front, before
+any work, unless ``--overwrite``.
+
+    with output_file(args.out, overwrite=args.overwrite) as tmp:      # one file (keeps the suffix)
+        fig.savefig(tmp)
+    with output_folder(args.out, overwrite=args.overwrite) as stage:  # a folder of files
+        draw(stage.path)                                              # then stage.final(p) names p's target
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import shutil
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+from ..errors import ConfigError, RecordingError
+
+__all__ = ["output_file", "output_folder", "StagedFolder"]
+
+
+def _make_parent(path: Path, option: str) -> list[Path]:
+    """Create ``path``'s missing parent folders; returns those created (deepest last)."""
+    made: list[Path] = []
+    missing = [p for p in reversed(path.parents) if not p.exists()]
+    for folder in missing:
+        try:
+            folder.mkdir()
+        except OSError as err:
+            _remove_folders(made)
+            raise RecordingError(f"{option} {path}: cannot create the folder {folder}: {err.strerror}") from err
+        made.append(folder)
+    parent = path.parent
+    if not parent.is_dir():
+        raise RecordingError(f"{option} {path}: {parent} is not a folder")
+    return made
+
+
+def _remove_folders(made: list[Path]) -> None:
+    for folder in reversed(made):
+        try:
+            folder.rmdir()
+        except OSError:
+            pass
+
+
+@contextmanager
+def output_file(path: str | Path, *, overwrite: bool = False, option: str = "--out") -> Iterator[Path]:
+    """A temporary path beside ``path`` (same suffix, so writers that go by it still do); renamed
+    onto ``path`` when the block ends normally, removed (with any folder made for it) otherwise."""
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{option} {path}: is a folder; give a file name")
+    if path.exists() and not overwrite:
+        raise ConfigError(f"{option} {path}: exists; give --overwrite to replace it")
+    made = _make_parent(path, option)
+    tmp = path.with_name(f".{path.stem}.{secrets.token_hex(4)}.tmp{path.suffix}")
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise RecordingError(f"{option} {path}: nothing was written")
+        os.replace(tmp, path)
+    except OSError as err:
+        raise RecordingError(f"{option} {path}: cannot write: {err.strerror or err}") from err
+    finally:
+        tmp.unlink(missing_ok=True)
+        if not path.exists():
+            _remove_folders(made)
+
+
+class StagedFolder:
+    """A hidden folder beside the target where a command writes its files."""
+
+    def __init__(self, target: Path, path: Path) -> None:
+        self.target = target
+        self.path = path
+
+    def final(self, written: str | Path) -> Path:
+        """Where a file written under :attr:`path` ends up."""
+        return self.target / Path(written).relative_to(self.path)
+
+
+@contextmanager
+def output_folder(path: str | Path, *, overwrite: bool = False, option: str = "--out") -> Iterator[StagedFolder]:
+    """A folder to write into; when the block ends normally its files move into ``path`` (made if
+    missing), each by an atomic rename; otherwise it is removed and ``path`` is as it was.
+
+    An existing ``path`` that holds anything is refused unless ``overwrite`` (then files of the
+    same name are replaced, others kept)."""
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise ConfigError(f"{option} {target}: is a file, not a folder")
+    if target.is_dir() and not overwrite and any(target.iterdir()):
+        raise ConfigError(f"{option} {target}: exists and is not empty; give --overwrite to write into it")
+    made = _make_parent(target, option)
+    stage = target.with_name(f".{target.name}.{secrets.token_hex(4)}.tmp")
+    try:
+        stage.mkdir()
+    except OSError as err:
+        _remove_folders(made)
+        raise RecordingError(f"{option} {target}: cannot write beside it: {err.strerror}") from err
+    created = not target.exists()
+    try:
+        yield StagedFolder(target, stage)
+        try:
+            if created:
+                os.replace(stage, target)
+            else:
+                for src in sorted(p for p in stage.rglob("*") if p.is_file()):
+                    dest = target / src.relative_to(stage)
+                    dest.parent.mkdir(parents=True, exist_ok=True)
+                    os.replace(src, dest)
+        except OSError as err:
+            raise RecordingError(f"{option} {target}: cannot write: {err.strerror or err}") from err
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+        if not target.exists():
+            _remove_folders(made)
