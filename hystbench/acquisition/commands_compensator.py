@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, RecordingError
+from .cli_args import float_in, nonnegative_int, positive_float
 
 __all__ = ["register", "period_data", "sweep_data", "predict_recording", "simulated_sweep", "quick_models",
            "current_limit_a", "FIT_GRID", "JUDGE_FREQS_HZ"]
@@ -45,16 +46,21 @@ def period_data(rec, n_points: int = 1000):
                       d.theta_hyst_rad, se, avg.noise_rms["force_N"], avg.periods, avg.noise_rms["current_A"])
 
 
-def sweep_data(recs) -> tuple[str, list]:
-    """(rig, period averages) of a sweep of one rig."""
+def sweep_data(recs, tick=None) -> tuple[str, list]:
+    """(rig, period averages) of a sweep of one rig; ``tick()`` after each recording (progress)."""
     rigs = sorted({r.rig for r in recs})
     if len(rigs) != 1:
         raise RecordingError(f"a sweep is one rig; these recordings are of {', '.join(rigs) or 'none'}")
-    return rigs[0], [period_data(r) for r in recs]
+    points = []
+    for r in recs:
+        points.append(period_data(r))
+        if tick is not None:
+            tick()
+    return rigs[0], points
 
 
 def simulated_sweep(rig: str, freqs_hz, ipps_a, *, seed: int = 0, duration_s: float | None = None,
-                    effects=None) -> list:
+                    effects=None, tick=None) -> list:
     """Recordings of the simulated rig, one per (frequency, amplitude); by default 8 periods or
     0.1 s, whichever is longer (what an identification needs, not what a figure needs)."""
     from ..sim_backend.rig import SimulatedRig
@@ -65,15 +71,18 @@ def simulated_sweep(rig: str, freqs_hz, ipps_a, *, seed: int = 0, duration_s: fl
         sim = SimulatedRig(rig, seed=seed + n, frequency_hz=f, current_pp_a=ipp, effects=effects)
         block = sim.record(duration_s or max(0.1, 8.0 / f))
         recs.append(Recording(None, sim.fs_hz, dict(block.channels), sim.metadata()))
+        if tick is not None:
+            tick()
     return recs
 
 
-def quick_models(rig: str, *, seed: int = 1000, effects=None):
-    """A model set identified on the simulated rig from :data:`FIT_GRID` (about 5 s)."""
+def quick_models(rig: str, *, seed: int = 1000, effects=None, tick=None):
+    """A model set identified on the simulated rig from :data:`FIT_GRID` (about 5 s); ``tick()``
+    twice per recording (simulated, averaged)."""
     from ..compensator import fit_models
     from ..config import load_rig
 
-    _, points = sweep_data(simulated_sweep(rig, *FIT_GRID, seed=seed, effects=effects))
+    _, points = sweep_data(simulated_sweep(rig, *FIT_GRID, seed=seed, effects=effects, tick=tick), tick=tick)
     return fit_models(points, load_rig(rig))
 
 
@@ -135,14 +144,25 @@ def _console():
 
 # --- hystbench model fit / predict ---------------------------------------------------------------
 def cmd_model_fit(args) -> int:
-    from ..compensator import fit_models
+    from ..compensator import MODEL_KINDS as KINDS, fit_models
     from ..config import load_rig
+    from .console import progress
+    from .outputs import output_file
     from .recording import read_sweep
 
-    rig, points = sweep_data(read_sweep(args.sweep))
-    models = fit_models(points, load_rig(rig), kinds=tuple(args.kinds))
-    models.report["sweep"] = str(args.sweep)
-    path = models.save(args.out, overwrite=args.overwrite)
+    unknown = [k for k in args.kinds if k not in KINDS]
+    if unknown or not args.kinds:
+        raise ConfigError(f"--kinds {','.join(args.kinds)!r}: choose from {', '.join(KINDS)}")
+    # --out is checked (exists? a folder we can write in?) before the minutes of fitting
+    with output_file(args.out, overwrite=args.overwrite) as tmp, progress() as bar:
+        recs = read_sweep(args.sweep)
+        task = bar.add_task(f"period averages of {args.sweep}", total=len(recs))
+        rig, points = sweep_data(recs, tick=lambda: bar.advance(task))
+        bar.update(task, description=f"fitting {', '.join(args.kinds)}", total=None)
+        models = fit_models(points, load_rig(rig), kinds=tuple(args.kinds))
+        models.report["sweep"] = str(args.sweep)
+        models.save(tmp, overwrite=True)
+    path = Path(args.out)
     rows = models.report["training_error"]
     if args.json:
         print(_json_out({"model_file": str(path), "rig": rig, "training_error": rows}))
@@ -166,15 +186,14 @@ def cmd_model_predict(args) -> int:
     from ..compensator import ModelSet
     from .recording import read_recording
 
-    models = ModelSet.load(args.model)
-    rec = read_recording(args.recording)
-    t, f = predict_recording(models, rec, args.kind)
+    from .outputs import output_file
+
     out = Path(args.out)
-    if out.exists() and not args.overwrite:
-        raise ConfigError(f"{out}: exists; give --overwrite to replace it")
-    tmp = out.with_name(f".{out.name}.tmp")
-    np.savetxt(tmp, np.column_stack([t, f]), delimiter=",", header="time_s,force_N", comments="", fmt="%.12g")
-    tmp.replace(out)
+    with output_file(out, overwrite=args.overwrite) as tmp:
+        models = ModelSet.load(args.model)
+        rec = read_recording(args.recording)
+        t, f = predict_recording(models, rec, args.kind)
+        np.savetxt(tmp, np.column_stack([t, f]), delimiter=",", header="time_s,force_N", comments="", fmt="%.12g")
     msg = f"wrote {out}: {t.size} samples, the {args.kind} model's force as the load cell would report it"
     if "force_N" in rec.channels:
         err = rec.channels["force_N"] - f
@@ -217,6 +236,7 @@ def cmd_compensate(args) -> int:
 
     from ..compensator import ModelSet
     from ..sim_backend.effects import parse_effect_args
+    from .console import progress
 
     ref = _reference(args)
     effects = parse_effect_args(args.effect)
@@ -229,8 +249,10 @@ def cmd_compensate(args) -> int:
             raise ConfigError(f"{args.model}: models of {models.rig!r}, but --rig is {args.rig!r}")
         source = f"models from {args.model}"
     else:
-        models = quick_models(args.rig, seed=args.seed + 1000, effects=effects)
         f_s, i_s = FIT_GRID
+        with progress() as bar:
+            task = bar.add_task(f"identifying the force models of {args.rig}", total=2 * len(f_s) * len(i_s))
+            models = quick_models(args.rig, seed=args.seed + 1000, effects=effects, tick=lambda: bar.advance(task))
         source = (f"models identified on the simulated rig first: {len(f_s) * len(i_s)} recordings "
                   f"({', '.join(f'{f:g}' for f in f_s)} Hz x {min(i_s):g}-{max(i_s):g} A-pp)")
     with ExitStack() as stack:
@@ -265,11 +287,18 @@ def _actuation(args, stack, effects, ref, limit):
 
 def _closed_loop(args, act, models, source, ref, limit, con) -> int:
     from ..compensator import LearningConfig, LearningStopped, run_closed_loop
+    from .console import progress
 
-    config = LearningConfig(gain=args.gain, iterations=args.iterations)
+    try:
+        config = LearningConfig(gain=args.gain, iterations=args.iterations)
+    except ValueError as err:  # the ranges the parser checks; this says which option if they drift apart
+        raise ConfigError(f"--gain {args.gain:g} / --iterations {args.iterations}: {err}") from err
     rows: list[dict] = []
+    bar = progress()
+    task = bar.add_task("closed loop", total=1 + (config.iterations if args.learn else 0))
 
     def show(rep) -> None:
+        bar.update(task, advance=1, description=f"closed loop: iteration {rep.iteration} done")
         rows.append(rep.as_dict())
         if con is not None:
             con.print(f"iteration {rep.iteration:2d}: max |dF| {rep.max_error_n:.4g} N ({rep.error_pct:.4f} % of the "
@@ -280,8 +309,9 @@ def _closed_loop(args, act, models, source, ref, limit, con) -> int:
         con.print(f"{args.rig}: {ref.description}; {args.kind} model, {source}; current limit {limit:g} A")
         con.print(f"driven through: {act.name}")
     try:
-        result = run_closed_loop(act, models[args.kind], ref, models.instrument, learn=args.learn, config=config,
-                                 measure_s=args.measure, on_iteration=show)
+        with bar:
+            result = run_closed_loop(act, models[args.kind], ref, models.instrument, learn=args.learn, config=config,
+                                     measure_s=args.measure, on_iteration=show)
     except LearningStopped as err:
         if args.json:
             print(_json_out({"rig": args.rig, "reference": ref.description, "iterations": rows, "stopped": str(err),
@@ -327,16 +357,18 @@ def register(subparsers) -> None:
     p.add_argument("--rig", default="ecore_pm", help="E-core rig preset (default ecore_pm)")
     p.add_argument("--force", help='periodic force reference, e.g. "offset=170,amp=40,freq=320[,phase=0][,h2=5@90]"')
     p.add_argument("--force-file", help="one period of force (CSV column force_N), with --freq")
-    p.add_argument("--freq", type=float, help="frequency of --force-file's period, Hz")
+    p.add_argument("--freq", type=positive_float, help="frequency of --force-file's period, Hz")
     p.add_argument("--learn", action="store_true", help="iterative learning on the measured force error")
     p.add_argument("--model", help="model file (default: identify on the simulated rig first, ~5 s)")
     p.add_argument("--kind", choices=MODEL_KINDS, default="best", help="feed-forward model (default best)")
-    p.add_argument("--iterations", type=int, default=10, help="learning iterations (default 10)")
-    p.add_argument("--gain", type=float, default=0.8, help="learning gain (default 0.8)")
-    p.add_argument("--measure", type=float, default=0.25, help="seconds averaged per iteration (default 0.25)")
-    p.add_argument("--max-current", type=float, help="current limit, A (default: config/bench.toml)")
+    p.add_argument("--iterations", type=nonnegative_int, default=10, help="learning iterations (default 10)")
+    p.add_argument("--gain", type=float_in(0.0, 1.5), default=0.8,
+                   help="learning gain in (0, 1.5]; above 1 the error overshoots each iteration (default 0.8)")
+    p.add_argument("--measure", type=float_in(0.0, 60.0), default=0.25,
+                   help="seconds averaged per iteration, at most 60 (default 0.25)")
+    p.add_argument("--max-current", type=positive_float, help="current limit, A (default: config/bench.toml)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="simulated-rig effect switch")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--direct", action="store_true",
                    help="drive the simulated rig directly instead of through the emulated instruments' drivers")
     p.add_argument("--json", action="store_true")

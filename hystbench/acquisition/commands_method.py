@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 
 from ..errors import RecordingError
+from .cli_args import nonnegative_int
 
 __all__ = ["register", "identify_folder"]
 
@@ -94,18 +95,28 @@ def _ecore_report(name, recs) -> dict:
             "theta_hyst_deg_by_amplitude": by_amp}
 
 
-def identify_folder(folder: str | Path) -> dict:
-    """``hystbench identify`` as data: a sweep, or a folder of sweeps, identified."""
+def identify_folder(folder: str | Path, progress=None) -> dict:
+    """``hystbench identify`` as data: a sweep, or a folder of sweeps, identified; ``progress`` is
+    a rich Progress or None."""
     from ..config import load_rig
     from .identification import eddy_lag, fit_instrument, frequency_response, is_benchmark, preset_instrument
     from .identification import read_sweeps
 
+    task = None if progress is None else progress.add_task(f"reading {folder}", total=None)
+
+    def say(text: str) -> None:
+        if progress is not None:
+            progress.update(task, description=text)
+
     sweeps = read_sweeps(folder)
     kinds = {n: load_rig(recs[0].rig).get("actuator") for n, recs in sweeps.items()}
     dropped = {n: [] for n in sweeps}
-    coils = {n: frequency_response(recs, dropped=dropped[n]) for n, recs in sweeps.items()
-             if kinds[n] == "voicecoil"}
-    fits = {n: fit_instrument(r) for n, r in coils.items()}
+    coils, fits = {}, {}
+    for n, recs in sweeps.items():
+        if kinds[n] == "voicecoil":
+            say(f"{n}: frequency response and instrument fit ({len(recs)} recordings)")
+            coils[n] = frequency_response(recs, dropped=dropped[n])
+            fits[n] = fit_instrument(coils[n])
     bench = next((n for n, r in coils.items() if is_benchmark(r.rig)), None)
     reports = {}
     for n, recs in sweeps.items():
@@ -118,6 +129,7 @@ def identify_folder(folder: str | Path) -> dict:
             reports[n] = _instrument_report(n, fits[n], eddy_lag(coils[n], ref_model, ref), ref, n == bench)
             reports[n]["dropped_points"] = [{"recording": w, "reason": why} for w, why in dropped[n]]
         elif kinds[n] == "ecore":
+            say(f"{n}: the method's delays ({len(recs)} recordings)")
             reports[n] = _ecore_report(n, recs)
         else:
             raise RecordingError(f"{folder}: sweep {n!r} is of a {kinds[n]} ({recs[0].rig}); identify takes "
@@ -158,7 +170,10 @@ def _print_identify(rep: dict, con) -> None:
 
 
 def cmd_identify(args) -> int:
-    rep = identify_folder(args.sweep_dir)
+    from .console import progress
+
+    with progress() as bar:
+        rep = identify_folder(args.sweep_dir, progress=bar)
     if args.json:
         print(json.dumps(rep, indent=2))
         return 0
@@ -172,9 +187,10 @@ def cmd_identify(args) -> int:
 def cmd_paper(args) -> int:
     import time
 
-    from rich.progress import Progress
     from rich.table import Table
 
+    from .console import progress as make_progress
+    from .outputs import output_folder
     from .paper import DEFAULT_GRID, QUICK_GRID, comparison, explanations, run_paper, summary, write_recordings
     from .paper_figures import paper_figures
 
@@ -182,15 +198,17 @@ def cmd_paper(args) -> int:
     grid = QUICK_GRID if args.quick else DEFAULT_GRID
     con = _console()
     start = time.monotonic()
-    with Progress(console=con, transient=True) as progress:
+    # everything is written into a staging folder and moves into --out only when all of it is there
+    with output_folder(out, overwrite=args.overwrite) as stage, make_progress() as progress:
         res = run_paper(grid, progress=progress)
         task = progress.add_task("drawing figures", total=None)
-        res.figures = paper_figures(res, out)
+        res.figures = paper_figures(res, stage.path)
         if args.save_recordings:
             progress.update(task, description="writing the recordings")
-            write_recordings(res, out / "sweeps")
-    rows = comparison(res)
-    (out / "paper.json").write_text(json.dumps(summary(res, rows), indent=2))
+            write_recordings(res, stage.path / "sweeps")
+        res.figures = [stage.final(p) for p in res.figures]
+        rows = comparison(res)
+        (stage.path / "paper.json").write_text(json.dumps(summary(res, rows), indent=2))
     table = Table(title="Vrijsen et al. 2013 against the simulated rig", show_lines=True)
     for col in ("quantity", "paper", "hystbench", "note"):
         table.add_column(col, overflow="fold")
@@ -208,7 +226,8 @@ def register(subparsers) -> None:
     """Add ``estimate``, ``identify`` and ``paper`` to the ``hystbench`` subcommands."""
     p = subparsers.add_parser("estimate", help="the method's three delays from one recording (paper Sec. III)")
     p.add_argument("path", help="recording: STEM, STEM.csv or STEM.json, or an MCAP log (LOG.mcap)")
-    p.add_argument("--segment", type=int, help="which operating point of an MCAP log (default: its only one)")
+    p.add_argument("--segment", type=nonnegative_int,
+                   help="which operating point of an MCAP log (default: its only one)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(func=cmd_estimate)
 
@@ -223,5 +242,6 @@ def register(subparsers) -> None:
     p.add_argument("--quick", action="store_true", help="a reduced grid (a few seconds; for a first look and tests)")
     p.add_argument("--save-recordings", action="store_true",
                    help="also write every simulated sweep under OUT/sweeps/ (about 200 MB)")
+    p.add_argument("--overwrite", action="store_true", help="write into an existing, non-empty --out")
     p.set_defaults(func=cmd_paper)
 

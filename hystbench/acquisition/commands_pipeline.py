@@ -299,11 +299,42 @@ def _print_estimate(topic: str, obj: dict) -> None:
         print(format_message("estimate", json.dumps(obj).encode()), flush=True)
 
 
+def _has_samples(log: Path) -> bool:
+    from .mcaplog import iter_blocks
+
+    try:
+        return next(iter_blocks(log), None) is not None
+    except BenchError:
+        return True  # unreadable: keep it for `hystbench recover`, never delete what may hold data
+
+
+def _quiet_on_broken_pipe(show: Callable[[str, dict], None]) -> Callable[[str, dict], None]:
+    """``record -v | head``: once the reader has gone, stop printing and go on recording."""
+    gone = False
+
+    def listener(topic: str, obj: dict) -> None:
+        nonlocal gone
+        if not gone:
+            try:
+                show(topic, obj)
+            except BrokenPipeError:
+                gone = True
+
+    return listener
+
+
 def cmd_record(args) -> int:
+    out = Path(args.out)
+    ours = args.overwrite or not out.exists()  # else the recorder refuses it and it must stay as it is
     src = _source_from_args(args)
     try:
-        res = record_log(src, args.out, compression=args.compression, overwrite=args.overwrite,
-                         on_message=_print_estimate if args.verbose else None)
+        res = record_log(src, out, compression=args.compression, overwrite=args.overwrite,
+                         on_message=_quiet_on_broken_pipe(_print_estimate) if args.verbose else None)
+    except BenchError as err:  # a log with no sample in it would only block the retry: remove it
+        if ours and out.is_file() and not _has_samples(out):
+            out.unlink()
+            raise BenchError(f"{err} (nothing was recorded; {out} removed)") from err
+        raise
     finally:
         src.close()
     errs = sum(1 for e in res["estimates"] if e.get("error"))
@@ -385,20 +416,22 @@ def register(subparsers) -> None:
     _register_ctl(subparsers)
 
     p = subparsers.add_parser("record", help="record the configured source to an MCAP log (no daemon)")
+    from .cli_args import nonnegative_int, positive_float, positive_int
+
     p.add_argument("--out", required=True, help="the log, e.g. run.mcap")
-    p.add_argument("--seconds", type=float, default=2.0, help="how long (default 2)")
+    p.add_argument("--seconds", type=positive_float, default=2.0, help="how long (default 2)")
     p.add_argument("--source", choices=("bench", "sim", "synthetic"), default="bench",
                    help="bench (default): the instruments of --bench-file through the drivers, emulated when the "
                         "file says backend = \"sim\" (the shipped one does); sim: the simulated rig directly; "
                         "synthetic: precomputed sines")
     p.add_argument("--bench-file", help="bench file for --source bench (default: hystbench/config/bench.toml)")
     p.add_argument("--rig", default="ecore_pm")
-    p.add_argument("--freq", type=float, default=320.0, help="excitation frequency, Hz (default 320)")
-    p.add_argument("--ipp", type=float, default=1.4, help="peak-to-peak current, A (default 1.4)")
-    p.add_argument("--fs", type=float, default=100_000.0, help="sample rate, Hz (default 100000)")
-    p.add_argument("--block", type=int, default=1000, help="samples per source block (default 1000)")
+    p.add_argument("--freq", type=positive_float, default=320.0, help="excitation frequency, Hz (default 320)")
+    p.add_argument("--ipp", type=positive_float, default=1.4, help="peak-to-peak current, A (default 1.4)")
+    p.add_argument("--fs", type=positive_float, default=100_000.0, help="sample rate, Hz (default 100000)")
+    p.add_argument("--block", type=positive_int, default=1000, help="samples per source block (default 1000)")
     p.add_argument("--pace", choices=("realtime", "max"), default="realtime")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE")
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
     p.add_argument("--overwrite", action="store_true")

@@ -10,10 +10,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..config import load_rig  # noqa: E402
+from ..config import load_rig, rig_names  # noqa: E402
+from ..errors import ConfigError  # noqa: E402
 from ..physics import presets  # noqa: E402
 
-__all__ = ["plt", "save_figure", "force_map_figure", "loops_figure"]
+__all__ = ["plt", "save_figure", "force_map_figure", "loops_figure", "check_ecore"]
 
 
 def save_figure(fig, path: Path, dpi: int = 110) -> Path:
@@ -25,9 +26,20 @@ def save_figure(fig, path: Path, dpi: int = 110) -> Path:
     return path
 
 
+def check_ecore(rig: str) -> dict:
+    """The preset ``rig`` if it is an E-core; the force map is the E-core's magnetic circuit (Eq. 1),
+    which a voice coil or a toroid does not have."""
+    preset = load_rig(rig)
+    if preset.get("actuator") != "ecore":
+        ecores = [n for n in rig_names() if load_rig(n).get("actuator") == "ecore"]
+        raise ConfigError(f"--rig {rig}: a {preset.get('actuator')}; the force map (paper Fig. 3) is drawn for "
+                          f"E-cores only, the presets {', '.join(ecores)} (or an E-core TOML)")
+    return preset
+
+
 def force_map_figure(rig: str, out: Path) -> Path:
     """Static force F(i, z) of an E-core preset over current and airgap (paper Fig. 3)."""
-    preset = load_rig(rig)
+    preset = check_ecore(rig)
     mec = presets.ecore_mec(preset, linear_iron=True)
     current = np.linspace(-2.0, 2.0, 41)
     airgap = np.linspace(0.1e-3, 1.5e-3, 40)

@@ -1,6 +1,6 @@
 """``hystbench fit-material``: the hysteresis model against the real measured B-H loops.
 
-Loads (or, with ``refit``, fits again and rewrites) the material files, draws measured and modelled
+Loads (or, with ``refit``, fits again and writes beside the figures) the material files, draws measured and modelled
 loops with the B error along each, and reports the error table and M330-50A's phase lag at the
 E-core's operating points, so anyone can see how far the simulated iron is from real iron.
 """
@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from ..config import CONFIG_DIR, load_material
+from ..config import load_material
 from ..physics import material_fit as mf
 from ..physics.hysteresis import PreisachHysteresis
 from .figures import plt, save_figure as _save
@@ -31,7 +31,8 @@ Fitted to real measured loops: shared/data/real/{data}
 ({source}).
 Residuals: B error at the measured H in units of each loop's Bm, and the relative loop area.
 Written by hystbench.acquisition.material_report.run_material_fit(out_dir, refit=True);
-regenerate with:  hystbench fit-material --refit"""
+regenerate with:  hystbench fit-material --refit --out DIR  (then copy DIR/*.toml into
+hystbench/config/materials/ to ship it)"""
 _SOURCES = {"M330-50A": "Epstein frame, Modelica Standard Library tables, BSD-3-Clause",
             "M130-27S": "R. Szewczyk, JAmodel repository, MIT; three loops, one parameter set"}
 
@@ -132,10 +133,11 @@ def _figure_operating(model, lags: dict[str, float], out: Path) -> Path:
 
 
 def run_material_fit(out_dir: Path, *, refit: bool = False, materials_dir: Path | None = None) -> dict[str, Any]:
-    """Figures and error table for M330-50A and M130-27S; ``refit`` fits again and rewrites the
-    material files (in ``materials_dir``, default the package's ``config/materials``)."""
+    """Figures and error table for M330-50A and M130-27S; ``refit`` fits again and writes the
+    material files to ``materials_dir`` (default ``out_dir``), never over the shipped ones: the
+    package's ``config/materials`` changes only when someone copies a reviewed fit there."""
     out_dir = Path(out_dir)
-    mdir = Path(materials_dir) if materials_dir else CONFIG_DIR / "materials"
+    mdir = Path(materials_dir) if materials_dir else out_dir
     result: dict[str, Any] = {"figures": {}, "errors": {}, "baseline_errors": {}, "material_files": {}}
     models = {}
     for name in FIT_SETTINGS:
