@@ -14,15 +14,15 @@ import json
 from pathlib import Path
 
 import numpy as np
-from rich.progress import Progress
 from rich.table import Table
 
 from ..config import load_rig
 from ..physics import presets
 from ..drivers.bench import Bench
 from ..drivers.protocols.bench_config import load_bench_config
+from ..errors import RecordingError
 from ..sim_backend.emulators.bench import EmulatedBench
-from .console import console as make_console
+from .console import console as make_console, progress as make_progress
 from .figures import force_map_figure, loops_figure
 from .method import measure_delays
 from .recording import Recording, read_sweep, write_sweep
@@ -61,7 +61,7 @@ def _sweep_through_drivers(rig_name: str, ipp: float, freqs, advance) -> list[Re
             bench.acquire(SETTLE_S)
             runs = bench.acquire(DURATION_S)
             if len(runs) != 1:  # a gap: the demo would rather stop than hide it
-                raise RuntimeError(f"{rig_name} at {f:g} Hz: the streams had gaps: "
+                raise RecordingError(f"{rig_name} at {f:g} Hz: the streams had gaps: "
                                    f"{[(r.first_index, r.n, r.gap_samples) for r in runs]}")
             meta = {**emu.rig.metadata(), "source": "emulated bench through the hystbench drivers"}
             recs.append(Recording(None, runs[0].fs_hz, dict(runs[0].channels), meta))
@@ -74,7 +74,7 @@ def run_demo(out: Path) -> int:
     out.mkdir(parents=True, exist_ok=True)
     console.rule("hystbench demo: the simulated rig, the paper's E-core sweeps")
     summary: dict = {"sweeps": {}}
-    with Progress(console=console, transient=True) as progress:
+    with make_progress() as progress:
         task = progress.add_task("acquiring through the drivers", total=sum(len(f) for _, _, f in SWEEPS))
         for rig_name, ipp, freqs in SWEEPS:
             recs = _sweep_through_drivers(rig_name, ipp, freqs, lambda: progress.advance(task))
