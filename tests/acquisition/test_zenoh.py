@@ -155,11 +155,16 @@ def test_access_control_denies_commands_to_unlisted_subjects(tmp_path: Path) -> 
 
 
 def test_watch_prints_live_estimates_from_another_process(tmp_path: Path) -> None:
-    svc, port = service(tmp_path, "autostart = true\n")
+    # The output stays on until the watcher has its three estimates: a sweep of fixed length
+    # could end before a subprocess on a busy machine has subscribed.  --seconds and timeout only
+    # turn a hang into a failure.
+    svc, port = service(tmp_path)
     try:
+        svc.command("set_excitation", {"frequency_hz": 320.0, "current_pp_a": 1.0})
+        svc.command("output", {"on": True})
         proc = subprocess.run([sys.executable, "-m", "hystbench", "watch",
                                "hystbench/t/estimate", "--connect", f"tcp/127.0.0.1:{port}", "--count", "3",
-                               "--seconds", "20"], capture_output=True, text=True, timeout=40, cwd=ROOT)
+                               "--seconds", "300"], capture_output=True, text=True, timeout=400, cwd=ROOT)
     finally:
         svc.stop()
     assert proc.returncode == 0, proc.stderr
