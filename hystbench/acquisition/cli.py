@@ -8,7 +8,9 @@ import json
 import logging
 import os
 import sys
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 from .. import __version__
 from ..errors import BenchError, ConfigError
@@ -313,13 +315,19 @@ class _OneLineLog(logging.Handler):
             pass
 
 
-def _one_line_logging(command: str) -> None:
-    """Route the library's log through :class:`_OneLineLog` (the daemon sets up its own log)."""
+@contextmanager
+def _one_line_logging(command: str) -> Iterator[None]:
+    """Route the library's log through :class:`_OneLineLog` while the command runs (the daemon
+    sets up its own log)."""
     logger = logging.getLogger("hystbench")
-    for h in [h for h in logger.handlers if isinstance(h, _OneLineLog)]:
-        logger.removeHandler(h)
-    if command != "daemon":
-        logger.addHandler(_OneLineLog(command))
+    handler = _OneLineLog(command) if command != "daemon" else None
+    if handler is not None:
+        logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        if handler is not None:
+            logger.removeHandler(handler)
 
 
 def _line_buffered_stdout() -> None:
@@ -346,10 +354,10 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
     except SystemExit as stop:  # --help, --version, or usage + one line naming the option (status 2)
         return stop.code if isinstance(stop.code, int) else 2
-    _one_line_logging(args.command)
     where = f"hystbench {args.command}" + (f" {args.model_command}" if getattr(args, "model_command", None) else "")
     try:
-        return args.func(args)
+        with _one_line_logging(args.command):
+            return args.func(args)
     except BenchError as err:
         print(f"{where}: error: {err}", file=sys.stderr)
         return 2
