@@ -299,11 +299,13 @@ def _print_estimate(topic: str, obj: dict) -> None:
         print(format_message("estimate", json.dumps(obj).encode()), flush=True)
 
 
-def _has_samples(log: Path) -> bool:
+def _has_measurement(log: Path) -> bool:
+    """Whether ``log`` holds any sample taken with the output on (the bench's idle samples before
+    the first command are no measurement)."""
     from .mcaplog import iter_blocks
 
     try:
-        return next(iter_blocks(log), None) is not None
+        return any(b.meta.get("output_on", 1.0) for b in iter_blocks(log))
     except BenchError:
         return True  # unreadable: keep it for `hystbench recover`, never delete what may hold data
 
@@ -330,10 +332,10 @@ def cmd_record(args) -> int:
     try:
         res = record_log(src, out, compression=args.compression, overwrite=args.overwrite,
                          on_message=_quiet_on_broken_pipe(_print_estimate) if args.verbose else None)
-    except BenchError as err:  # a log with no sample in it would only block the retry: remove it
-        if ours and out.is_file() and not _has_samples(out):
+    except BenchError as err:  # a log with no measurement in it would only block the retry: remove it
+        if ours and out.is_file() and not _has_measurement(out):
             out.unlink()
-            raise BenchError(f"{err} (nothing was recorded; {out} removed)") from err
+            raise BenchError(f"{err} (nothing was recorded with the output on; {out} removed)") from err
         raise
     finally:
         src.close()

@@ -215,9 +215,10 @@ def test_compensate_learn_gain_5_is_refused_before_any_work(capsys):
 
 
 def test_a_refused_record_leaves_no_stub_log_and_the_retry_works(tmp_path, capsys):
-    """The emulated generator refuses 60 kHz inside the pipeline, after the log was opened: the
-    log (no sample in it) must go, the failure must be one line (the pipeline's log of it too),
-    and the same command with a good frequency must then succeed."""
+    """The emulated generator refuses 60 kHz inside the pipeline, after the log was opened (and
+    after the first idle samples): the log, with no sample taken with the output on, must go; the
+    failure must be one line (the pipeline's log of it too); the same command with a good
+    frequency must then succeed."""
     log = tmp_path / "run.mcap"
     args = ["record", "--seconds", "0.2", "--out", log]
     code, out, err = run(args + ["--freq", "60000"], capsys)
