@@ -13,6 +13,7 @@ from hystbench.acquisition.daemon import BenchService, load_daemon_config
 from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config, open_session
 
 SAFETY_S = 60.0  # turns a hang into a failure; nothing waits for it on success
+SAFETY = str(SAFETY_S)  # ctl --timeout where a reply is expected: it returns as soon as one comes
 
 
 def run(args: list[str], capsys) -> tuple[int, str, str]:
@@ -43,11 +44,12 @@ def test_set_excitation_and_output_reach_the_rig(bench, capsys) -> None:
     watcher = open_session(load_zenoh_config(None, connect=[ep]))
     sub = Subscription(watcher, "hystbench/t1/estimate")
     try:
-        code, out, err = run(["ctl", "--connect", ep, "--bench", "t1", "set_excitation", "--freq", "160",
-                              "--ipp", "1.0"], capsys)
+        code, out, err = run(["ctl", "--connect", ep, "--bench", "t1", "--timeout", SAFETY, "set_excitation",
+                              "--freq", "160", "--ipp", "1.0"], capsys)
         assert code == 0, err
         assert out.startswith("t1: set_excitation ok")
-        code, out, err = run(["ctl", "--bench", "t1", "output", "on", "--connect", ep, "--json"], capsys)
+        code, out, err = run(["ctl", "--bench", "t1", "output", "on", "--connect", ep, "--json", "--timeout", SAFETY],
+                             capsys)
         assert code == 0, err
         assert json.loads(out) == {"ok": True, "output_on": True}
         # the effect, measured: an estimate at the commanded operating point, output on
@@ -65,10 +67,22 @@ def test_set_excitation_and_output_reach_the_rig(bench, capsys) -> None:
 
 def test_sweep_refusal_status_and_config(bench, capsys) -> None:
     svc, ep = bench
-    base = ["ctl", "--connect", ep, "--bench", "t1"]
-    code, out, err = run(base + ["start_sweep", "--freqs", "40,80", "--ipp", "1.0", "--dwell", "30"], capsys)
-    assert code == 0, err
-    assert "points 2" in out and "duration_s 60" in out
+    base = ["ctl", "--connect", ep, "--bench", "t1", "--timeout", SAFETY]
+    watcher = open_session(load_zenoh_config(None, connect=[ep]))
+    events = Subscription(watcher, "hystbench/t1/status")
+    stats = Subscription(watcher, "hystbench/t1/stats")
+    try:
+        assert stats.get(SAFETY_S) is not None  # declared after status: the daemon knows both subscribers
+        code, out, err = run(base + ["start_sweep", "--freqs", "40,80", "--ipp", "1.0", "--dwell", "30"], capsys)
+        assert code == 0, err
+        assert "points 2" in out and "duration_s 60" in out
+        while (item := events.get(SAFETY_S)) is not None and json.loads(item[1])["event"] != "sweep_started":
+            pass
+        assert item is not None, "no sweep_started"
+    finally:
+        events.close()
+        stats.close()
+        watcher.close()
     code, out, err = run(base + ["start_sweep"], capsys)  # one is running: the daemon refuses
     assert code == 1 and out == ""
     assert "hystbench ctl: bench 't1' refused start_sweep:" in err and "a sweep is running" in err
@@ -142,14 +156,15 @@ def test_ctl_with_a_client_config_under_access_control(tmp_path: Path, capsys) -
                                                         password=password)), encoding="utf-8")
     svc = BenchService(load_daemon_config(toml)).start()
     try:
-        code, out, err = run(["ctl", "--zenoh-config", str(clients["viewer"]), "--bench", "t", "status"], capsys)
+        code, out, err = run(["ctl", "--zenoh-config", str(clients["viewer"]), "--bench", "t", "--timeout", SAFETY,
+                              "status"], capsys)
         assert code == 0 and out.startswith("t: running")  # everyone may ask
         code, out, err = run(["ctl", "--zenoh-config", str(clients["viewer"]), "--bench", "t", "--timeout", "1",
                               "output", "on"], capsys)
         assert code == 2 and "no daemon answered on hystbench/t/cmd/output" in err and "access control" in err
         assert not svc.source.rig.output_enabled  # nothing was driven
-        code, out, err = run(["ctl", "--zenoh-config", str(clients["operator"]), "--bench", "t", "output", "on"],
-                             capsys)
+        code, out, err = run(["ctl", "--zenoh-config", str(clients["operator"]), "--bench", "t", "--timeout", SAFETY,
+                              "output", "on"], capsys)
         assert code == 0 and out.startswith("t: output ok")
     finally:
         svc.stop()
