@@ -9,6 +9,7 @@ The work is done in :mod:`.method`, :mod:`.identification`, :mod:`.force_error` 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 from ..errors import RecordingError
@@ -39,6 +40,11 @@ def cmd_estimate(args) -> int:
     else:
         rec = read_recording(args.path)
     result = estimate(rec)
+    if result["outliers_excluded"]:
+        from .method import outlier_summary
+
+        print(f"hystbench estimate: warning: {result['recording']}: left out as outliers (far off the fitted "
+              f"waveform): {outlier_summary(result['outliers'])}", file=sys.stderr)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0

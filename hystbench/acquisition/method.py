@@ -14,8 +14,14 @@ covariance-maximum delays (Eq. 3, one-sample resolution) are given beside them b
 :func:`covariance_delays`.  Before any number is returned the recording is checked: an E-core rig,
 the three channels present, finite, not flat, not clipped, at least two periods long, and the
 nominal frequency really in the data (the fitted frequency near the sidecar's; each channel's
-fitted component carrying at least half its variance, or its spectrum peaking there).  Anything
-else is an :class:`EstimationError` naming the recording and the reason.
+fitted component carrying at least half its variance, or its spectrum peaking there, and never
+less than ``MIN_EXPLAINED_ANYWAY``).  Anything else is an :class:`EstimationError` naming the
+recording and the reason.
+
+Gross outliers (a glitch: a sample ``OUTLIER_SIGMAS`` robust standard deviations off its channel's
+fitted waveform) are found per channel, reported by sample index (``outliers``) and left out of
+every fit and check (``outliers_excluded``); a channel with more than ``MAX_OUTLIER_FRACTION`` of
+them is refused: that is a broken channel, not a glitch.
 """
 
 from __future__ import annotations
@@ -28,11 +34,13 @@ import numpy as np
 from ..config import load_rig
 from ..errors import EstimationError
 from ..physics import presets
-from .estimation import covariance_delay, estimation_errors, phase_delay
+from .estimation import OUTLIER_SIGMAS, covariance_delay, estimation_errors, gross_outliers, phase_delay, sine_fit
+from .estimation import find_outliers as estimation_find_outliers
 from .recording import Recording
 
 __all__ = ["MethodDelays", "measure_delays", "has_magnet", "covariance_delays", "estimate",
-           "recording_name", "check_channels", "check_fit_quality", "MAX_FREQUENCY_OFFSET", "MIN_EXPLAINED"]
+           "recording_name", "check_channels", "check_fit_quality", "find_outliers", "outlier_summary",
+           "MAX_FREQUENCY_OFFSET", "MIN_EXPLAINED", "MIN_EXPLAINED_ANYWAY", "MAX_OUTLIER_FRACTION"]
 
 DELAY_NAMES = ("hysteresis", "instrument", "total")
 #: Largest relative distance of the fitted from the nominal frequency (generator and ADC clocks
@@ -42,6 +50,11 @@ MAX_FREQUENCY_OFFSET = 1e-3
 #: spectrum peaks there anyway (a weak but clean signal); a channel at another frequency, or pure
 #: noise, fails both.
 MIN_EXPLAINED = 0.5
+#: ... and below this share a channel is refused even if its spectrum peaks at the frequency
+#: (its noise or junk is 19 times the component's power: no phase worth reporting).
+MIN_EXPLAINED_ANYWAY = 0.05
+#: A channel with more outliers than this share of its samples is refused (a broken channel).
+MAX_OUTLIER_FRACTION = 0.01
 #: A channel is called clipped when more of its samples sit at its extreme value than this, and
 #: more than a quantised sine of its amplitude would have there (see :func:`_clipped_fraction`).
 MAX_PINNED_FRACTION = 0.02
@@ -61,6 +74,7 @@ class MethodDelays:
     current_pp_a: float = math.nan  # nominal (sidecar)
     recording: str = ""
     explained: dict[str, float] = field(default_factory=dict)  # variance share of each channel's fit
+    outliers: dict[str, list[int]] = field(default_factory=dict)  # channel -> sample indices left out
 
     def phase_deg(self, name: str) -> float:
         """The delay as a phase at the excitation frequency, degrees (positive: lag)."""
@@ -83,6 +97,8 @@ class MethodDelays:
             "delays_std_s": dict(self.delays_std_s),
             "phases_deg": {k: self.phase_deg(k) for k in self.delays_s},
             "phases_std_deg": {k: self.phase_std_deg(k) for k in self.delays_s},
+            "outliers": {k: list(v) for k, v in self.outliers.items()},
+            "outliers_excluded": any(self.outliers.values()),
         }
 
 
@@ -114,9 +130,18 @@ def _clipped_fraction(x: np.ndarray) -> tuple[float, float, float]:
     return frac, value, expected
 
 
+def _check_clipping(where: str, name: str, x: np.ndarray) -> None:
+    frac, value, expected = _clipped_fraction(x)
+    if frac > max(MAX_PINNED_FRACTION, expected):
+        raise EstimationError(f"{where}: channel {name!r} looks clipped: {100 * frac:.1f} % of its samples "
+                              f"sit at {value:.6g} (a sine of its amplitude would have < "
+                              f"{100 * max(MAX_PINNED_FRACTION, expected):.1f} %)")
+
+
 def check_channels(rec: Recording, names: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """The named channels, each checked present, finite, varying and not clipped, and the record
-    at least two periods of the nominal frequency long."""
+    """The named channels, each checked present, finite, varying and not clipped (judged without
+    its gross outliers: one 1e308 sample would make every other one sit at the minimum), and the
+    record at least two periods of the nominal frequency long."""
     where = recording_name(rec)
     if rec.metadata.get("clipped") is True:
         raise EstimationError(f"{where}: the sidecar says 'clipped': true (a sample reached an ADC or "
@@ -132,11 +157,12 @@ def check_channels(rec: Recording, names: tuple[str, ...]) -> dict[str, np.ndarr
                                   f"sample(s), the first at sample {int(np.argmax(bad))}")
         if x.size and np.ptp(x) == 0.0:
             raise EstimationError(f"{where}: channel {name!r} is flat (every sample {x[0]!r}): it carries no phase")
-        frac, value, expected = _clipped_fraction(x)
-        if frac > max(MAX_PINNED_FRACTION, expected):
-            raise EstimationError(f"{where}: channel {name!r} looks clipped: {100 * frac:.1f} % of its samples "
-                                  f"sit at {value:.6g} (a sine of its amplitude would have < "
-                                  f"{100 * max(MAX_PINNED_FRACTION, expected):.1f} %)")
+        gross = gross_outliers(x)
+        kept = x[~gross] if gross.any() else x
+        if np.ptp(kept) == 0.0:
+            raise EstimationError(f"{where}: channel {name!r} is flat apart from {int(gross.sum())} outlier "
+                                  f"sample(s) (first at {int(np.argmax(gross))}): it carries no phase")
+        _check_clipping(where, name, kept)
         out[name] = x
     f = rec.frequency_hz
     periods = rec.n * f / rec.fs_hz
@@ -153,27 +179,45 @@ def _fft_peak_hz(x: np.ndarray, fs: float) -> float:
 
 
 def _explained(fit, k: int, x: np.ndarray) -> float:
-    """Share of a channel's variance carried by its fitted harmonic ``k``."""
-    return 0.5 * float(fit.component(k).amplitude) ** 2 / max(float(np.var(x)), 1e-300)
+    """Share of a channel's variance (its samples the fit kept) carried by its fitted harmonic ``k``."""
+    kept = x[~fit.excluded] if fit.excluded.any() else x
+    return 0.5 * float(fit.component(k).amplitude) ** 2 / max(float(np.var(kept)), 1e-300)
+
+
+def _filled(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``x`` with the masked samples interpolated from their neighbours (for what needs uniform
+    samples: a spectrum, the covariance method)."""
+    if not mask.any():
+        return x
+    idx = np.arange(x.size)
+    return np.where(mask, np.interp(idx, idx[~mask], x[~mask]), x)
 
 
 def check_fit_quality(rec: Recording, f_fit: float, fits: dict[str, tuple[object, int]]) -> dict[str, float]:
     """Refuse fits that did not find the nominal frequency: ``fits`` maps a channel to its
-    (SineFit, harmonic); returns the share of each channel's variance its fit explains."""
+    (SineFit, harmonic); returns the share of each channel's variance its fit explains (over the
+    samples the fit kept)."""
     where = recording_name(rec)
     f_nom = rec.frequency_hz
     shares = {}
     for name, (fit, k) in fits.items():
         share = _explained(fit, k, rec.channels[name])
         shares[name] = share
-        peak = _fft_peak_hz(rec.channels[name], rec.fs_hz) if share < MIN_EXPLAINED else k * f_fit
+        what = f"{f_nom:g} Hz" if k == 1 else f"{k} x {f_nom:g} Hz"
+        peak = k * f_fit
+        if share < MIN_EXPLAINED:
+            peak = _fft_peak_hz(_filled(np.asarray(rec.channels[name], dtype=float), fit.excluded), rec.fs_hz)
         bin_hz = rec.fs_hz / rec.n
         if share < MIN_EXPLAINED and abs(peak - k * f_fit) > max(2 * bin_hz, 0.005 * k * f_fit):
-            what = f"{f_nom:g} Hz" if k == 1 else f"{k} x {f_nom:g} Hz"
             raise EstimationError(
                 f"{where}: channel {name!r} has no clear component at {what}: the fitted sine explains "
                 f"{100 * share:.1f} % of its variance and its spectrum peaks at {peak:.6g} Hz. Is "
                 f"frequency_Hz = {f_nom:g} in the sidecar right?")
+        if share < MIN_EXPLAINED_ANYWAY:
+            raise EstimationError(
+                f"{where}: channel {name!r}: the fitted component at {what} explains only {100 * share:.2g} % of "
+                f"its variance (at least {100 * MIN_EXPLAINED_ANYWAY:g} % needed): the channel is mostly noise "
+                "or something else than the excitation")
     if abs(f_fit / f_nom - 1.0) > MAX_FREQUENCY_OFFSET:
         raise EstimationError(f"{where}: the data's frequency {f_fit:.6g} Hz is {1e6 * (f_fit / f_nom - 1):+.0f} ppm "
                               f"from the sidecar's frequency_Hz {f_nom:g} (allowed "
@@ -199,36 +243,87 @@ def _drives(current: np.ndarray, flux: np.ndarray, magnet: bool) -> tuple[np.nda
     return (current - current.mean()) ** 2, (flux - flux.mean()) ** 2
 
 
+def find_outliers(rec: Recording, names: tuple[str, ...], *, sigmas: float = OUTLIER_SIGMAS) -> dict[str, np.ndarray]:
+    """Each named channel's gross outliers (a boolean mask per channel): samples more than
+    ``sigmas`` robust standard deviations off the channel's fitted waveform (DC and
+    :data:`HARMONICS` of the excitation, one frequency for all, from one joint fit); a channel
+    with more than ``MAX_OUTLIER_FRACTION`` of them is refused."""
+    where = recording_name(rec)
+    with estimation_errors(where):
+        masks, _ = estimation_find_outliers([rec.channels[c] for c in names], rec.fs_hz, rec.frequency_hz,
+                                            harmonics=HARMONICS, names=[f"channel {c!r}" for c in names],
+                                            outlier_sigmas=sigmas)
+    out = dict(zip(names, masks))
+    _check_outlier_share(rec, out, sigmas)
+    return out
+
+
+def outlier_summary(outliers: dict[str, list[int]], first: int = 5) -> str:
+    """One line naming each channel's outlier samples: ``force_N at 4321, 7000 (2)``."""
+    return "; ".join(f"{c} at {', '.join(map(str, v[:first]))}{', ...' if len(v) > first else ''} ({len(v)})"
+                     for c, v in outliers.items() if v)
+
+
+def _check_outlier_share(rec: Recording, masks: dict[str, np.ndarray], sigmas: float = OUTLIER_SIGMAS) -> None:
+    """More than ``MAX_OUTLIER_FRACTION`` outliers: a broken channel, not a glitch."""
+    where = recording_name(rec)
+    for name, mask in masks.items():
+        n_out = int(mask.sum())
+        if n_out > MAX_OUTLIER_FRACTION * rec.n:
+            raise EstimationError(f"{where}: channel {name!r} has {n_out} samples more than {sigmas:g} robust standard "
+                                  f"deviations off its fitted waveform ({100 * n_out / rec.n:.2g} %, at most "
+                                  f"{100 * MAX_OUTLIER_FRACTION:g} % are left out as outliers): first at "
+                                  f"{', '.join(map(str, np.flatnonzero(mask)[:5]))}; is the channel broken?")
+
+
 def measure_delays(rec: Recording) -> MethodDelays:
-    """Hysteresis, instrument and total delay of one recording (paper Secs. III, V, VI)."""
+    """Hysteresis, instrument and total delay of one recording (paper Secs. III, V, VI), with
+    each channel's gross outliers left out (and named in the result): the current's and the
+    flux's found by their joint fit, the force's by its own fit at the frequency found."""
     where = recording_name(rec)
     magnet = _require_ecore(rec)
-    ch = check_channels(rec, ("current_A", "flux_Wb", "force_N"))
+    names = ("current_A", "flux_Wb", "force_N")
+    ch = check_channels(rec, names)
     current, flux, force = ch["current_A"], ch["flux_Wb"], ch["force_N"]
     k = 1 if magnet else 2
     fs, f0 = rec.fs_hz, rec.frequency_hz
     with estimation_errors(where):
         hyst = phase_delay(current, flux, fs, f0, harmonic=1, harmonics=HARMONICS)
         f_true = float(hyst.freq_hz)
-        drive_i, drive_phi = _drives(current, flux, magnet)
-        instr = phase_delay(drive_phi, force, fs, f_true, harmonic=k, harmonics=HARMONICS)
-        total = phase_delay(drive_i, force, fs, f_true, harmonic=k, harmonics=HARMONICS)
+        m_f = sine_fit(force, fs, f_true, harmonics=HARMONICS, fit_freq=False).excluded
+    m_i, m_phi = hyst.x.excluded, hyst.y.excluded
+    masks = {"current_A": m_i, "flux_Wb": m_phi, "force_N": m_f}
+    _check_outlier_share(rec, masks)
+    with estimation_errors(where):
+        drive_i, drive_phi = _drives(_filled(current, m_i), _filled(flux, m_phi), magnet)
+        instr = phase_delay(drive_phi, force, fs, f_true, harmonic=k, harmonics=HARMONICS, exclude=(m_phi, m_f),
+                            outlier_sigmas=None)
+        total = phase_delay(drive_i, force, fs, f_true, harmonic=k, harmonics=HARMONICS, exclude=(m_i, m_f),
+                            outlier_sigmas=None)
     explained = check_fit_quality(rec, f_true, {"current_A": (hyst.x, 1), "flux_Wb": (hyst.y, 1),
                                                 "force_N": (instr.y, k)})
     delays = {"hysteresis": float(hyst.delay_s), "instrument": float(instr.delay_s), "total": float(total.delay_s)}
     stds = {"hysteresis": float(hyst.delay_se_s), "instrument": float(instr.delay_se_s),
             "total": float(total.delay_se_s)}
-    return MethodDelays(f_true, float(hyst.freq_se_hz), k, delays, stds, f0, rec.current_pp_a, where, explained)
+    outliers = {c: np.flatnonzero(m).tolist() for c, m in masks.items() if m.any()}
+    return MethodDelays(f_true, float(hyst.freq_se_hz), k, delays, stds, f0, rec.current_pp_a, where, explained,
+                        outliers)
 
 
-def covariance_delays(rec: Recording, frequency_hz: float | None = None) -> dict[str, float]:
+def covariance_delays(rec: Recording, frequency_hz: float | None = None,
+                      outliers: dict[str, np.ndarray] | None = None) -> dict[str, float]:
     """The paper's Eq. 3 delays (s): the lag of the covariance maximum, one-sample resolution.
 
     Same pairs as :func:`measure_delays`; the search spans one period of the compared signals
-    (of f with magnet, of 2f without), at ``frequency_hz`` (default: the nominal frequency)."""
+    (of f with magnet, of 2f without), at ``frequency_hz`` (default: the nominal frequency).
+    Outlier samples (``outliers``, masks by channel; default: found as the fits find them) are
+    interpolated from their neighbours, as the method needs every sample."""
     where = recording_name(rec)
     magnet = _require_ecore(rec)
-    ch = check_channels(rec, ("current_A", "flux_Wb", "force_N"))
+    names = ("current_A", "flux_Wb", "force_N")
+    ch = check_channels(rec, names)
+    masks = find_outliers(rec, names) if outliers is None else outliers
+    ch = {c: _filled(x, masks[c]) if c in masks else x for c, x in ch.items()}
     f = rec.frequency_hz if frequency_hz is None else float(frequency_hz)
     k = 1 if magnet else 2
     drive_i, drive_phi = _drives(ch["current_A"], ch["flux_Wb"], magnet)
@@ -246,7 +341,8 @@ def estimate(rec: Recording) -> dict:
     frequency; the covariance method's delays (paper Eq. 3) beside the sine-fit ones; and the rig
     preset's instrument model (paper Figs. 8-9) at the force's frequency for comparison."""
     d = measure_delays(rec)
-    cov = covariance_delays(rec, d.frequency_hz)
+    masks = {c: np.isin(np.arange(rec.n), v) for c, v in d.outliers.items()}
+    cov = covariance_delays(rec, d.frequency_hz, masks)
     f = d.frequency_hz
     model = presets.instrument(load_rig(rec.rig))
     model_delay = float(model.delay_s(d.harmonic * f))

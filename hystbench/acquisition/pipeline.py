@@ -321,6 +321,11 @@ class Pipeline:
             for e in est.estimates():
                 e["t_ns"] = self.index_time_ns(e["end_index"])
                 window = e.pop("window", None)  # samples for a learning compensator, never published
+                if e.get("outliers"):
+                    from .method import outlier_summary
+
+                    self.status("warning", "outliers", f"window [{e['first_index']}..{e['end_index']}): left out "
+                                f"{outlier_summary(e['outliers'])}", outliers=e["outliers"])
                 self.emit(ESTIMATE, e)
                 if self.compensator is not None:
                     state = self.compensator(e, window)

@@ -42,7 +42,8 @@ class WindowEstimator:
     ``append`` copies the samples in (so a ring view can be released at once); ``estimates``
     returns the windows completed since.  E-core rigs get :func:`~.method.measure_delays` with all
     its checks; other rigs the plain :func:`~.estimation.phase_delay` of force (and flux) behind
-    current.  A window the method refuses gives an estimate with ``error`` set.
+    current.  A window the method refuses gives an estimate with ``error`` set; gross outliers are
+    left out of the fits and named by source sample index under ``outliers`` (channel -> indices).
 
     Each estimate names the waveform ``table`` its samples were played with.  With
     ``keep_windows`` it also carries its samples under ``window`` (``fs_Hz`` and ``channels``,
@@ -172,14 +173,21 @@ class WindowEstimator:
             else:
                 x = chans["current_A"]
                 delays, stds, f, fse = {}, {}, self._f, 0.0
-                for name, y in (("total", chans.get("force_N")), ("hysteresis", chans.get("flux_Wb"))):
-                    if y is not None:
-                        r = phase_delay(x, y, fs, self._f)
+                found: dict[str, set[int]] = {}
+                for name, c in (("total", "force_N"), ("hysteresis", "flux_Wb")):
+                    if chans.get(c) is not None:
+                        r = phase_delay(x, chans[c], fs, self._f)
                         delays[name], stds[name] = float(r.delay_s), float(r.delay_se_s)
                         f, fse = float(r.freq_hz), float(r.freq_se_hz)
+                        found.setdefault("current_A", set()).update(r.x.outliers.tolist())
+                        found.setdefault(c, set()).update(r.y.outliers.tolist())
+                outliers = {c: sorted(v) for c, v in found.items() if v}
                 out.update({"frequency_Hz": f, "frequency_std_Hz": fse, "harmonic": 1, "delays_s": delays,
                             "delays_std_s": stds, "phases_deg": {k: 360 * f * v for k, v in delays.items()},
-                            "phases_std_deg": {k: 360 * f * v for k, v in stds.items()}})
+                            "phases_std_deg": {k: 360 * f * v for k, v in stds.items()},
+                            "outliers": outliers, "outliers_excluded": bool(outliers)})
+            # window sample -> source sample index (the first of its group when decimated)
+            out["outliers"] = {c: [a + self.decimate * i for i in v] for c, v in out["outliers"].items()}
         except (BenchError, ValueError) as err:
             self.errors += 1
             out["error"] = str(err)

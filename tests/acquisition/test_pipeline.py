@@ -298,10 +298,13 @@ def test_record_through_the_drivers_and_the_emulated_instruments(tmp_path: Path,
     assert "60000 samples x 4 channels" in capsys.readouterr().out
     bl = list(iter_blocks(log))
     assert all(b.first_index == a.end_index for a, b in zip(bl, bl[1:]))  # aligned, nothing lost
-    # the switch-on is marked settling: the marks form a prefix (how much of it was logged depends
-    # on how fast the bench came up under load), and the end of the record is settled
+    # the first samples (before the switch-on command, applied once the streams deliver) are off;
+    # then the switch-on is marked settling, and the rest of the record is settled
+    off = [b.meta["output_on"] == 0.0 for b in bl]
+    assert off == sorted(off, reverse=True)
+    bl = bl[sum(off):]
     settling = [bool(b.meta.get("settling")) for b in bl]
-    assert settling == sorted(settling, reverse=True) and not settling[-1]
+    assert settling[0] and settling == sorted(settling, reverse=True) and not settling[-1]
     # ... and the current really came on inside the marks (counted from the first sample, not from 0):
     # every period after them carries the full 1.4 A-pp
     settled = concatenate([b for b, s_ in zip(bl, settling) if not s_])

@@ -3,6 +3,9 @@
 - :func:`phase_delay` — delay of y behind x from a joint least-squares sine fit (IEEE Std
   1057/1241, frequency estimated); reaches the Cramer-Rao bound.
 - :func:`sine_fit` — the single-channel fit: DC + chosen harmonics, three- or four-parameter.
+  Both fits leave gross outliers out (``outlier_sigmas``, default :data:`OUTLIER_SIGMAS` robust
+  standard deviations off the fit) and say which (``excluded``); :func:`find_outliers` finds those
+  of several channels of one recording in one joint fit.
 - :func:`covariance_delay` — the paper's Eq. 3: lag of the covariance maximum, one-sample
   resolution; the reference the fit is compared with.
 - :func:`phase_difference_crlb`, :func:`delay_crlb`, :func:`sine_snr` — the bounds.
@@ -21,16 +24,20 @@ from hystbench.errors import EstimationError
 
 from .covariance import CovarianceDelay, covariance_delay
 from .crlb import delay_crlb, phase_difference_crlb, sine_snr
-from .sinefit import Harmonic, PhaseDelay, SineFit, phase_delay, sine_fit
+from .sinefit import (OUTLIER_SIGMAS, Harmonic, PhaseDelay, SineFit, find_outliers, gross_outliers, phase_delay,
+                      sine_fit)
 
 __all__ = [
     "sine_fit",
     "phase_delay",
+    "find_outliers",
+    "gross_outliers",
     "covariance_delay",
     "phase_difference_crlb",
     "delay_crlb",
     "sine_snr",
     "estimation_errors",
+    "OUTLIER_SIGMAS",
     "SineFit",
     "Harmonic",
     "PhaseDelay",

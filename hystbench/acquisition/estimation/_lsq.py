@@ -17,6 +17,9 @@ when the last step moves the phase at the record ends by less than ``tol`` or is
 the frequency's standard error (steps that small are lost in the rounding of ``L``).
 
 Everything is vectorised over records ``b``; records that have converged drop out of the loop.
+Samples can be left out per channel (``mask``, e.g. outliers): they then weigh nothing, exactly as
+if they were not there (the Gram matrix loses their outer products, the degrees of freedom their
+count), while the time axis stays uniform.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ class Solution:
 
     freq: np.ndarray  # (B,) Hz
     coef: np.ndarray  # (B, C, p): [d, a_1, s_1, a_2, s_2, ...]
+    dof: np.ndarray  # (B, C) residual degrees of freedom
     cov: np.ndarray  # (B, q, q), q = C p (+1 if fit_freq, frequency last)
     sigma2: np.ndarray  # (B, C) residual noise variance
     iterations: np.ndarray  # (B,) int
@@ -43,21 +47,38 @@ class Solution:
 
 
 def _basis(f: np.ndarray, ks: np.ndarray, tau: np.ndarray) -> np.ndarray:
-    """Regressors (b, p, N): a row of ones, then cos, sin for each harmonic."""
-    phase = (_TWO_PI * f)[:, None, None] * ks[None, :, None] * tau[None, None, :]
+    """Regressors (b, p, N): a row of ones, then cos, sin for each harmonic.  One cos and one sin
+    of the fundamental; the harmonics follow by angle addition (k x eps of rounding at most)."""
+    phase = (_TWO_PI * f)[:, None] * tau[None, :]
     basis = np.empty((f.shape[0], 1 + 2 * ks.size, tau.size))
     basis[:, 0] = 1.0
-    np.cos(phase, out=basis[:, 1::2])
-    np.sin(phase, out=basis[:, 2::2])
+    c1, s1 = np.cos(phase), np.sin(phase)
+    c, s = c1, s1
+    rows = {int(k): j for j, k in enumerate(ks)}
+    for k in range(1, int(ks[-1]) + 1):
+        if k > 1:
+            c, s = c * c1 - s * s1, s * c1 + c * s1
+        if k in rows:
+            basis[:, 1 + 2 * rows[k]] = c
+            basis[:, 2 + 2 * rows[k]] = s
     return basis
 
 
-def _linear(x: np.ndarray, basis: np.ndarray):
-    """Linear LS at fixed frequency: coefficients (b, C, p), residuals (b, C, N), Gram (b, p, p)."""
+def _linear(x: np.ndarray, basis: np.ndarray, mask: np.ndarray | None):
+    """Linear LS at fixed frequency: coefficients (b, C, p), residuals (b, C, N) (0 where masked),
+    Gram matrices (b, 1, p, p), or (b, C, p, p) per channel with a ``mask`` of left-out samples
+    (``x`` must hold 0 there)."""
     bt = np.swapaxes(basis, -1, -2)
-    gram = basis @ bt
-    coef = np.linalg.solve(gram[:, None], (x @ bt)[..., None])[..., 0]
+    gram = (basis @ bt)[:, None]
+    if mask is not None:  # few samples left out: subtract their outer products
+        gram = np.repeat(gram, x.shape[1], axis=1)
+        for b, c in zip(*np.nonzero(mask.any(axis=-1))):
+            e = basis[b][:, mask[b, c]]
+            gram[b, c] -= e @ e.T
+    coef = np.linalg.solve(gram, (x @ bt)[..., None])[..., 0]
     resid = x - coef @ basis
+    if mask is not None:
+        resid[mask] = 0.0
     return coef, resid, gram
 
 
@@ -77,22 +98,29 @@ def solve(
     fit_freq: bool,
     max_iter: int,
     tol: float,
+    mask: np.ndarray | None = None,
 ) -> Solution:
-    """Fit records ``x`` of shape (B, C, N) starting from frequencies ``f0`` (B,)."""
+    """Fit records ``x`` of shape (B, C, N) starting from frequencies ``f0`` (B,); ``mask`` (B, C,
+    N, bool) marks samples to leave out (their values are not used)."""
     nb, nc, n = x.shape
+    if mask is not None and not mask.any():
+        mask = None
+    if mask is not None:
+        x = np.where(mask, 0.0, x)
     ks = np.asarray(harmonics, dtype=np.float64)
     p = 1 + 2 * ks.size
     tau = (np.arange(n) - (n - 1) / 2.0) / fs
     duration = n / fs
     max_step = 0.25 / (ks[-1] * duration)  # a quarter DFT bin of the highest harmonic
+    used = np.full((nb, nc), float(n)) if mask is None else n - mask.sum(axis=-1).astype(np.float64)
     # rounding floor of S_c, keeps log S and the weights finite for noiseless data
-    dof = n - p - (1.0 / nc if fit_freq else 0.0)  # residual degrees of freedom per channel
-    floor = n * (64.0 * _EPS * np.sqrt(np.mean(x * x, axis=-1))) ** 2 + np.finfo(np.float64).tiny
+    dof = used - p - (1.0 / nc if fit_freq else 0.0)  # residual degrees of freedom per channel
+    floor = used * (64.0 * _EPS * np.sqrt(np.sum(x * x, axis=-1) / used)) ** 2 + np.finfo(np.float64).tiny
 
     freq = np.array(f0, dtype=np.float64)
     coef = np.zeros((nb, nc, p))
     ssq = np.zeros((nb, nc))
-    gram = np.zeros((nb, p, p))
+    gram = np.zeros((nb, 1 if mask is None else nc, p, p))
     bg = np.zeros((nb, nc, p))
     gg = np.zeros((nb, nc))
     iterations = np.zeros(nb, dtype=np.int64)
@@ -100,7 +128,7 @@ def solve(
 
     if not fit_freq:
         basis = _basis(freq, ks, tau)
-        coef, resid, gram = _linear(x, basis)
+        coef, resid, gram = _linear(x, basis, mask)
         ssq = np.einsum("bcn,bcn->bc", resid, resid)
         iterations[:] = 1
         converged[:] = True
@@ -111,9 +139,10 @@ def solve(
         active = np.arange(nb)
         for it in range(1, max_iter + 1):
             xa = x if active.size == nb else x[active]
+            ma = None if mask is None else mask if active.size == nb else mask[active]
             f_try = freq[active] + step[active]
             basis = _basis(f_try, ks, tau)
-            c_try, resid, g_try = _linear(xa, basis)
+            c_try, resid, g_try = _linear(xa, basis, ma)
             s_try = np.einsum("bcn,bcn->bc", resid, resid)
             cost = np.sum(np.log(s_try + floor[active]), axis=-1)
             iterations[active] = it
@@ -129,17 +158,19 @@ def solve(
             # Gauss-Newton step (variable projection) for the records that improved
             basis, resid, c_try, g_try = basis[better], resid[better], c_try[better], g_try[better]
             g = _freq_column(c_try, basis, ks, tau)
+            if ma is not None:
+                g[ma[better]] = 0.0
             g_b = g @ np.swapaxes(basis, -1, -2)  # (b, C, p)
             g_g = np.einsum("bcn,bcn->bc", g, g)
             bg[keep], gg[keep] = g_b, g_g
             g_r = np.einsum("bcn,bcn->bc", g, resid)
-            proj = np.einsum("bcp,bcp->bc", g_b, np.linalg.solve(g_try[:, None], g_b[..., None])[..., 0])
+            proj = np.einsum("bcp,bcp->bc", g_b, np.linalg.solve(g_try, g_b[..., None])[..., 0])
             weight = 1.0 / (ssq[keep] + floor[keep])
             num = np.sum(weight * g_r, axis=-1)
             den = np.sum(weight * np.maximum(g_g - proj, 0.0), axis=-1)
             with np.errstate(divide="ignore", invalid="ignore"):
                 new_step = np.where(den > 0.0, num / den, 0.0)
-                f_se[keep] = 1.0 / np.sqrt(dof * den)
+                f_se[keep] = 1.0 / np.sqrt(np.min(dof[keep], axis=-1) * den)
             step[keep] = np.clip(new_step, -max_step, max_step)
             worse = active[~better]
             step[worse] *= 0.5
@@ -158,7 +189,7 @@ def solve(
     for c in range(nc):
         blk = slice(c * p, (c + 1) * p)
         w = (1.0 / sigma2[:, c])[:, None]
-        info[:, blk, blk] = gram * w[..., None]
+        info[:, blk, blk] = gram[:, min(c, gram.shape[1] - 1)] * w[..., None]
         info[:, blk, -1] = bg[:, c] * w
         info[:, -1, blk] = bg[:, c] * w
         info[:, -1, -1] += gg[:, c] * w[:, 0]
@@ -167,7 +198,7 @@ def solve(
     scale = np.sqrt(np.diagonal(info, axis1=-2, axis2=-1))
     outer = scale[:, :, None] * scale[:, None, :]
     cov = np.linalg.inv(info / outer) / outer
-    return Solution(freq, coef, cov, sigma2, iterations, converged)
+    return Solution(freq, coef, dof, cov, sigma2, iterations, converged)
 
 
 def fft_peak_freq(x: np.ndarray, fs: float) -> np.ndarray:

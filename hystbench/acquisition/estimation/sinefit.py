@@ -10,20 +10,26 @@ with the frequency error, so the frequency can be estimated (four-parameter fit)
 phase accuracy.  Standard errors come from the least-squares covariance matrix scaled by the
 residual noise variance; for white noise they reach the Cramer-Rao bound (:mod:`.crlb`).
 
+Gross outliers (a glitch, a spike: samples many robust standard deviations off the fitted
+waveform) are found per channel and left out of the fit (``outlier_sigmas``; see
+:mod:`._outliers`); the result's ``excluded`` says which samples were.
+
 Delays follow the design convention: positive means ``y`` lags ``x``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 
-from . import _checks, _lsq
+from . import _checks, _lsq, _outliers
+from ._outliers import OUTLIER_SIGMAS
 
-__all__ = ["SineFit", "Harmonic", "PhaseDelay", "sine_fit", "phase_delay"]
+__all__ = ["SineFit", "Harmonic", "PhaseDelay", "sine_fit", "phase_delay", "find_outliers", "gross_outliers",
+           "OUTLIER_SIGMAS"]
 
 _TWO_PI = 2.0 * np.pi
 
@@ -68,6 +74,8 @@ class SineFit:
         Gauss-Newton iterations used (1 for a fit at a given frequency).
     converged : ndarray of bool
         False if ``max_iter`` ran out before the frequency step fell below ``tol``.
+    excluded : ndarray of bool, shape (..., N)
+        Samples left out of the fit (outliers found, or excluded by the caller), time last.
     """
 
     freq_hz: np.ndarray
@@ -84,6 +92,14 @@ class SineFit:
     n_samples: int
     iterations: np.ndarray
     converged: np.ndarray
+    excluded: np.ndarray
+
+    @property
+    def outliers(self) -> np.ndarray:
+        """Indices of the samples left out of a single record's fit (ascending)."""
+        if self.excluded.ndim != 1:
+            raise ValueError("outliers: the fit is batched; use excluded (a mask per record)")
+        return np.flatnonzero(self.excluded)
 
     def component(self, k: int) -> Harmonic:
         """Amplitude, phase and their standard errors of harmonic ``k``."""
@@ -125,8 +141,35 @@ class PhaseDelay:
     y: SineFit
 
 
-def _prepare(records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis):
-    """Validate; return (B, C, N) data, batch shape, start frequencies, fs and harmonics."""
+def _exclusions(exclude, arrays, names, axis) -> np.ndarray | None:
+    """The caller's masks of samples to leave out, as (B, C, N) bool (None: none)."""
+    if exclude is None:
+        return None
+    if len(exclude) != len(arrays):
+        raise ValueError(f"exclude must give one mask (or None) per channel, {len(arrays)}; got {len(exclude)}")
+    out = []
+    for m, arr, name in zip(exclude, arrays, names):
+        if m is None:
+            out.append(np.zeros(arr.shape, dtype=bool))
+            continue
+        m = np.asarray(m)
+        if m.dtype != bool:
+            raise ValueError(f"exclude for {name} must be a boolean mask, got dtype {m.dtype}")
+        try:
+            m = np.moveaxis(m, axis, -1)
+        except np.exceptions.AxisError as err:
+            raise ValueError(f"exclude for {name} has shape {m.shape}, {name} {arr.shape}") from err
+        if m.shape != arr.shape:
+            raise ValueError(f"exclude for {name} has shape {m.shape} (time last), {name} {arr.shape}")
+        out.append(m)
+    mask = np.stack([m.reshape(-1, m.shape[-1]) for m in out], axis=1)
+    return mask if mask.any() else None
+
+
+def _prepare(records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis, exclude,
+             outlier_sigmas):
+    """Validate; return (B, C, N) data, batch shape, start frequencies, fs, harmonics, tol, the
+    caller's exclusions and the first fit's mask (both (B, C, N) or None) and the threshold."""
     fs = _checks.check_fs(fs)
     ks = _checks.check_harmonics(harmonics)
     if freq_hz is not None:
@@ -135,6 +178,8 @@ def _prepare(records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_i
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
     search_ppm = _checks.check_nonnegative(search_ppm, "search_ppm", allow_zero=True)
     tol = _checks.check_nonnegative(tol, "tol")
+    if outlier_sigmas is not None:
+        outlier_sigmas = _checks.check_nonnegative(outlier_sigmas, "outlier_sigmas")
     if freq_hz is None and not fit_freq:
         raise ValueError("freq_hz must be given when fit_freq is False")
     arrays = [_checks.as_record(r, name, axis) for r, name in zip(records, names)]
@@ -148,21 +193,38 @@ def _prepare(records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_i
         _checks.check_not_flat(arr, name)
     batch = arrays[0].shape[:-1]
     data = np.stack([a.reshape(-1, a.shape[-1]) for a in arrays], axis=1)  # (B, C, N)
+    excluded = _exclusions(exclude, arrays, names, axis)
+    mask = _outliers.initial_mask(data, excluded, outlier_sigmas)
+    clean = data  # for the start frequency: a left-out sample takes its channel's median
+    if mask is not None:
+        clean = np.where(mask, np.median(data, axis=-1, keepdims=True), data)
     if freq_hz is None:
-        f0 = _lsq.fft_peak_freq(data, fs) / ks[0]
+        f0 = _lsq.fft_peak_freq(clean, fs) / ks[0]
         f_max = float(np.max(f0))
         if ks[-1] * f_max >= fs / 2.0:
             raise ValueError(f"harmonics: {ks[-1]} x the estimated {f_max:g} Hz is above fs/2 = {fs / 2:g} Hz")
         for arr, name in zip(arrays, names):
             _checks.check_length(arr, name, fs, float(np.min(f0)), n_params)
     elif fit_freq:
-        f0 = _lsq.grid_start(data, fs, freq_hz, ks, 1e-6 * search_ppm * freq_hz)
+        f0 = _lsq.grid_start(clean, fs, freq_hz, ks, 1e-6 * search_ppm * freq_hz)
     else:
         f0 = np.full(data.shape[0], freq_hz)
-    return data, batch, f0, fs, ks, tol
+    return data, batch, f0, fs, ks, tol, excluded, mask, outlier_sigmas
 
 
-def _channel_fit(sol: _lsq.Solution, c: int, ks, fs, n, batch, fit_freq) -> SineFit:
+def _solve(records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis, exclude,
+           outlier_sigmas):
+    """Validate, fit (leaving out outliers and exclusions); (solution, mask, data, batch, fs, ks)."""
+    data, batch, f0, fs, ks, tol, excluded, mask, sigmas = _prepare(
+        records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis, exclude, outlier_sigmas)
+    sol, mask = _outliers.robust_solve(data, fs, f0, ks, fit_freq=fit_freq, max_iter=int(max_iter), tol=tol,
+                                       exclude=excluded, mask=mask, sigmas=sigmas, names=tuple(names))
+    if mask is None:
+        mask = np.zeros(data.shape, dtype=bool)
+    return sol, mask, data, batch, fs, ks
+
+
+def _channel_fit(sol: _lsq.Solution, c: int, ks, fs, n, batch, fit_freq, mask) -> SineFit:
     p = 1 + 2 * len(ks)
     coef = sol.coef[:, c]
     cov = sol.cov[:, c * p : (c + 1) * p, c * p : (c + 1) * p]
@@ -194,6 +256,7 @@ def _channel_fit(sol: _lsq.Solution, c: int, ks, fs, n, batch, fit_freq) -> Sine
         n_samples=n,
         iterations=shaped(sol.iterations),
         converged=shaped(sol.converged),
+        excluded=mask[:, c].reshape(batch + (n,)),
     )
 
 
@@ -208,6 +271,8 @@ def sine_fit(
     axis: int = -1,
     max_iter: int = 50,
     tol: float = 1e-10,
+    exclude: np.ndarray | None = None,
+    outlier_sigmas: float | None = OUTLIER_SIGMAS,
 ) -> SineFit:
     """Least-squares fit of a DC offset and harmonics of one frequency to a record.
 
@@ -244,11 +309,18 @@ def sine_fit(
         Stop when the last frequency step moves the phase of the highest harmonic at the record
         ends by less than this (rad, default 1e-10), or is below 1e-6 of the frequency's
         standard error.
+    exclude : array_like of bool, optional
+        Samples to leave out of the fit whatever their values (same shape as ``x``).
+    outlier_sigmas : float or None, optional
+        Leave out samples whose residual is more than this many robust standard deviations (1.4826
+        x the median absolute deviation of the residuals) off, refitting until the set settles
+        (default 9: Gaussian noise never trips it); None keeps every sample.
 
     Returns
     -------
     SineFit
-        Frequency, amplitudes, phases at the record centre, offset, their standard errors.
+        Frequency, amplitudes, phases at the record centre, offset, their standard errors, and
+        the samples left out (``excluded``, ``outliers``).
 
     Raises
     ------
@@ -268,9 +340,9 @@ def sine_fit(
     >>> print(f"{fit.freq_hz:.4f} Hz  A={fit.amplitude[0]:.6f}  phi={fit.phase_rad[0]:.6f}  dc={fit.offset:.6f}")
     320.0100 Hz  A=2.000000  phi=0.300000  dc=0.500000
     """
-    data, batch, f0, fs, ks, tol = _prepare((x,), ("x",), fs, freq_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis)
-    sol = _lsq.solve(data, fs, f0, ks, fit_freq=fit_freq, max_iter=int(max_iter), tol=tol)
-    return _channel_fit(sol, 0, ks, fs, data.shape[-1], batch, fit_freq)
+    sol, mask, data, batch, fs, ks = _solve((x,), ("x",), fs, freq_hz, harmonics, fit_freq, search_ppm, max_iter,
+                                            tol, axis, None if exclude is None else (exclude,), outlier_sigmas)
+    return _channel_fit(sol, 0, ks, fs, data.shape[-1], batch, fit_freq, mask)
 
 
 def phase_delay(
@@ -286,6 +358,8 @@ def phase_delay(
     axis: int = -1,
     max_iter: int = 50,
     tol: float = 1e-10,
+    exclude: tuple[np.ndarray | None, np.ndarray | None] | None = None,
+    outlier_sigmas: float | None = OUTLIER_SIGMAS,
 ) -> PhaseDelay:
     """Delay of ``y`` behind ``x`` at one harmonic, from a joint least-squares sine fit.
 
@@ -309,8 +383,10 @@ def phase_delay(
         Harmonic k at which the delay is read (default 1; 2 for force against squared flux).
     harmonics : int or iterable of int, optional
         Harmonics fitted in both channels (default: ``harmonic`` only); must include ``harmonic``.
-    fit_freq, search_ppm, axis, max_iter, tol
-        As in :func:`sine_fit`.
+    fit_freq, search_ppm, axis, max_iter, tol, outlier_sigmas
+        As in :func:`sine_fit`; outliers are found in each channel.
+    exclude : (mask or None, mask or None), optional
+        Samples of x and of y to leave out of the fit, as in :func:`sine_fit`.
 
     Returns
     -------
@@ -341,11 +417,11 @@ def phase_delay(
     ks = _checks.check_harmonics(harmonic if harmonics is None else harmonics)
     if harmonic not in ks:
         raise ValueError(f"harmonic {harmonic} is not among the fitted harmonics {ks}")
-    data, batch, f0, fs, ks, tol = _prepare((x, y), ("x", "y"), fs, freq_hz, ks, fit_freq, search_ppm, max_iter, tol, axis)
-    sol = _lsq.solve(data, fs, f0, ks, fit_freq=fit_freq, max_iter=int(max_iter), tol=tol)
+    sol, mask, data, batch, fs, ks = _solve((x, y), ("x", "y"), fs, freq_hz, ks, fit_freq, search_ppm, max_iter, tol,
+                                            axis, exclude, outlier_sigmas)
     n = data.shape[-1]
-    fit_x = _channel_fit(sol, 0, ks, fs, n, batch, fit_freq)
-    fit_y = _channel_fit(sol, 1, ks, fs, n, batch, fit_freq)
+    fit_x = _channel_fit(sol, 0, ks, fs, n, batch, fit_freq, mask)
+    fit_y = _channel_fit(sol, 1, ks, fs, n, batch, fit_freq, mask)
 
     # gradient of the phase difference with respect to (cos, sin) coefficients of both channels
     p = 1 + 2 * len(ks)
@@ -383,3 +459,55 @@ def phase_delay(
         x=fit_x,
         y=fit_y,
     )
+
+
+def find_outliers(
+    records: Sequence[np.ndarray],
+    fs: float,
+    freq_hz: float | None,
+    *,
+    harmonics: int | Iterable[int] = 1,
+    names: Sequence[str] | None = None,
+    outlier_sigmas: float = OUTLIER_SIGMAS,
+    search_ppm: float = 200.0,
+) -> tuple[list[np.ndarray], float]:
+    """Gross outliers of several 1-D channels sampled together, from one joint fit.
+
+    The channels share the frequency (one generator, one clock), so one fit of them all finds the
+    frequency and each channel's outliers (as :func:`sine_fit` would, with ``outlier_sigmas``) for
+    the price of one: the channels' masks (True: an outlier) and the fitted frequency (Hz).
+    ``names`` name the channels in errors (default ``x0``, ``x1``...).
+
+    >>> import numpy as np
+    >>> t = np.arange(5000) / 10_000.0
+    >>> i, f = np.sin(2 * np.pi * 320 * t), 175 + 45 * np.sin(2 * np.pi * 320 * t - 0.1)
+    >>> f[1234] = 1e6
+    >>> masks, freq = find_outliers([i, f], 10_000.0, 320.0, names=["current_A", "force_N"])
+    >>> [np.flatnonzero(m).tolist() for m in masks], round(freq, 6)
+    ([[], [1234]], 320.0)
+    """
+    names = tuple(names) if names is not None else tuple(f"x{k}" for k in range(len(records)))
+    if len(names) != len(records) or not records:
+        raise ValueError(f"names must name each of the {len(records)} records, got {list(names)}")
+    if any(np.ndim(r) != 1 for r in records):
+        raise ValueError("find_outliers takes 1-D records (one recording's channels)")
+    sol, mask, *_ = _solve(tuple(records), names, fs, freq_hz, harmonics, True, search_ppm, 50, 1e-10, -1, None,
+                           outlier_sigmas)
+    return [mask[0, c] for c in range(len(records))], float(sol.freq[0])
+
+
+def gross_outliers(x: np.ndarray) -> np.ndarray:
+    """Samples of a 1-D record too far out for any fit to start from (more than ``GROSS_MADS``
+    median absolute deviations from the median; none if that would be more than 1 % of them), as
+    the fits take them out first: what a range or clipping check must not look at.
+
+    >>> x = np.sin(np.linspace(0, 20, 1000))
+    >>> x[[10, 500]] = 1e308, -50.0
+    >>> np.flatnonzero(gross_outliers(x)).tolist()
+    [10]
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 1:
+        raise ValueError(f"x must be a 1-D record, got shape {x.shape}")
+    mask = _outliers.initial_mask(x[None, None, :], None, OUTLIER_SIGMAS)
+    return np.zeros(x.shape, dtype=bool) if mask is None else mask[0, 0]
