@@ -1,13 +1,22 @@
 """The emulated bench: one SimulatedRig behind the four emulated instruments, on one sample clock.
 
-A clock thread reads the rig block by block (paced to real time) and hands every block to each
-instrument, which streams its own channel: command_V from the generator, current_A from the
-amplifier's monitor, force_N from the charge amplifier, flux_Wb from the integrator.  The
-generator's and amplifier's settings set the rig's excitation, gain and output enable.
+A clock thread reads the rig block by block and hands every block to each instrument, which
+streams its own channel: command_V from the generator, current_A from the amplifier's monitor,
+force_N from the charge amplifier, flux_Wb from the integrator.  The generator's and amplifier's
+settings set the rig's excitation, gain and output enable.
+
+The sample clock is the emulator's only time.  Paced to real time, it never runs ahead of the wall
+clock; when the machine is too busy for 100 kS/s it falls behind and simply goes on from where it
+is, sample after sample: a short hiccup (up to ``CATCH_UP_S``) is caught up at once, a longer one
+is not (a burst of seconds of frames would overflow the transports and starve the readers), so
+no stream is ever dropped or stalled because the emulator was late; it only runs slower than real
+time (``pacer.slipped_s`` says by how much).  Everything an emulator times (the amplifier's
+watchdog, stream faults armed at a sample index) counts on this clock.
 """
 
 from __future__ import annotations
 
+import collections
 import itertools
 import os
 import threading
@@ -22,9 +31,32 @@ from .current_amplifier import CurrentAmplifierEmulator
 from .flux_integrator import FluxIntegratorEmulator
 from .signal_generator import SignalGeneratorEmulator
 
-__all__ = ["EmulatedBench"]
+__all__ = ["EmulatedBench", "Pacer"]
 
 _channels = itertools.count()
+
+#: The most the clock catches up at once after falling behind real time, in seconds of samples.
+CATCH_UP_S = 0.02
+
+
+class Pacer:
+    """When the sample clock's next block is due: never ahead of real time; behind by up to
+    ``catch_up_s`` it catches up at once, behind by more it goes on from where it is (the time lost
+    is ``slipped_s``), so falling behind never turns into a burst of frames."""
+
+    def __init__(self, fs_hz: float, start_s: float, start_index: int, catch_up_s: float = CATCH_UP_S) -> None:
+        self.fs_hz, self.start_s, self.start_index, self.catch_up_s = fs_hz, start_s, start_index, catch_up_s
+        self.late_s = 0.0  # how far behind real time the clock was at worst
+        self.slipped_s = 0.0  # real time given up in all
+
+    def wait_s(self, end_index: int, now_s: float) -> float:
+        """Seconds to wait before producing the samples from ``end_index`` on, at time ``now_s``."""
+        due = self.start_s + self.slipped_s + (end_index - self.start_index) / self.fs_hz
+        lag = now_s - due
+        self.late_s = max(self.late_s, lag)
+        if lag > self.catch_up_s:  # go on from here at the sample rate: the same samples, later
+            self.slipped_s += lag
+        return max(0.0, -lag)
 
 
 class EmulatedBench:
@@ -57,11 +89,14 @@ class EmulatedBench:
                                                  true_turns=self.rig.sense_turns)
         self.emulators = {"signal_generator": self.generator, "current_amplifier": self.amplifier,
                           "charge_amplifier": self.charge_amp, "flux_integrator": self.integrator}
+        self.next_index = 0  # the sample clock: first index of the next block (the rig starts at 0)
+        #: the newest changes of the rig's settings: (first sample index generated with them, settings)
+        self.changes: collections.deque[tuple[int, dict[str, Any]]] = collections.deque(maxlen=1000)
         self._update()
         self._stop = threading.Event()
         self._clock: threading.Thread | None = None
         self.blocks = 0
-        self.late_s = 0.0  # how far the clock fell behind real time at worst
+        self.pacer: Pacer | None = None  # paces the clock (pace = "realtime"); its late_s, slipped_s
         self.taps: list = []  # callables given every rig block (the truth), e.g. by tests
 
     @property
@@ -88,6 +123,11 @@ class EmulatedBench:
             else:
                 self.rig.set_excitation(float(g["frequency_hz"]), amp_a, off_a)
             self.rig.output_enabled = bool(g["output"]) and a.output_on
+            now = {"output": self.rig.output_enabled, "function": g["function"],
+                   "frequency_hz": float(g["frequency_hz"]), "amplitude_a": amp_a, "offset_a": off_a,
+                   "uploads": self.generator.uploads}
+            if not self.changes or self.changes[-1][1] != now:
+                self.changes.append((self.next_index, now))
 
     # --- the sample clock ---------------------------------------------------------------------------------
     def start(self) -> "EmulatedBench":
@@ -97,28 +137,29 @@ class EmulatedBench:
             self._clock.start()
         return self
 
+    @property
+    def late_s(self) -> float:
+        """How far the clock fell behind real time at worst (before going on from there)."""
+        return self.pacer.late_s if self.pacer is not None else 0.0
+
     def _run(self) -> None:
-        t0 = time.monotonic()
-        n0 = None
+        if self.pace == "realtime":
+            self.pacer = Pacer(self.fs_hz, time.monotonic(), self.next_index)
         while not self._stop.is_set():
             with self._rig_lock:
                 block = self.rig.read(self.block_samples)
-            if n0 is None:
-                n0 = block.first_index
+                self.next_index = block.end_index
             for tap in list(self.taps):
                 tap(block)
             for emu in self.emulators.values():
+                emu.faults.clock_index = block.first_index
                 try:
                     emu.on_block(block)
                 except Exception as err:  # one emulator's trouble must not stop the clock
                     log.error("%s: block %d: %s", emu.kind, block.first_index, err)
             self.blocks += 1
-            if self.pace == "realtime":
-                due = t0 + (block.end_index - n0) / self.fs_hz
-                lag = time.monotonic() - due
-                self.late_s = max(self.late_s, lag)
-                if lag < 0:
-                    self._stop.wait(-lag)
+            if self.pacer is not None and (wait := self.pacer.wait_s(block.end_index, time.monotonic())) > 0:
+                self._stop.wait(wait)
 
     def close(self) -> None:
         self._stop.set()

@@ -9,7 +9,6 @@ rig's own instrument model (load cell, frame, the amplifier's fixed 31 kHz low-p
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 from scipy import signal
@@ -148,14 +147,13 @@ class ChargeAmplifierEmulator:
             buf += data
             while ca.EOL in buf:
                 raw, buf = buf.split(ca.EOL, 1)
-                if self.faults.silent:
+                if self.faults.is_silent():
                     continue
                 reply = self.handle(raw.decode("ascii", "replace").strip())
-                if self.faults.take("drop_replies"):
+                if not self.faults.before_reply():
                     continue
-                if self.faults.reply_delay_s:
-                    time.sleep(self.faults.reply_delay_s)
                 self.port.write(self.faults.take_bytes("garbage") + reply.encode() + ca.EOL)
+                self.faults.sent_reply()
             if len(buf) > 4096:
                 buf = b""
 

@@ -4,6 +4,10 @@ Pseudo-terminals stand in for serial ports: the emulator holds the master, a dri
 slave path (``/dev/pts/N``).  The slave is put in raw mode and kept open here, so a driver can
 come and go without the port disappearing.  "Disconnect" on a serial line is silence (a pulled
 cable); on TCP it closes the connections and refuses new ones until ``reconnect``.
+
+Stream faults can be set to start at a sample index (``Faults.arm``, ``Faults.silence``) instead of
+"from the next frame": what is dropped, damaged or silent is then fixed by the sample clock, not by
+when a test thread happened to run, so the exact gap a receiver must report is known in advance.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ import os
 import select
 import socket
 import threading
+import time
 import tty
 from dataclasses import dataclass, field
 from typing import Callable
@@ -29,7 +34,11 @@ log = logging.getLogger("hystbench.emulators")
 
 @dataclass
 class Faults:
-    """Switchable faults of one emulator.  Counters are consumed one event at a time."""
+    """Switchable faults of one emulator.  Counters are consumed one event at a time.
+
+    A counter armed with ``arm(name, n, at_index=k)`` applies only to stream frames that start at
+    or after sample ``k``; ``silence(k, n)`` makes the instrument silent (no frames, no replies)
+    while its sample clock is in ``[k, k + n)``."""
 
     reply_delay_s: float = 0.0  #: slow replies
     drop_replies: int = 0  #: the next N replies are never sent (missing replies)
@@ -40,28 +49,86 @@ class Faults:
     silent: bool = False  #: no replies, no frames (cable pulled / bus off / power loss)
     modbus_exception: int = 0  #: Modbus: exception code for the next requests (0 = none)
     modbus_exception_count: int = 0
+    hold_replies: threading.Event | None = None  #: when given, every reply waits until it is set
+    clock_index: int = 0  #: the sample clock's position (first index of the block being produced)
+    replies_sent: int = 0  #: replies written to the command channel (tests wait on this)
+    _from_index: dict = field(default_factory=dict, repr=False)
+    _silent_span: tuple[int, int] | None = field(default=None, repr=False)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+    _replies: threading.Condition = field(default_factory=threading.Condition, repr=False)
 
-    def take(self, name: str) -> bool:
-        """Consume one event of counter ``name``; True if there was one."""
+    def arm(self, name: str, value: int | bytes, *, at_index: int) -> None:
+        """Set stream fault ``name`` (``drop_frames``, ``corrupt_frames``, ``stream_garbage``) for
+        the frames from sample ``at_index`` on."""
+        with self._lock:
+            setattr(self, name, value)
+            self._from_index[name] = int(at_index)
+
+    def silence(self, first_index: int, n_samples: int) -> None:
+        """No frames and no replies while the sample clock is in ``[first_index, first_index + n_samples)``."""
+        with self._lock:
+            self._silent_span = (int(first_index), int(first_index) + int(n_samples))
+
+    def is_silent(self, index: int | None = None) -> bool:
+        """Silent at sample ``index`` (default: where the clock is now)."""
+        if self.silent:
+            return True
+        span = self._silent_span
+        k = self.clock_index if index is None else index
+        return span is not None and span[0] <= k < span[1]
+
+    def _due(self, name: str, index: int | None) -> bool:
+        start = self._from_index.get(name)
+        return start is None or (index is not None and index >= start)
+
+    def take(self, name: str, index: int | None = None) -> bool:
+        """Consume one event of counter ``name`` (for a frame starting at ``index``); True if there was one."""
         with self._lock:
             left = getattr(self, name)
-            if left > 0:
+            if left > 0 and self._due(name, index):
                 setattr(self, name, left - 1)
+                if left == 1:
+                    self._from_index.pop(name, None)
                 return True
             return False
 
-    def take_bytes(self, name: str) -> bytes:
+    def take_bytes(self, name: str, index: int | None = None) -> bytes:
         with self._lock:
             data = getattr(self, name)
+            if not data or not self._due(name, index):
+                return b""
             setattr(self, name, b"")
+            self._from_index.pop(name, None)
             return data
+
+    def before_reply(self) -> bool:
+        """Apply the reply faults once a reply is ready; False if it is not to be sent."""
+        if self.is_silent() or self.take("drop_replies"):
+            return False
+        hold = self.hold_replies
+        if hold is not None:
+            hold.wait(60.0)  # a reply held back on purpose, released by whoever holds it (not by time)
+        if self.reply_delay_s:
+            time.sleep(self.reply_delay_s)
+        return True
+
+    def sent_reply(self) -> None:
+        with self._replies:
+            self.replies_sent += 1
+            self._replies.notify_all()
+
+    def wait_replies(self, n: int, timeout_s: float) -> bool:
+        """Wait until ``n`` replies in all have been written (True), or ``timeout_s`` passes."""
+        with self._replies:
+            return self._replies.wait_for(lambda: self.replies_sent >= n, timeout_s)
 
     def clear(self) -> None:
         with self._lock:
             self.reply_delay_s, self.drop_replies, self.garbage = 0.0, 0, b""
             self.drop_frames, self.corrupt_frames, self.stream_garbage = 0, 0, b""
             self.silent, self.modbus_exception, self.modbus_exception_count = False, 0, 0
+            self.hold_replies, self._silent_span = None, None
+            self._from_index.clear()
 
 
 class PtyPort:
@@ -216,6 +283,10 @@ class TcpServer:
     def pause(self) -> None:
         sock, self._sock = self._sock, None
         if sock is not None:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)  # stop listening now, even while accept() still holds it
+            except OSError:
+                pass
             sock.close()
         self.drop_connections()
 
@@ -242,11 +313,11 @@ class FrameEmitter:
         self.seq = (self.seq + len(frames)) % (1 << 32)
         out = []
         for f in frames:
-            if self.faults.silent or self.faults.take("drop_frames"):
+            if self.faults.is_silent(f.first_index) or self.faults.take("drop_frames", f.first_index):
                 self.dropped += 1
                 continue
             raw = encode_frame(f)
-            if self.faults.take("corrupt_frames"):
+            if self.faults.take("corrupt_frames", f.first_index):
                 b = bytearray(raw)
                 b[len(b) // 2] ^= 0x10  # a payload bit: the CRC no longer matches
                 raw = bytes(b)
@@ -278,8 +349,8 @@ class TcpStreamServer:
                     return
 
     def send(self, first_index: int, data: np.ndarray, flags: int = 0) -> None:
+        garbage = self.emitter.faults.take_bytes("stream_garbage", first_index)
         records = [length_prefixed(f) for f in self.emitter.emit(first_index, data, flags)]
-        garbage = self.emitter.faults.take_bytes("stream_garbage")
         payload = garbage + b"".join(records)
         if not payload:
             return
@@ -305,7 +376,7 @@ class PtyStreamSink:
         self.path = self.port.path
 
     def send(self, first_index: int, data: np.ndarray, flags: int = 0) -> None:
-        garbage = self.emitter.faults.take_bytes("stream_garbage")
+        garbage = self.emitter.faults.take_bytes("stream_garbage", first_index)
         if garbage:
             self.port.write(garbage, droppable=True)
         for raw in self.emitter.emit(first_index, data, flags):  # a leading 0x00 lets a reader that

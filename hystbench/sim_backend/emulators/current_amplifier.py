@@ -3,14 +3,15 @@ drivers' register map, and the ``current_A`` monitor as a length-prefixed frame 
 
 Its enable, gain and limit gate the rig's current (through ``on_change``): the output is on only
 when enabled and no fault is latched; |i| above the limit latches OVERCURRENT and disables it; no
-request for longer than the watchdog latches WATCHDOG and disables it.
+request for longer than the watchdog latches WATCHDOG and disables it.  The watchdog counts on the
+emulated bench's sample clock (the emulator's only time): on a machine too busy to keep real time
+the clock slows down with everything else, so a host that keeps polling is never cut off.
 """
 
 from __future__ import annotations
 
 import socket
 import threading
-import time
 from typing import Callable
 
 import numpy as np
@@ -43,7 +44,8 @@ class CurrentAmplifierEmulator:
         self.enabled = False
         self.latched = 0
         self.requests = 0
-        self._last_request = time.monotonic()
+        self._clock_end: int | None = None  # one past the newest sample of the clock
+        self._last_request_index: int | None = None  # where the clock was at the last request
         self._lock = threading.RLock()
         self.modbus_tcp = TcpServer(self._serve_tcp, "modbus")
         self.stream = TcpStreamServer("amplifier-stream", FrameEmitter(AMPLIFIER_STREAM_ID, samples_per_frame,
@@ -134,7 +136,7 @@ class CurrentAmplifierEmulator:
     def handle_pdu(self, pdu: bytes) -> bytes:
         with self._lock:
             self.requests += 1
-            self._last_request = time.monotonic()
+            self._last_request_index = self._clock_end
             if self.faults.modbus_exception and self.faults.take("modbus_exception_count"):
                 return bytes(((pdu[0] if pdu else 0) | 0x80, self.faults.modbus_exception))
             return mb.server_response(pdu, self._read, self._write)
@@ -143,8 +145,11 @@ class CurrentAmplifierEmulator:
     def on_block(self, block: SampleBlock) -> None:
         i = block.channels["current_A"]
         with self._lock:
+            self._clock_end = block.end_index
+            if self._last_request_index is None:
+                self._last_request_index = block.first_index
             wd = R["watchdog"].to_si(self.regs[R["watchdog"].address])
-            idle = time.monotonic() - self._last_request
+            idle = (block.end_index - self._last_request_index) / block.fs_hz
             if i.size:
                 self.regs[R["current"].address] = int(np.clip(round(i[-1] * 1e3), -32768, 32767)) & 0xFFFF
                 rms = float(np.sqrt(np.mean(i * i)))
@@ -157,14 +162,6 @@ class CurrentAmplifierEmulator:
         self.stream.send(block.first_index, i[None, :])  # the instruments flag their own overloads
 
     # --- transports ----------------------------------------------------------------------------------
-    def _delay_or_drop(self) -> bool:
-        """Apply reply faults; False if this reply is not sent."""
-        if self.faults.silent or self.faults.take("drop_replies"):
-            return False
-        if self.faults.reply_delay_s:
-            time.sleep(self.faults.reply_delay_s)
-        return True
-
     def _serve_tcp(self, conn: socket.socket) -> None:
         conn.settimeout(0.2)
         buf = b""
@@ -186,8 +183,9 @@ class CurrentAmplifierEmulator:
                 if unit != self.unit:
                     continue
                 reply = self.handle_pdu(pdu)
-                if self._delay_or_drop():
+                if self.faults.before_reply():
                     conn.sendall(self.faults.take_bytes("garbage") + mb.mbap(tid, unit, reply))
+                    self.faults.sent_reply()
 
     def _serve_rtu(self) -> None:
         buf = b""
@@ -205,9 +203,10 @@ class CurrentAmplifierEmulator:
                 if frame[0] != self.unit:
                     continue
                 reply = bytes((self.unit,)) + self.handle_pdu(frame[1:-2])
-                if self._delay_or_drop():
+                if self.faults.before_reply():
                     self.pty.write(self.faults.take_bytes("garbage") + reply +
                                    mb.crc16(reply).to_bytes(2, "little"))
+                    self.faults.sent_reply()
 
     def close(self) -> None:
         self._stop.set()

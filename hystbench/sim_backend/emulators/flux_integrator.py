@@ -119,7 +119,7 @@ class FluxIntegratorEmulator:
 
     def on_block(self, block: SampleBlock) -> None:
         u, clipped = self.output_volts(block.channels["flux_Wb"])
-        if not self.state["stream"] or self.faults.silent:
+        if not self.state["stream"]:
             self.emitter.seq = (self.emitter.seq + -(-u.size // self.emitter.samples_per_frame)) % (1 << 32)
             return
         for raw in self.emitter.emit(block.first_index, u[None, :], 4 if clipped else 0):
@@ -136,16 +136,15 @@ class FluxIntegratorEmulator:
             now = time.monotonic()
             if now >= next_beat:
                 next_beat = now + ci.HEARTBEAT_PERIOD_S
-                if not self.faults.silent:
+                if not self.faults.is_silent():
                     self._send(ci.heartbeat_id(self.node), bytes((0x05, self._status_bits())))
-            if msg is None or msg.arbitration_id != ci.command_id(self.node) or self.faults.silent:
+            if msg is None or msg.arbitration_id != ci.command_id(self.node) or self.faults.is_silent():
                 continue
             reply = self.handle(bytes(msg.data))
-            if self.faults.take("drop_replies"):
+            if not self.faults.before_reply():
                 continue
-            if self.faults.reply_delay_s:
-                time.sleep(self.faults.reply_delay_s)
             self._send(ci.reply_id(self.node), reply)
+            self.faults.sent_reply()
 
     def close(self) -> None:
         self._stop.set()

@@ -10,7 +10,6 @@ from __future__ import annotations
 import collections
 import socket
 import threading
-import time
 from typing import Any, Callable
 
 import numpy as np
@@ -36,6 +35,7 @@ class SignalGeneratorEmulator:
         self.on_change = on_change or (lambda: None)
         self.state: dict[str, Any] = dict(scpi.RST_STATE)
         self.arb_unit: np.ndarray | None = None
+        self.uploads = 0  # arbitrary waveforms received
         self.errors: collections.deque[tuple[int, str]] = collections.deque()
         self.commands_seen: list[bytes] = []
         self._lock = threading.RLock()
@@ -121,6 +121,7 @@ class SignalGeneratorEmulator:
             except ValueError:
                 self.push_error(-161)
                 return
+            self.uploads += 1
             self._changed(None)
             return
         if not arg:
@@ -168,13 +169,10 @@ class SignalGeneratorEmulator:
 
     # --- transports ----------------------------------------------------------------------------------
     def _reply(self, write: Callable[[bytes], Any], reply: bytes | None) -> None:
-        if reply is None or self.faults.silent:
+        if reply is None or not self.faults.before_reply():
             return
-        if self.faults.take("drop_replies"):
-            return
-        if self.faults.reply_delay_s:
-            time.sleep(self.faults.reply_delay_s)
         write(self.faults.take_bytes("garbage") + reply)
+        self.faults.sent_reply()
 
     def _serve_tcp(self, conn: socket.socket) -> None:
         reader = scpi.ScpiMessageReader()
@@ -187,7 +185,7 @@ class SignalGeneratorEmulator:
             if not data:
                 return
             for msg in reader.feed(data):
-                if not self.faults.silent:
+                if not self.faults.is_silent():
                     self._reply(conn.sendall, self.handle(msg))
 
     def _serve_pty(self) -> None:
@@ -197,7 +195,7 @@ class SignalGeneratorEmulator:
             if not data:
                 continue
             for msg in reader.feed(data):
-                if not self.faults.silent:
+                if not self.faults.is_silent():
                     self._reply(self.pty.write, self.handle(msg))
 
     def close(self) -> None:

@@ -1,0 +1,80 @@
+"""The emulated bench's only time is its sample clock: the pacing policy (never ahead of real time,
+never a burst after falling behind), the amplifier's watchdog counted in samples, and stream faults
+placed at a sample index.  Everything here runs on sample indices and injected times: no sleeps."""
+
+import struct
+
+import numpy as np
+import pytest
+
+from hystbench.blocks import SampleBlock
+from hystbench.drivers.protocols import modbus_map as mb
+from hystbench.drivers.protocols.framing import FrameError, decode_frame
+from hystbench.sim_backend.emulators.bench import Pacer
+from hystbench.sim_backend.emulators.common import Faults, FrameEmitter
+from hystbench.sim_backend.emulators.current_amplifier import CurrentAmplifierEmulator
+
+FS = 100_000.0
+BLOCK = 1000
+
+
+def test_pacer_keeps_real_time_and_does_not_burst_after_a_stall():
+    p = Pacer(FS, start_s=0.0, start_index=0, catch_up_s=0.02)
+    assert p.wait_s(BLOCK, now_s=0.002) == pytest.approx(0.008)  # early: wait for the block's time
+    assert p.wait_s(2 * BLOCK, now_s=0.025) == 0.0  # 5 ms late: caught up at once
+    assert p.slipped_s == 0.0
+    # the machine stalls the clock for 1 s: it goes on from there at the sample rate ...
+    assert p.wait_s(3 * BLOCK, now_s=1.0) == 0.0
+    assert p.late_s == pytest.approx(0.97) and p.slipped_s == pytest.approx(0.97)
+    # ... so the next block is due one block period later, not at once (a burst of 97 blocks)
+    assert p.wait_s(4 * BLOCK, now_s=1.0) == pytest.approx(BLOCK / FS)
+
+
+def amplifier_with_watchdog(watchdog_s):
+    emu = CurrentAmplifierEmulator(serial=False)
+    wd = mb.REGISTERS["watchdog"]
+    ctl = mb.REGISTERS["control"]
+    for reg, raw in ((wd, wd.to_raw(watchdog_s)), (ctl, mb.CONTROL["ENABLE"])):
+        reply = emu.handle_pdu(struct.pack(">BHH", 0x06, reg.address, raw))
+        assert reply[0] == 0x06, reply
+    return emu
+
+
+def blocks(first, n):
+    return [SampleBlock(first + k * BLOCK, FS, {"current_A": np.zeros(BLOCK)}) for k in range(n)]
+
+
+def test_amplifier_watchdog_counts_samples_not_wall_time():
+    emu = amplifier_with_watchdog(0.5)
+    try:
+        for b in blocks(0, 50):  # 0.5 s of samples since the last request (fed in a few ms)
+            emu.on_block(b)
+        assert emu.output_on and not emu.latched
+        emu.handle_pdu(struct.pack(">BHH", 0x03, mb.REGISTERS["status"].address, 1))  # the host polls
+        for b in blocks(50 * BLOCK, 50):
+            emu.on_block(b)
+        assert emu.output_on  # 0.5 s since that poll: not more
+        emu.on_block(blocks(100 * BLOCK, 1)[0])  # 0.51 s without a request
+        assert not emu.output_on and emu.latched == mb.FAULTS["WATCHDOG"]
+    finally:
+        emu.close()
+
+
+def test_stream_faults_armed_at_a_sample_index_hit_exactly_those_frames():
+    faults = Faults()
+    emitter = FrameEmitter(2, 500, faults)
+    faults.arm("drop_frames", 2, at_index=1500)
+    faults.arm("corrupt_frames", 1, at_index=4000)
+    faults.silence(5000, 1000)
+    got = []
+    for b in blocks(0, 7):
+        for raw in emitter.emit(b.first_index, b.channels["current_A"][None, :]):
+            try:
+                got.append(decode_frame(raw).first_index)
+            except FrameError:
+                got.append("bad CRC")
+    # 1500 and 2000 dropped, 4000 damaged, 5000-5999 silent
+    assert got == [0, 500, 1000, 2500, 3000, 3500, "bad CRC", 4500, 6000, 6500]
+    assert emitter.corrupted == 1
+    assert emitter.dropped == 4 and faults.drop_frames == 0 and faults.corrupt_frames == 0
+    assert not faults.is_silent(6000) and faults.is_silent(5999)
