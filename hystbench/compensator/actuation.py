@@ -82,7 +82,12 @@ class RigActuation:
 class BenchActuation:
     """:class:`Actuation` through the instrument drivers: ``set_waveform`` uploads ``current /
     gain`` volts to the generator (SCPI ``DATA:ARB``), ``set_sine`` sets its sine, ``output_off`` is
-    the bench's safe-off (output off first), ``read`` acquires from the streams and refuses a gap."""
+    the bench's safe-off (output off first), ``read`` acquires from the streams and refuses a gap.
+
+    Consecutive reads are consecutive samples.  A new table or sine first drops what the streams
+    delivered meanwhile (``Bench.discard_backlog``: samples of the old excitation, however long the
+    caller computed), so that, as on the rig directly, the next read starts at the change (within
+    the transports' latency, which the loop's settling read covers)."""
 
     def __init__(self, bench: Any, current_limit_a: float) -> None:
         if not current_limit_a > 0:
@@ -109,12 +114,14 @@ class BenchActuation:
         self._check(float(np.max(np.abs(table))) if table.size else np.nan, f"a {table.size}-point waveform")
         self.bench.generator.upload_waveform(table / self.gain_a_per_v, float(frequency_hz))
         self._start()
+        self.bench.discard_backlog()
 
     def set_sine(self, frequency_hz: float, current_pp_a: float, offset_a: float = 0.0) -> None:
         self._check(abs(offset_a) + 0.5 * current_pp_a, f"a sine of {current_pp_a:g} A-pp at {offset_a:+g} A")
         self.bench.generator.set_sine(float(frequency_hz), current_pp_a / self.gain_a_per_v,
                                       offset_a / self.gain_a_per_v)
         self._start()
+        self.bench.discard_backlog()
 
     def output_off(self) -> None:
         self.bench.safe_off()

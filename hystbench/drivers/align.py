@@ -38,6 +38,20 @@ class StreamAligner:
         if block.n:
             self._q[name].append(block)
 
+    def queued(self) -> dict[str, int]:
+        """Samples each stream holds here that are not handed out yet (at or after the cursor)."""
+        c = -(1 << 62) if self.cursor is None else self.cursor
+        return {n: sum(max(0, b.end_index - max(b.first_index, c)) for b in q) for n, q in self._q.items()}
+
+    def ends(self) -> dict[str, int | None]:
+        """One past each stream's newest sample held here (None: holds nothing)."""
+        return {n: (q[-1].end_index if q else None) for n, q in self._q.items()}
+
+    def waiting_for(self) -> str:
+        """The stream the next aligned block waits on: the one whose samples end earliest."""
+        ends = self.ends()
+        return min(self.names, key=lambda n: -(1 << 62) if ends[n] is None else ends[n])
+
     def _drop_before(self, index: int) -> None:
         for q in self._q.values():
             while q and q[0].end_index <= index:

@@ -5,6 +5,11 @@ command error) and at shutdown, the generator output goes off and the amplifier 
 both attempted independently, *before* anything else happens (reconnecting, raising, closing).
 A heartbeat thread polls every instrument (which also feeds the amplifier's watchdog), so a fault
 is acted on within ``heartbeat_s`` even when nobody is calling the bench.
+
+The four streams are aligned once, from the moment they open: consecutive ``acquire`` calls hand
+out consecutive samples, and every sample the streams deliver goes through the aligner (nothing is
+left behind in a stream's queue to pile up).  ``discard_backlog`` drops what arrived before a
+change, on purpose and counted.
 """
 
 from __future__ import annotations
@@ -16,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Iterator
 
 from ..blocks import BlockFlags, SampleBlock, concatenate
-from ..errors import ConfigError, ConnectionLost, InstrumentError
+from ..errors import ConfigError, ConnectionLost, InstrumentError, InstrumentTimeout
 from .align import StreamAligner
 from .base import Backoff, Instrument, log
 from .charge_amplifier import ChargeAmplifier
@@ -27,7 +32,7 @@ from .safety import CurrentBudget, SafetyLimitError
 from .signal_generator import ScpiSignalGenerator
 from .stream import SampleStream
 
-__all__ = ["Bench", "BenchFault", "build_instruments"]
+__all__ = ["Bench", "BenchFault", "build_instruments", "timeout_reason"]
 
 
 class _FaultBits(InstrumentError):
@@ -83,10 +88,13 @@ class Bench:
         self.integrator: CanFluxIntegrator = self.instruments["flux_integrator"]  # type: ignore[assignment]
         self.faults: list[BenchFault] = []
         self.streams: dict[str, SampleStream] = {}
+        self._aligner: StreamAligner | None = None  # the streams' samples on the common clock
+        self.discarded_samples = 0  # dropped by discard_backlog (samples of the common clock)
         self._fault_lock = threading.Lock()
         self._stop = threading.Event()
         self._heartbeats: list[threading.Thread] = []
-        self.heartbeat_paused = threading.Event()  # tests: stop feeding the watchdog
+        self.heartbeat_paused = threading.Event()  # tests: stop feeding the watchdog (see pause_heartbeat)
+        self._polling = {name: threading.Lock() for name in self.instruments}  # held while a poll runs
 
     # --- life cycle --------------------------------------------------------------------------------
     def open(self) -> "Bench":
@@ -206,19 +214,28 @@ class Bench:
         failures = 0
         inst = self.instruments[name]
         while not self._stop.wait(self.config.heartbeat_s):
-            if self.heartbeat_paused.is_set() or self.faults or not inst.is_open:
-                continue
-            try:
-                self._poll(name)
-                failures = 0
-            except ConnectionLost as err:
-                self._fault(name, str(err))
-                self._try_reconnect(name)
-            except InstrumentError as err:
-                failures += 1
-                if failures >= 2 or isinstance(err, _FaultBits):  # one missed poll may be noise
-                    self._fault(name, str(err))
+            with self._polling[name]:
+                if self.heartbeat_paused.is_set() or self.faults or not inst.is_open:
+                    continue
+                try:
+                    self._poll(name)
                     failures = 0
+                except ConnectionLost as err:
+                    self._fault(name, str(err))
+                    self._try_reconnect(name)
+                except InstrumentError as err:
+                    failures += 1
+                    if failures >= 2 or isinstance(err, _FaultBits):  # one missed poll may be noise
+                        self._fault(name, str(err))
+                        failures = 0
+
+    def pause_heartbeat(self) -> None:
+        """Stop polling, and return once no poll is in flight (so the next command on any
+        instrument is the caller's own).  ``heartbeat_paused.clear()`` resumes."""
+        self.heartbeat_paused.set()
+        for lock in self._polling.values():
+            with lock:
+                pass
 
     def _try_reconnect(self, name: str) -> None:
         try:
@@ -236,46 +253,115 @@ class Bench:
             for name, inst in self.instruments.items():
                 with self.guarded(name):
                     self.streams[name] = inst.open_stream(skew_s=self.config.instruments[name].skew_s, **kw)
+            self._aligner = StreamAligner(self.streams)
         return self.streams
 
     def close_streams(self) -> None:
         for s in self.streams.values():
             s.close()
         self.streams = {}
+        self._aligner = None
 
-    def acquire(self, duration_s: float, *, timeout_s: float | None = None) -> list[SampleBlock]:
-        """``duration_s`` worth of aligned samples of every channel, as contiguous runs.
-
-        Missing samples are never filled in: the first run starts where all streams have begun;
-        each later run has ``BlockFlags.GAP`` and ``gap_samples`` = the exact number of indices
-        missing before it.  A recorded fault, or a stream that cannot be reconnected, raises (with
-        the output already off)."""
-        self.raise_if_faulted()
-        n_want = int(round(duration_s * self.config.fs_hz))
-        deadline = time.monotonic() + (timeout_s if timeout_s is not None else 3 * duration_s + 5.0)
-        streams = self.open_streams()
-        aligner = StreamAligner(streams)
-        got: list[SampleBlock] = []
-        have = 0
-        while have < n_want:
-            self.raise_if_faulted()
-            if time.monotonic() > deadline:
-                raise InstrumentError(f"bench: only {have} of {n_want} aligned samples within the timeout")
-            for name, s in streams.items():
+    def _drain(self, counts: dict[str, int]) -> None:
+        """Move every block the streams hold into the aligner (adding to ``counts`` per stream)."""
+        for name, s in self.streams.items():
+            while True:
                 try:
-                    block = s.read(timeout_s=0.02)
+                    block = s.read(timeout_s=0.0)
                 except InstrumentError as err:
                     self._fault(name, str(err))
                     raise
-                if block is not None:
-                    aligner.push(name, block)
-            while have < n_want and (block := aligner.pop(max_samples=n_want - have)) is not None:
+                if block is None:
+                    break
+                self._aligner.push(name, block)
+                counts[name] += block.n
+
+    def discard_backlog(self) -> int:
+        """Drop every sample the streams have delivered and not yet handed out: after a change (a new
+        waveform, a new frequency) they show the bench as it was.  The next ``acquire`` starts with
+        what arrives from now on (where all streams have begun again: no gap).  Samples still in
+        flight in the transports are not known here; a settling read after the change covers them.
+        Returns how many samples of the common clock were dropped."""
+        self.open_streams()
+        self._drain(dict.fromkeys(self.streams, 0))
+        dropped = max(self._aligner.queued().values(), default=0)
+        self._aligner = StreamAligner(self.streams)
+        self.discarded_samples += dropped
+        return dropped
+
+    def acquire(self, duration_s: float, *, timeout_s: float | None = None) -> list[SampleBlock]:
+        """The next ``duration_s`` worth of aligned samples of every channel, as contiguous runs.
+
+        Missing samples are never filled in: the first run of the first call starts where all
+        streams have begun; each later run has ``BlockFlags.GAP`` and ``gap_samples`` = the exact
+        number of indices missing before it.  The next call goes on where this one stopped.  A
+        recorded fault, or a stream that cannot be reconnected, raises (with the output already
+        off); so does ``timeout_s`` (default 3 x duration + 5 s) passing, saying why."""
+        self.raise_if_faulted()
+        n_want = int(round(duration_s * self.config.fs_hz))
+        limit_s = timeout_s if timeout_s is not None else 3 * duration_s + 5.0
+        t0 = time.monotonic()
+        streams = self.open_streams()
+        counts = dict.fromkeys(streams, 0)
+        got: list[SampleBlock] = []
+        have = 0
+        while True:
+            self.raise_if_faulted()
+            self._drain(counts)
+            while have < n_want and (block := self._aligner.pop(max_samples=n_want - have)) is not None:
                 got.append(block)
                 have += block.n
-        return _runs(got)
+            if have >= n_want:
+                return _runs(got)
+            waited = time.monotonic() - t0
+            if waited > limit_s:
+                raise InstrumentTimeout(timeout_reason(have, n_want, waited, counts, self.config.fs_hz,
+                                                       emulated=self.config.any_sim, ends=self._aligner.ends()))
+            name = self._aligner.waiting_for()  # sleep until the stream everything waits on has more
+            try:
+                block = streams[name].read(timeout_s=min(0.05, limit_s - waited))
+            except InstrumentError as err:
+                self._fault(name, str(err))
+                raise
+            if block is not None:
+                self._aligner.push(name, block)
+                counts[name] += block.n
 
     def stream_stats(self) -> dict[str, dict[str, int]]:
         return {name: s.stats.as_dict() for name, s in self.streams.items()}
+
+
+def timeout_reason(have: int, n_want: int, waited_s: float, counts: dict[str, int], fs_hz: float, *,
+                   emulated: bool, ends: dict[str, int | None] | None = None) -> str:
+    """Why an acquisition ran out of time, and what to do about it (one line).
+
+    ``counts``: samples each stream delivered meanwhile; ``ends``: one past each stream's newest
+    sample.  The usual cause on a busy machine is the emulated bench running slower than real time
+    (it needs most of a core at 100 kS/s): the streams then deliver less than ``fs_hz`` per second."""
+    head = f"bench: only {have} of {n_want} aligned samples within {waited_s:.1f} s"
+    silent = [name for name, n in counts.items() if n == 0]
+    if silent and emulated and len(silent) == len(counts):
+        return (f"{head}: the emulated bench produced no samples at all meanwhile: the machine is far too busy "
+                "to run it (it needs most of a core at 100 kS/s), or its clock stopped; free CPU and retry")
+    if silent:
+        return (f"{head}: {', '.join(silent)} delivered no samples meanwhile (its stream is stalled: check the "
+                f"instrument, its stream address and its cable)")
+    slowest = min(counts, key=lambda name: counts[name])
+    rate = counts[slowest] / waited_s
+    if rate < 0.9 * fs_hz:
+        if emulated:
+            why = (f"the emulated bench produced {counts[slowest]} samples in {waited_s:.1f} s, {rate / fs_hz:.0%} "
+                   f"of real time at {fs_hz / 1e3:g} kS/s: this machine is too slow (CPU-bound) to run it in real "
+                   "time; free CPU (stop other jobs), lower [bench] fs_hz, or allow a longer timeout")
+        else:
+            why = (f"{slowest} delivered {counts[slowest]} samples in {waited_s:.1f} s, {rate / fs_hz:.0%} of "
+                   f"[bench] fs_hz = {fs_hz:g}: check fs_hz against the instruments' sample rate, and the host's load")
+        return f"{head}: {why}"
+    if n_want / fs_hz > waited_s:
+        return (f"{head}: the streams keep real time, but {n_want / fs_hz:g} s of samples take {n_want / fs_hz:g} s "
+                "to come: allow a longer timeout")
+    return (f"{head}: the streams deliver at the sample rate but their sample indices do not meet (end of each "
+            f"stream's samples: {ends}): a stream does not count the common sample clock")
 
 
 def _runs(blocks: list[SampleBlock]) -> list[SampleBlock]:

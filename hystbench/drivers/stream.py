@@ -104,16 +104,22 @@ class SerialFrameSource(FrameSource):
                  baudrate: int = 115200) -> None:
         self.url, self.baudrate = url, baudrate
         self._port = None
+        self._opened = False
         self.deframer = CobsDeframer(stream_id, channels)
         self.deframer_stats = self.deframer.stats
 
     def open(self) -> None:
+        """The first open drops what the line held before (another session's bytes); a reopen
+        (after a stall or a lost port) keeps the bytes waiting and the deframer's place, so that a
+        line that was only quiet loses nothing (a line that really restarted costs one bad record)."""
         import serial
 
         self.close()
         self._port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.05)
-        self._port.reset_input_buffer()
-        self.deframer.resync()
+        if not self._opened:
+            self._port.reset_input_buffer()
+            self.deframer.resync()
+            self._opened = True
 
     def close(self) -> None:
         if self._port is not None:

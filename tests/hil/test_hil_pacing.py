@@ -1,0 +1,68 @@
+"""The emulated bench on a machine too busy for it (issue 16): its sample clock falls behind real
+time and goes on from there, producing the same samples, so the drivers see no gap and no stall;
+and an acquisition that cannot finish says why instead of "within the timeout".
+
+The busy machine is made exact: a tap holds the clock thread (as a starved CPU would) until the
+heartbeat has polled a few times, i.e. until real time has moved on without the clock."""
+
+import threading
+
+import pytest
+
+from hystbench.errors import InstrumentTimeout
+
+from .conftest import HANG_S, acquire_through
+from .test_hil_faults import check_runs, streams_flowing
+
+
+def hold_clock_at(hil, index):
+    """Stop the clock thread when it reaches ``index``; returns (stalled, release) events."""
+    stalled, release = threading.Event(), threading.Event()
+
+    def tap(block):
+        if block.first_index == index:
+            stalled.set()
+            release.wait(HANG_S)
+
+    hil.emu.taps.append(tap)
+    return stalled, release
+
+
+def let_real_time_pass(hil, polls):
+    """Wait for ``polls`` heartbeat polls of the generator (one query each, every ``heartbeat_s``):
+    real time passing, counted by events."""
+    faults = hil.emu.generator.faults
+    assert faults.wait_replies(faults.replies_sent + polls, HANG_S)
+
+
+def test_a_clock_that_fell_behind_goes_on_with_the_same_samples(hil_factory):
+    hil = hil_factory(**{"bench.stall_timeout_s": "30.0"})  # the held clock is not a stalled cable
+    hil.bench.start_output()
+    streams = streams_flowing(hil)
+    at = hil.blocks_ahead(2)
+    stalled, release = hold_clock_at(hil, at)
+    assert stalled.wait(HANG_S)
+    let_real_time_pass(hil, 3)  # polls 0.1 s apart: the clock is >= 0.2 s behind
+    release.set()
+    runs = acquire_through(hil, at + 20 * hil.emu.block_samples)
+    assert check_runs(hil, runs) == 0 and len(runs) == 1  # every sample, each the rig's own
+    assert hil.emu.pacer.slipped_s > 0  # it went on from where it was ...
+    assert all(s.stats.frames_lost == s.stats.overruns == s.stats.reconnects == 0 for s in streams.values())
+
+
+def test_an_acquisition_the_emulated_bench_cannot_feed_says_why(hil):
+    hil.bench.start_output()
+    streams_flowing(hil)
+    end = hil.bench.acquire(0.01, timeout_s=HANG_S)[-1].end_index
+    at = hil.blocks_ahead(2)
+    stalled, release = hold_clock_at(hil, at)
+    try:
+        assert stalled.wait(HANG_S)
+        fs = hil.config.fs_hz
+        assert hil.bench.acquire((at - end) / fs, timeout_s=HANG_S)[-1].end_index == at  # all there is
+        with pytest.raises(InstrumentTimeout, match=r"bench: only 0 of 10000 aligned samples within [\d.]+ s: the "
+                                                    r"emulated bench produced no samples at all meanwhile: the "
+                                                    r"machine is far too busy"):
+            hil.bench.acquire(0.1, timeout_s=0.3)
+    finally:
+        release.set()
