@@ -12,7 +12,8 @@ OPEN = [(b"ID?\r", b"5070A,SN4711,2.0\r"), (b"SE?\r", b"1\r"), (b"SC?\r", b"100\
 
 
 def amp(peer, **kw):
-    return ChargeAmplifier(peer.url, timeout_s=0.5, **kw)
+    """The driver on the scripted peer, with a generous timeout unless a test waits for it to pass."""
+    return ChargeAmplifier(peer.url, timeout_s=kw.pop("timeout_s", 10.0), **kw)
 
 
 def test_open_configure_operate_status_byte_exact(scripted_peer):
@@ -57,11 +58,17 @@ def test_table_refusals_send_nothing(scripted_peer):
     peer.check()
 
 
-def test_missing_and_garbled_replies(scripted_peer):
-    peer = scripted_peer(OPEN + [(b"SC?\r", None), (b"SE?\r", b"\x07\x13?\r")])
-    with amp(peer) as c:
+def test_missing_reply_is_a_timeout_naming_the_command(scripted_peer):
+    peer = scripted_peer(OPEN + [(b"SC?\r", None)])
+    with amp(peer, timeout_s=0.5) as c:
         with pytest.raises(InstrumentTimeout, match=r"charge_amplifier: no answer to 'SC\?' within 0.5 s"):
             c.query("scale_n_per_v")
+    peer.check()
+
+
+def test_garbled_reply_is_a_protocol_error(scripted_peer):
+    peer = scripted_peer(OPEN + [(b"SE?\r", b"\x07\x13?\r")])
+    with amp(peer) as c:
         with pytest.raises(ProtocolError, match=r"unexpected answer to 'SE\?'"):
             c.query("sensitivity_pc_per_n")
     peer.check()

@@ -17,9 +17,10 @@ def tcp(tid: int, pdu: str) -> bytes:
 
 
 def amp(peer, **kw):
+    """The driver on the scripted peer, with a generous timeout unless a test waits for it to pass."""
     host, port = peer.address.split(":")
     return ModbusCurrentAmplifier(budget=kw.pop("budget", CurrentBudget(2.0, 0.5)), host=host, port=int(port),
-                                  timeout_s=0.5, **kw)
+                                  timeout_s=kw.pop("timeout_s", 10.0), **kw)
 
 
 OPEN_TCP = [
@@ -105,7 +106,7 @@ def test_gain_found_at_open_beyond_the_budget_is_refused(scripted_peer):
 
 def test_no_reply_is_a_timeout(scripted_peer):
     peer = scripted_peer(OPEN_TCP + [(tcp(3, "03 0005 0001"), None)])
-    a = amp(peer).open()
+    a = amp(peer, timeout_s=0.5).open()
     with pytest.raises(InstrumentTimeout, match=r"current_amplifier: no answer to 'read 1 register\(s\) from 5"):
         a.read("gain")
     a._open = False  # the scripted peer is done: do not disable on close
@@ -127,7 +128,7 @@ def test_modbus_rtu_frames_byte_exact(scripted_peer):
         (rtu("06 0002 0000"), rtu("06 0002 0000")),
         (rtu("03 0003 0001"), rtu("03 02 0000")),
     ])
-    a = ModbusCurrentAmplifier(budget=CurrentBudget(2.0, 0.5), serial_port=peer.url, baudrate=115200, timeout_s=0.5)
+    a = ModbusCurrentAmplifier(budget=CurrentBudget(2.0, 0.5), serial_port=peer.url, baudrate=115200, timeout_s=10.0)
     with a:
         a.enable()
     peer.check()

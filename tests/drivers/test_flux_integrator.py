@@ -15,6 +15,8 @@ from hystbench.errors import ConfigError, InstrumentTimeout
 
 h = bytes.fromhex
 NODE = 0x10
+REPLY_S = 10.0  # the drivers' timeout where a reply is scripted: generous, the reply always comes
+HANG_S = 60.0  # the peer's wait for the next command: only a hang takes this long
 
 
 class CanPeer:
@@ -28,7 +30,7 @@ class CanPeer:
 
     def _run(self):
         for i, ((cid, data), replies) in enumerate(self.transcript):
-            msg = self.bus.recv(2.0)
+            msg = self.bus.recv(HANG_S)
             if msg is None or (msg.arbitration_id, bytes(msg.data)) != (cid, data):
                 self.mismatch = (i, (cid, data), msg and (msg.arbitration_id, bytes(msg.data)))
                 return
@@ -37,7 +39,7 @@ class CanPeer:
             self.done = i + 1
 
     def check(self):
-        self._thread.join(3.0)
+        self._thread.join(HANG_S)
         self.bus.shutdown()
         assert self.mismatch is None, self.mismatch
         assert self.done == len(self.transcript)
@@ -62,7 +64,7 @@ def test_open_configure_status_byte_exact(channel):
         ((CMD, h("02000000 00000000")), [(REPLY, h("02000000 00000000"), False)]),
         ((CMD, h("08000000 00000000")), [(REPLY, h("08000000 05000000"), False)]),
     ] + CLOSE)
-    with CanFluxIntegrator(channel=channel, node=NODE, timeout_s=0.5) as f:
+    with CanFluxIntegrator(channel=channel, node=NODE, timeout_s=REPLY_S) as f:
         assert f.firmware == "1.5" and f.settings == {"gain_v_per_wb": 1e5, "turns": 1}
         f.configure(gain_v_per_wb=1.44e5, turns=10)
         f.reset()
@@ -77,13 +79,15 @@ def test_refusal_and_timeout(channel):
         ((CMD, h("03000000 01000000")), [(REPLY, h("03030000 00000000"), False)]),
         ((CMD, h("08000000 00000000")), []),
     ] + CLOSE)
-    with CanFluxIntegrator(channel=channel, node=NODE, timeout_s=0.3) as f:
+    with CanFluxIntegrator(channel=channel, node=NODE, timeout_s=REPLY_S) as f:
         with pytest.raises(IntegratorError, match=r"hold\(1\) -> result 3 \(not allowed now\)"):
             f.hold(True)
+        f.timeout_s = 0.3  # no reply is scripted: this one must run out
         with pytest.raises(InstrumentTimeout, match=r"no answer to 'get_status\(0x08\)' within 0.3 s"):
             f.read_status()
         with pytest.raises(ConfigError, match="set_turns 0"):
             f.set_turns(0)
+        f.timeout_s = REPLY_S
     peer.check()
 
 
@@ -95,12 +99,12 @@ def test_can_fd_stream_frames_become_flux_samples(channel):
         ((CMD, h("09000000 01000000")), [(REPLY, h("09000000 00000000"), False)]),
         ((CMD, h("05000000 00000000")), [(REPLY, h("05000000 00002041"), False)] + stream_frames),  # gain 10
     ] + CLOSE)
-    with CanFluxIntegrator(channel=channel, node=NODE, timeout_s=0.5) as f:
+    with CanFluxIntegrator(channel=channel, node=NODE, timeout_s=REPLY_S) as f:
         with f.open_stream() as s:
-            block = s.read(1.0, max_samples=40)
-            got = [block]
-            while sum(b.n for b in got) < 40:
-                got.append(s.read(1.0))
+            got = [s.read(HANG_S, max_samples=40)]
+            while None not in got and sum(b.n for b in got) < 40:
+                got.append(s.read(HANG_S))
+    assert None not in got, "the stream stopped delivering"
     assert got[0].first_index == 500 and sum(b.n for b in got) == 40
     np.testing.assert_allclose(np.concatenate([b.channels["flux_Wb"] for b in got]), data[0] / 10.0, rtol=1e-7)
     peer.check()

@@ -23,8 +23,10 @@ OPEN = [
 CLOSE = [(b"OUTP OFF\n", None), (b"OUTP?\n", b"0\n")]
 
 
-def gen(peer, max_a=2.0, gain=0.5):
-    return ScpiSignalGenerator(peer.url, budget=CurrentBudget(max_a, gain), timeout_s=0.5)
+def gen(peer, max_a=2.0, gain=0.5, timeout_s=10.0):
+    """The driver on the scripted peer; the timeout is generous unless a test waits for it to pass
+    (then no reply is scripted: it passes however busy the machine is)."""
+    return ScpiSignalGenerator(peer.url, budget=CurrentBudget(max_a, gain), timeout_s=timeout_s)
 
 
 def test_open_sine_output_close_byte_exact(scripted_peer):
@@ -99,7 +101,7 @@ def test_waveform_upload_is_a_definite_length_block(scripted_peer):
 
 def test_missing_reply_is_a_timeout_naming_the_command(scripted_peer):
     peer = scripted_peer(OPEN + [(b"FREQ?\n", None)] + CLOSE)
-    with gen(peer) as g:
+    with gen(peer, timeout_s=0.5) as g:
         with pytest.raises(InstrumentTimeout, match=r"signal_generator: no answer to 'FREQ\?' within 0.5 s"):
             g.query("frequency_hz")
     peer.check()

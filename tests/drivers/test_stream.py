@@ -46,6 +46,9 @@ class FakeSource(FrameSource):
         return []
 
 
+HANG_S = 60.0  # a read's safety timeout: data or the error comes at once, only a hang takes this long
+
+
 def frame(first, n, seq, value=None):
     data = (np.arange(first, first + n, dtype=np.float32) if value is None else np.full(n, value, np.float32))
     return Frame(7, seq, first, data[None, :])
@@ -54,7 +57,7 @@ def frame(first, n, seq, value=None):
 def drain(stream, want):
     out = []
     while sum(b.n for b in out) < want:
-        b = stream.read(1.0)
+        b = stream.read(HANG_S)
         assert b is not None, "stream stopped delivering"
         out.append(b)
     return out
@@ -91,7 +94,7 @@ def test_any_pattern_of_lost_frames_is_counted_exactly(kept, n):
 def test_scale_and_skew_are_applied_and_recorded():
     with SampleStream("s", FakeSource([[frame(0, 4, 0, value=2.0)]]), ["force_N"], 1000.0,
                       scale={"force_N": 50.0}, skew_s=3e-6, stall_timeout_s=5.0) as s:
-        b = s.read(1.0)
+        b = s.read(HANG_S)
     np.testing.assert_array_equal(b.channels["force_N"], 100.0)
     assert b.meta == {"skew_s.force_N": 3e-6}
 
@@ -106,17 +109,19 @@ def test_lost_transport_is_reconnected_with_backoff():
 def test_reconnection_gives_up_with_connection_lost():
     src = FakeSource([[frame(0, 10, 0)], ConnectionError("peer closed")], fail_opens=99)
     with SampleStream("gen", src, ["x"], 1000.0, backoff=Backoff(0.001, 2.0, 0.01, 3), stall_timeout_s=5.0) as s:
-        assert s.read(1.0).n == 10
+        assert s.read(HANG_S).n == 10
         with pytest.raises(ConnectionLost, match="gen: sample stream lost .transport lost: peer closed.; "
                                                  "3 reconnection attempts failed"):
-            s.read(2.0)
+            s.read(HANG_S)
 
 
 def test_silence_counts_as_a_stall_and_reopens():
     src = FakeSource([[frame(0, 10, 0)]])
     with SampleStream("s", src, ["x"], 1000.0, stall_timeout_s=0.05, backoff=Backoff(0.001, 2, 0.01, 3)) as s:
-        s.read(1.0)
-        threading.Event().wait(0.2)
+        assert s.read(HANG_S).n == 10
+        reopened = threading.Event()
+        src.open = lambda: (FakeSource.open(src), reopened.set())  # the reopen is the event waited on
+        assert reopened.wait(HANG_S)
     assert s.stats.stalls >= 1 and s.stats.reconnects >= 1
 
 

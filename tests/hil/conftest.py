@@ -3,22 +3,30 @@
 ``hil`` starts an emulated bench from a bench file written here (the shipped one, with faster
 back-off so fault tests stay short) and opens the drivers' Bench on it.  A tap records every rig
 block, the truth against which samples that came through the drivers are checked.
+
+Nothing here waits on wall time: tests wait for the emulator's sample clock to reach an index
+(``Hil.wait_clock``), for a condition the clock's blocks make true (``Hil.wait_for``), or acquire
+until the samples they need have come (``acquire_through``).  The timeouts only turn a hang into a
+failure.
 """
 
 from __future__ import annotations
 
 import re
+import threading
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
 
-from hystbench.blocks import SampleBlock
+from hystbench.blocks import BlockFlags, SampleBlock, concatenate
 from hystbench.drivers.bench import Bench
 from hystbench.drivers.protocols.bench_config import DEFAULT_BENCH, load_bench_config
 from hystbench.sim_backend.emulators.bench import EmulatedBench
 
 FAST = {"initial_s": "0.02", "factor": "2.0", "max_s": "0.1", "attempts": "4"}
+HANG_S = 120.0  # a safety timeout: only a hang takes this long
 
 
 def bench_file(tmp_path: Path, **edits: str) -> Path:
@@ -29,7 +37,7 @@ def bench_file(tmp_path: Path, **edits: str) -> Path:
         text = re.sub(rf"(?m)^{k} = .*$", f"{k} = {v}", text, count=1)
     for dotted, value in edits.items():
         table, key = dotted.rsplit(".", 1)
-        section = re.search(rf"(?ms)^\[{re.escape(table)}\]\n(.*?)(?=^\[|\Z)", text)
+        section = re.search(rf"(?ms)^\[{re.escape(table)}\][^\n]*\n(.*?)(?=^\[|\Z)", text)
         assert section, table
         body = section.group(1)
         if re.search(rf"(?m)^#? ?{key} = ", body):
@@ -64,15 +72,57 @@ class Hil:
         self.config = load_bench_config(path)
         self.emu = EmulatedBench(self.config)
         self.truth = Truth()
-        self.emu.taps.append(self.truth)
+        self._tick = threading.Condition()
+        self.emu.taps += [self.truth, self._on_block]
         self.emu.start()
         self.bench = Bench(self.config.resolved(self.emu.addresses))
+
+    def _on_block(self, block: SampleBlock) -> None:
+        with self._tick:
+            self._tick.notify_all()
+
+    def wait_for(self, cond: Callable[[], object], what: str, timeout_s: float = HANG_S) -> None:
+        """Wait until ``cond()`` holds, checked at every block of the sample clock (whatever thread
+        makes it true: the clock keeps ticking)."""
+        with self._tick:
+            if not self._tick.wait_for(lambda: bool(cond()), timeout_s):
+                raise AssertionError(f"{what}: not within {timeout_s:g} s (a hang)")
+
+    def wait_clock(self, index: int) -> None:
+        """Wait until the emulator has produced every sample before ``index``."""
+        self.wait_for(lambda: self.emu.next_index >= index, f"the sample clock reaching {index}")
+
+    def blocks_ahead(self, n_blocks: int) -> int:
+        """A sample index no frame has been made for yet: ``n_blocks`` blocks past the clock."""
+        return self.emu.next_index + n_blocks * self.emu.block_samples
 
     def close(self) -> None:
         try:
             self.bench.close()
         finally:
             self.emu.close()
+
+
+def merge_runs(runs: list[SampleBlock]) -> list[SampleBlock]:
+    """Runs of several ``acquire`` calls (which go on where the last stopped) as one call's runs."""
+    out: list[SampleBlock] = []
+    for r in runs:
+        if out and r.first_index == out[-1].end_index:
+            prev = out[-1]
+            out[-1] = SampleBlock(prev.first_index, prev.fs_hz, concatenate([prev, r]).channels,
+                                  flags=prev.flags | (r.flags & ~BlockFlags.GAP), gap_samples=prev.gap_samples,
+                                  meta=prev.meta)
+        else:
+            out.append(r)
+    return out
+
+
+def acquire_through(hil: "Hil", index: int, chunk_s: float = 0.05) -> list[SampleBlock]:
+    """Acquire until the samples reach past ``index`` (so a fault placed before it is inside)."""
+    runs: list[SampleBlock] = []
+    while not runs or runs[-1].end_index <= index:
+        runs += hil.bench.acquire(chunk_s, timeout_s=HANG_S)
+    return merge_runs(runs)
 
 
 @pytest.fixture

@@ -1,9 +1,12 @@
 """Every injected fault and its documented reaction (docs/faults.md): exact gaps for stream damage,
 reconnection with back-off, a clear error naming instrument and command, and the output off first.
-No sample may be lost silently or invented: every delivered sample is checked against the rig."""
+No sample may be lost silently or invented: every delivered sample is checked against the rig.
+
+Stream faults are placed at a sample index ahead of the emulator's clock, inside what the test then
+acquires; waits are on the clock or on the event itself, never on wall time, so the outcome is the
+same on an idle machine and on a busy one."""
 
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -14,22 +17,20 @@ from hystbench.drivers.safety import SafetyLimitError
 from hystbench.drivers.signal_generator import ScpiError
 from hystbench.errors import ConnectionLost, InstrumentError, InstrumentTimeout, ProtocolError
 
-from .conftest import expected_wire
+from .conftest import HANG_S, acquire_through, expected_wire
 
 
-def wait_until(cond, timeout_s=3.0, step_s=0.01):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if cond():
-            return True
-        time.sleep(step_s)
-    return False
-
-
-def streams_flowing(bench):
-    streams = bench.open_streams()
-    assert wait_until(lambda: all(s.stats.frames > 0 for s in streams.values()))
+def streams_flowing(hil):
+    """The four streams open, each with frames received: what arrives from now on is acquired."""
+    streams = hil.bench.open_streams()
+    hil.wait_for(lambda: all(s.stats.frames > 0 for s in streams.values()), "frames on every stream")
     return streams
+
+
+def acquire_past(hil, faults, name):
+    """Acquire until past the frames a fault armed on ``faults.name`` hit (it is consumed by then)."""
+    hil.wait_for(lambda: not getattr(faults, name), f"the emulator applying {name}")
+    return acquire_through(hil, hil.blocks_ahead(1))
 
 
 def check_runs(hil, runs):
@@ -52,9 +53,10 @@ def output_is_off(hil):
 # --- stream damage: exact gaps, no fault ------------------------------------------------------------
 def test_crc_errors_on_the_serial_stream_give_an_exact_gap(hil):
     hil.bench.start_output()
-    streams = streams_flowing(hil.bench)
-    hil.emu.charge_amp.faults.corrupt_frames = 3
-    runs = hil.bench.acquire(0.3)
+    streams = streams_flowing(hil)
+    faults = hil.emu.charge_amp.faults
+    faults.arm("corrupt_frames", 3, at_index=hil.blocks_ahead(2))
+    runs = acquire_past(hil, faults, "corrupt_frames")
     assert check_runs(hil, runs) == 3 * 500
     st = streams["charge_amplifier"].stats
     assert st.deframer.corrupt == 3 and st.frames_lost == 3 and st.gap_samples == 1500
@@ -63,33 +65,39 @@ def test_crc_errors_on_the_serial_stream_give_an_exact_gap(hil):
 
 def test_dropped_can_fd_frames_give_an_exact_gap(hil):
     hil.bench.start_output()
-    streams = streams_flowing(hil.bench)
-    hil.emu.integrator.faults.drop_frames = 7
-    runs = hil.bench.acquire(0.3)
+    streams = streams_flowing(hil)
+    faults = hil.emu.integrator.faults
+    faults.arm("drop_frames", 7, at_index=hil.blocks_ahead(2))  # after the first acquired sample, always
+    runs = acquire_past(hil, faults, "drop_frames")
     assert check_runs(hil, runs) == 70
     assert streams["flux_integrator"].stats.frames_lost == 7
 
 
 def test_garbage_bytes_on_both_stream_kinds_lose_nothing(hil):
     hil.bench.start_output()
-    streams = streams_flowing(hil.bench)
+    streams = streams_flowing(hil)
     junk = bytes(range(1, 200))  # no 0x00 (COBS delimiter) and no frame magic
-    hil.emu.amplifier.faults.stream_garbage = junk  # TCP, length-prefixed
-    hil.emu.charge_amp.faults.stream_garbage = junk  # serial, COBS
-    runs = hil.bench.acquire(0.3)
+    at = hil.blocks_ahead(2)
+    hil.emu.amplifier.faults.arm("stream_garbage", junk, at_index=at)  # TCP, length-prefixed
+    hil.emu.charge_amp.faults.arm("stream_garbage", junk, at_index=at)  # serial, COBS
+    acquire_past(hil, hil.emu.amplifier.faults, "stream_garbage")
+    runs = acquire_past(hil, hil.emu.charge_amp.faults, "stream_garbage")
     assert check_runs(hil, runs) == 0 and len(runs) == 1
     amp, ca = streams["current_amplifier"].stats, streams["charge_amplifier"].stats
     assert amp.deframer.discarded_bytes == len(junk) and amp.deframer.resyncs == 1
     assert ca.deframer.corrupt == 1 and ca.gap_samples == 0
 
 
-def test_stream_connection_lost_and_back_is_reconnected_with_an_exact_gap(hil):
+def test_stream_connection_lost_and_back_is_reconnected_with_an_exact_gap(hil_factory):
+    hil = hil_factory(**{"bench.backoff.attempts": "1000"})  # however late the cable comes back
     hil.bench.start_output()
-    streams = streams_flowing(hil.bench)
+    streams = streams_flowing(hil)
     server = hil.emu.generator.stream.server
     server.pause()
-    threading.Timer(0.08, server.resume).start()
-    runs = hil.bench.acquire(0.5)
+    hil.wait_clock(hil.blocks_ahead(2))  # frames made while the cable is out are lost
+    resumed_at = hil.emu.next_index
+    server.resume()
+    runs = acquire_through(hil, resumed_at + hil.emu.block_samples)
     gap = check_runs(hil, runs)
     assert gap > 0 and len(runs) == 2
     assert streams["signal_generator"].stats.reconnects >= 1
@@ -102,7 +110,7 @@ def test_disconnect_switches_output_off_then_reconnects_with_backoff(hil):
     bench.start_output()
     assert hil.emu.rig.output_enabled
     hil.emu.generator.disconnect()
-    assert wait_until(lambda: bench.faults)
+    hil.wait_for(lambda: bench.faults, "a bench fault")
     fault = bench.faults[0]
     assert fault.instrument == "signal_generator" and fault.output_off
     assert "connection lost" in fault.message
@@ -123,8 +131,7 @@ def test_disconnect_switches_output_off_then_reconnects_with_backoff(hil):
 def test_modbus_exception_response_is_a_clear_error_and_output_goes_off(hil):
     bench = hil.bench
     bench.start_output()
-    bench.heartbeat_paused.set()
-    time.sleep(2 * hil.config.heartbeat_s)
+    bench.pause_heartbeat()  # the exception is for the next request, which must be ours
     hil.emu.amplifier.faults.modbus_exception, hil.emu.amplifier.faults.modbus_exception_count = 4, 1
     with pytest.raises(ModbusError, match=r"write gain \(register 5\) = 400 -> Modbus exception 4 "
                                           r"\(SERVER DEVICE FAILURE\)"):
@@ -136,7 +143,7 @@ def test_modbus_exception_response_is_a_clear_error_and_output_goes_off(hil):
 def test_repeated_modbus_exceptions_in_the_heartbeat_stop_the_bench(hil):
     hil.bench.start_output()
     hil.emu.amplifier.faults.modbus_exception, hil.emu.amplifier.faults.modbus_exception_count = 6, 3
-    assert wait_until(lambda: hil.bench.faults)
+    hil.wait_for(lambda: hil.bench.faults, "a bench fault")
     assert "SERVER DEVICE BUSY" in hil.bench.faults[0].message and hil.bench.faults[0].output_off
     assert not hil.emu.generator.state["output"]
 
@@ -150,18 +157,20 @@ def test_scpi_error_in_the_queue_names_the_command(hil):
 
 
 def test_slow_and_missing_replies(hil_factory):
-    hil = hil_factory(**{"charge_amplifier.timeout_s": "0.2", "current_amplifier.timeout_s": "0.2"})
-    ca = hil.bench.charge_amp
-    hil.emu.charge_amp.faults.reply_delay_s = 0.05  # slow but in time
+    hil = hil_factory(**{"charge_amplifier.timeout_s": "1.0", "current_amplifier.timeout_s": "0.2"})
+    hil.bench.pause_heartbeat()  # every reply is to one of the queries below
+    ca, faults = hil.bench.charge_amp, hil.emu.charge_amp.faults
+    faults.reply_delay_s = 0.05  # slow but in time
     assert ca.query("scale_n_per_v") == 50.0
-    hil.emu.charge_amp.faults.reply_delay_s = 0.4  # too slow
-    with pytest.raises(InstrumentTimeout, match=r"charge_amplifier: no answer to 'SC\?' within 0.2 s"):
+    faults.reply_delay_s = 0.0
+    faults.hold_replies = release = threading.Event()  # too slow: held until the driver gave up
+    sent = faults.replies_sent
+    with pytest.raises(InstrumentTimeout, match=r"charge_amplifier: no answer to 'SC\?' within 1 s"):
         ca.query("scale_n_per_v")
-    hil.emu.charge_amp.faults.reply_delay_s = 0.0
-    time.sleep(0.3)
-    assert ca.query("time_constant") == "LONG"  # the late reply was not taken for this one
-    hil.bench.heartbeat_paused.set()
-    time.sleep(2 * hil.config.heartbeat_s)
+    faults.hold_replies = None
+    release.set()
+    assert faults.wait_replies(sent + 1, HANG_S)  # the late reply is on the line now
+    assert ca.query("time_constant") == "LONG"  # and was not taken for this one
     hil.emu.amplifier.faults.drop_replies = 1  # a missing Modbus reply
     amp = hil.bench.amplifier
     with pytest.raises(InstrumentTimeout, match=r"no answer to 'read 1 register\(s\) from 5 \(gain\)'"):
@@ -170,8 +179,7 @@ def test_slow_and_missing_replies(hil_factory):
 
 
 def test_garbage_on_a_command_channel_is_a_protocol_error(hil):
-    hil.bench.heartbeat_paused.set()
-    time.sleep(2 * hil.config.heartbeat_s)
+    hil.bench.pause_heartbeat()  # the garbage goes before the next reply, which must be ours
     hil.emu.generator.faults.garbage = b"\x07\x13junk"
     with pytest.raises(ProtocolError, match=r"signal_generator: unexpected answer to 'OUTP\?'"):
         hil.bench.generator.query("output")
@@ -181,7 +189,7 @@ def test_garbage_on_a_command_channel_is_a_protocol_error(hil):
 def test_amplifier_fault_bits_stop_the_output(hil):
     hil.bench.start_output()
     hil.emu.amplifier.trip("OVERTEMP")
-    assert wait_until(lambda: hil.bench.faults)
+    hil.wait_for(lambda: hil.bench.faults, "a bench fault")
     assert "OVERTEMP" in hil.bench.faults[0].message
     assert output_is_off(hil) and not hil.emu.generator.state["output"]
     with pytest.raises(InstrumentError, match="OVERTEMP"):
@@ -191,23 +199,24 @@ def test_amplifier_fault_bits_stop_the_output(hil):
 def test_current_limit_trips_the_amplifier(hil):
     hil.bench.configure("current_amplifier", current_limit_a=0.5)  # the sine peaks at 0.7 A
     hil.bench.start_output()
-    assert wait_until(lambda: hil.bench.faults)
+    hil.wait_for(lambda: hil.bench.faults, "a bench fault")
     assert "OVERCURRENT" in hil.bench.faults[0].message and output_is_off(hil)
 
 
 def test_watchdog_disables_the_amplifier_when_the_host_falls_silent(hil):
     hil.bench.start_output()
-    streams_flowing(hil.bench)
-    hil.bench.heartbeat_paused.set()
-    assert wait_until(lambda: hil.emu.amplifier.latched, timeout_s=2.0)
+    streams_flowing(hil)
+    hil.bench.pause_heartbeat()
+    hil.wait_for(lambda: hil.emu.amplifier.latched, "the watchdog tripping")
     assert not hil.emu.rig.output_enabled
-    t_trip = hil.truth.blocks[-1].end_index + hil.emu.block_samples  # the block after the trip
+    t_trip, settings = hil.emu.changes[-1]  # the first sample with the output off
+    assert settings["output"] is False
     stream = hil.bench.streams["current_amplifier"]
     tail = []
-    deadline = time.monotonic() + 3.0
-    while (not tail or tail[-1].end_index < t_trip + 5000) and time.monotonic() < deadline:
-        if (b := stream.read(0.1)) is not None:
-            tail.append(b)
+    while not tail or tail[-1].end_index < t_trip + 5000:
+        b = stream.read(HANG_S)
+        assert b is not None, "the current stream stopped"
+        tail.append(b)
     after = np.concatenate([b.channels["current_A"][max(0, t_trip - b.first_index):] for b in tail
                             if b.end_index > t_trip])
     assert after.size and np.max(np.abs(after)) < 5e-3  # sensor noise only (the sine peaked at 0.7 A)
@@ -227,10 +236,10 @@ def test_charge_amplifier_overload_flags_clip_but_keeps_running(hil):
 def test_integrator_bus_off_raises_with_the_output_already_off(hil_factory):
     hil = hil_factory(**{"flux_integrator.timeout_s": "0.2"})
     hil.bench.start_output()
-    streams_flowing(hil.bench)
+    streams_flowing(hil)
     hil.emu.integrator.disconnect()
     with pytest.raises(InstrumentError) as info:
-        hil.bench.acquire(5.0, timeout_s=8.0)
+        hil.bench.acquire(5.0, timeout_s=HANG_S)
     assert "flux_integrator" in str(info.value)
     assert output_is_off(hil) and hil.bench.faults[0].output_off
 
@@ -253,10 +262,10 @@ def test_safety_limits_are_refused_before_anything_is_sent(hil):
 
 def test_serial_instrument_silent_for_a_moment_gives_an_exact_gap_and_no_stop(hil):
     hil.bench.start_output()
-    streams = streams_flowing(hil.bench)
-    hil.emu.charge_amp.disconnect()  # serial cable out: no replies, no frames
-    threading.Timer(0.2, hil.emu.charge_amp.reconnect).start()
-    runs = hil.bench.acquire(0.6)
+    streams = streams_flowing(hil)
+    at, span = hil.blocks_ahead(2), 10 * hil.emu.block_samples
+    hil.emu.charge_amp.faults.silence(at, span)  # serial cable out for 0.1 s: no replies, no frames
+    runs = acquire_through(hil, at + span + hil.emu.block_samples)
     gap = check_runs(hil, runs)
-    assert gap > 0 and gap % 500 == 0 and streams["charge_amplifier"].stats.gap_samples == gap
+    assert gap == span and streams["charge_amplifier"].stats.gap_samples == gap
     assert not hil.bench.faults and hil.emu.rig.output_enabled  # the other heartbeats kept the watchdog fed
