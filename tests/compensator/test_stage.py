@@ -73,12 +73,12 @@ def test_the_daemon_runs_the_compensator_from_its_config_and_logs_its_state(mode
     cfg.write_text(f'[daemon]\nbench = "t"\nlog_dir = "{(tmp_path / "logs").as_posix()}"\n'
                    '[source]\nkind = "sim"\nfrequency_hz = 320.0\ncurrent_pp_a = 1.4\n'
                    '[estimation]\nperiods = 10\nhop_periods = 10\n[zenoh]\nenabled = false\n'
-                   '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 8.0\nautostart = true\n'  # output on
+                   '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 600.0\nautostart = true\n'  # output on till the end
                    f'[compensator]\nenabled = true\nmodel = "{model.as_posix()}"\nkind = "paper"\n'
                    'force = "offset=170,amp=40,freq=320"\n', encoding="utf-8")
     svc = BenchService(load_daemon_config(cfg)).start()
     try:
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + 120.0  # a safety timeout: the loop ends on the event
         while time.monotonic() < deadline and getattr(svc.source.rig, "_waveform", None) is None:
             time.sleep(0.1)
         assert svc.source.rig._waveform is not None  # the stage's table reached the generator
@@ -110,12 +110,12 @@ def test_the_daemon_compensator_drives_the_generator_through_its_driver(models_p
     cfg = tmp_path / "daemon.toml"
     cfg.write_text(f'[daemon]\nbench = "t"\nlog_dir = "{(tmp_path / "logs").as_posix()}"\n'
                    '[source]\nkind = "bench"\nfrequency_hz = 320.0\ncurrent_pp_a = 1.4\n[zenoh]\nenabled = false\n'
-                   '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 8.0\nautostart = true\n'
+                   '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 600.0\nautostart = true\n'
                    f'[compensator]\nenabled = true\nmodel = "{model.as_posix()}"\nkind = "paper"\n'
                    'force = "offset=170,amp=40,freq=320"\n', encoding="utf-8")
     svc = BenchService(load_daemon_config(cfg)).start()
     try:
-        deadline = time.monotonic() + 15.0
+        deadline = time.monotonic() + 120.0  # a safety timeout: the loop ends on the event
         while time.monotonic() < deadline and svc.source.emu.generator.state.get("function") != "ARB":
             time.sleep(0.1)
         assert svc.source.emu.generator.state.get("function") == "ARB"
@@ -204,7 +204,7 @@ def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tm
     cfg.write_text(f'[daemon]\nbench = "t"\nlog_dir = "{(tmp_path / "logs").as_posix()}"\n'
                    '[source]\nkind = "bench"\nfrequency_hz = 320.0\ncurrent_pp_a = 1.4\n[zenoh]\nenabled = false\n'
                    '[estimation]\nperiods = 20\nhop_periods = 20\n'
-                   '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 30.0\nautostart = true\n'
+                   '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 600.0\nautostart = true\n'
                    f'[compensator]\nenabled = true\nmodel = "{model.as_posix()}"\nkind = "paper"\nlearn = true\n'
                    'force = "offset=170,amp=40,freq=320"\n', encoding="utf-8")
     svc = BenchService(load_daemon_config(cfg)).start()
@@ -213,7 +213,7 @@ def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tm
         lambda topic, obj: reports.setdefault(obj["learning"]["iteration"], obj["learning"])
         if topic == COMPENSATOR and "learning" in obj else None)
     try:
-        deadline = time.monotonic() + 40.0
+        deadline = time.monotonic() + 300.0  # a safety timeout: the loop ends on the event
         while time.monotonic() < deadline and not any(k >= 3 and r["ratio"] <= 2.0 for k, r in reports.items()):
             time.sleep(0.2)
         assert svc.pipeline.compensator.errors == 0, svc.pipeline.compensator.last_error
