@@ -13,6 +13,9 @@ one shows up in the second pass).
 Samples so far off that they would swamp the fit itself (1e308 squares to infinity) are taken out
 before the first fit: those more than ``GROSS_MADS`` MADs of the raw samples from their median (a
 sine's samples stay within 1.5 of its MAD, a distorted one's within a few).
+
+Memory: residuals are made one channel at a time, block by block, and a median needs one copy of
+the samples it is taken over; nothing of N x (fitted parameters) size is ever built.
 """
 
 from __future__ import annotations
@@ -29,10 +32,26 @@ GROSS_MAX_FRACTION = 0.01
 MAX_PASSES = 5
 _MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4)
 _REL_FLOOR = 1e-9  # robust sigma floor, relative to the record's spread (noiseless data)
+#: Rows (record channels) are handled a few at a time, about this many samples together, so the
+#: copies a median needs stay near one channel's size however many or long the records are.
+ROW_SAMPLES = 1 << 20
+
+
+def _row_chunks(rows: int, n: int) -> list[slice]:
+    step = max(1, ROW_SAMPLES // max(n, 1))
+    return [slice(s, min(s + step, rows)) for s in range(0, rows, step)]
 
 
 def _mad(x: np.ndarray, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """Median and median absolute deviation along the last axis, over samples not masked."""
+    """Median and median absolute deviation of rows ``x`` (R, N) over the samples not masked,
+    (R, 1) each.  A single long row is done in one copy of its kept samples, reordered in place."""
+    if x.shape[0] == 1:
+        kept = x[0].copy() if mask is None else x[0][~mask[0]]
+        if kept.size == 0:
+            return np.full((1, 1), np.nan), np.full((1, 1), np.nan)
+        med = np.median(kept, overwrite_input=True)  # the same values, in another order
+        np.abs(np.subtract(kept, med, out=kept), out=kept)
+        return np.full((1, 1), med), np.full((1, 1), np.median(kept, overwrite_input=True))
     if mask is None or not mask.any():
         med = np.median(x, axis=-1, keepdims=True)
         return med, np.median(np.abs(x - med), axis=-1, keepdims=True)
@@ -41,16 +60,31 @@ def _mad(x: np.ndarray, mask: np.ndarray | None) -> tuple[np.ndarray, np.ndarray
     return med, np.nanmedian(np.abs(xm - med), axis=-1, keepdims=True)
 
 
+def row_median(data: np.ndarray) -> np.ndarray:
+    """Median of every channel (B, C, N) over all its samples, (B, C, 1)."""
+    flat = data.reshape(-1, data.shape[-1])
+    out = np.empty((flat.shape[0], 1))
+    for rows in _row_chunks(*flat.shape):
+        out[rows] = np.median(flat[rows], axis=-1, keepdims=True)  # one copy of these rows
+    return out.reshape(data.shape[:-1] + (1,))
+
+
 def initial_mask(data: np.ndarray, exclude: np.ndarray | None, sigmas: float | None) -> np.ndarray | None:
     """Samples (B, C, N) left out of the first fit: those given, and with detection on the gross
     ones.  None if there are none."""
     mask = None if exclude is None else exclude.copy()
     if sigmas is not None:
-        med, mad = _mad(data, mask)
-        with np.errstate(invalid="ignore", over="ignore"):
-            gross = np.abs(data - med) > GROSS_MADS * mad
-        few = gross.sum(axis=-1, keepdims=True) <= GROSS_MAX_FRACTION * data.shape[-1]
-        gross &= few
+        n = data.shape[-1]
+        flat = data.reshape(-1, n)
+        given = None if mask is None else mask.reshape(-1, n)
+        gross = np.zeros(flat.shape, dtype=bool)
+        for rows in _row_chunks(*flat.shape):
+            med, mad = _mad(flat[rows], None if given is None else given[rows])
+            with np.errstate(invalid="ignore", over="ignore"):
+                out = np.abs(flat[rows] - med) > GROSS_MADS * mad
+            few = out.sum(axis=-1, keepdims=True) <= GROSS_MAX_FRACTION * n
+            gross[rows] = out & few
+        gross = gross.reshape(data.shape)
         mask = gross if mask is None else mask | gross
     return mask if mask is not None and mask.any() else None
 
@@ -64,17 +98,34 @@ def _check_left(data: np.ndarray, mask: np.ndarray | None, names: tuple[str, ...
         if np.any(left[:, c] < n_params + 2):
             raise ValueError(f"{name} has {int(np.min(left[:, c]))} samples left once its outliers are out, "
                              f"too few for {n_params} parameters")
-        first_kept = np.take_along_axis(data[:, c], np.argmin(mask[:, c], axis=-1)[:, None], axis=-1)
-        kept = np.where(mask[:, c], first_kept, data[:, c])  # an outlier takes a kept sample's value
-        if np.any(np.ptp(kept, axis=-1) == 0.0):
+        keep = ~mask[:, c]
+        hi = np.max(data[:, c], axis=-1, where=keep, initial=-np.inf)
+        lo = np.min(data[:, c], axis=-1, where=keep, initial=np.inf)
+        if np.any(hi == lo):
             raise ValueError(f"{name} is flat (zero variance) apart from {int(mask[:, c].sum())} outlier "
                              "sample(s): it carries no phase")
 
 
-def model(sol: _lsq.Solution, ks: tuple[int, ...], fs: float, n: int) -> np.ndarray:
-    """The fitted waveforms (B, C, N)."""
-    tau = (np.arange(n) - (n - 1) / 2.0) / fs
-    return sol.coef @ _lsq._basis(sol.freq, np.asarray(ks, dtype=np.float64), tau)
+def _flag(data: np.ndarray, sol: _lsq.Solution, ks: tuple[int, ...], fs: float, mask: np.ndarray | None,
+          sigmas: float) -> np.ndarray:
+    """Samples (B, C, N) whose residual from the fit ``sol`` lies more than ``sigmas`` robust
+    standard deviations (from the samples ``mask`` leaves in) off the channel's median residual,
+    or is not finite.  One channel's residual at a time, made block by block."""
+    nb, nc, n = data.shape
+    kf = np.asarray(ks, dtype=np.float64)
+    flagged = np.zeros(data.shape, dtype=bool)
+    spread = np.sqrt(np.maximum(sol.sigma2, 0.0))  # (B, C)
+    scale = np.maximum(spread, np.abs(sol.coef).max(-1))
+    for rows in _row_chunks(nb, n):
+        for c in range(nc):
+            with np.errstate(invalid="ignore", over="ignore"):
+                resid = _lsq.residual_rows(data[rows, c], sol.coef[rows, c], sol.freq[rows], kf, fs)
+                med, mad = _mad(resid, None if mask is None else mask[rows, c])
+                sigma = np.maximum(_MAD_TO_SIGMA * mad, _REL_FLOOR * scale[rows, c, None])
+                bad = ~np.isfinite(resid)
+                np.abs(np.subtract(resid, med, out=resid), out=resid)
+                flagged[rows, c] = (resid > sigmas * sigma) | bad
+    return flagged
 
 
 def robust_solve(data: np.ndarray, fs: float, f0: np.ndarray, ks: tuple[int, ...], *, fit_freq: bool,
@@ -85,21 +136,15 @@ def robust_solve(data: np.ndarray, fs: float, f0: np.ndarray, ks: tuple[int, ...
     ``exclude`` (B, C, N): samples the caller leaves out whatever their values; ``mask``: the
     first fit's (:func:`initial_mask`); ``sigmas`` None: no detection.  Returns the last fit and the
     samples it left out (None: none)."""
-    n = data.shape[-1]
     n_params = data.shape[1] * (1 + 2 * len(ks)) + int(fit_freq)
     for k in range(MAX_PASSES):
         _check_left(data, mask, names, n_params)
         sol = _lsq.solve(data, fs, f0, ks, fit_freq=fit_freq, max_iter=max_iter, tol=tol, mask=mask)
         if sigmas is None or k == MAX_PASSES - 1:
             break
-        with np.errstate(invalid="ignore", over="ignore"):
-            resid = data - model(sol, ks, fs, n)
-            med, mad = _mad(resid, mask)
-            spread = np.sqrt(np.maximum(sol.sigma2, 0.0))[..., None]
-            sigma = np.maximum(_MAD_TO_SIGMA * mad, _REL_FLOOR * np.maximum(spread, np.abs(sol.coef).max(-1)[..., None]))
-            flagged = np.abs(resid - med) > sigmas * sigma
-        flagged |= ~np.isfinite(resid)
-        new = flagged if exclude is None else flagged | exclude
+        new = _flag(data, sol, ks, fs, mask, sigmas)
+        if exclude is not None:
+            new |= exclude
         new_mask = new if new.any() else None
         if (new_mask is None and mask is None) or (new_mask is not None and mask is not None
                                                    and np.array_equal(new_mask, mask)):

@@ -20,6 +20,8 @@ from . import _checks
 
 __all__ = ["CovarianceDelay", "covariance_delay"]
 
+_BLOCK = 1 << 16  # samples of x correlated at once (over all records), at least 4 periods
+
 
 @dataclass(frozen=True)
 class CovarianceDelay:
@@ -100,9 +102,17 @@ def covariance_delay(x: np.ndarray, y: np.ndarray, fs: float, freq_hz: float, *,
     half = period // 2
     width = n - period + 1
     xw = xa[..., half : half + width]
-    xw = xw - xw.mean(axis=-1, keepdims=True)
-    # cov[j] = 1/W sum_i xw[i] y[half + i + (j - half)]: the mean of y drops out as sum(xw) = 0
-    cov = fftconvolve(ya, xw[..., ::-1], mode="valid", axes=-1) / width
+    mean = xw.mean(axis=-1, keepdims=True)
+    # cov[j] = 1/W sum_i xw[i] y[half + i + (j - half)]: the mean of y drops out as sum(xw) = 0.
+    # The sum over i is taken in blocks of x, each correlated by FFT with the stretch of y it
+    # meets (overlap-save): memory stays a few blocks however long the record.
+    cov = np.zeros(xa.shape[:-1] + (period,))
+    rows = max(1, int(np.prod(xa.shape[:-1])))
+    step = max(_BLOCK // rows, 4 * period)
+    for s in range(0, width, step):
+        e = min(s + step, width)
+        cov += fftconvolve(ya[..., s : e + period - 1], (xw[..., s:e] - mean)[..., ::-1], mode="valid", axes=-1)
+    cov /= width
     lags = np.arange(period) - half
     j = np.argmax(cov, axis=-1)
     lag = lags[j]

@@ -195,10 +195,11 @@ def _prepare(records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_i
     data = np.stack([a.reshape(-1, a.shape[-1]) for a in arrays], axis=1)  # (B, C, N)
     excluded = _exclusions(exclude, arrays, names, axis)
     mask = _outliers.initial_mask(data, excluded, outlier_sigmas)
-    clean = data  # for the start frequency: a left-out sample takes its channel's median
-    if mask is not None:
-        clean = np.where(mask, np.median(data, axis=-1, keepdims=True), data)
+    fill = None  # for the start frequency's search a left-out sample takes its channel's median
+    if mask is not None and (freq_hz is None or fit_freq):
+        fill = _outliers.row_median(data)[..., 0]
     if freq_hz is None:
+        clean = data if mask is None else np.where(mask, fill[..., None], data)
         f0 = _lsq.fft_peak_freq(clean, fs) / ks[0]
         f_max = float(np.max(f0))
         if ks[-1] * f_max >= fs / 2.0:
@@ -206,7 +207,7 @@ def _prepare(records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_i
         for arr, name in zip(arrays, names):
             _checks.check_length(arr, name, fs, float(np.min(f0)), n_params)
     elif fit_freq:
-        f0 = _lsq.grid_start(clean, fs, freq_hz, ks, 1e-6 * search_ppm * freq_hz)
+        f0 = _lsq.grid_start(data, fs, freq_hz, ks, 1e-6 * search_ppm * freq_hz, mask, fill)
     else:
         f0 = np.full(data.shape[0], freq_hz)
     return data, batch, f0, fs, ks, tol, excluded, mask, outlier_sigmas
