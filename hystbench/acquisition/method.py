@@ -189,8 +189,17 @@ def _filled(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
     samples: a spectrum, the covariance method)."""
     if not mask.any():
         return x
-    idx = np.arange(x.size)
-    return np.where(mask, np.interp(idx, idx[~mask], x[~mask]), x)
+    out = x.copy()
+    kept = np.flatnonzero(~mask)
+    out[mask] = np.interp(np.flatnonzero(mask), kept, x[kept])
+    return out
+
+
+def _index_mask(n: int, indices: list[int]) -> np.ndarray:
+    """A boolean mask of ``n`` samples, True at ``indices``."""
+    mask = np.zeros(n, dtype=bool)
+    mask[indices] = True
+    return mask
 
 
 def check_fit_quality(rec: Recording, f_fit: float, fits: dict[str, tuple[object, int]]) -> dict[str, float]:
@@ -341,7 +350,7 @@ def estimate(rec: Recording) -> dict:
     frequency; the covariance method's delays (paper Eq. 3) beside the sine-fit ones; and the rig
     preset's instrument model (paper Figs. 8-9) at the force's frequency for comparison."""
     d = measure_delays(rec)
-    masks = {c: np.isin(np.arange(rec.n), v) for c, v in d.outliers.items()}
+    masks = {c: _index_mask(rec.n, v) for c, v in d.outliers.items()}
     cov = covariance_delays(rec, d.frequency_hz, masks)
     f = d.frequency_hz
     model = presets.instrument(load_rig(rec.rig))
