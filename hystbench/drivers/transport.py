@@ -62,6 +62,11 @@ class SerialLink:
             raise serial.SerialException(f"{self.url} is not open")
         return self._port
 
+    @property
+    def waiting(self) -> int:
+        """Bytes received and not read yet (e.g. a late reply the next command will flush)."""
+        return len(self._buf) + self._require().in_waiting
+
     def reset_input(self) -> None:
         """Forget bytes that arrived before a command (stale replies, line noise)."""
         port = self._require()

@@ -169,7 +169,8 @@ def test_slow_and_missing_replies(hil_factory):
         ca.query("scale_n_per_v")
     faults.hold_replies = None
     release.set()
-    assert faults.wait_replies(sent + 1, HANG_S)  # the late reply is on the line now
+    assert faults.wait_replies(sent + 1, HANG_S)  # the late reply is on the line now ...
+    hil.wait_for(lambda: ca.link.waiting, "the late reply reaching the host")  # ... and at the host
     assert ca.query("time_constant") == "LONG"  # and was not taken for this one
     hil.emu.amplifier.faults.drop_replies = 1  # a missing Modbus reply
     amp = hil.bench.amplifier
