@@ -11,11 +11,16 @@ each in a fresh Python process:
 
 Each child's peak resident set (``ru_maxrss``) and CPU time come from ``os.wait4``, which gives the
 rusage of that one child (``getrusage(RUSAGE_CHILDREN)`` would give the largest of all children so
-far).  Per MB of CSV: the peak above the import floor, and wall seconds.  Target: the reader's
-peak above the floor is at most the float64 arrays (8 B x rows x columns) plus ``CHUNK_ALLOWANCE_MIB``.
+far).  Per MB of CSV: the peak above the import floor, and wall seconds.  Targets: the reader's
+peak above the floor is at most the float64 arrays (8 B x rows x columns) plus ``CHUNK_ALLOWANCE_MIB``;
+``estimate``'s (the reader's arrays plus the fits, which go block by block) at most
+``ESTIMATE_MIB_PER_MB`` per MB of CSV, about three times the float64 arrays.  With several
+durations the CPU time of ``estimate`` is compared with the data's growth (linear: ratio ~1).
 
-"Before" figures: run this file with ``PYTHONPATH`` pointing at an older checkout (the children
-inherit it, so they import that checkout's reader).  The 60 s case (~580 MB of CSV) takes a few
+"Before" figures: run this file with ``PYTHONPATH`` pointing at an older checkout's folder,
+from a working directory outside any checkout (``python -c``/``-m`` put the working directory
+first on the path, ahead of ``PYTHONPATH``); the children inherit both.  Give ``--keep`` the same
+folder both times to measure the same recordings.  The 60 s case (~580 MB of CSV) takes a few
 minutes on one core; pass ``--durations 10 60``.
 Run: ``hystbench bench csv [--durations 10 60] [--keep DIR] [--json]``.
 """
@@ -36,6 +41,9 @@ import numpy as np
 
 DURATIONS = (10.0,)
 CHUNK_ALLOWANCE_MIB = 32.0  # the text chunk, its parse and the time check, whatever the file size
+#: estimate's peak above its import floor per MB of CSV: the six float64 columns are 0.47 MiB per
+#: MB, the fits may add a few arrays of a channel's size, never N x (fitted parameters)
+ESTIMATE_MIB_PER_MB = 1.5
 SIM_ARGS = ("--rig", "ecore_pm", "--freq", "320", "--ipp", "1.4")
 #: What each step imports before it reads anything: its memory floor, whatever the file.
 FLOORS = {"reader": "import hystbench.acquisition.recording",
@@ -97,10 +105,22 @@ def _case(stem: Path, duration: float) -> dict:
         r["s_per_MB"] = r["wall_s"] / csv_mb
         r["cpu_s_per_MB"] = r["cpu_s"] / csv_mb  # steadier than wall time on a shared machine
     arrays = 8.0 * rows * columns / _MIB
+    reader_ok = steps["reader"]["above_floor_MiB"] <= arrays + CHUNK_ALLOWANCE_MIB
+    estimate_ok = steps["estimate"]["MiB_per_MB"] <= ESTIMATE_MIB_PER_MB
     return {"duration_s": duration, "csv_MB": csv_mb, "rows": rows, "columns": columns,
             "float64_MiB": arrays, **steps,
             "fit_extra_MiB": steps["estimate"]["peak_MiB"] - steps["reader"]["peak_MiB"],
-            "passed": steps["reader"]["above_floor_MiB"] <= arrays + CHUNK_ALLOWANCE_MIB}
+            "reader_passed": reader_ok, "estimate_passed": estimate_ok, "passed": reader_ok and estimate_ok}
+
+
+def _scaling(cases: list[dict]) -> dict | None:
+    """How estimate's CPU time grew from the shortest to the longest recording, against the data."""
+    if len(cases) < 2:
+        return None
+    short, long_ = min(cases, key=lambda c: c["csv_MB"]), max(cases, key=lambda c: c["csv_MB"])
+    data, cpu = long_["csv_MB"] / short["csv_MB"], long_["estimate"]["cpu_s"] / short["estimate"]["cpu_s"]
+    return {"from_s": short["duration_s"], "to_s": long_["duration_s"], "data_ratio": data,
+            "estimate_cpu_ratio": cpu, "estimate_cpu_ratio_per_data_ratio": cpu / data}
 
 
 def run(durations: tuple[float, ...] = DURATIONS, keep: str | None = None) -> dict:
@@ -113,6 +133,8 @@ def run(durations: tuple[float, ...] = DURATIONS, keep: str | None = None) -> di
         "benchmark": "csv",
         "cases": cases,
         "chunk_allowance_MiB": CHUNK_ALLOWANCE_MIB,
+        "estimate_MiB_per_MB_target": ESTIMATE_MIB_PER_MB,
+        "estimate_time_scaling": _scaling(cases),
         "passed": all(c["passed"] for c in cases),
         "python": platform.python_version(),
         "numpy": np.__version__,
@@ -138,15 +160,26 @@ def _print_table(result: dict) -> None:
     out = console()
     out.print(table)
     for c in result["cases"]:
-        verdict = "meets" if c["passed"] else "MISSES"
+        verdict = "meets" if c["reader_passed"] else "MISSES"
         out.print(f"{c['duration_s']:g} s: reader {c['reader']['above_floor_MiB']:.0f} MiB above its "
                   f"{c['reader']['floor_MiB']:.0f} MiB import floor for {c['float64_MiB']:.0f} MiB of float64 "
                   f"({verdict} arrays + {result['chunk_allowance_MiB']:g} MiB); the fit adds "
                   f"{c['fit_extra_MiB']:.0f} MiB")
+        e = c["estimate"]
+        verdict = "meets" if c["estimate_passed"] else "MISSES"
+        out.print(f"{c['duration_s']:g} s: estimate {e['above_floor_MiB']:.0f} MiB above its {e['floor_MiB']:.0f} "
+                  f"MiB import floor = {e['MiB_per_MB']:.2f} MiB per MB of CSV ({verdict} <= "
+                  f"{result['estimate_MiB_per_MB_target']:g}), {e['wall_s']:.1f} s wall, {e['cpu_s']:.1f} s CPU")
+    sc = result["estimate_time_scaling"]
+    if sc:
+        out.print(f"estimate {sc['from_s']:g} s -> {sc['to_s']:g} s: {sc['data_ratio']:.1f} x the data, "
+                  f"{sc['estimate_cpu_ratio']:.1f} x the CPU time ({sc['estimate_cpu_ratio_per_data_ratio']:.2f} "
+                  "per unit of data; 1 is linear)")
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Command line: print the table (or JSON with ``--json``); exit 1 if the reader misses its target."""
+    """Command line: print the table (or JSON with ``--json``); exit 1 if the reader or estimate misses
+    its memory target."""
     parser = argparse.ArgumentParser(prog="hystbench bench csv", description=__doc__.split("\n")[0])
     parser.add_argument("--durations", type=float, nargs="+", default=list(DURATIONS),
                         help="recording lengths in seconds at 100 kS/s (default 10; 60 takes minutes)")
