@@ -58,6 +58,7 @@ def _sweep_through_drivers(rig_name: str, ipp: float, freqs, advance) -> list[Re
             bench.generator.set_sine(f, vpp, 0.0)
             if n == 0:
                 bench.start_output()
+            bench.discard_backlog()  # samples of the last frequency: the settling starts at the change
             bench.acquire(SETTLE_S)
             runs = bench.acquire(DURATION_S)
             if len(runs) != 1:  # a gap: the demo would rather stop than hide it

@@ -1,0 +1,64 @@
+"""``make demo``'s sweeps through the drivers (issue 16): each point's settling starts at the
+frequency change, however long the change took, so no recording holds samples of the last
+frequency.  On a busy machine the SCPI round trips of a change took longer than the samples the
+settling read skipped, and the 480 Hz recording began with 20 ms of 320 Hz.
+
+The slow machine is made exact: each change reaches the generator only once the emulator's clock
+has run on twice the settling time since it was asked for."""
+
+import threading
+
+from hystbench.acquisition import demo
+from hystbench.drivers.bench import Bench
+from hystbench.sim_backend.emulators.bench import EmulatedBench
+
+from .conftest import HANG_S
+
+
+def wait_clock(emu: EmulatedBench, index: int) -> None:
+    """Wait, on the clock's own blocks, until the emulator has made every sample before ``index``."""
+    reached = threading.Event()
+    tap = lambda block: reached.set() if block.end_index >= index else None  # noqa: E731
+    emu.taps.append(tap)
+    try:
+        assert emu.next_index >= index or reached.wait(HANG_S), "the emulator's clock stopped"
+    finally:
+        emu.taps.remove(tap)
+
+
+def test_each_point_is_measured_after_its_change_and_the_settling(monkeypatch):
+    made: list[EmulatedBench] = []
+    measured: list[tuple[float, int]] = []  # (frequency, first sample of the recording)
+    settle = int(demo.SETTLE_S * 100_000)
+
+    class Emulated(EmulatedBench):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            made.append(self)
+
+    class SlowToChange(Bench):
+        def open(self):
+            super().open()
+            set_sine = self.generator.set_sine
+
+            def slow_set_sine(*args):
+                wait_clock(made[-1], made[-1].next_index + 2 * settle)
+                set_sine(*args)
+
+            self.generator.set_sine = slow_set_sine
+            return self
+
+        def acquire(self, duration_s, **kw):
+            runs = super().acquire(duration_s, **kw)
+            if duration_s == demo.DURATION_S:
+                measured.append((made[-1].rig.frequency_hz, runs[0].first_index))
+            return runs
+
+    monkeypatch.setattr(demo, "EmulatedBench", Emulated)
+    monkeypatch.setattr(demo, "Bench", SlowToChange)
+    monkeypatch.setattr(demo, "DURATION_S", 0.05)
+    recs = demo._sweep_through_drivers("ecore_pm", 1.4, (320.0, 480.0), lambda: None)
+    assert [r.frequency_hz for r in recs] == [320.0, 480.0] and len(measured) == 2
+    for f, first in measured:
+        changed = max(i for i, s in made[-1].changes if s["frequency_hz"] == f and s["output"])
+        assert first >= changed + settle, (f, first, changed)
