@@ -330,6 +330,7 @@ class BenchService:
                 "log": str(self.recorder.paths[-1]) if self.recorder and self.recorder.paths else None,
                 "idle_raw": self.cfg["recording"]["idle_raw"],
                 "idle_samples_skipped": self.recorder.idle_samples_skipped if self.recorder else 0,
+                "raw_flushed_to": self.recorder.raw_end_flushed if self.recorder else 0,
                 "retention_deleted": self.retention_deleted,
                 "limits": {"max_current_a": self.limits.max_current_a,
                            "frequency_hz": [MIN_FREQUENCY_HZ, self.limits.max_frequency_hz]},

@@ -84,6 +84,9 @@ class McapRecorder:
         self._channel_ids: dict[str, int] = {}
         self._part_started = 0.0
         self._last_flush = 0.0
+        #: End sample index of the last raw block handed to the writer, and of the last one on
+        #: disk (in the OS's hands: a kill -9 of this process loses none of it).
+        self.raw_end_added = self.raw_end_flushed = 0
 
     # --- life cycle ------------------------------------------------------------------------------
     def _part_path(self, part: int) -> Path:
@@ -167,6 +170,7 @@ class McapRecorder:
                 self._add(RAW, encode_block(piece, self.units), self.epoch_ns + piece.t0_ns)
             return
         self._add(RAW, encode_block(block, self.units), self.epoch_ns + block.t0_ns)
+        self.raw_end_added = block.end_index
 
     def _idle_pieces(self, block: SampleBlock) -> list[SampleBlock]:
         """The parts of an idle block inside the decimation's snapshots (none with ``"off"``)."""
@@ -215,6 +219,7 @@ class McapRecorder:
         if self._writer is not None and now - self._last_flush >= self.flush_interval_s:
             self._writer.flush()
             self._last_flush = now
+            self.raw_end_flushed = self.raw_end_added
 
     def _should_rotate(self, now: float) -> bool:
         if self.rotate_s is not None and now - self._part_started >= self.rotate_s:
