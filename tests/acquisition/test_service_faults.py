@@ -28,7 +28,7 @@ def test_a_fault_restarts_the_source_output_off_in_a_new_log_part(tmp_path: Path
     try:
         on = threading.Event()
         svc.pipeline.listeners.append(lambda t, o: on.set() if t == "/estimate" else None)
-        send_command(client, "f", "output", {"on": True}, timeout_s=5.0)
+        send_command(client, "f", "output", {"on": True}, timeout_s=30.0)
         assert on.wait(30.0)  # driven: estimates come only with the output on
         first_source, first_part = svc.source, svc.recorder.paths[-1]
         first_source.emu.amplifier.trip("INTERLOCK")
@@ -50,8 +50,8 @@ def test_a_fault_restarts_the_source_output_off_in_a_new_log_part(tmp_path: Path
                 break
         assert "INTERLOCK" in events["fault"]["message"] and events["fault"]["level"] == "error"
         assert "output off" in events["restarted"]["message"]
-        assert send_command(client, "f", "set_excitation", {"frequency_hz": 160.0}, timeout_s=5.0)["ok"]
-        health = send_command(client, "f", "output", {"on": False}, timeout_s=5.0)
+        assert send_command(client, "f", "set_excitation", {"frequency_hz": 160.0}, timeout_s=30.0)["ok"]
+        health = send_command(client, "f", "output", {"on": False}, timeout_s=30.0)
         assert health["ok"] and svc.health()["faults"] == 1 and "INTERLOCK" in svc.health()["last_fault"]
     finally:
         status.close()
