@@ -104,6 +104,11 @@ class Pipeline:
         self._arr_pos = np.zeros(8192, dtype=np.int64)  # ring end position of each source block...
         self._arr_t = np.zeros(8192)  # ...and its monotonic arrival time (a circular log)
         self._n_arrivals = 0
+        #: the source's sample index one past the last block written to the ring (None: no block
+        #: yet); its own sample clock, however fast or slow it runs against the wall clock
+        self.position: int | None = None
+        self._index_waits: list[list] = []  # [index or None (from the first block), n, Event]
+        self._index_lock = threading.Lock()
         self._queue: queue.Queue = queue.Queue(queue_size)
         self._stop = threading.Event()
         self._source_done = threading.Event()
@@ -229,6 +234,7 @@ class Pipeline:
                     st.waited_s += waited
                 else:
                     self.ring.write(block)
+                self._arrived_at(block)
                 st.blocks += 1
                 st.samples += block.n
                 now = time.monotonic()
@@ -239,6 +245,31 @@ class Pipeline:
         finally:
             self.ring.close()
             self._source_done.set()
+
+    def after_samples(self, n: int) -> threading.Event:
+        """An Event set once the source has given ``n`` samples past :attr:`position` now (past
+        its first sample if it has given none yet): waits that count the source's samples, not
+        wall time (a sweep's dwell).  It is never set if the source ends or stalls first."""
+        ev = threading.Event()
+        with self._index_lock:
+            target = None if self.position is None else self.position + int(n)
+            if target is not None and n <= 0:
+                ev.set()
+            else:
+                self._index_waits.append([target, int(n), ev])
+        return ev
+
+    def _arrived_at(self, block: SampleBlock) -> None:
+        """Move :attr:`position` to the end of ``block`` and set the waits it reached."""
+        with self._index_lock:
+            self.position = block.end_index
+            if self._index_waits:
+                for w in self._index_waits:
+                    if w[0] is None:
+                        w[0] = block.first_index + w[1]
+                    if w[0] <= block.end_index:
+                        w[2].set()
+                self._index_waits = [w for w in self._index_waits if not w[2].is_set()]
 
     def _write_waiting(self, block: SampleBlock) -> float | None:
         """Write ``block`` once every reader has room for it (in pieces of at most half the ring);

@@ -29,6 +29,11 @@ log = logging.getLogger("hystbench.daemon")
 #: More faults than this within FAULT_WINDOW_S and the service gives up (systemd restarts it).
 MAX_FAULTS = 5
 FAULT_WINDOW_S = 60.0
+#: A sweep point whose source gives no sample for this long (wall time) ends the sweep with a
+#: fault: a safety bound for a dead source, never a way for a dwell to finish.
+DWELL_STALL_S = 30.0
+#: How often a dwell looks at the stop request and the source's progress.
+DWELL_POLL_S = 0.05
 
 
 def _log_path(folder: Path, bench: str) -> Path:
@@ -309,9 +314,14 @@ class BenchService:
                     self.point = Point(f, ipp, self.point.offset_a)
                     src.set_excitation(f, ipp, self.point.offset_a)
                     src.set_output(True)
+                    reached = p.after_samples(round(dwell * src.fs_hz))  # from the command on
                 p.status("info", "sweep_point", f"{f:g} Hz, {ipp:g} A-pp", point=k, frequency_Hz=f, current_pp_A=ipp)
-                if stop.wait(dwell):
-                    p.status("info", "sweep_stopped", f"stopped at point {k}")
+                fault = self._dwell(p, reached, stop)
+                if fault is not None:
+                    if fault:
+                        src.set_output(False)  # a fault: output off before anything else
+                    p.status("error" if fault else "info", "sweep_stopped",
+                             f"stopped at point {k}" + (f": {fault}; output off" if fault else ""))
                     return
             else:
                 p.status("info", "sweep_done", f"{len(freqs)} points")
@@ -319,6 +329,25 @@ class BenchService:
             src.set_output(False)
             if self.state == "sweeping":
                 self.state = "running"
+
+    @staticmethod
+    def _dwell(p, reached: threading.Event, stop: threading.Event) -> str | None:
+        """Wait until the source has given the point's samples (``reached``): the dwell runs on
+        the source's own sample clock, so a bench slower than real time still gives each point
+        its samples.  None when it did; '' when ``stop`` was set; why, when the source ended or
+        gave no sample for ``DWELL_STALL_S``."""
+        last, since = p.position, time.monotonic()
+        while not reached.wait(DWELL_POLL_S):
+            if stop.is_set():
+                return ""
+            if p.error is not None or p.ring.closed:
+                return f"the source ended at sample {p.position} before the point's dwell" + (
+                    f" ({type(p.error).__name__}: {p.error})" if p.error is not None else "")
+            if p.position != last:
+                last, since = p.position, time.monotonic()
+            elif time.monotonic() - since > DWELL_STALL_S:
+                return f"no sample from the source for {DWELL_STALL_S:g} s (at sample {last})"
+        return None
 
     def health(self) -> dict:
         p = self.pipeline
