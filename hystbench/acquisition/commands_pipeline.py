@@ -482,7 +482,8 @@ def _clear_demo_live(out: Path, *, remove_dir: bool = False) -> None:
 def _follow_sweep(ests, status, t_end: float, got: list[dict], errors: list[str]) -> list[float]:
     """Print estimates as they arrive until the sweep says it is done (or ``t_end``), then those
     still on their way (a source behind the wall clock delivers the last points late); the
-    frequencies the sweep announced."""
+    frequencies the sweep announced.  The sweep dwells on the source's sample clock, so a source
+    slower than real time takes longer: ``t_end`` moves on while messages still come."""
     points: list[float] = []
     done = False
     while time.monotonic() < t_end:
@@ -490,9 +491,11 @@ def _follow_sweep(ests, status, t_end: float, got: list[dict], errors: list[str]
         if item is not None:
             got.append(json.loads(item[1]))
             print(format_message(item[0], item[1]), flush=True)
+            t_end = t_end if done else max(t_end, time.monotonic() + 10.0)
         elif done:  # a second without an estimate after the sweep: the pipeline has caught up
             break
         while (st := status.get(0.0)) is not None:
+            t_end = t_end if done else max(t_end, time.monotonic() + 10.0)
             obj = json.loads(st[1])
             if obj.get("level") == "error":
                 errors.append(str(obj.get("message") or obj.get("event")))
