@@ -344,11 +344,11 @@ class RingReader:
     def release(self, r: RingRead) -> bool:
         """Done with the views of ``r``: True if they were intact throughout; if not, its samples
         are counted lost and whatever was computed from them must be dropped."""
-        with self.ring._cond:
+        with self.ring._cond:  # judged before the views are let go: the writer waits on them
+            ok = self.valid(r)
             if self._held is not None:
                 self._held = None
                 self.ring._room.notify_all()
-        ok = self.valid(r)
         if not ok:
             self.lost_samples += r.n
             self.read_samples -= r.n

@@ -221,3 +221,39 @@ def test_one_writer_many_threaded_readers() -> None:
     for r in readers:
         assert r.read_samples + r.lost_samples == nxt, r.name
     assert readers[2].lost_samples > 0  # the slow reader was lapped and was told so
+
+
+def test_a_release_is_judged_before_the_waiting_writer_may_reuse_the_views() -> None:
+    """A lossless writer waits for room on the views a reader holds.  Releasing them must judge
+    them intact first: judged after letting go, the woken writer could overwrite them in between
+    and a complete read was counted lost (replay under load lost 300-1500 samples this way).  The
+    check below stalls at the judging moment until the writer has written, or, when the writer is
+    rightly still held back, for a short while: its outcome never depends on the machine's speed."""
+    from hystbench.acquisition.ring import RingReader
+
+    ring = RingBuffer(["a", "b"], 100, fs_hz=FS)
+    reader = ring.reader("r")
+    ring.write(block(0, 100))
+    got = reader.read()  # holds the views of all 100 samples
+    written = threading.Event()
+
+    def writer() -> None:
+        assert ring.wait_for_room(50, timeout_s=HANG_S)
+        ring.write(block(100, 50))
+        written.set()
+
+    real_valid = RingReader.valid
+
+    def valid_after_the_writer(self, r):
+        written.wait(0.5)  # old order: the writer was woken already and writes now
+        return real_valid(self, r)
+
+    t = threading.Thread(target=writer, daemon=True)
+    t.start()
+    RingReader.valid = valid_after_the_writer
+    try:
+        assert reader.release(got)  # every one of the 100 samples was used intact
+    finally:
+        RingReader.valid = real_valid
+    t.join(HANG_S)
+    assert written.is_set() and reader.lost_samples == 0
