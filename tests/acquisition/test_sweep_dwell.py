@@ -129,19 +129,25 @@ def test_a_source_that_ends_mid_dwell_stops_the_sweep_with_an_error(tmp_path: Pa
     assert not svc.source.rig.output_enabled
 
 
-def test_stop_sweep_interrupts_a_dwell_whose_source_is_stalled(tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.setattr(service, "DWELL_STALL_S", HANG_S * 10)  # not the stall bound: stop_sweep ends it
-    svc = make_service(tmp_path)
+def stall_after_five_blocks(svc) -> tuple[threading.Event, threading.Event]:
+    """The service's source gives five blocks, sets ``stalled``, then nothing until ``gate``."""
     gate, stalled = threading.Event(), threading.Event()
     blocks = svc.source.blocks
 
     def gated(stop):
         for k, b in enumerate(blocks(stop)):
-            if k >= 5:  # a few blocks, then nothing until the test opens the gate
+            if k >= 5:
                 stalled.set()
                 gate.wait(HANG_S)
             yield b
     svc.source.blocks = gated
+    return gate, stalled
+
+
+def test_stop_sweep_interrupts_a_dwell_whose_source_is_stalled(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setattr(service, "DWELL_STALL_S", HANG_S * 10)  # not the stall bound: stop_sweep ends it
+    svc = make_service(tmp_path)
+    gate, stalled = stall_after_five_blocks(svc)
     svc.start()
     try:
         ended, statuses = sweep_end(svc)
@@ -162,16 +168,7 @@ def test_stop_sweep_interrupts_a_dwell_whose_source_is_stalled(tmp_path: Path, m
 def test_a_stalled_source_ends_the_sweep_with_a_fault_never_a_success(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setattr(service, "DWELL_STALL_S", 0.2)  # the safety bound, short: the source is dead
     svc = make_service(tmp_path)
-    gate, stalled = threading.Event(), threading.Event()
-    blocks = svc.source.blocks
-
-    def gated(stop):
-        for k, b in enumerate(blocks(stop)):
-            if k >= 5:  # a few blocks, then nothing until the test opens the gate
-                stalled.set()
-                gate.wait(HANG_S)
-            yield b
-    svc.source.blocks = gated
+    gate, stalled = stall_after_five_blocks(svc)
     svc.start()
     try:
         ended, statuses = sweep_end(svc)
