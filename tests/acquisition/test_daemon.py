@@ -288,14 +288,6 @@ def test_after_the_compensator_switched_the_output_off_it_stays_off(tmp_path: Pa
 
 
 # --- issue 16: a daemon that survives any command, one per bench, its logs in its state directory --------
-def _health(session, bench: str) -> dict:
-    for _ in range(20):  # bounded: each query has its own timeout
-        got = query_json(session, f"hystbench/{bench}/health", timeout_s=1.0)
-        if got:
-            return got[0]
-    raise AssertionError(f"no reply from hystbench/{bench}/health")
-
-
 def test_bad_commands_are_refused_and_the_daemon_stays_up(tmp_path: Path) -> None:
     """The issue's two commands (50 A-pp on a 2 A bench) killed the daemon with exit 1; now each is
     refused with the reason and the daemon answers the next one.  No [daemon] log_dir: the log
@@ -316,7 +308,7 @@ def test_bad_commands_are_refused_and_the_daemon_stays_up(tmp_path: Path) -> Non
                 send_command(session, "d3", verb, args, timeout_s=30.0)
         assert send_command(session, "d3", "set_excitation", {"frequency_hz": 160, "current_pp_a": 1.0},
                             timeout_s=30.0)["ok"]
-        health = _health(session, "d3")
+        health = health_when(session, "d3", lambda h: True)
         assert health["state"] == "running" and health["pid"] == d.proc.pid and health["faults"] == 0
         assert health["log_dir"] == str(state / "logs")
         assert d.proc.poll() is None
@@ -418,7 +410,7 @@ def test_a_fault_in_the_source_is_survived_output_off(tmp_path: Path) -> None:
         d.wait_for("READY=1")
         session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
         status = Subscription(session, "hystbench/d4/status")
-        _health(session, "d4")  # connected: the subscription sees what follows
+        health_when(session, "d4", lambda h: True)  # connected: the subscription sees what follows
         send_command(session, "d4", "set_excitation", {"current_pp_a": 3.0}, timeout_s=30.0)
         send_command(session, "d4", "output", {"on": True}, timeout_s=30.0)
         events: dict[str, dict] = {}
@@ -431,7 +423,7 @@ def test_a_fault_in_the_source_is_survived_output_off(tmp_path: Path) -> None:
                 break
         assert "SimulationError" in events["fault"]["message"] and "output switched off" in events["fault"]["message"]
         assert send_command(session, "d4", "set_excitation", {"current_pp_a": 1.0}, timeout_s=30.0)["ok"]
-        health = _health(session, "d4")
+        health = health_when(session, "d4", lambda h: True)
         assert health["faults"] == 1 and health["state"] == "running" and d.proc.poll() is None
         d.proc.send_signal(signal.SIGTERM)
         assert d.proc.wait(timeout=20) == 0
