@@ -77,7 +77,9 @@ def settling_time_s(metadata: Mapping[str, Any]) -> float:
     return SETTLE_TIME_CONSTANTS * max(taus) if taus else 0.0
 
 
-def settle_samples(metadata: Mapping[str, Any], fs_hz: float, frequency_hz: float, settle_periods: float) -> int:
-    """Samples to skip at the start of a run: the settling time or ``settle_periods`` periods of
-    ``frequency_hz`` (the iron's loop), whichever is longer."""
-    return int(math.ceil(max(settling_time_s(metadata), settle_periods / frequency_hz) * fs_hz))
+def settle_samples(settle_s: float, settle_periods: float, fs_hz: float, frequency_hz: float) -> int:
+    """Samples to skip at the start of a run: ``settle_s`` (the instrument's ringing) or
+    ``settle_periods`` periods of ``frequency_hz`` (the iron's loop), whichever is longer; the live
+    estimator and the offline reader skip the same."""
+    periods = settle_periods * (fs_hz / frequency_hz) if frequency_hz > 0 else 0.0
+    return int(math.ceil(max(settle_s * fs_hz, periods)))

@@ -8,7 +8,6 @@ every block's meta (see :mod:`.sources`).
 
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
 import numpy as np
@@ -17,7 +16,7 @@ from ..blocks import SampleBlock
 from ..config import load_rig
 from ..errors import BenchError, ConfigError
 from .recording import Recording
-from .settling import settling_time_s
+from .settling import settle_samples, settling_time_s
 from .sources import OPERATING_KEYS
 
 __all__ = ["WindowEstimator"]
@@ -102,7 +101,7 @@ class WindowEstimator:
         self._win = max(k, int(round(self.periods * spp / k)) * k)
         self._hop = max(k, int(round(max(self.hop_periods * spp, self.min_hop_s * self.fs_hz) / k)) * k)
         self._run_start = block.first_index
-        settle = int(math.ceil(max(self.settle_s * self.fs_hz, self.settle_periods * spp)))
+        settle = settle_samples(self.settle_s, self.settle_periods, self.fs_hz, self._f)
         self._next_end = block.first_index + settle + self._win
         wanted = _METHOD_CHANNELS + (("command_V",) if self.keep_windows else ())
         self._names = [c for c in wanted if c in block.channels]

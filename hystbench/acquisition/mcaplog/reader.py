@@ -14,7 +14,6 @@ A log that was not finished (the writer was killed) is refused with a pointer to
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +22,7 @@ from typing import Any, Iterable, Iterator
 from ...blocks import BlockFlags, SampleBlock
 from ...errors import RecordingError
 from ..recording import Recording
-from ..settling import settling_time_s
+from ..settling import settle_samples, settling_time_s
 from ..sources import OPERATING_KEYS
 from .schemas import RAW, decode_block
 
@@ -208,7 +207,7 @@ def _split_settling(segs: list[Segment], base: dict, settle_s: float, settle_per
         m = s.blocks[0].meta
         f = float(m.get("frequency_hz") or base.get("frequency_Hz") or 0.0)
         fs = s.blocks[0].fs_hz
-        n = int(math.ceil(max(settle_s * fs, settle_periods * fs / f if f > 0 else 0.0)))
+        n = settle_samples(settle_s, settle_periods, fs, f)
         if n <= 0:
             out.append(s)
             continue
