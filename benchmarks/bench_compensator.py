@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hystbench.acquisition.commands_compensator import (FIT_GRID, JUDGE_FREQS_HZ, current_limit_a, period_data,
+from hystbench.cli.compensator import (FIT_GRID, JUDGE_FREQS_HZ, current_limit_a, period_data,
                                                          simulated_sweep, sweep_data)
 from hystbench.compensator import (ForceReference, LearningConfig, RigActuation, fit_models, force_error,
                                    run_closed_loop)
@@ -54,7 +54,7 @@ def judge_duration_s(frequency_hz: float) -> float:
 
 def paper_phase_only(rec, models) -> float:
     """Eq. 1 / Eq. 6 max-error ratio with the paper's correction (force shifted by the instrument delay)."""
-    from hystbench.acquisition.force_error import force_error as fe_paper
+    from hystbench.analysis.force_error import force_error as fe_paper
 
     fe = fe_paper(rec, models["paper"].phase)
     return fe.max_abs_n("instrument") / fe.max_abs_n("hysteresis")
@@ -154,7 +154,7 @@ def targets(res: dict) -> list[dict]:
 
 
 def figures(res: dict, folder: Path) -> list[Path]:
-    from hystbench.acquisition.figures import plt, save_figure
+    from hystbench.reports.figures import plt, save_figure
 
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -216,7 +216,7 @@ def figures(res: dict, folder: Path) -> list[Path]:
 def _print(res: dict) -> None:
     from rich.table import Table
 
-    from hystbench.acquisition.console import console
+    from hystbench.reports.console import console
 
     con = console()
     for rig, r in res["rigs"].items():

@@ -46,8 +46,8 @@ CHUNK_ALLOWANCE_MIB = 32.0  # the text chunk, its parse and the time check, what
 ESTIMATE_MIB_PER_MB = 1.5
 SIM_ARGS = ("--rig", "ecore_pm", "--freq", "320", "--ipp", "1.4")
 #: What each step imports before it reads anything: its memory floor, whatever the file.
-FLOORS = {"reader": "import hystbench.acquisition.recording",
-          "estimate": "import hystbench.acquisition.cli, hystbench.acquisition.method, rich.table"}
+FLOORS = {"reader": "import hystbench.formats.recording",
+          "estimate": "import hystbench.cli.main, hystbench.analysis.method, rich.table"}
 _MIB = 2.0 ** 20
 
 
@@ -94,7 +94,7 @@ def _case(stem: Path, duration: float) -> dict:
     csv_mb = _file(stem, ".csv").stat().st_size / 1e6
     rows, columns = _shape(stem)
     steps = {
-        "reader": _measure(_python(f"from hystbench.acquisition.recording import read_recording; "
+        "reader": _measure(_python(f"from hystbench.formats.recording import read_recording; "
                                    f"read_recording({str(stem)!r})")),
         "estimate": _measure([sys.executable, "-m", "hystbench", "estimate", str(stem), "--json"]),
     }
@@ -143,7 +143,7 @@ def run(durations: tuple[float, ...] = DURATIONS, keep: str | None = None) -> di
 
 
 def _print_table(result: dict) -> None:
-    from hystbench.acquisition.console import console
+    from hystbench.reports.console import console
     from rich.table import Table
 
     table = Table(title="CSV import: peak RSS above the import floor, and wall time, per MB of CSV")

@@ -34,7 +34,7 @@ import time
 
 import numpy as np
 
-from hystbench.acquisition.estimation import covariance_delay, delay_crlb, phase_delay
+from hystbench.analysis.estimation import covariance_delay, delay_crlb, phase_delay
 
 SNR_DB = (20.0, 40.0, 60.0, 80.0)
 PERIODS = (2, 10, 50, 200)
@@ -156,7 +156,7 @@ def _si(value: float, unit: str = "s") -> str:
 
 
 def _print_table(result: dict) -> None:
-    from hystbench.acquisition.console import console
+    from hystbench.reports.console import console
     from rich.table import Table
 
     cfg = result["config"]

@@ -20,7 +20,7 @@ from contextlib import ExitStack
 
 import numpy as np
 
-from hystbench.acquisition.commands_compensator import current_limit_a, quick_models
+from hystbench.cli.compensator import current_limit_a, quick_models
 from hystbench.compensator import BenchActuation, ForceReference, LearningConfig, run_closed_loop
 from hystbench.drivers.bench import Bench
 from hystbench.drivers.protocols.bench_config import load_bench_config

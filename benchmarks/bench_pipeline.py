@@ -71,7 +71,7 @@ def subscriber(port: int, seconds: float) -> None:
 
 # --- the measured run ------------------------------------------------------------------------------
 def run_once(fs_hz: float, seconds: float, out_dir: Path, *, block_s: float = 0.01) -> dict:
-    from hystbench.acquisition.mcaplog import McapRecorder
+    from hystbench.formats.mcaplog import McapRecorder
     from hystbench.acquisition.pipeline import Pipeline
     from hystbench.acquisition.sources import SyntheticSource
     from hystbench.acquisition.stages import WindowEstimator
@@ -146,7 +146,7 @@ def bare_mcap(log: Path) -> dict:
     """The same raw messages written again by a bare MCAP writer (zstd), as fast as possible."""
     from mcap.writer import CompressionType, Writer
 
-    from hystbench.acquisition.mcaplog import RAW, iter_log
+    from hystbench.formats.mcaplog import RAW, iter_log
 
     msgs = [m.data for m in iter_log(log, [RAW])]
     with tempfile.TemporaryFile() as fh:

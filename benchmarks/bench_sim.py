@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
-    from hystbench.acquisition.console import console
+    from hystbench.reports.console import console
     from rich.table import Table
 
     table = Table(title=f"simulated rig at {result['fs_hz']:g} S/s, blocks of {result['block_size']}")

@@ -2,7 +2,7 @@
 
 Packages, in the order their imports may point (see docs/architecture.md):
 ``errors`` and ``blocks`` (shared vocabulary) <- ``drivers``, ``physics`` <- ``sim_backend`` <-
-``acquisition``, ``compensator``.  Nothing imports ``acquisition.cli``.
+``acquisition``, ``compensator``, ``reports``, ``cli``.  Nothing imports ``cli``.
 """
 
 __version__ = "0.1.0"

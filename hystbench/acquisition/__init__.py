@@ -1,2 +1,2 @@
-"""Recordings, estimators, the paper's measurement method, the real-time pipeline (ring buffer,
-stages, MCAP, zenoh, the daemon), reports and the command line."""
+"""The live chain: ring buffer, sources, the estimation stage, pipeline, zenoh bus, and the daemon
+that runs them on the bench PC."""

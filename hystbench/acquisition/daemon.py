@@ -31,7 +31,7 @@ from typing import Any
 
 from ..config.schema import NUM, Key
 from ..errors import BenchError, ConfigError, InstrumentError
-from .mcaplog.recorder import COMPRESSIONS, IDLE_RAW
+from ..formats.mcaplog.recorder import COMPRESSIONS, IDLE_RAW
 from .sd_notify import Notifier
 from .service import BenchService
 from .source_config import build_source, check_source

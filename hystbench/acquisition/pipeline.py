@@ -35,7 +35,7 @@ import numpy as np
 
 from ..blocks import BlockFlags, SampleBlock
 from ..errors import ConfigError
-from .mcaplog.schemas import COMPENSATOR, ESTIMATE, STATS, STATUS
+from ..formats.mcaplog.schemas import COMPENSATOR, ESTIMATE, STATS, STATUS
 from .ring import RingBuffer, RingRead, RingReader
 from .sources import Controllable
 from .stages import WindowEstimator
@@ -353,7 +353,7 @@ class Pipeline:
                 e["t_ns"] = self.index_time_ns(e["end_index"])
                 window = e.pop("window", None)  # samples for a learning compensator, never published
                 if e.get("outliers"):
-                    from .method import outlier_summary
+                    from ..analysis.method import outlier_summary
 
                     self.status("warning", "outliers", f"window [{e['first_index']}..{e['end_index']}): left out "
                                 f"{outlier_summary(e['outliers'])}", outliers=e["outliers"])

@@ -113,7 +113,7 @@ class BenchService:
 
     # --- life cycle ------------------------------------------------------------------------------
     def start(self) -> "BenchService":
-        from .mcaplog.recorder import McapRecorder
+        from ..formats.mcaplog.recorder import McapRecorder
         from .zenoh_bus import ZenohBus
 
         c = self.cfg
@@ -200,7 +200,7 @@ class BenchService:
         """If a pipeline stage failed: output off, the fault published and logged, the source and
         the pipeline started again (output off) in a new log part.  Returns whether it did; raises
         BenchError when faults come too quickly or the source cannot be opened again."""
-        from .mcaplog.schemas import STATUS
+        from ..formats.mcaplog.schemas import STATUS
 
         p = self.pipeline
         if p is None or p.error is None or self.state not in ("running", "sweeping"):

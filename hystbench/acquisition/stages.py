@@ -15,8 +15,8 @@ import numpy as np
 from ..blocks import SampleBlock
 from ..config import load_rig
 from ..errors import BenchError, ConfigError
-from .recording import Recording
-from .settling import settle_samples, settling_time_s
+from ..formats.recording import Recording
+from ..analysis.settling import settle_samples, settling_time_s
 from .sources import OPERATING_KEYS
 
 __all__ = ["WindowEstimator"]
@@ -70,8 +70,8 @@ class WindowEstimator:
         except BenchError:
             preset = {}
         self.method = preset.get("actuator") == "ecore"
-        from .estimation import phase_delay  # imported here, not at the first window (scipy: ~1 s)
-        from .method import measure_delays
+        from ..analysis.estimation import phase_delay  # imported here, not at the first window (scipy: ~1 s)
+        from ..analysis.method import measure_delays
 
         self._phase_delay, self._measure_delays = phase_delay, measure_delays
         self.errors = 0

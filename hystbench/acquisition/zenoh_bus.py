@@ -36,7 +36,7 @@ import numpy as np
 from ..blocks import CHANNEL_UNITS, BlockFlags, SampleBlock
 from ..errors import BenchError, ConfigError
 from .bench_commands import COMMANDS as _COMMAND_ARGS
-from .mcaplog.schemas import json_bytes
+from ..formats.mcaplog.schemas import json_bytes
 
 __all__ = ["PREFIX", "key", "encode_raw", "decode_raw", "peer_config", "load_zenoh_config", "ZenohBus",
            "Subscription", "send_command", "query_json", "free_port", "open_session", "ListenError", "COMMANDS"]

@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 
 from hystbench.acquisition import sd_notify
 from hystbench.acquisition.daemon import load_daemon_config
-from hystbench.acquisition.mcaplog import RAW, STATUS, iter_blocks, iter_log, log_metadata, recover
+from hystbench.formats.mcaplog import RAW, STATUS, iter_blocks, iter_log, log_metadata, recover
 from hystbench.acquisition.zenoh_bus import free_port, load_zenoh_config, open_session, peer_config, query_json
 from hystbench.errors import ConfigError, RecordingError
 

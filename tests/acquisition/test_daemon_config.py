@@ -15,7 +15,7 @@ import pytest
 
 from hystbench.acquisition.daemon import BenchService, load_daemon_config
 from hystbench.acquisition.instance import default_log_dir, state_dir
-from hystbench.acquisition.mcaplog import iter_blocks
+from hystbench.formats.mcaplog import iter_blocks
 from hystbench.config import CONFIG_DIR
 from hystbench.errors import ConfigError, InstrumentError
 

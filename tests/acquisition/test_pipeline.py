@@ -12,11 +12,11 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hystbench.acquisition.cli import main as pipeline_main
-from hystbench.acquisition.commands_pipeline import record_log, replay_log
-from hystbench.acquisition.mcaplog import (ESTIMATE, STATS, McapRecorder, McapSource, iter_blocks, iter_log,
+from hystbench.cli.main import main as pipeline_main
+from hystbench.cli.pipeline import record_log, replay_log
+from hystbench.formats.mcaplog import (ESTIMATE, STATS, McapRecorder, McapSource, iter_blocks, iter_log,
                                            read_mcap_recording)
-from hystbench.acquisition.method import measure_delays
+from hystbench.analysis.method import measure_delays
 from hystbench.acquisition.pipeline import CompensatorHook, Pipeline
 from hystbench.acquisition.sources import Controllable, RigSource, Source, SyntheticSource
 from hystbench.acquisition.stages import WindowEstimator

@@ -12,7 +12,7 @@ import threading
 from pathlib import Path
 
 from hystbench.acquisition.daemon import BenchService, load_daemon_config
-from hystbench.acquisition.mcaplog import STATUS, iter_log
+from hystbench.formats.mcaplog import STATUS, iter_log
 from hystbench.acquisition.zenoh_bus import (Subscription, free_port, load_zenoh_config, open_session, peer_config,
                                              send_command)
 

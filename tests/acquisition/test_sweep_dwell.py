@@ -15,7 +15,7 @@ from pathlib import Path
 
 from hystbench.acquisition import service
 from hystbench.acquisition.daemon import BenchService, load_daemon_config
-from hystbench.acquisition.mcaplog import iter_blocks
+from hystbench.formats.mcaplog import iter_blocks
 
 HANG_S = 120.0  # a safety timeout: waits end on their event, only a hang takes this long
 FS = 100_000.0

@@ -4,7 +4,7 @@ simulates a recording the fit did not see (other seeds, other frequencies and am
 
 import pytest
 
-from hystbench.acquisition.commands_compensator import period_data, quick_models, simulated_sweep
+from hystbench.cli.compensator import period_data, quick_models, simulated_sweep
 
 
 @pytest.fixture(scope="session")

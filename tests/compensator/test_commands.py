@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from hystbench.acquisition.cli import main as run  # the hystbench command: BenchError -> exit 2
-from hystbench.acquisition.commands_compensator import simulated_sweep
-from hystbench.acquisition.recording import read_recording, write_recording, write_sweep
+from hystbench.cli.main import main as run  # the hystbench command: BenchError -> exit 2
+from hystbench.cli.compensator import simulated_sweep
+from hystbench.formats.recording import read_recording, write_recording, write_sweep
 
 
 @pytest.fixture(scope="module")

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from hystbench.acquisition.commands_compensator import current_limit_a
+from hystbench.cli.compensator import current_limit_a
 from hystbench.compensator import (CompensatorError, ForceReference, LearningConfig, LearningStopped, NonHysteretic,
                                    RigActuation, StaticLaw, UnreachableReference, run_closed_loop)
 from hystbench.sim_backend.rig import SimulatedRig

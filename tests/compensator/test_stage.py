@@ -66,7 +66,7 @@ def test_the_daemon_runs_the_compensator_from_its_config_and_logs_its_state(mode
     import time
 
     from hystbench.acquisition.daemon import BenchService, load_daemon_config
-    from hystbench.acquisition.mcaplog import COMPENSATOR, iter_log
+    from hystbench.formats.mcaplog import COMPENSATOR, iter_log
 
     model = models_pm.save(tmp_path / "models.json")
     cfg = tmp_path / "daemon.toml"
@@ -197,7 +197,7 @@ def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tm
     import time
 
     from hystbench.acquisition.daemon import BenchService, load_daemon_config
-    from hystbench.acquisition.mcaplog import COMPENSATOR, ESTIMATE, iter_log
+    from hystbench.formats.mcaplog import COMPENSATOR, ESTIMATE, iter_log
 
     model = models_pm.save(tmp_path / "models.json")
     cfg = tmp_path / "daemon.toml"

@@ -8,7 +8,7 @@ has run on twice the settling time since it was asked for."""
 
 import threading
 
-from hystbench.acquisition import demo
+from hystbench.reports import demo
 from hystbench.drivers.bench import Bench
 from hystbench.sim_backend.emulators.bench import EmulatedBench
 

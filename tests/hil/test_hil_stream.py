@@ -5,8 +5,8 @@ three delays estimated from what came through the drivers against the simulated 
 import numpy as np
 import pytest
 
-from hystbench.acquisition.method import measure_delays
-from hystbench.acquisition.recording import Recording
+from hystbench.analysis.method import measure_delays
+from hystbench.formats.recording import Recording
 from hystbench.blocks import BlockFlags
 from hystbench.physics import presets
 from hystbench.sim_backend.rig import SimulatedRig

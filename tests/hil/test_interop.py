@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from hystbench.acquisition import commands_bench
+from hystbench.cli import bench as commands_bench
 from hystbench.drivers.protocols.bench_config import load_bench_config
 from hystbench.drivers.protocols.modbus_map import MODEL_ID
 from hystbench.sim_backend.emulators.bench import EmulatedBench
@@ -134,10 +134,10 @@ def test_register_adds_the_emulate_subcommand():
 
 
 def test_cli_wiring_when_the_lead_has_added_it():
-    from hystbench.acquisition import cli
+    from hystbench.cli import main as cli
 
     try:
         args = cli.build_parser().parse_args(["emulate", "--config", "x.toml"])
     except SystemExit:
-        pytest.skip("hystbench.acquisition.cli does not call commands_bench.register(sub) yet")
+        pytest.skip("hystbench.cli.main does not call commands_bench.register(sub) yet")
     assert args.func is commands_bench.cmd_emulate

@@ -115,7 +115,7 @@ def test_phase_lag_at_the_operating_points_matches_the_loss():
 
 
 def test_report_writes_figures_and_table(tmp_path):
-    from hystbench.acquisition.material_report import run_material_fit
+    from hystbench.reports.material_report import run_material_fit
 
     result = run_material_fit(tmp_path)
     assert set(result["figures"]) == {"M330-50A_loops", "M130-27S_loops", "M330-50A_operating_points"}

@@ -4,7 +4,7 @@ checks its signature against a closed form (not against the simulator's own outp
 import numpy as np
 import pytest
 
-from hystbench.acquisition.estimation import sine_fit
+from hystbench.analysis.estimation import sine_fit
 from hystbench.config import load_rig
 from hystbench.physics import presets
 from hystbench.sim_backend.rig import SimulatedRig
@@ -19,7 +19,7 @@ def run(rig="ecore_pm", f=320.0, seconds=0.1, ipp=None, **effects):
 
 def phasor(x, t, f, k=1):
     """Complex amplitude of harmonic k at the known frequency f: a linear least-squares fit of DC
-    and the first harmonics (the estimator of tests/acquisition/test_estimation.py, validated
+    and the first harmonics (the estimator of tests/analysis/test_estimation.py, validated
     against the Cramer-Rao bound), at the generator's true frequency."""
     fit = sine_fit(x, 1.0 / (t[1] - t[0]), f, harmonics=(1, 2, 3), fit_freq=False)
     c = fit.component(k)

@@ -1,0 +1,375 @@
+"""Command-line wiring of the force models and the compensator (issue 6).
+
+    hystbench model fit SWEEP_DIR --out MODEL.json
+    hystbench model predict MODEL.json RECORDING --kind nonhysteretic|paper|best --out PRED.csv
+    hystbench compensate --rig ecore_pm --force "offset=170,amp=40,freq=320" [--learn]
+
+``register(subparsers)`` adds them; the CLI's ``main`` turns a BenchError into exit status 2.  The
+recordings are turned into the compensator's period averages here (:func:`period_data`): the
+method's delays give the true frequency and theta_hyst, ``force_error.synchronous_average`` the
+waveforms; the compensator package itself never sees a recording.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, RecordingError
+from .args import float_in, nonnegative_int, positive_float
+
+__all__ = ["register", "period_data", "sweep_data", "predict_recording", "simulated_sweep", "quick_models",
+           "current_limit_a", "FIT_GRID", "JUDGE_FREQS_HZ"]
+
+#: The identification sweep ``compensate`` runs on the simulated rig when no model file is given:
+#: three frequencies x four amplitudes (the models are judged elsewhere on what this does not hold).
+FIT_GRID = ((40.0, 160.0, 480.0), (0.3, 0.7, 1.1, 1.5))
+JUDGE_FREQS_HZ = (40.0, 80.0, 160.0, 320.0, 480.0)
+#: The model kinds (``compensator.MODEL_KINDS``; repeated so that building the parser imports nothing).
+MODEL_KINDS = ("nonhysteretic", "paper", "best")
+
+
+def period_data(rec, n_points: int = 1000):
+    """One recording as the compensator's :class:`~hystbench.compensator.PeriodData`."""
+    from ..compensator import PeriodData
+    from ..analysis.force_error import synchronous_average
+    from ..analysis.method import measure_delays, recording_name
+
+    d = measure_delays(rec)
+    avg = synchronous_average(rec, d.frequency_hz, n_points, ("current_A", "flux_Wb", "force_N"))
+    se = 2 * np.pi * d.frequency_hz * d.delays_std_s["hysteresis"]
+    return PeriodData(recording_name(rec), d.frequency_hz, rec.frequency_hz, rec.current_pp_a,
+                      avg.channels["current_A"], avg.channels["flux_Wb"], avg.channels["force_N"],
+                      d.theta_hyst_rad, se, avg.noise_rms["force_N"], avg.periods, avg.noise_rms["current_A"])
+
+
+def sweep_data(recs, tick=None) -> tuple[str, list]:
+    """(rig, period averages) of a sweep of one rig; ``tick()`` after each recording (progress)."""
+    rigs = sorted({r.rig for r in recs})
+    if len(rigs) != 1:
+        raise RecordingError(f"a sweep is one rig; these recordings are of {', '.join(rigs) or 'none'}")
+    points = []
+    for r in recs:
+        points.append(period_data(r))
+        if tick is not None:
+            tick()
+    return rigs[0], points
+
+
+def simulated_sweep(rig: str, freqs_hz, ipps_a, *, seed: int = 0, duration_s: float | None = None,
+                    effects=None, tick=None) -> list:
+    """Recordings of the simulated rig, one per (frequency, amplitude); by default 8 periods or
+    0.1 s, whichever is longer (what an identification needs, not what a figure needs)."""
+    from ..sim_backend.rig import SimulatedRig
+    from ..formats.recording import Recording
+
+    recs = []
+    for n, (f, ipp) in enumerate((f, i) for f in freqs_hz for i in ipps_a):
+        sim = SimulatedRig(rig, seed=seed + n, frequency_hz=f, current_pp_a=ipp, effects=effects)
+        block = sim.record(duration_s or max(0.1, 8.0 / f))
+        recs.append(Recording(None, sim.fs_hz, dict(block.channels), sim.metadata()))
+        if tick is not None:
+            tick()
+    return recs
+
+
+def quick_models(rig: str, *, seed: int = 1000, effects=None, tick=None):
+    """A model set identified on the simulated rig from :data:`FIT_GRID` (about 5 s); ``tick()``
+    twice per recording (simulated, averaged)."""
+    from ..compensator import fit_models
+    from ..config import load_rig
+
+    _, points = sweep_data(simulated_sweep(rig, *FIT_GRID, seed=seed, effects=effects, tick=tick), tick=tick)
+    return fit_models(points, load_rig(rig))
+
+
+def predict_recording(models, rec, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """(time_s, force_N): what the load cell would report for ``rec``'s measured current, sample by
+    sample.  The record is taken as steady-state periodic: its current is averaged over whole
+    periods at the true frequency, the model's force for that period is put through the
+    instrument, and every sample gets the value at its phase."""
+    from ..compensator import predict_measured
+    from ..compensator.periodic import resample
+    from ..analysis.estimation import estimation_errors, sine_fit
+    from ..analysis.force_error import synchronous_average
+    from ..analysis.method import check_channels, recording_name
+
+    where = recording_name(rec)
+    if rec.rig != models.rig:
+        raise RecordingError(f"{where}: a {rec.rig!r} recording, but the models are of {models.rig!r}")
+    check_channels(rec, ("current_A",))
+    with estimation_errors(where):
+        f = float(sine_fit(rec.channels["current_A"], rec.fs_hz, rec.frequency_hz, harmonics=(1, 2, 3)).freq_hz)
+    n = 1000
+    avg = synchronous_average(rec, f, n, ("current_A",))
+    noise = avg.noise_rms["current_A"] / math.sqrt(avg.periods) if avg.periods > 1 else math.nan
+    pred = predict_measured(models[kind], avg.channels["current_A"], f, models.instrument, current_noise_a=noise)
+    fine = resample(pred, 8 * n)  # then linear interpolation at each sample's phase
+    phase = np.mod(np.arange(rec.n) / rec.fs_hz * f, 1.0) * fine.size  # the average's phase 0: sample 0
+    return rec.time_s(), np.interp(phase, np.arange(fine.size + 1), np.append(fine, fine[0]))
+
+
+def current_limit_a() -> float:
+    """The bench's current limit: the smaller of ``[bench] max_current_a`` and the amplifier's
+    ``current_limit_a`` in the shipped ``config/bench.toml`` (what the drivers enforce)."""
+    import tomllib
+
+    from ..config import CONFIG_DIR
+
+    path = CONFIG_DIR / "bench.toml"
+    try:
+        with path.open("rb") as fh:
+            cfg = tomllib.load(fh)
+        limits = [float(cfg["bench"]["max_current_a"])]
+        amp = cfg.get("current_amplifier", {}).get("settings", {}).get("current_limit_a")
+        if amp is not None:
+            limits.append(float(amp))
+    except (OSError, KeyError, ValueError, tomllib.TOMLDecodeError) as err:
+        raise ConfigError(f"{path}: cannot read [bench] max_current_a: {err}") from err
+    return min(limits)
+
+
+def _json_out(obj) -> str:
+    return json.dumps(obj, indent=2, default=lambda x: x.tolist() if isinstance(x, np.ndarray) else float(x))
+
+
+def _console():
+    from ..reports.console import console
+
+    return console()
+
+
+# --- hystbench model fit / predict ---------------------------------------------------------------
+def cmd_model_fit(args) -> int:
+    from ..compensator import MODEL_KINDS as KINDS, fit_models
+    from ..config import load_rig
+    from ..reports.console import progress
+    from ..formats.outputs import output_file
+    from ..formats.recording import read_sweep
+
+    unknown = [k for k in args.kinds if k not in KINDS]
+    if unknown or not args.kinds:
+        raise ConfigError(f"--kinds {','.join(args.kinds)!r}: choose from {', '.join(KINDS)}")
+    # --out is checked (exists? a folder we can write in?) before the minutes of fitting
+    with output_file(args.out, overwrite=args.overwrite) as tmp, progress() as bar:
+        recs = read_sweep(args.sweep)
+        task = bar.add_task(f"period averages of {args.sweep}", total=len(recs))
+        rig, points = sweep_data(recs, tick=lambda: bar.advance(task))
+        bar.update(task, description=f"fitting {', '.join(args.kinds)}", total=None)
+        models = fit_models(points, load_rig(rig), kinds=tuple(args.kinds))
+        models.report["sweep"] = str(args.sweep)
+        models.save(tmp, overwrite=True)
+    path = Path(args.out)
+    rows = models.report["training_error"]
+    if args.json:
+        print(_json_out({"model_file": str(path), "rig": rig, "training_error": rows}))
+        return 0
+    from rich.table import Table
+
+    table = Table(title=f"{rig}: force models fitted on {len(points)} recordings of {args.sweep}")
+    table.add_column("recording", no_wrap=True)
+    for kind in models.models:
+        table.add_column(f"{kind} accuracy (%)", justify="right")
+    for n, p in enumerate(points):
+        table.add_row(Path(p.name).name, *(f"{rows[k][n]['accuracy_pct']:.3f}" for k in models.models))
+    con = _console()
+    con.print(table)
+    con.print("accuracy = 100 % x (1 - max|F_measured - H_instr{F_model}| / force range) on the period average, on "
+              f"the recordings fitted (judge on others with `model predict`). Wrote {path}")
+    return 0
+
+
+def cmd_model_predict(args) -> int:
+    from ..compensator import ModelSet
+    from ..formats.recording import read_recording
+
+    from ..formats.outputs import output_file
+
+    out = Path(args.out)
+    with output_file(out, overwrite=args.overwrite) as tmp:
+        models = ModelSet.load(args.model)
+        rec = read_recording(args.recording)
+        t, f = predict_recording(models, rec, args.kind)
+        np.savetxt(tmp, np.column_stack([t, f]), delimiter=",", header="time_s,force_N", comments="", fmt="%.12g")
+    msg = f"wrote {out}: {t.size} samples, the {args.kind} model's force as the load cell would report it"
+    if "force_N" in rec.channels:
+        err = rec.channels["force_N"] - f
+        msg += (f"; against the recording's force: rms {np.sqrt(np.mean(err ** 2)):.4g} N per sample (noise "
+                "included; `model fit` and the benchmark report the period-averaged accuracy)")
+    print(msg)
+    return 0
+
+
+# --- hystbench compensate -----------------------------------------------------------------------
+def _reference(args):
+    from ..compensator import ForceReference
+
+    if args.force_file:
+        if args.freq is None:
+            raise ConfigError("--force-file needs --freq (the frequency at which one table is one period)")
+        return ForceReference.from_csv(args.force_file, args.freq)
+    if not args.force:
+        raise ConfigError("give --force \"offset=...,amp=...,freq=...\" or --force-file TABLE.csv --freq F")
+    return ForceReference.parse(args.force)
+
+
+def _precheck(rig: str, ref, limit_a: float) -> None:
+    """Refuse at once (before any identification) what the static law already rules out: a
+    negative force without a magnet, a force beyond what the current limit gives."""
+    from ..compensator import StaticLaw
+    from ..config import load_rig
+    from ..physics import presets
+
+    preset = load_rig(rig)
+    if preset.get("actuator") != "ecore":
+        raise ConfigError(f"--rig {rig!r} is a {preset.get('actuator')}, not an E-core")
+    mec = presets.ecore_mec(preset, linear_iron=True)
+    law = StaticLaw.from_coefficients(mec.force_coefficients(mec.geometry.airgap_m), "magnet" in preset)
+    law.invert(ref.force_n, current_limit_a=limit_a)
+
+
+def cmd_compensate(args) -> int:
+    from contextlib import ExitStack
+
+    from ..compensator import ModelSet
+    from ..sim_backend.effects import parse_effect_args
+    from ..reports.console import progress
+
+    ref = _reference(args)
+    effects = parse_effect_args(args.effect)
+    limit = args.max_current if args.max_current is not None else current_limit_a()
+    _precheck(args.rig, ref, limit)
+    con = _console() if not args.json else None
+    if args.model:
+        models = ModelSet.load(args.model)
+        if models.rig != args.rig:
+            raise ConfigError(f"{args.model}: models of {models.rig!r}, but --rig is {args.rig!r}")
+        source = f"models from {args.model}"
+    else:
+        f_s, i_s = FIT_GRID
+        with progress() as bar:
+            task = bar.add_task(f"identifying the force models of {args.rig}", total=2 * len(f_s) * len(i_s))
+            models = quick_models(args.rig, seed=args.seed + 1000, effects=effects, tick=lambda: bar.advance(task))
+        source = (f"models identified on the simulated rig first: {len(f_s) * len(i_s)} recordings "
+                  f"({', '.join(f'{f:g}' for f in f_s)} Hz x {min(i_s):g}-{max(i_s):g} A-pp)")
+    with ExitStack() as stack:
+        act = _actuation(args, stack, effects, ref, limit)
+        return _closed_loop(args, act, models, source, ref, limit, con)
+
+
+def _actuation(args, stack, effects, ref, limit):
+    """The emulated instruments in front of a simulated rig, driven through the real drivers (the
+    shipped bench file with the rig, seed and effects of the command line); ``--direct``: the rig
+    alone.  Either way a bench just switched on: zero current, the iron demagnetised."""
+    from ..compensator import BenchActuation, RigActuation
+    from ..sim_backend.rig import SimulatedRig
+
+    if args.direct:
+        sim = SimulatedRig(args.rig, seed=args.seed, effects=effects, frequency_hz=ref.frequency_hz,
+                           current_pp_a=0.0)
+        return RigActuation(sim, limit)
+    import dataclasses
+
+    from ..drivers.bench import Bench
+    from ..drivers.protocols.bench_config import load_bench_config
+    from ..sim_backend.emulators.bench import EmulatedBench
+
+    config = load_bench_config()
+    config = dataclasses.replace(config, sim={**config.sim, "rig": args.rig, "seed": args.seed,
+                                              "effects": {**config.sim["effects"], **effects}})
+    emu = stack.enter_context(EmulatedBench(config))
+    bench = stack.enter_context(Bench(config.resolved(emu.addresses)))
+    return BenchActuation(bench, limit)
+
+
+def _closed_loop(args, act, models, source, ref, limit, con) -> int:
+    from ..compensator import LearningConfig, LearningStopped, run_closed_loop
+    from ..reports.console import progress
+
+    try:
+        config = LearningConfig(gain=args.gain, iterations=args.iterations)
+    except ValueError as err:  # the ranges the parser checks; this says which option if they drift apart
+        raise ConfigError(f"--gain {args.gain:g} / --iterations {args.iterations}: {err}") from err
+    rows: list[dict] = []
+    bar = progress()
+    task = bar.add_task("closed loop", total=1 + (config.iterations if args.learn else 0))
+
+    def show(rep) -> None:
+        bar.update(task, advance=1, description=f"closed loop: iteration {rep.iteration} done")
+        rows.append(rep.as_dict())
+        if con is not None:
+            con.print(f"iteration {rep.iteration:2d}: max |dF| {rep.max_error_n:.4g} N ({rep.error_pct:.4f} % of the "
+                      f"reference's range), noise floor {rep.noise_floor_n:.3g} N, ratio {rep.ratio:.2f}, "
+                      f"peak current {rep.peak_current_a:.3f} A ({rep.status})")
+
+    if con is not None:
+        con.print(f"{args.rig}: {ref.description}; {args.kind} model, {source}; current limit {limit:g} A")
+        con.print(f"driven through: {act.name}")
+    try:
+        with bar:
+            result = run_closed_loop(act, models[args.kind], ref, models.instrument, learn=args.learn, config=config,
+                                     measure_s=args.measure, on_iteration=show)
+    except LearningStopped as err:
+        if args.json:
+            print(_json_out({"rig": args.rig, "reference": ref.description, "iterations": rows, "stopped": str(err),
+                             "output_on": False}))
+        raise
+    act.output_off()
+    summary = {"rig": args.rig, "reference": ref.description, "model": args.kind, "models_from": source,
+               "learn": args.learn, "current_limit_A": limit, **result.as_dict(), "output_on": False,
+               "driven_through": act.name}
+    if args.json:
+        print(_json_out(summary))
+    else:
+        reached = ("not reached" if result.reached_at is None else f"reached at iteration {result.reached_at}")
+        con.print(f"tracking error within {config.target_ratio:g}x the noise floor of the averaged force: {reached}. "
+                  "Error = max over the period-averaged force of |F_measured - H_instr{F_ref}|; noise floor = max of "
+                  "the same average with alternating signs (the averaged noise of this record). Output off.")
+    return 0
+
+
+# --- wiring --------------------------------------------------------------------------------------
+def register(subparsers) -> None:
+    """Add ``model`` (``fit``, ``predict``) and ``compensate`` to the CLI's subparsers."""
+    p = subparsers.add_parser("model", help="force models: fit from a sweep, predict a recording's force")
+    sub = p.add_subparsers(dest="model_command", required=True)
+    q = sub.add_parser("fit", help="fit every force model (Eq. 1, Eq. 6, ours) from a sweep folder")
+    q.add_argument("sweep", help="sweep folder of one E-core rig (NAME.csv + NAME.json per recording)")
+    q.add_argument("--out", required=True, help="model file to write (JSON)")
+    q.add_argument("--kinds", type=lambda s: [k.strip() for k in s.split(",") if k.strip()],
+                   default=list(MODEL_KINDS), help="comma-separated subset of " + ",".join(MODEL_KINDS))
+    q.add_argument("--overwrite", action="store_true")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_model_fit)
+    q = sub.add_parser("predict", help="the force a model predicts for a recording's current (as the load cell "
+                                       "reports it)")
+    q.add_argument("model", help="model file from `hystbench model fit`")
+    q.add_argument("recording", help="recording (NAME.csv with NAME.json)")
+    q.add_argument("--kind", choices=MODEL_KINDS, default="best")
+    q.add_argument("--out", required=True, help="CSV to write: time_s,force_N")
+    q.add_argument("--overwrite", action="store_true")
+    q.set_defaults(func=cmd_model_predict)
+
+    p = subparsers.add_parser("compensate", help="feed-forward force control (and learning) on the simulated rig")
+    p.add_argument("--rig", default="ecore_pm", help="E-core rig preset (default ecore_pm)")
+    p.add_argument("--force", help='periodic force reference, e.g. "offset=170,amp=40,freq=320[,phase=0][,h2=5@90]"')
+    p.add_argument("--force-file", help="one period of force (CSV column force_N), with --freq")
+    p.add_argument("--freq", type=positive_float, help="frequency of --force-file's period, Hz")
+    p.add_argument("--learn", action="store_true", help="iterative learning on the measured force error")
+    p.add_argument("--model", help="model file (default: identify on the simulated rig first, ~5 s)")
+    p.add_argument("--kind", choices=MODEL_KINDS, default="best", help="feed-forward model (default best)")
+    p.add_argument("--iterations", type=nonnegative_int, default=10, help="learning iterations (default 10)")
+    p.add_argument("--gain", type=float_in(0.0, 1.5), default=0.8,
+                   help="learning gain in (0, 1.5]; above 1 the error overshoots each iteration (default 0.8)")
+    p.add_argument("--measure", type=float_in(0.0, 60.0), default=0.25,
+                   help="seconds averaged per iteration, at most 60 (default 0.25)")
+    p.add_argument("--max-current", type=positive_float, help="current limit, A (default: config/bench.toml)")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE", help="simulated-rig effect switch")
+    p.add_argument("--seed", type=nonnegative_int, default=0)
+    p.add_argument("--direct", action="store_true",
+                   help="drive the simulated rig directly instead of through the emulated instruments' drivers")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_compensate)

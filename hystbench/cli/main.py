@@ -1,0 +1,371 @@
+"""The ``hystbench`` command line.  Nothing imports this module; it imports what each command needs
+when that command runs, so ``hystbench --help`` stays instant."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+from .. import __version__
+from ..errors import BenchError, ConfigError
+from .args import nonnegative_int, positive_float, positive_floats
+
+__all__ = ["main"]
+
+
+def _add_rig_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rig", default="ecore_pm", help="rig preset name or TOML path (default: ecore_pm)")
+    p.add_argument("--fs", type=positive_float, default=100_000.0, help="sample rate, Hz (default 100000)")
+    p.add_argument("--duration", type=positive_float, default=1.0, help="seconds per recording (default 1)")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE",
+                   help="switch an effect: NAME=on|off, NAME=<number> or NAME.param=<number> (repeatable; "
+                        "`hystbench effects` lists each parameter's range)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="noise seed (default 0)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing recordings of the same name")
+
+
+#: What ``simulate`` and ``simulate-sweep`` hold in memory at once (5 channels of float64: 400 MB);
+#: longer runs stream through ``hystbench record``.
+MAX_SAMPLES = 10_000_000
+
+
+def _check_size(args, recordings: int = 1) -> None:
+    n = args.duration * args.fs * recordings
+    if args.duration * args.fs < 1:
+        raise ConfigError(f"--duration {args.duration:g} s is less than one sample at --fs {args.fs:g} Hz")
+    if n > MAX_SAMPLES:
+        raise ConfigError(f"--duration {args.duration:g} s at --fs {args.fs:g} Hz x {recordings} recording(s) is "
+                          f"{n:.3g} samples; this command holds them in memory, at most {MAX_SAMPLES:.0e} "
+                          "(`hystbench record` streams long runs to a log)")
+
+
+def _refuse_clipping(rig, block, freq_hz: float, ipp_a: float) -> None:
+    """A channel beyond its ADC full scale is not a measurement: every estimate from it would be
+    wrong without a warning (a recording file keeps no clip flag)."""
+    from ..blocks import BlockFlags
+    from ..errors import SimulationError
+
+    if not block.flags & BlockFlags.CLIP:
+        return
+    q = rig.effects.get("adc_quantisation", {})
+    over = []
+    for ch, x in block.channels.items():
+        key = ch.lower()  # current_A -> current_a, the adc_quantisation parameter
+        if key in q:
+            full = float(q[key])
+            if float(abs(x).max()) >= full * (1 - 2.0 ** (1 - int(q["bits"]))):
+                over.append(f"{ch} (full scale ±{full:g}, adc_quantisation.{key})")
+    raise SimulationError(f"{rig.name} at {freq_hz:g} Hz, {ipp_a:g} A-pp: the ADC clipped {', '.join(over)}; lower "
+                          "--ipp (or --freq), or raise the full scale with --effect adc_quantisation.PARAM=VALUE")
+
+
+def _simulate_one(args, freq_hz: float, ipp_a: float, seed: int):
+    from ..sim_backend.effects import parse_effect_args
+    from ..sim_backend.rig import SimulatedRig
+    from ..formats.recording import Recording
+
+    rig = SimulatedRig(args.rig, fs_hz=args.fs, seed=seed, effects=parse_effect_args(args.effect),
+                       frequency_hz=freq_hz, current_pp_a=ipp_a)
+    block = rig.record(args.duration)
+    _refuse_clipping(rig, block, freq_hz, ipp_a)
+    return Recording(path=None, fs_hz=rig.fs_hz, channels=dict(block.channels), metadata=rig.metadata())
+
+
+def cmd_simulate(args) -> int:
+    from ..formats.recording import write_recording
+
+    _check_size(args)
+    stem = Path(args.out)
+    stem = stem.with_suffix("") if stem.suffix in (".csv", ".json") else stem
+    taken = [p for p in (stem.with_name(stem.name + ".csv"), stem.with_name(stem.name + ".json")) if p.exists()]
+    if taken and not args.overwrite:  # before the simulation, not after it
+        raise ConfigError(f"--out {args.out}: {taken[0]} exists; give --overwrite to replace it")
+    rec = _simulate_one(args, args.freq, args.ipp, args.seed)
+    csv_path, json_path = write_recording(rec, args.out, overwrite=args.overwrite)
+    print(f"wrote {csv_path} and {json_path} ({rec.n} samples at {rec.fs_hz:g} Hz)")
+    return 0
+
+
+def _sweep(args, out: Path) -> list:
+    from ..reports.console import progress as make_progress
+    from ..formats.recording import write_sweep
+
+    points = [(f, i) for i in args.ipp for f in args.freqs]
+    _check_size(args, len(points))
+    recs = []
+    with make_progress() as progress:
+        task = progress.add_task(f"simulating {args.rig}", total=len(points))
+        for n, (f, i) in enumerate(points):
+            recs.append(_simulate_one(args, f, i, args.seed + n))
+            progress.advance(task)
+    write_sweep(recs, out, overwrite=args.overwrite)
+    return recs
+
+
+def cmd_simulate_sweep(args) -> int:
+    recs = _sweep(args, Path(args.out))
+    print(f"wrote {len(recs)} recordings to {args.out}")
+    return 0
+
+
+def cmd_effects(args) -> int:
+    from rich.table import Table
+
+    from ..reports.console import console
+
+    from ..sim_backend.effects import CATALOGUE
+
+    table = Table(title="physical effects of the simulated rig (off unless a preset or --effect turns them on)")
+    for col in ("name", "what it is", "parameters: default, range"):
+        table.add_column(col, no_wrap=col != "what it is")
+    for e in CATALOGUE.values():
+        params = "\n".join(f"{k} = {v} in {e.ranges[k]}" + (" *" if k == e.primary else "")
+                           for k, v in e.defaults.items())
+        table.add_row(e.name, e.description, params)
+    con = console()
+    con.print(table)
+    con.print("* the parameter that NAME=<number> sets; a value outside its range is refused. fs/2: half the "
+              "sample rate; a list parameter: each element.")
+    return 0
+
+
+def cmd_rigs(args) -> int:
+    from ..analysis.operating_points import operating_points
+
+    rows = operating_points()
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    from rich.table import Table
+
+    from ..reports.console import console
+
+    table = Table(title="rig presets at their operating points (static MEC, Eq. 1)")
+    for col in ("rig", "actuator", "f (Hz)", "I (A-pp)", "force min (N)", "force max (N)", "paper"):
+        table.add_column(col, no_wrap=col != "paper")
+    for r in rows:
+        table.add_row(r["rig"], r["actuator"], f"{r['frequency_Hz']:g}", f"{r['current_pp_A']:g}",
+                      _fmt(r.get("force_min_N")), _fmt(r.get("force_max_N")), r.get("paper", ""))
+    console().print(table)
+    return 0
+
+
+def _fmt(x) -> str:
+    return "-" if x is None else f"{x:.2f}"
+
+
+def cmd_force_map(args) -> int:
+    from ..reports.figures import check_ecore, force_map_figure
+    from ..formats.outputs import output_file
+
+    out = Path(args.out)
+    if not out.suffix:
+        raise ConfigError(f"--out {out}: give a file name with its format, e.g. {out.name}.png")
+    check_ecore(args.rig)  # before a file is touched
+    with output_file(out, overwrite=args.overwrite) as tmp:
+        force_map_figure(args.rig, tmp)
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_fit_material(args) -> int:
+    from ..reports.material_report import run_material_fit
+    from ..formats.outputs import output_folder
+
+    with output_folder(args.out, overwrite=args.overwrite) as stage:
+        result = run_material_fit(stage.path, refit=args.refit)
+        result = _moved(result, stage)
+    if args.json:
+        print(json.dumps(result, indent=2, default=str))
+    else:
+        for key, value in result.items():
+            print(f"{key}: {value}")
+    return 0
+
+
+def _moved(obj, stage):
+    """``obj`` with every path string under the staging folder replaced by its final path."""
+    if isinstance(obj, dict):
+        return {k: _moved(v, stage) for k, v in obj.items()}
+    if isinstance(obj, str) and obj.startswith(str(stage.path)):
+        return str(stage.final(obj))
+    return obj
+
+
+def cmd_bench(args) -> int:
+    import importlib.util
+
+    root = Path(__file__).resolve().parents[2] / "benchmarks"
+    path = root / f"bench_{args.name}.py"
+    if not path.exists():
+        known = sorted(p.stem.removeprefix("bench_") for p in root.glob("bench_*.py"))
+        raise BenchError(f"no benchmark {args.name!r} in {root}; known: {', '.join(known) or 'none'}"
+                         " (benchmarks live in the source checkout)")
+    spec = importlib.util.spec_from_file_location(f"hystbench_bench_{args.name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return int(module.main(args.rest) or 0)
+
+
+def cmd_demo(args) -> int:
+    """The main job: the bench service live (a sweep through the emulated instruments, estimates
+    over zenoh, an MCAP log), the paper's sweeps as recordings with their delays, the whole method."""
+    from .method import cmd_paper
+    from rich.markup import escape
+
+    from .pipeline import demo_live, demo_sweeps
+    from ..reports.console import console
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file, not a folder")
+    console().rule("live: the daemon's pipeline, a sweep through the emulated instruments, estimates over zenoh")
+    live = demo_live(out / "live", seconds=6.0)
+    console().print(live["summary"])
+    status, failed = demo_sweeps(out)
+    if failed:
+        console().print(f"[bold red]the sweeps through the drivers failed[/]: {escape(failed)}\n"
+                        "(their files removed; the offline part follows)")
+    return status or cmd_paper(argparse.Namespace(out=str(out / "paper"), quick=False, save_recordings=False,
+                                                  overwrite=True))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="hystbench", description=__doc__.split(".")[0])
+    parser.add_argument("--version", action="version", version=f"hystbench {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("simulate", help="write one recording from the simulated rig")
+    _add_rig_args(p)
+    p.add_argument("--freq", type=positive_float, required=True, help="excitation frequency, Hz")
+    p.add_argument("--ipp", type=positive_float, required=True, help="peak-to-peak current, A")
+    p.add_argument("--out", required=True, help="output stem (writes STEM.csv and STEM.json)")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("simulate-sweep", help="write a sweep folder from the simulated rig")
+    _add_rig_args(p)
+    p.add_argument("--freqs", type=positive_floats, default=[40, 80, 160, 320, 480], help="Hz, comma-separated")
+    p.add_argument("--ipp", type=positive_floats, default=[1.4], help="A-pp, comma-separated")
+    p.add_argument("--out", required=True, help="output folder")
+    p.set_defaults(func=cmd_simulate_sweep)
+
+    p = sub.add_parser("effects", help="list the simulated rig's physical effects")
+    p.set_defaults(func=cmd_effects)
+
+    p = sub.add_parser("rigs", help="list rig presets with their force range at the operating point")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_rigs)
+
+    p = sub.add_parser("force-map", help="static force map F(i, z) of an E-core (paper Fig. 3) as PNG")
+    p.add_argument("--rig", default="ecore_pm", help="E-core preset (ecore, ecore_pm) or TOML path")
+    p.add_argument("--out", default="force_map.png")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+    p.set_defaults(func=cmd_force_map)
+
+    p = sub.add_parser("fit-material", help="hysteresis model vs the real measured B-H loops (PNG + table)")
+    p.add_argument("--out", default="material-fit", help="output folder (with --refit also the fitted TOML files)")
+    p.add_argument("--refit", action="store_true",
+                   help="fit again instead of using the shipped parameters; the material files go to --out "
+                        "(the shipped ones are never rewritten)")
+    p.add_argument("--overwrite", action="store_true", help="write into an existing, non-empty --out")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_fit_material)
+
+    p = sub.add_parser("bench", help="run a benchmark from benchmarks/ (sim, estimator, ...)")
+    p.add_argument("name")
+    p.add_argument("rest", nargs=argparse.REMAINDER, help="arguments for the benchmark (e.g. --json)")
+    p.set_defaults(func=cmd_bench)
+
+    from . import bench as commands_bench, compensator as commands_compensator, method as commands_method, pipeline as commands_pipeline
+
+    commands_method.register(sub)  # estimate, identify, paper
+    commands_bench.register(sub)  # emulate
+    commands_pipeline.register(sub)  # watch, record, replay, export, recover, daemon
+    commands_compensator.register(sub)  # model fit|predict, compensate
+
+    p = sub.add_parser("demo", help="the main job on the embedded simulated rig")
+    p.add_argument("--out", default="demo-output")
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+class _OneLineLog(logging.Handler):
+    """Library warnings and errors as one line on stderr, without a traceback.  A logged
+    BenchError is left out: the command raises it too, and main reports it once."""
+
+    def __init__(self, command: str) -> None:
+        super().__init__(logging.WARNING)
+        self.command = command
+
+    def emit(self, record: logging.LogRecord) -> None:
+        err = record.exc_info[1] if record.exc_info else None
+        if isinstance(err, BenchError):
+            return
+        try:
+            why = f": {err}" if err is not None else ""
+            print(f"hystbench {self.command}: {record.levelname.lower()}: {record.getMessage()}{why}",
+                  file=sys.stderr, flush=True)
+        except Exception:  # noqa: BLE001 - a log line must never take the command down
+            pass
+
+
+@contextmanager
+def _one_line_logging(command: str) -> Iterator[None]:
+    """Route the library's log through :class:`_OneLineLog` while the command runs (the daemon
+    sets up its own log)."""
+    logger = logging.getLogger("hystbench")
+    handler = _OneLineLog(command) if command != "daemon" else None
+    if handler is not None:
+        logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        if handler is not None:
+            logger.removeHandler(handler)
+
+
+def _line_buffered_stdout() -> None:
+    """Line by line into a pipe (``hystbench ... | tee``), not in 8 kB lumps at the end."""
+    try:
+        sys.stdout.reconfigure(line_buffering=True)
+    except (AttributeError, ValueError, OSError):
+        pass
+
+
+def _quiet_broken_pipe() -> None:
+    """The reader went away (``| head``): point stdout at /dev/null so that the final flush at exit
+    does not complain either."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (AttributeError, ValueError, OSError):
+        pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    _line_buffered_stdout()
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as stop:  # --help, --version, or usage + one line naming the option (status 2)
+        return stop.code if isinstance(stop.code, int) else 2
+    where = f"hystbench {args.command}" + (f" {args.model_command}" if getattr(args, "model_command", None) else "")
+    try:
+        with _one_line_logging(args.command):
+            return args.func(args)
+    except BenchError as err:
+        print(f"{where}: error: {err}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        _quiet_broken_pipe()
+        return 1
+    except (ValueError, OSError) as err:  # last resort: no traceback for a case not turned into a BenchError
+        print(f"{where}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130

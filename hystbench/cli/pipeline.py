@@ -1,0 +1,593 @@
+"""Command-line wiring of the pipeline: ``watch``, ``ctl``, ``record``, ``replay``, ``export``,
+``recover``, ``daemon``; and :func:`demo_live` / :func:`demo_sweeps`, the demo's parts that run
+the bench.
+
+``register(subparsers)`` adds the commands to the ``hystbench`` parser (whose ``main`` turns a
+:class:`~hystbench.errors.BenchError` into exit status 2); ``python -m
+hystbench.cli.pipeline CMD ...`` runs them on their own.  The work is done in
+the pipeline modules, imported when a command runs.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from ..errors import BenchError, RecordingError
+
+__all__ = ["register", "record_log", "replay_log", "demo_live", "demo_sweeps", "format_message"]
+
+DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
+
+
+# --- record / replay (also used by tests and the demo) ---------------------------------------------
+def _estimation_settings(cfg: dict | None) -> dict:
+    e = dict((cfg or {}).get("estimation") or {})
+    keys = ("periods", "hop_periods", "min_hop_s", "settle_periods", "settle_s", "max_fs_hz")
+    return {k: float(e[k]) for k in keys if k in e}
+
+
+def record_log(source, out: str | Path, *, estimation: dict | None = None, compression: str = "zstd",
+               overwrite: bool = False, on_message: Callable[[str, dict], None] | None = None,
+               timeout_s: float | None = None) -> dict:
+    """Run ``source`` through the pipeline (no zenoh) into one MCAP log; returns a summary."""
+    from ..formats.mcaplog import McapRecorder
+    from ..acquisition.pipeline import Pipeline
+    from ..acquisition.stages import WindowEstimator
+
+    settings = {"periods": 10.0, "settle_periods": 2.0, **(estimation or {})}
+    est = WindowEstimator(source.fs_hz, source.metadata(), **settings)
+    settings["settle_s"] = est.settle_s  # what the live run skipped after each change: replays skip the same
+    meta = {"recording": source.metadata(), "config": {"estimation": settings, "source": source.name}}
+    rig = getattr(getattr(source, "rig", None), "preset", None)
+    if rig:
+        meta["rig"] = {k: v for k, v in rig.items() if not k.startswith("_")}
+    with McapRecorder(out, metadata=meta, compression=compression, overwrite=overwrite) as rec:
+        pipe = Pipeline(source, estimator=est, recorder=rec)
+        estimates = _run_collecting(pipe, on_message, timeout_s, f"{out}: recording failed")
+    return {"log": [str(p) for p in rec.paths], "samples": pipe.stats["source"].samples, "estimates": estimates,
+            "bytes": sum(Path(p).stat().st_size for p in rec.paths), "stats": pipe.stats_dict()}
+
+
+def replay_log(path: str | Path, *, speed: str = "max", out: str | Path | None = None,
+               on_message: Callable[[str, dict], None] | None = None, overwrite: bool = False) -> list[dict]:
+    """Feed a log through the same pipeline (estimation settings from the log); the estimates.
+    With ``out``, the replay is itself recorded."""
+    from ..formats.mcaplog import McapSource
+    from ..acquisition.pipeline import Pipeline
+    from ..acquisition.stages import WindowEstimator
+
+    src = McapSource(path, pace="realtime" if speed == "realtime" else "max")
+    if out is not None:
+        return record_log(src, out, estimation=_estimation_settings(src.config), overwrite=overwrite,
+                          on_message=on_message)["estimates"]
+    est = WindowEstimator(src.fs_hz, src.metadata(), **_estimation_settings(src.config))
+    pipe = Pipeline(src, estimator=est, dtype=src.dtype)
+    return _run_collecting(pipe, on_message, None, f"{path}: replay failed")
+
+
+def _run_collecting(pipe, on_message, timeout_s: float | None, failure: str) -> list[dict]:
+    """Run the pipeline to its end (Ctrl-C or ``timeout_s`` stop it); its estimates, in order."""
+    estimates: list[dict] = []
+    pipe.listeners.append(lambda t, o: estimates.append(dict(o)) if t == "/estimate" else None)
+    if on_message is not None:
+        pipe.listeners.append(on_message)
+    pipe.start()
+    try:
+        if not pipe.join(timeout_s):
+            pipe.stop()
+    except KeyboardInterrupt:
+        pipe.stop()
+    if pipe.error is not None:
+        raise BenchError(f"{failure}: {pipe.error}") from pipe.error
+    return estimates
+
+
+# --- printing ------------------------------------------------------------------------------------------
+def _is_raw(keyexpr: str) -> bool:
+    parts = keyexpr.split("/")
+    return len(parts) >= 3 and parts[2] == "raw"
+
+
+def format_message(keyexpr: str, payload: bytes) -> str:
+    """One line for one zenoh sample (estimate, status, stats, raw block, anything JSON)."""
+    if _is_raw(keyexpr):
+        from ..acquisition.zenoh_bus import decode_raw
+
+        b = decode_raw(payload)
+        parts = [f"{c} mean {float(x.mean()):.6g} rms {float((x.astype(float) ** 2).mean()) ** 0.5:.6g}"
+                 for c, x in b.channels.items()]
+        return f"{keyexpr} [{b.first_index}..{b.end_index}) " + "; ".join(parts)
+    try:
+        obj = json.loads(payload)
+    except ValueError:
+        return f"{keyexpr} {len(payload)} bytes"
+    if keyexpr.rsplit("/", 1)[-1] == "estimate":
+        if obj.get("error"):
+            return f"{keyexpr} [{obj['first_index']}..{obj['end_index']}) error: {obj['error']}"
+        ph = " ".join(f"{k} {v:.4f} deg" for k, v in (obj.get("phases_deg") or {}).items())
+        return (f"{keyexpr} [{obj['first_index']}..{obj['end_index']}) f {obj.get('frequency_Hz', 0):.4f} Hz "
+                f"{obj.get('current_pp_A', 0):g} A-pp: {ph}")
+    if keyexpr.rsplit("/", 1)[-1] == "status":
+        return f"{keyexpr} {obj.get('level')} {obj.get('event')}: {obj.get('message', '')}"
+    return f"{keyexpr} {json.dumps(obj, separators=(',', ':'))[:300]}"
+
+
+# --- commands ----------------------------------------------------------------------------------------
+def _watch_items(sub, keyexpr: str, endpoint: str, *, count: int | None, seconds: float | None,
+                 quiet_after_s: float) -> Iterator[tuple[str, bytes]]:
+    """The samples of ``sub`` until ``count`` or ``seconds``; when nothing has arrived for
+    ``quiet_after_s`` (0: never), says so once on stderr and keeps waiting (said again only after
+    a message came and the line went quiet again)."""
+    start = last = time.monotonic()
+    deadline = None if seconds is None else start + seconds
+    warned = not quiet_after_s > 0
+    got = 0
+    while count is None or got < count:
+        now = time.monotonic()
+        if not warned and now - last >= quiet_after_s:  # before the deadline test: said even at the end
+            what = "no publisher seen" if got == 0 else "no message"
+            print(f"hystbench watch: {what} on {keyexpr} via {endpoint} for {now - last:.1f} s (is the daemon "
+                  "running, with that bench name and endpoint?); still waiting", file=sys.stderr, flush=True)
+            warned = True
+        if deadline is not None and now >= deadline:
+            return
+        waits = [0.2] + ([deadline - now] if deadline is not None else []) \
+            + ([last + quiet_after_s - now] if not warned else [])
+        item = sub.get(max(0.0, min(waits)))
+        if item is not None:
+            got += 1
+            last = time.monotonic()
+            warned = not quiet_after_s > 0
+            yield item[0], item[1]
+
+
+def cmd_watch(args) -> int:
+    from ..acquisition.control import describe_endpoint, open_client
+    from ..acquisition.zenoh_bus import Subscription
+
+    session = open_client(args.connect, args.zenoh_config)
+    sub = Subscription(session, args.keyexpr)
+    n = 0
+    try:
+        for key_, payload in _watch_items(sub, args.keyexpr, describe_endpoint(args.connect, args.zenoh_config),
+                                          count=args.count, seconds=args.seconds, quiet_after_s=args.quiet_after):
+            line = json.dumps({"key": key_, **json.loads(payload)}) if args.json and not _is_raw(key_) \
+                else format_message(key_, payload)
+            print(line, flush=True)
+            n += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sub.close()
+        session.close()
+    if args.count is not None and n < args.count:
+        print(f"hystbench watch: {n} of {args.count} messages on {args.keyexpr} before the time ran out",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+# --- ctl: a running daemon's commands and queries ---------------------------------------------------
+def _ctl_payload(args) -> dict[str, Any]:
+    """The JSON arguments of ``args.verb`` (only what was given: the daemon fills in the rest)."""
+    named = {"start_sweep": (("frequencies_hz", "freqs"), ("current_pp_a", "ipp"), ("dwell_s", "dwell")),
+             "set_excitation": (("frequency_hz", "freq"), ("current_pp_a", "ipp"), ("offset_a", "offset"))}
+    if args.verb == "output":
+        return {"on": args.state == "on"}
+    payload = {k: getattr(args, opt) for k, opt in named.get(args.verb, ()) if getattr(args, opt) is not None}
+    if args.verb == "set_excitation" and not payload:
+        from ..errors import ConfigError
+
+        raise ConfigError("set_excitation: give at least one of --freq, --ipp, --offset")
+    return payload
+
+
+def _format_reply(bench: str, verb: str, reply: dict) -> str:
+    if verb == "config":
+        return json.dumps(reply, indent=2)
+    if verb == "health":
+        return "\n".join(f"{k}: {v}" for k, v in reply.items())
+    if verb == "status":
+        parts = [f"{reply.get('state', '?')}", f"source {reply.get('source', '?')}"]
+        if isinstance(reply.get("uptime_s"), (int, float)):
+            parts.append(f"up {reply['uptime_s']:.0f} s")
+        parts += [f"{reply.get('samples', 0)} samples", f"{reply.get('estimates', 0)} estimates",
+                  f"log {reply.get('log') or '(none)'}"]
+        parts += [f"{k} {reply[k]}" for k in ("last_fault", "pipeline_error", "last_estimate_error") if reply.get(k)]
+        return f"{bench}: " + "; ".join(parts)
+    rest = ", ".join(f"{k} {json.dumps(v)}" for k, v in reply.items() if k != "ok")
+    return f"{bench}: {verb} ok" + (f" ({rest})" if rest else "")
+
+
+def cmd_ctl(args) -> int:
+    """One command or query to a running daemon; exit 1 if it refuses (its reason on stderr),
+    2 if nobody answers within ``--timeout``."""
+    from ..acquisition.control import BenchControl, Refused
+
+    payload = _ctl_payload(args)
+    with BenchControl(args.bench, connect=args.connect, zenoh_config=args.zenoh_config,
+                      timeout_s=args.timeout) as ctl:
+        try:
+            reply = ctl.request("health" if args.verb == "status" else args.verb, payload)
+        except Refused as err:
+            if args.json:
+                print(json.dumps(err.reply), flush=True)
+            print(f"hystbench ctl: {err}", file=sys.stderr)
+            return 1
+    print(json.dumps(reply) if args.json else _format_reply(args.bench, args.verb, reply), flush=True)
+    return 0
+
+
+def _float_list(text: str) -> list[float]:
+    import argparse
+
+    try:
+        values = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be numbers separated by commas, got {text!r}") from None
+    if not values:
+        raise argparse.ArgumentTypeError(f"must be at least one number, got {text!r}")
+    return values
+
+
+def _register_ctl(subparsers) -> None:
+    import argparse
+
+    def client_options(p, top: bool) -> None:
+        keep = (lambda v: v) if top else (lambda v: argparse.SUPPRESS)  # given after the verb: still taken
+        p.add_argument("--bench", default=keep("bench1"), help="the daemon's [daemon] bench (default bench1)")
+        p.add_argument("--connect", action="append", metavar="ENDPOINT", default=keep(None),
+                       help=f"endpoint of the daemon (default {DEFAULT_CONNECT}; repeatable)")
+        p.add_argument("--zenoh-config", metavar="FILE", default=keep(None),
+                       help="zenoh json5 config (e.g. with user/password or TLS)")
+        p.add_argument("--timeout", type=float, default=keep(2.0), metavar="S",
+                       help="give up when no daemon answered within S seconds (exit 2; default 2)")
+        p.add_argument("--json", action="store_true", default=keep(False), help="print the reply as JSON")
+
+    p = subparsers.add_parser("ctl", help="drive a running daemon: output, sweeps, excitation, status, health, config",
+                              description="Send one command (or query) to a running `hystbench daemon` over zenoh "
+                                          "and print its reply. Exit 0: done; 1: the daemon refused (its reason on "
+                                          "stderr); 2: bad arguments, or no daemon answered.")
+    client_options(p, top=True)
+    verbs = p.add_subparsers(dest="verb", required=True, metavar="VERB")
+    shared = argparse.ArgumentParser(add_help=False)
+    client_options(shared, top=False)
+    v = verbs.add_parser("output", parents=[shared], help="generator output on or off")
+    v.add_argument("state", choices=("on", "off"))
+    v = verbs.add_parser("start_sweep", parents=[shared], help="run a sweep (defaults: the daemon's [sweep])")
+    v.add_argument("--freqs", type=_float_list, metavar="F1,F2,...", help="frequencies, Hz, comma-separated")
+    v.add_argument("--ipp", type=float, help="peak-to-peak current, A")
+    v.add_argument("--dwell", type=float, metavar="S", help="seconds at each frequency")
+    verbs.add_parser("stop_sweep", parents=[shared], help="stop the sweep, output off")
+    v = verbs.add_parser("set_excitation", parents=[shared], help="change the excitation (any of its parts)")
+    v.add_argument("--freq", type=float, help="frequency, Hz")
+    v.add_argument("--ipp", type=float, help="peak-to-peak current, A")
+    v.add_argument("--offset", type=float, help="DC offset, A")
+    verbs.add_parser("status", parents=[shared], help="one line: state, source, samples, estimates, log")
+    verbs.add_parser("health", parents=[shared], help="the health queryable, every field")
+    verbs.add_parser("config", parents=[shared], help="the running configuration (JSON)")
+    p.set_defaults(func=cmd_ctl)
+
+
+def _source_from_args(args):
+    from ..acquisition.sources import RigSource, SyntheticSource
+
+    if args.source == "synthetic":
+        return SyntheticSource(fs_hz=args.fs, frequency_hz=args.freq, block_samples=args.block, pace=args.pace,
+                               duration_s=args.seconds, rig=args.rig, current_pp_a=args.ipp, seed=args.seed)
+    if args.source == "bench":
+        from ..acquisition.sources import bench_source
+
+        src = bench_source(args.bench_file, rig=args.rig, duration_s=args.seconds)
+        src.set_excitation(frequency_hz=args.freq, current_pp_a=args.ipp)
+        src.set_output(True)
+        return src
+    from ..sim_backend.effects import parse_effect_args
+    from ..sim_backend.rig import SimulatedRig
+
+    rig = SimulatedRig(args.rig, fs_hz=args.fs, seed=args.seed, effects=parse_effect_args(args.effect),
+                       frequency_hz=args.freq, current_pp_a=args.ipp)
+    return RigSource(rig, block_samples=args.block, pace=args.pace, duration_s=args.seconds)
+
+
+def _print_estimate(topic: str, obj: dict) -> None:
+    if topic == "/estimate":
+        print(format_message("estimate", json.dumps(obj).encode()), flush=True)
+
+
+def _has_measurement(log: Path) -> bool:
+    """Whether ``log`` holds any sample taken with the output on (the bench's idle samples before
+    the first command are no measurement)."""
+    from ..formats.mcaplog import iter_blocks
+
+    try:
+        return any(b.meta.get("output_on", 1.0) for b in iter_blocks(log))
+    except BenchError:
+        return True  # unreadable: keep it for `hystbench recover`, never delete what may hold data
+
+
+def _quiet_on_broken_pipe(show: Callable[[str, dict], None]) -> Callable[[str, dict], None]:
+    """``record -v | head``: once the reader has gone, stop printing and go on recording."""
+    gone = False
+
+    def listener(topic: str, obj: dict) -> None:
+        nonlocal gone
+        if not gone:
+            try:
+                show(topic, obj)
+            except BrokenPipeError:
+                gone = True
+
+    return listener
+
+
+def cmd_record(args) -> int:
+    out = Path(args.out)
+    ours = args.overwrite or not out.exists()  # else the recorder refuses it and it must stay as it is
+    src = _source_from_args(args)
+    try:
+        res = record_log(src, out, compression=args.compression, overwrite=args.overwrite,
+                         on_message=_quiet_on_broken_pipe(_print_estimate) if args.verbose else None)
+    except BenchError as err:  # a log with no measurement in it would only block the retry: remove it
+        if ours and out.is_file() and not _has_measurement(out):
+            out.unlink()
+            raise BenchError(f"{err} (nothing was recorded with the output on; {out} removed)") from err
+        raise
+    finally:
+        src.close()
+    errs = sum(1 for e in res["estimates"] if e.get("error"))
+    print(f"wrote {', '.join(res['log'])}: {res['samples']} samples x {len(src.channels)} channels, "
+          f"{len(res['estimates'])} estimates ({errs} refused), {res['bytes'] / 1e6:.2f} MB")
+    return 0
+
+
+def cmd_replay(args) -> int:
+    ests = replay_log(args.log, speed=args.speed, out=args.out, overwrite=args.overwrite,
+                      on_message=None if args.json else _print_estimate)
+    if args.json:
+        print(json.dumps(ests, indent=2))
+    else:
+        print(f"{len(ests)} estimates from {args.log}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from ..formats.mcaplog import read_mcap_segments
+    from ..formats.recording import sweep_stem, write_recording
+
+    recs = read_mcap_segments(args.log, include_idle=args.include_idle)
+    out = Path(args.out)
+    stems: list[str] = []
+    for k, rec in enumerate(recs):
+        off, settling = rec.metadata.get("output_on") is False, bool(rec.metadata.get("settling"))
+        stem = sweep_stem(rec) + ("_off" if off else "_settling" if settling else "")
+        if stem in stems:
+            stem = f"{stem}_seg{k}"
+        stems.append(stem)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise RecordingError(f"{out}: cannot create the folder: {err.strerror}") from err
+    for rec, stem in zip(recs, stems):
+        csv_path, _ = write_recording(rec, out / stem, overwrite=args.overwrite)
+        state = "output off" if rec.metadata.get("output_on") is False else f"{rec.current_pp_a:g} A-pp"
+        state += ", settling" if rec.metadata.get("settling") else ""
+        print(f"wrote {csv_path} ({rec.n} samples at {rec.fs_hz:g} Hz, {rec.frequency_hz:g} Hz, {state})")
+    return 0
+
+
+def cmd_recover(args) -> int:
+    from ..formats.mcaplog import recover
+
+    rep = recover(args.log, args.out, overwrite=args.overwrite)
+    if args.json:
+        print(json.dumps(rep.as_dict(), indent=2))
+    else:
+        d = rep.as_dict()
+        why = "the log was complete" if rep.complete else f"stopped: {rep.stopped}"
+        print(f"wrote {rep.out}: {rep.messages} messages from {rep.chunks} chunks "
+              f"({', '.join(f'{k} {v}' for k, v in sorted(d['by_topic'].items()))}); "
+              f"{d['bytes_lost']} of {d['bytes_total']} bytes not salvaged ({why})")
+    return 0
+
+
+def cmd_daemon(args) -> int:
+    from ..acquisition.daemon import run_daemon
+
+    return run_daemon(args.config)
+
+
+def register(subparsers) -> None:
+    """Add watch, record, replay, export, recover and daemon to the ``hystbench`` parser."""
+    p = subparsers.add_parser("watch", help="print live messages of a bench from zenoh (estimates by default)")
+    p.add_argument("keyexpr", nargs="?", default="hystbench/*/estimate",
+                   help="zenoh key expression (default hystbench/*/estimate; e.g. hystbench/bench1/**)")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help=f"endpoint of the daemon (default {DEFAULT_CONNECT}; repeatable)")
+    p.add_argument("--zenoh-config", metavar="FILE", help="zenoh json5 config (e.g. with user/password or TLS)")
+    p.add_argument("--count", type=int, help="stop after N messages (exit 1 if fewer came in --seconds)")
+    p.add_argument("--seconds", type=float, help="stop after S seconds")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    p.add_argument("--quiet-after", type=float, default=5.0, metavar="S",
+                   help="say on stderr when nothing arrived for S seconds (default 5; 0: never)")
+    p.set_defaults(func=cmd_watch)
+    _register_ctl(subparsers)
+
+    p = subparsers.add_parser("record", help="record the configured source to an MCAP log (no daemon)")
+    from .args import nonnegative_int, positive_float, positive_int
+
+    p.add_argument("--out", required=True, help="the log, e.g. run.mcap")
+    p.add_argument("--seconds", type=positive_float, default=2.0, help="how long (default 2)")
+    p.add_argument("--source", choices=("bench", "sim", "synthetic"), default="bench",
+                   help="bench (default): the instruments of --bench-file through the drivers, emulated when the "
+                        "file says backend = \"sim\" (the shipped one does); sim: the simulated rig directly; "
+                        "synthetic: precomputed sines")
+    p.add_argument("--bench-file", help="bench file for --source bench (default: hystbench/config/bench.toml)")
+    p.add_argument("--rig", default="ecore_pm")
+    p.add_argument("--freq", type=positive_float, default=320.0, help="excitation frequency, Hz (default 320)")
+    p.add_argument("--ipp", type=positive_float, default=1.4, help="peak-to-peak current, A (default 1.4)")
+    p.add_argument("--fs", type=positive_float, default=100_000.0, help="sample rate, Hz (default 100000)")
+    p.add_argument("--block", type=positive_int, default=1000, help="samples per source block (default 1000)")
+    p.add_argument("--pace", choices=("realtime", "max"), default="realtime")
+    p.add_argument("--seed", type=nonnegative_int, default=0)
+    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE")
+    p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--verbose", "-v", action="store_true", help="print each estimate")
+    p.set_defaults(func=cmd_record)
+
+    p = subparsers.add_parser("replay", help="feed an MCAP log through the pipeline again")
+    p.add_argument("log")
+    p.add_argument("--speed", choices=("realtime", "max"), default="max")
+    p.add_argument("--out", help="record the replay (with its estimates) to this log")
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--json", action="store_true", help="print the estimates as JSON")
+    p.set_defaults(func=cmd_replay)
+
+    p = subparsers.add_parser("export", help="write an MCAP log's segments as interchange-format recordings")
+    p.add_argument("log")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--include-idle", action="store_true",
+                   help="also segments with the output off (STEM_off) and the settling after each change (STEM_settling)")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=cmd_export)
+
+    p = subparsers.add_parser("recover", help="salvage the complete chunks of a log whose writer was killed")
+    p.add_argument("log")
+    p.add_argument("--out", help="the salvaged log (default LOG-recovered.mcap)")
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_recover)
+
+    p = subparsers.add_parser("daemon", help="run the bench daemon (systemd-ready; SIGHUP reloads)")
+    p.add_argument("--config", help="daemon TOML (default: built-in defaults, the simulated rig)")
+    p.set_defaults(func=cmd_daemon)
+
+
+def _clear_demo_live(out: Path, *, remove_dir: bool = False) -> None:
+    """Remove what :func:`demo_live` writes in ``out`` (its config and ``demo-*.mcap`` logs), so
+    the folder only ever holds the last run's log; ``remove_dir``: the folder too, if then empty."""
+    if not out.is_dir():
+        return
+    for p in [out / "demo-daemon.toml", *out.glob("demo-*.mcap")]:
+        p.unlink(missing_ok=True)
+    if remove_dir and not any(out.iterdir()):
+        out.rmdir()
+
+
+def _follow_sweep(ests, status, t_end: float, got: list[dict], errors: list[str]) -> list[float]:
+    """Print estimates as they arrive until the sweep says it is done (or ``t_end``), then those
+    still on their way (a source behind the wall clock delivers the last points late); the
+    frequencies the sweep announced.  The sweep dwells on the source's sample clock, so a source
+    slower than real time takes longer: ``t_end`` moves on while messages still come."""
+    points: list[float] = []
+    done = False
+    while time.monotonic() < t_end:
+        item = ests.get(min(1.0 if done else 0.1, max(0.0, t_end - time.monotonic())))
+        if item is not None:
+            got.append(json.loads(item[1]))
+            print(format_message(item[0], item[1]), flush=True)
+            t_end = t_end if done else max(t_end, time.monotonic() + 10.0)
+        elif done:  # a second without an estimate after the sweep: the pipeline has caught up
+            break
+        while (st := status.get(0.0)) is not None:
+            t_end = t_end if done else max(t_end, time.monotonic() + 10.0)
+            obj = json.loads(st[1])
+            if obj.get("level") == "error":
+                errors.append(str(obj.get("message") or obj.get("event")))
+            if obj.get("event") == "sweep_point":
+                points.append(float(obj.get("frequency_Hz", "nan")))
+            done = done or obj.get("event") in ("sweep_done", "sweep_stopped")
+    return points
+
+
+def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench") -> dict[str, Any]:
+    """The daemon's pipeline in-process, driven the way an operator drives a bench: a short sweep
+    started with ``hystbench ctl``'s control path over zenoh (an ephemeral port on 127.0.0.1)
+    through the emulated instruments' drivers (``source="bench"``; ``"sim"``: the simulated rig
+    directly), its live estimates printed as they arrive, an MCAP log in ``out_dir``.
+
+    The result's ``summary`` is one line for the demo to print.  If the live part fails (the
+    instruments do not answer, the machine is too slow for the emulated bench, no estimate came),
+    ``error`` says why and this run leaves nothing in ``out_dir``: the demo says so and goes on."""
+    from rich.markup import escape
+
+    from ..acquisition.control import BenchControl
+    from ..acquisition.daemon import BenchService, load_daemon_config
+    from ..acquisition.zenoh_bus import Subscription, free_port, key
+
+    out = Path(out_dir)
+    _clear_demo_live(out)  # an earlier run's log is not this run's
+    port = free_port()
+    freqs = [80.0, 160.0, 320.0]
+    dwell = max(seconds / len(freqs), 0.5)
+    toml = out / "demo-daemon.toml"
+    out.mkdir(parents=True, exist_ok=True)
+    toml.write_text(f'[daemon]\nbench = "demo"\nlog_dir = "{out.as_posix()}"\n[source]\nkind = "{source}"\n'
+                    f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n[sweep]\nfrequencies_hz = {freqs}\n'
+                    f'dwell_s = {dwell:g}\n', encoding="utf-8")
+    svc, paths, got, errors, points, error = None, [], [], [], [], None
+    try:
+        svc = BenchService(load_daemon_config(toml)).start()
+        with BenchControl("demo", connect=[f"tcp/127.0.0.1:{port}"], timeout_s=10.0) as ctl:
+            ests, status = Subscription(ctl.session, key("demo", "estimate")), Subscription(ctl.session, key("demo", "status"))
+            try:
+                ctl.request("start_sweep", {"frequencies_hz": freqs, "dwell_s": dwell})
+                points = _follow_sweep(ests, status, time.monotonic() + len(freqs) * dwell + 10.0, got, errors)
+                health = ctl.health()
+            finally:
+                ests.close()
+                status.close()
+        if health.get("pipeline_error"):
+            error = f"the pipeline failed: {health['pipeline_error']}"
+    except BenchError as err:
+        error = str(err)
+    finally:
+        if svc is not None:
+            try:
+                paths = svc.stop()
+            except BenchError as err:
+                error = error or f"stopping the bench: {err}"
+    good = [e for e in got if not e.get("error")]
+    if error is None and not good:
+        error = (f"no live estimate during the {len(freqs) * dwell:g} s sweep"
+                 + (f" ({errors[-1]})" if errors else "") + "; the machine may be too slow for the emulated "
+                 "bench at 100 kS/s")
+    if error is not None:
+        _clear_demo_live(out, remove_dir=True)
+        return {"error": error, "log": [], "estimates": len(got), "refused": len(got) - len(good), "points": points,
+                "hysteresis_deg": {}, "summary": f"[bold red]live part failed[/]: {escape(error)}\n"
+                                                 "(its partial log removed; the demo goes on without it)"}
+    by_f: dict[float, list] = {}
+    for e in good:
+        if e["phases_deg"].get("hysteresis") is not None:
+            by_f.setdefault(e["nominal_frequency_Hz"], []).append(e["phases_deg"]["hysteresis"])
+    logs = [str(p) for p in paths]
+    return {"log": logs, "estimates": len(got), "refused": len(got) - len(good), "error": None, "points": points,
+            "hysteresis_deg": {f"{f:g}": sum(v) / len(v) for f, v in sorted(by_f.items()) if v},
+            "summary": f"{len(got)} live estimates ({len(got) - len(good)} refused while settling); "
+                       f"MCAP log: {escape(', '.join(logs))}"}
+
+
+def demo_sweeps(out_dir: str | Path) -> tuple[int, str | None]:
+    """The demo's sweeps through the drivers from the emulated instruments, their delays and
+    figures (:func:`.demo.run_demo`).  When the instruments fail (a machine too slow for the
+    emulated bench at 100 kS/s: "bench: only 0 of 10000 aligned samples"; gaps in the streams),
+    returns (0, why) after removing what that part writes, so no result of an earlier run is left
+    looking like this one's; the demo says so and goes on with the offline part."""
+    import shutil
+
+    from ..reports.demo import SWEEPS, run_demo
+
+    out = Path(out_dir)
+    try:
+        return run_demo(out), None
+    except BenchError as err:  # InstrumentError, RecordingError (gaps): the bench part failed
+        shutil.rmtree(out / "sweeps", ignore_errors=True)
+        for name in ["summary.json", "force_map.png", *(f"{rig}_current_force.png" for rig, _, _ in SWEEPS)]:
+            (out / name).unlink(missing_ok=True)
+        return 0, str(err)

@@ -1,0 +1,1 @@
+"""What people look at: the paper's reproduction, figures, the material report and the demo."""

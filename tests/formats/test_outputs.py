@@ -1,0 +1,72 @@
+"""All-or-nothing outputs (issue 10): a command that fails leaves no partial file or folder."""
+
+from pathlib import Path
+
+import pytest
+
+from hystbench.formats.outputs import output_file, output_folder
+from hystbench.errors import ConfigError, RecordingError
+
+
+def test_a_file_appears_only_when_the_block_succeeds(tmp_path):
+    out = tmp_path / "a" / "b" / "x.csv"
+    with pytest.raises(RecordingError, match="late failure"):
+        with output_file(out) as tmp:
+            assert tmp.parent == out.parent and tmp.suffix == ".csv"  # same folder: an atomic rename
+            tmp.write_text("half")
+            raise RecordingError("late failure")
+    assert list(tmp_path.iterdir()) == []  # neither the file nor the folders made for it
+    with output_file(out) as tmp:
+        tmp.write_text("whole")
+    assert out.read_text() == "whole" and sorted(p.name for p in out.parent.iterdir()) == ["x.csv"]
+
+
+def test_an_existing_file_is_replaced_only_with_overwrite(tmp_path):
+    out = tmp_path / "x.txt"
+    out.write_text("old")
+    with pytest.raises(ConfigError, match=r"x.txt: exists; give --overwrite"):
+        with output_file(out):
+            raise AssertionError("the block must not run")
+    with output_file(out, overwrite=True) as tmp:
+        tmp.write_text("new")
+    assert out.read_text() == "new"
+
+
+def test_a_folder_moves_into_place_whole_or_not_at_all(tmp_path):
+    target = tmp_path / "report"
+    with pytest.raises(RecordingError):
+        with output_folder(target) as stage:
+            (stage.path / "fig1.png").write_bytes(b"1")
+            raise RecordingError("figure 2 failed")
+    assert list(tmp_path.iterdir()) == []
+    with output_folder(target) as stage:
+        (stage.path / "fig1.png").write_bytes(b"1")
+        (stage.path / "sub").mkdir()
+        (stage.path / "sub" / "data.json").write_text("{}")
+        assert stage.final(stage.path / "sub" / "data.json") == target / "sub" / "data.json"
+    assert sorted(p.relative_to(target).as_posix() for p in target.rglob("*")) == ["fig1.png", "sub",
+                                                                                   "sub/data.json"]
+    assert [p.name for p in tmp_path.iterdir()] == ["report"]
+
+
+def test_a_non_empty_folder_is_written_into_only_with_overwrite(tmp_path):
+    target = tmp_path / "report"
+    target.mkdir()
+    (target / "keep.txt").write_text("mine")
+    with pytest.raises(ConfigError, match="not empty; give --overwrite"):
+        with output_folder(target):
+            raise AssertionError("the block must not run")
+    with output_folder(target, overwrite=True) as stage:
+        (stage.path / "new.txt").write_text("new")
+    assert sorted(p.name for p in target.iterdir()) == ["keep.txt", "new.txt"]
+    assert (target / "keep.txt").read_text() == "mine"
+
+
+def test_a_file_where_a_folder_should_be_is_one_clear_error(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    for make in (lambda: output_file(blocker / "deeper" / "x.png"), lambda: output_folder(blocker)):
+        with pytest.raises((ConfigError, RecordingError), match=str(blocker)):
+            with make():
+                raise AssertionError("the block must not run")
+    assert [p.name for p in tmp_path.iterdir()] == ["file"]
