@@ -27,13 +27,13 @@ clock); ``first_index`` is the source's sample index.
 from __future__ import annotations
 
 import threading
-import time
 from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
 
 from ..blocks import BlockFlags, SampleBlock
+from ..deadline import Deadline
 
 __all__ = ["RingBuffer", "RingReader", "RingRead"]
 
@@ -167,7 +167,7 @@ class RingBuffer:
         or gives up: its choice)."""
         if not 0 < n <= self.capacity:
             raise ValueError(f"n must be in 1..{self.capacity} (the capacity), got {n}")
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        deadline = Deadline(timeout_s)
         with self._cond:
             while True:
                 if self.closed:
@@ -177,10 +177,9 @@ class RingBuffer:
                     need = max(need, int(self._rec_pos[(self._nrec + 1) % self.max_records]))
                 if all(r._floor() >= need for r in self._readers):
                     return True
-                left = None if deadline is None else deadline - time.monotonic()
-                if left is not None and left <= 0:
+                if deadline.expired:
                     return False
-                self._room.wait(left)
+                self._room.wait(deadline.left())
 
     # --- readers -------------------------------------------------------------------------------
     def reader(self, name: str = "", *, start: str = "oldest") -> RingReader:
@@ -241,13 +240,12 @@ class RingReader:
         """Wait until there is something to read (True), or ``timeout_s`` ran out or the ring is
         closed and drained (False); reads nothing."""
         ring = self.ring
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        deadline = Deadline(timeout_s)
         with ring._cond:
             while ring._head <= self.cursor:
-                left = None if deadline is None else deadline - time.monotonic()
-                if ring.closed or (left is not None and left <= 0):
+                if ring.closed or deadline.expired:
                     return False
-                ring._cond.wait(left)
+                ring._cond.wait(deadline.left())
             return True
 
     def read(self, max_samples: int | None = None, timeout_s: float | None = 0.0, *,
@@ -258,7 +256,7 @@ class RingReader:
         if max_samples is not None and max_samples < 1:
             raise ValueError(f"max_samples must be >= 1, got {max_samples}")
         ring = self.ring
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        deadline = Deadline(timeout_s)
         while True:
             with ring._cond:
                 if self._held is not None:  # reading again: done with the last views
@@ -271,10 +269,9 @@ class RingReader:
                         self.cursor = ring._tail
                     if ring._head > self.cursor:
                         break
-                    left = None if deadline is None else deadline - time.monotonic()
-                    if ring.closed or (left is not None and left <= 0):
+                    if ring.closed or deadline.expired:
                         return None
-                    ring._cond.wait(left)
+                    ring._cond.wait(deadline.left())
                 start, end, block = self._take(max_samples)
                 if not copy:
                     self._held = start

@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from ..deadline import Deadline
 from ..errors import ConfigError, InstrumentError, ProtocolError
 from .base import Backoff, Instrument, InstrumentStatus
 from .protocols import can_integrator as ci
@@ -141,12 +142,11 @@ class CanFluxIntegrator(Instrument):
         op = ci.OPS[name]
         self._bus.send(can.Message(arbitration_id=ci.command_id(self.node), data=ci.encode_command(name, value),
                                    is_extended_id=False), timeout=self.timeout_s)
-        deadline = time.monotonic() + self.timeout_s
+        deadline = Deadline(self.timeout_s)
         while True:
-            left = deadline - time.monotonic()
-            if left <= 0:
+            if deadline.expired:
                 raise TimeoutError(name)
-            msg = self._bus.recv(left)
+            msg = self._bus.recv(deadline.left())
             if msg is None:
                 continue
             if msg.arbitration_id == ci.heartbeat_id(self.node) and len(msg.data) >= 2:

@@ -14,13 +14,13 @@ import abc
 import collections
 import socket
 import threading
-import time
 from dataclasses import dataclass, field
 from typing import Iterator, Mapping, Sequence
 
 import numpy as np
 
 from ..blocks import BlockFlags, SampleBlock
+from ..deadline import Deadline
 from ..errors import ConnectionLost, InstrumentError
 from .base import Backoff, log
 from .protocols.framing import CobsDeframer, DeframerStats, Frame, FrameError, LengthPrefixDeframer, decode_frame
@@ -161,9 +161,9 @@ class CanFrameSource(FrameSource):
 
     def read_frames(self, timeout_s: float) -> list[Frame]:
         out, self._pending = self._pending, []
-        deadline = time.monotonic() + timeout_s
+        deadline = Deadline(timeout_s)
         while len(out) < 256:
-            msg = self.bus.recv(max(0.0, deadline - time.monotonic()) if not out else 0.0)
+            msg = self.bus.recv(deadline.left() if not out else 0.0)
             if msg is None:
                 break
             if msg.arbitration_id != self.can_id or msg.is_error_frame or msg.is_remote_frame:
@@ -269,15 +269,14 @@ class SampleStream:
     # --- consumer side ---------------------------------------------------------------------------
     def read(self, timeout_s: float = 1.0, max_samples: int | None = None) -> SampleBlock | None:
         """The next contiguous run (or None after ``timeout_s``); raises the reader's fatal error."""
-        deadline = time.monotonic() + timeout_s
+        deadline = Deadline(timeout_s)
         with self._cond:
             while not self._runs:
                 if self._error is not None:
                     raise self._error
-                left = deadline - time.monotonic()
-                if left <= 0:
+                if deadline.expired:
                     return None
-                self._cond.wait(left)
+                self._cond.wait(deadline.left())
             first, data, flags = self._runs.popleft()
             if max_samples is not None and data.shape[1] > max_samples:
                 self._runs.appendleft((first + max_samples, data[:, max_samples:], flags))
@@ -331,23 +330,23 @@ class SampleStream:
             self._cond.notify_all()
 
     def _reader(self) -> None:
-        last_frame = time.monotonic()
+        quiet = Deadline(self.stall_timeout_s)  # a stall: no frame before it passes
         while not self._stop.is_set():
             try:
                 frames = self.source.read_frames(0.05)
             except (OSError, ValueError) as err:
                 if not self._reopen(f"transport lost: {err}"):
                     return
-                last_frame = time.monotonic()
+                quiet = Deadline(self.stall_timeout_s)
                 continue
             if frames:
-                last_frame = time.monotonic()
+                quiet = Deadline(self.stall_timeout_s)
                 self._accept(frames)
-            elif time.monotonic() - last_frame > self.stall_timeout_s:
+            elif quiet.expired:
                 self.stats.stalls += 1
                 if not self._reopen(f"no frame for {self.stall_timeout_s:g} s"):
                     return
-                last_frame = time.monotonic()
+                quiet = Deadline(self.stall_timeout_s)
 
     def _reopen(self, why: str) -> bool:
         log.warning("%s: %s; reconnecting", self.name, why)

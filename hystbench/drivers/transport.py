@@ -9,9 +9,10 @@ that is gone raises ``OSError``/``SerialException``, which :meth:`Instrument._io
 from __future__ import annotations
 
 import socket
-import time
 
 import serial
+
+from ..deadline import Deadline
 
 __all__ = ["SerialLink"]
 
@@ -82,7 +83,7 @@ class SerialLink:
     def read_line(self, timeout_s: float | None = None) -> bytes:
         """One line without its terminator; TimeoutError if none completes in time."""
         port = self._require()
-        deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
+        deadline = Deadline(self.timeout_s if timeout_s is None else timeout_s)
         while True:
             end = self._buf.find(self.eol)
             if end >= 0:
@@ -92,10 +93,9 @@ class SerialLink:
             if len(self._buf) > self.max_line:
                 self._buf.clear()
                 raise ValueError(f"{self.url}: more than {self.max_line} bytes without a line end")
-            left = deadline - time.monotonic()
-            if left <= 0:
+            if deadline.expired:
                 raise TimeoutError(f"{self.url}: no complete line within the timeout")
-            port.timeout = min(left, 0.05)
+            port.timeout = deadline.left(0.05)
             chunk = port.read(max(1, port.in_waiting))
             if chunk:
                 self._buf += chunk
