@@ -10,12 +10,21 @@
 Protocol definitions (command tables, register map, frame codecs, bench-file schema) are in
 ``drivers.protocols``, which the emulators import.  Names below are imported on first use, so
 ``import hystbench.drivers`` does not pull in pymodbus or python-can.
+
+The bench builds its instruments from :data:`BACKENDS` (python-can's interface table is the
+model): a bench-file table name gives the driver class, which builds itself from that table
+(``Instrument.from_config``).  Adding an instrument is one row here and one class.
 """
 
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from ..errors import ConfigError
+
+if TYPE_CHECKING:
+    from .base import Instrument
 
 #: Backend table (python-can style): instrument -> (module, class), imported only when needed.
 BACKENDS: dict[str, tuple[str, str]] = {
@@ -25,8 +34,18 @@ BACKENDS: dict[str, tuple[str, str]] = {
     "flux_integrator": ("hystbench.drivers.flux_integrator", "CanFluxIntegrator"),
 }
 
+
+def instrument_class(name: str) -> type[Instrument]:
+    """The driver class of bench-file instrument ``name``, its module imported now (so a bench
+    without CAN never imports python-can's driver module before it needs it)."""
+    try:
+        module, cls = BACKENDS[name]
+    except KeyError:
+        raise ConfigError(f"no driver for instrument {name!r}; known: {', '.join(BACKENDS)}") from None
+    return getattr(importlib.import_module(module), cls)
+
 _PUBLIC = {
-    "Instrument": "base", "InstrumentStatus": "base", "Backoff": "base",
+    "Instrument": "base", "InstrumentStatus": "base", "Backoff": "base", "FaultLatched": "base",
     "CurrentBudget": "safety", "SafetyLimitError": "safety",
     "SampleStream": "stream", "StreamStats": "stream", "StreamAligner": "align",
     "ScpiSignalGenerator": "signal_generator", "ScpiError": "signal_generator",
@@ -37,7 +56,7 @@ _PUBLIC = {
     "BenchConfig": "protocols.bench_config", "load_bench_config": "protocols.bench_config",
 }
 
-__all__ = ["BACKENDS", *_PUBLIC]
+__all__ = ["BACKENDS", "instrument_class", *_PUBLIC]
 
 
 def __getattr__(name: str) -> Any:

@@ -7,6 +7,14 @@ and error translation once; each instrument overrides only private hooks.
 
 Every I/O goes through :meth:`Instrument._io`, which turns transport exceptions into the service's
 tree (``InstrumentTimeout`` / ``ConnectionLost`` / ``ProtocolError``) naming instrument and command.
+
+What the bench does with any instrument is here too, so that it needs no branch per instrument
+(``drivers.BACKENDS`` names the class, the class builds itself):
+
+    from_config(table, bench, budget)   the driver as the bench file describes it
+    gate                                 True: opened first and disabled (no current whatever the others do)
+    setup(settings)                      the file's settings, then the state the bench measures in
+    heartbeat()                          the bench's periodic poll (raises FaultLatched on a latched fault)
 """
 
 from __future__ import annotations
@@ -17,11 +25,15 @@ import socket
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterator, Mapping, TypeVar
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, Self, TypeVar
 
 from ..errors import ConfigError, ConnectionLost, InstrumentError, InstrumentTimeout, ProtocolError
 
-__all__ = ["Backoff", "InstrumentStatus", "Instrument", "log"]
+if TYPE_CHECKING:
+    from .protocols.bench_config import BenchConfig, InstrumentConfig
+    from .safety import CurrentBudget
+
+__all__ = ["Backoff", "InstrumentStatus", "Instrument", "FaultLatched", "log"]
 
 log = logging.getLogger("hystbench.drivers")
 T = TypeVar("T")
@@ -53,6 +65,10 @@ class InstrumentStatus:
     values: Mapping[str, Any] = field(default_factory=dict)
 
 
+class FaultLatched(InstrumentError):
+    """An instrument reports a latched fault: the bench acts on it at once, not after a second poll."""
+
+
 def _is_timeout(err: BaseException) -> bool:
     return isinstance(err, (TimeoutError, socket.timeout)) or type(err).__name__ in (
         "SerialTimeoutException", "ModbusIOException")
@@ -62,6 +78,9 @@ class Instrument(abc.ABC):
     """One instrument on the bench.  Use as a context manager: ``with Driver(...) as d: ...``."""
 
     kind: str = "instrument"
+    #: True for the instrument whose disabled state keeps the coil without current whatever the
+    #: others do (the current amplifier): the bench opens it first and disables it at once.
+    gate: bool = False
 
     def __init__(self, name: str | None = None, *, timeout_s: float = 1.0,
                  backoff: Backoff | None = None) -> None:
@@ -166,6 +185,32 @@ class Instrument(abc.ABC):
             except Exception as err:
                 log.error("%s: could not switch output off: %s", self.name, err)
                 return False
+
+    # --- what the bench does with every instrument --------------------------------------------------
+    @classmethod
+    @abc.abstractmethod
+    def from_config(cls, config: InstrumentConfig, bench: BenchConfig, budget: CurrentBudget) -> Self:
+        """The driver as the bench file describes it: ``config`` is its table (addresses resolved),
+        ``bench`` the file's common keys (see :meth:`_common`), ``budget`` the current budget shared
+        by the instruments that can drive current.  Opens nothing."""
+
+    @staticmethod
+    def _common(config: InstrumentConfig, bench: BenchConfig) -> dict[str, Any]:
+        """Constructor keywords every driver takes from the bench file: its reply deadline (its own
+        ``timeout_s`` or the bench's), the reconnection back-off and the common sample rate."""
+        return dict(timeout_s=config.timeout_s or bench.timeout_s, backoff=Backoff(**bench.backoff),
+                    fs_hz=bench.fs_hz)
+
+    def setup(self, settings: Mapping[str, Any]) -> None:
+        """Bring an opened instrument to the state the bench measures in: the bench file's
+        ``settings`` (in file order), then whatever else the instrument needs."""
+        if settings:
+            self.configure(**settings)
+
+    def heartbeat(self) -> None:
+        """The bench's periodic poll: proves the link alive (a silent one raises) and feeds any
+        watchdog; raises :class:`FaultLatched` when the instrument reports a latched fault."""
+        self.status()
 
     # --- hooks ------------------------------------------------------------------------------------
     @abc.abstractmethod

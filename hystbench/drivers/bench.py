@@ -6,10 +6,16 @@ both attempted independently, *before* anything else happens (reconnecting, rais
 A heartbeat thread polls every instrument (which also feeds the amplifier's watchdog), so a fault
 is acted on within ``heartbeat_s`` even when nobody is calling the bench.
 
-The four streams are aligned once, from the moment they open: consecutive ``acquire`` calls hand
-out consecutive samples, and every sample the streams deliver goes through the aligner (nothing is
-left behind in a stream's queue to pile up).  ``discard_backlog`` drops what arrived before a
-change, on purpose and counted.
+The instruments come from the ``drivers.BACKENDS`` table, each built by its own class from its
+table of the bench file; the bench treats them alike (``gate``, ``setup``, ``heartbeat``: see
+``drivers.base``), so it has no branch per instrument.
+
+The four streams are aligned once, from the moment they open, by the one acquisition loop,
+:meth:`Bench.read_aligned`: every turn moves every sample the streams hold into the one aligner
+(nothing is left behind in a stream's queue to pile up), then waits on the stream the aligner needs.
+``acquire`` (a duration of samples, with a timeout) and the pipeline's ``BenchSource`` (blocks for
+ever, with the operating point) both turn it, so consecutive calls hand out consecutive samples.
+``discard_backlog`` drops what arrived before a change, on purpose and counted.
 """
 
 from __future__ import annotations
@@ -18,25 +24,27 @@ import contextlib
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterator
 
 from ..blocks import BlockFlags, SampleBlock, concatenate
-from ..errors import ConfigError, ConnectionLost, InstrumentError, InstrumentTimeout
+from ..deadline import Deadline
+from ..errors import ConnectionLost, InstrumentError, InstrumentTimeout
+from . import instrument_class
 from .align import StreamAligner
-from .base import Backoff, Instrument, log
-from .charge_amplifier import ChargeAmplifier
-from .current_amplifier import ModbusCurrentAmplifier
-from .flux_integrator import CanFluxIntegrator
+from .base import FaultLatched, Instrument, log
 from .protocols.bench_config import BenchConfig
 from .safety import CurrentBudget, SafetyLimitError
-from .signal_generator import ScpiSignalGenerator
 from .stream import SampleStream
+
+if TYPE_CHECKING:
+    from .charge_amplifier import ChargeAmplifier
+    from .current_amplifier import ModbusCurrentAmplifier
+    from .flux_integrator import CanFluxIntegrator
+    from .signal_generator import ScpiSignalGenerator
 
 __all__ = ["Bench", "BenchFault", "build_instruments", "timeout_reason"]
 
-
-class _FaultBits(InstrumentError):
-    """An instrument reports a latched fault: acted on at once, not after a second poll."""
+_STEP_S = 0.05  # the longest one turn of the acquisition loop waits for a stream
 
 
 @dataclass(frozen=True)
@@ -48,30 +56,10 @@ class BenchFault:
 
 
 def build_instruments(config: BenchConfig, budget: CurrentBudget) -> dict[str, Instrument]:
-    """One driver per instrument, from a resolved bench config (addresses filled in)."""
-    backoff = Backoff(**config.backoff)
-    out: dict[str, Instrument] = {}
-    for name, inst in config.instruments.items():
-        o = inst.options
-        common = dict(timeout_s=inst.timeout_s or config.timeout_s, backoff=backoff)
-        if name == "signal_generator":
-            if not o["url"]:
-                raise ConfigError(f"{config.source} [{name}]: no url (start the emulators or set one)")
-            out[name] = ScpiSignalGenerator(o["url"], budget=budget, baudrate=o["baudrate"],
-                                            reset_on_open=o["reset_on_open"], stream_url=o["stream_url"] or None,
-                                            fs_hz=config.fs_hz, **common)
-        elif name == "current_amplifier":
-            where = dict(host=o["host"], port=o["port"]) if o["transport"] == "tcp" else dict(
-                serial_port=o["serial_port"], baudrate=o["baudrate"])
-            out[name] = ModbusCurrentAmplifier(budget=budget, unit=o["unit"], stream_url=o["stream_url"] or None,
-                                               fs_hz=config.fs_hz, **where, **common)
-        elif name == "charge_amplifier":
-            out[name] = ChargeAmplifier(o["url"], baudrate=o["baudrate"], stream_url=o["stream_url"] or None,
-                                        fs_hz=config.fs_hz, **common)
-        else:
-            out[name] = CanFluxIntegrator(interface=o["interface"], channel=o["channel"], node=o["node"],
-                                          fd=o["fd"], fs_hz=config.fs_hz, **common)
-    return out
+    """One driver per instrument, from a resolved bench config (addresses filled in): the class
+    ``drivers.BACKENDS`` names for the table, built by its ``from_config``.  Opens nothing."""
+    return {name: instrument_class(name).from_config(inst, config, budget)
+            for name, inst in config.instruments.items()}
 
 
 class Bench:
@@ -89,6 +77,7 @@ class Bench:
         self.faults: list[BenchFault] = []
         self.streams: dict[str, SampleStream] = {}
         self._aligner: StreamAligner | None = None  # the streams' samples on the common clock
+        self._delivered = dict.fromkeys(self.instruments, 0)  # samples each stream gave the aligner, ever
         self.discarded_samples = 0  # dropped by discard_backlog (samples of the common clock)
         self._fault_lock = threading.Lock()
         self._stop = threading.Event()
@@ -98,20 +87,16 @@ class Bench:
 
     # --- life cycle --------------------------------------------------------------------------------
     def open(self) -> "Bench":
-        """Open every instrument (amplifier first, disabled), apply the file's settings."""
+        """Open every instrument, the gate (the amplifier) first and disabled at once; then set
+        each up from the file (its settings, and the state the bench measures in)."""
         try:
-            for name in ("current_amplifier", "signal_generator", "charge_amplifier", "flux_integrator"):
-                self.instruments[name].open()
-                if name == "current_amplifier":
-                    self.amplifier.disable()
+            gates_first = sorted(self.instruments.items(), key=lambda item: not item[1].gate)
+            for name, inst in gates_first:
+                inst.open()
+                if inst.gate and not inst.safe_off():
+                    raise InstrumentError(f"{name}: could not be disabled after opening; the bench does not open")
             for name, inst in self.config.instruments.items():
-                settings = dict(inst.settings)
-                if name == "signal_generator" and settings:
-                    s = {**self.generator.state, **settings}
-                    self.generator.set_sine(s["frequency_hz"], s["amplitude_vpp"], s["offset_v"])
-                elif settings:
-                    self.instruments[name].configure(**settings)
-            self.charge_amp.operate()
+                self.instruments[name].setup(dict(inst.settings))
         except BaseException:
             self.close()
             raise
@@ -196,20 +181,6 @@ class Bench:
             self.instruments[instrument].reconnect()
 
     # --- heartbeat -------------------------------------------------------------------------------------
-    def _poll(self, name: str) -> None:
-        if name == "current_amplifier":
-            st = self.amplifier.read_status()
-            if st.faults:
-                raise _FaultBits(f"{name}: fault {', '.join(st.faults)}; output disabled by the amplifier")
-        elif name == "signal_generator":
-            self.generator.query("output")
-        elif name == "flux_integrator":
-            self.integrator.read_status()
-        else:
-            st = self.charge_amp.status()
-            if "OVERLOAD" in st.faults:
-                log.warning("charge amplifier overload: force samples are flagged CLIP")
-
     def _beat(self, name: str) -> None:
         failures = 0
         inst = self.instruments[name]
@@ -218,14 +189,14 @@ class Bench:
                 if self.heartbeat_paused.is_set() or self.faults or not inst.is_open:
                     continue
                 try:
-                    self._poll(name)
+                    inst.heartbeat()
                     failures = 0
                 except ConnectionLost as err:
                     self._fault(name, str(err))
                     self._try_reconnect(name)
                 except InstrumentError as err:
                     failures += 1
-                    if failures >= 2 or isinstance(err, _FaultBits):  # one missed poll may be noise
+                    if failures >= 2 or isinstance(err, FaultLatched):  # one missed poll may be noise
                         self._fault(name, str(err))
                         failures = 0
 
@@ -262,19 +233,48 @@ class Bench:
         self.streams = {}
         self._aligner = None
 
-    def _drain(self, counts: dict[str, int]) -> None:
-        """Move every block the streams hold into the aligner (adding to ``counts`` per stream)."""
-        for name, s in self.streams.items():
-            while True:
-                try:
-                    block = s.read(timeout_s=0.0)
-                except InstrumentError as err:
-                    self._fault(name, str(err))
-                    raise
-                if block is None:
-                    break
-                self._aligner.push(name, block)
-                counts[name] += block.n
+    @property
+    def next_index(self) -> int | None:
+        """The sample index the next aligned block starts at (None before the first one)."""
+        return None if self._aligner is None else self._aligner.cursor
+
+    def _read_stream(self, name: str, timeout_s: float) -> bool:
+        """Move one block of stream ``name`` into the aligner, waiting up to ``timeout_s``; False if
+        none came.  A stream that is lost is a fault: the output goes off first, then it raises."""
+        try:
+            block = self.streams[name].read(timeout_s=timeout_s)
+        except InstrumentError as err:
+            self._fault(name, str(err))
+            raise
+        if block is None:
+            return False
+        self._aligner.push(name, block)
+        self._delivered[name] += block.n
+        return True
+
+    def _drain(self) -> None:
+        """Move every block the streams hold into the aligner."""
+        for name in self.streams:
+            while self._read_stream(name, 0.0):
+                pass
+
+    def read_aligned(self, max_samples: int | None = None, *, timeout_s: float = _STEP_S) -> SampleBlock | None:
+        """One turn of the acquisition loop: the next aligned block of every channel (at most
+        ``max_samples``), or None if none came within ``timeout_s``.
+
+        Every stream is drained into the one aligner first, so nothing piles up in a stream's
+        queue however long the caller computed; then, if the aligner has no block yet, the turn
+        waits on the stream the aligner waits for.  Blocks follow on from the last one handed out;
+        one after missing samples has ``BlockFlags.GAP`` and the exact ``gap_samples``.  A recorded
+        fault, or a stream that cannot be reconnected, raises (with the output already off)."""
+        self.raise_if_faulted()
+        self.open_streams()
+        self._drain()
+        block = self._aligner.pop(max_samples)
+        if block is None and timeout_s > 0 and self._read_stream(self._aligner.waiting_for(), timeout_s):
+            self._drain()
+            block = self._aligner.pop(max_samples)
+        return block
 
     def discard_backlog(self) -> int:
         """Drop every sample the streams have delivered and not yet handed out: after a change (a new
@@ -283,7 +283,7 @@ class Bench:
         flight in the transports are not known here; a settling read after the change covers them.
         Returns how many samples of the common clock were dropped."""
         self.open_streams()
-        self._drain(dict.fromkeys(self.streams, 0))
+        self._drain()
         dropped = max(self._aligner.queued().values(), default=0)
         self._aligner = StreamAligner(self.streams)
         self.discarded_samples += dropped
@@ -299,33 +299,21 @@ class Bench:
         off); so does ``timeout_s`` (default 3 x duration + 5 s) passing, saying why."""
         self.raise_if_faulted()
         n_want = int(round(duration_s * self.config.fs_hz))
-        limit_s = timeout_s if timeout_s is not None else 3 * duration_s + 5.0
-        t0 = time.monotonic()
-        streams = self.open_streams()
-        counts = dict.fromkeys(streams, 0)
+        deadline = Deadline(timeout_s if timeout_s is not None else 3 * duration_s + 5.0)
+        self.open_streams()
+        before = dict(self._delivered)
         got: list[SampleBlock] = []
         have = 0
-        while True:
-            self.raise_if_faulted()
-            self._drain(counts)
-            while have < n_want and (block := self._aligner.pop(max_samples=n_want - have)) is not None:
+        while have < n_want:
+            block = self.read_aligned(n_want - have, timeout_s=deadline.left(_STEP_S))
+            if block is not None:
                 got.append(block)
                 have += block.n
-            if have >= n_want:
-                return _runs(got)
-            waited = time.monotonic() - t0
-            if waited > limit_s:
-                raise InstrumentTimeout(timeout_reason(have, n_want, waited, counts, self.config.fs_hz,
+            elif deadline.expired:
+                counts = {name: self._delivered[name] - before[name] for name in self.streams}
+                raise InstrumentTimeout(timeout_reason(have, n_want, deadline.elapsed, counts, self.config.fs_hz,
                                                        emulated=self.config.any_sim, ends=self._aligner.ends()))
-            name = self._aligner.waiting_for()  # sleep until the stream everything waits on has more
-            try:
-                block = streams[name].read(timeout_s=min(0.05, limit_s - waited))
-            except InstrumentError as err:
-                self._fault(name, str(err))
-                raise
-            if block is not None:
-                self._aligner.push(name, block)
-                counts[name] += block.n
+        return _runs(got)
 
     def stream_stats(self) -> dict[str, dict[str, int]]:
         return {name: s.stats.as_dict() for name, s in self.streams.items()}

@@ -7,13 +7,17 @@ instrument and the samples' units cannot disagree.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any, Mapping
 
 from ..errors import ConfigError, InstrumentError
-from .base import Backoff, Instrument, InstrumentStatus
+from .base import Backoff, Instrument, InstrumentStatus, log
 from .protocols.charge_amp import COMMANDS, ERRORS, OK, STATUS, parse_reply_error
 from .stream import SampleStream, frame_source
 from .transport import SerialLink
+
+if TYPE_CHECKING:
+    from .protocols.bench_config import BenchConfig, InstrumentConfig
+    from .safety import CurrentBudget
 
 __all__ = ["ChargeAmplifier", "ChargeAmpError", "CHARGE_AMP_STREAM_ID"]
 
@@ -39,6 +43,23 @@ class ChargeAmplifier(Instrument):
         self.identity = ""
         self.settings: dict[str, Any] = {}
         self._streams: list[SampleStream] = []
+
+    @classmethod
+    def from_config(cls, config: InstrumentConfig, bench: BenchConfig,
+                    budget: CurrentBudget) -> "ChargeAmplifier":
+        o = config.options
+        return cls(o["url"], baudrate=o["baudrate"], stream_url=o["stream_url"] or None,
+                   **cls._common(config, bench))
+
+    def setup(self, settings: Mapping[str, Any]) -> None:
+        """The file's settings, then OPERATE: a charge amplifier measures only there."""
+        super().setup(settings)
+        self.operate()
+
+    def heartbeat(self) -> None:
+        """An overload is no fault of the bench: the force samples carry it (CLIP); say so."""
+        if "OVERLOAD" in self.status().faults:
+            log.warning("%s overload: force samples are flagged CLIP", self.name)
 
     # --- hooks -----------------------------------------------------------------------------------
     def _open_hook(self) -> None:

@@ -9,13 +9,16 @@ register and the exception.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError, InstrumentError, InstrumentTimeout, ProtocolError
-from .base import Backoff, Instrument, InstrumentStatus
+from .base import Backoff, FaultLatched, Instrument, InstrumentStatus
 from .protocols.modbus_map import CONTROL, EXCEPTIONS, FAULTS, MODEL_ID, REGISTERS, STATUS
 from .safety import CurrentBudget
 from .stream import SampleStream, frame_source
+
+if TYPE_CHECKING:
+    from .protocols.bench_config import BenchConfig, InstrumentConfig
 
 __all__ = ["ModbusCurrentAmplifier", "ModbusError", "AMPLIFIER_STREAM_ID"]
 
@@ -38,6 +41,7 @@ def _bits(value: int, table) -> tuple[str, ...]:
 
 class ModbusCurrentAmplifier(Instrument):
     kind = "current_amplifier"
+    gate = True  # disabled, no coil current whatever the generator plays
 
     def __init__(self, *, budget: CurrentBudget, host: str | None = None, port: int = 502,
                  serial_port: str | None = None, baudrate: int = 19200, unit: int = 1,
@@ -53,6 +57,21 @@ class ModbusCurrentAmplifier(Instrument):
         self.stream_url, self.fs_hz = stream_url, fs_hz
         self.firmware = ""
         self._client = None
+
+    @classmethod
+    def from_config(cls, config: InstrumentConfig, bench: BenchConfig,
+                    budget: CurrentBudget) -> "ModbusCurrentAmplifier":
+        o = config.options
+        where = dict(host=o["host"], port=o["port"]) if o["transport"] == "tcp" else dict(
+            serial_port=o["serial_port"], baudrate=o["baudrate"])
+        return cls(budget=budget, unit=o["unit"], stream_url=o["stream_url"] or None, **where,
+                   **cls._common(config, bench))
+
+    def heartbeat(self) -> None:
+        """Read the status (which feeds the watchdog); a latched fault has already disabled the output."""
+        st = self.read_status()
+        if st.faults:
+            raise FaultLatched(f"{self.name}: fault {', '.join(st.faults)}; output disabled by the amplifier")
 
     def _make_client(self):
         from pymodbus.client import ModbusSerialClient, ModbusTcpClient

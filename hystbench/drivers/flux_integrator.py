@@ -8,13 +8,17 @@ voltage; the driver divides by the gain it read back, giving ``flux_Wb`` (flux t
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..deadline import Deadline
 from ..errors import ConfigError, InstrumentError, ProtocolError
 from .base import Backoff, Instrument, InstrumentStatus
 from .protocols import can_integrator as ci
 from .stream import CanFrameSource, SampleStream
+
+if TYPE_CHECKING:
+    from .protocols.bench_config import BenchConfig, InstrumentConfig
+    from .safety import CurrentBudget
 
 __all__ = ["CanFluxIntegrator", "IntegratorError", "INTEGRATOR_STREAM_ID"]
 
@@ -44,6 +48,13 @@ class CanFluxIntegrator(Instrument):
         self.last_heartbeat: tuple[float, int] | None = None  # (monotonic time, status bits)
         self._bus = None
         self._streams: list[SampleStream] = []
+
+    @classmethod
+    def from_config(cls, config: InstrumentConfig, bench: BenchConfig,
+                    budget: CurrentBudget) -> "CanFluxIntegrator":
+        o = config.options
+        return cls(interface=o["interface"], channel=o["channel"], node=o["node"], fd=o["fd"],
+                   **cls._common(config, bench))
 
     def _new_bus(self, can_id: int | None = None):
         import can

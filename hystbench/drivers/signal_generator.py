@@ -8,7 +8,7 @@ sine change is ordered so that no intermediate setting exceeds it either.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -19,6 +19,9 @@ from .protocols.scpi import GENERATOR
 from .safety import CurrentBudget
 from .stream import SampleStream, frame_source
 from .transport import SerialLink
+
+if TYPE_CHECKING:
+    from .protocols.bench_config import BenchConfig, InstrumentConfig
 
 __all__ = ["ScpiSignalGenerator", "ScpiError", "GENERATOR_STREAM_ID"]
 
@@ -47,6 +50,25 @@ class ScpiSignalGenerator(Instrument):
         self.stream_url, self.fs_hz = stream_url, fs_hz
         self.identity: dict[str, str] = {}
         self.state: dict[str, Any] = {}
+
+    @classmethod
+    def from_config(cls, config: InstrumentConfig, bench: BenchConfig,
+                    budget: CurrentBudget) -> "ScpiSignalGenerator":
+        o = config.options
+        if not o["url"]:
+            raise ConfigError(f"{bench.source} [{config.name}]: no url (start the emulators or set one)")
+        return cls(o["url"], budget=budget, baudrate=o["baudrate"], reset_on_open=o["reset_on_open"],
+                   stream_url=o["stream_url"] or None, **cls._common(config, bench))
+
+    def setup(self, settings: Mapping[str, Any]) -> None:
+        """The file's frequency, amplitude and offset as one sine (changed in the order that stays
+        within the current budget), the others as found."""
+        if settings:
+            s = {**self.state, **settings}
+            self.set_sine(s["frequency_hz"], s["amplitude_vpp"], s["offset_v"])
+
+    def heartbeat(self) -> None:
+        self.query("output")  # one short query: the full status drains the error queue too
 
     # --- hooks -----------------------------------------------------------------------------------
     def _open_hook(self) -> None:
