@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import socket
 import threading
-import time
 
 import pytest
+
+from hystbench.deadline import Deadline
 
 Transcript = list[tuple[bytes, bytes | None]]
 
@@ -31,10 +32,10 @@ class ScriptedPeer:
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
-    def _read_exact(self, conn: socket.socket, n: int, deadline: float) -> bytes:
+    def _read_exact(self, conn: socket.socket, n: int, deadline: Deadline) -> bytes:
         buf = b""
-        while len(buf) < n and time.monotonic() < deadline:
-            conn.settimeout(max(0.01, deadline - time.monotonic()))
+        while len(buf) < n and not deadline.expired:
+            conn.settimeout(max(0.01, deadline.left()))
             try:
                 chunk = conn.recv(n - len(buf))
             except socket.timeout:
@@ -51,16 +52,16 @@ class ScriptedPeer:
             return
         with conn:
             for i, (expect, reply) in enumerate(self.transcript):
-                got = self._read_exact(conn, len(expect), time.monotonic() + self.timeout_s)
+                got = self._read_exact(conn, len(expect), Deadline(self.timeout_s))
                 if got != expect:
                     self.mismatch = (i, expect, got)
                     return
                 if reply:
                     conn.sendall(reply)
                 self.done = i + 1
-            deadline = time.monotonic() + self.timeout_s
-            while time.monotonic() < deadline:  # after the script only EOF may come
-                conn.settimeout(max(0.01, deadline - time.monotonic()))
+            deadline = Deadline(self.timeout_s)
+            while not deadline.expired:  # after the script only EOF may come
+                conn.settimeout(max(0.01, deadline.left()))
                 try:
                     chunk = conn.recv(4096)
                 except socket.timeout:

@@ -10,11 +10,11 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 
 import pytest
 
 from hystbench.cli import bench as commands_bench
+from hystbench.deadline import Deadline
 from hystbench.drivers.protocols.bench_config import load_bench_config
 from hystbench.drivers.protocols.modbus_map import MODEL_ID
 from hystbench.sim_backend.emulators.bench import EmulatedBench
@@ -85,12 +85,11 @@ def test_mbpoll_reads_register_0(emu):
 def first_line(proc, timeout_s):
     sel = selectors.DefaultSelector()
     sel.register(proc.stdout, selectors.EVENT_READ)
-    deadline = time.monotonic() + timeout_s
+    deadline = Deadline(timeout_s)
     buf = b""
     while b"\n" not in buf:
-        left = deadline - time.monotonic()
-        assert left > 0, "no first line in time"
-        if sel.select(left):
+        assert not deadline.expired, "no first line in time"
+        if sel.select(deadline.left()):
             chunk = os.read(proc.stdout.fileno(), 4096)
             assert chunk, "emulate exited early"
             buf += chunk
