@@ -9,9 +9,9 @@ daemon there, a different bench name, or access control dropping the query).
 from __future__ import annotations
 
 import threading
-import time
 from typing import Any, Mapping, Sequence
 
+from ..deadline import Deadline
 from ..errors import BenchError
 from .zenoh_bus import COMMANDS, key, load_zenoh_config, open_session, query_json
 
@@ -90,14 +90,13 @@ class BenchControl:
             raise BenchError(f"unknown verb {verb!r}; known: {', '.join((*COMMANDS, *QUERIES))}")
         k = self.keyexpr(verb)
         payload = dict(args or {}) if verb in COMMANDS else None
-        deadline = time.monotonic() + self.timeout_s
+        deadline = Deadline(self.timeout_s)
         pause = threading.Event()
         while True:
-            left = deadline - time.monotonic()
-            replies = query_json(self.session, k, payload, timeout_s=max(left, 0.01))
+            replies = query_json(self.session, k, payload, timeout_s=max(deadline.left(), 0.01))
             if replies:
                 break
-            if time.monotonic() + _RETRY_S >= deadline:
+            if deadline.left() <= _RETRY_S:
                 raise NoReply(f"no daemon answered on {k} via {self.endpoint} within {self.timeout_s:g} s "
                               f"(is `hystbench daemon` running with [daemon] bench = {self.bench!r} and that "
                               "endpoint? access control also drops a query it denies)")

@@ -313,47 +313,42 @@ class BenchSource:
         volts = np.asarray(current_a, dtype=float) / self.gain
         self._commands.put(_counted(self, lambda: self.bench.generator.upload_waveform(volts, frequency_hz)))
 
-    def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]:
-        from ..drivers.align import StreamAligner
+    def _apply_commands(self) -> bool:
+        """Apply the queued commands (between blocks); True if there were any."""
+        applied = False
+        while True:
+            try:
+                self._commands.get_nowait()()
+            except queue.Empty:
+                return applied
+            applied = True
 
-        streams = self.bench.open_streams()
-        aligner = StreamAligner(streams)
+    def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]:
+        """The bench's aligned blocks (``Bench.read_aligned``, the drivers' one acquisition loop),
+        each with its operating point; commands are applied between blocks."""
+        bench = self.bench
+        bench.open_streams()
         left = None if self.duration_s is None else int(round(self.duration_s * self.fs_hz))
         settle_until = -1  # samples before this index may predate the last command
         while (stop is None or not stop.is_set()) and (left is None or left > 0):
-            applied = False
-            while aligner.cursor is not None:  # after the first sample: settling is counted from it
-                try:
-                    self._commands.get_nowait()()
-                    applied = True
-                except queue.Empty:
-                    break
-            if applied:  # every sample the instruments may still hold is marked settling
-                settle_until = (aligner.cursor or 0) + int(self.settle_s * self.fs_hz)
-            self.bench.raise_if_faulted()
-            got = False
-            for name, s in streams.items():  # drain every stream, then wait a little if none had data
-                while (b := s.read(timeout_s=0.0)) is not None:
-                    aligner.push(name, b)
-                    got = True
-            if not got:
-                (stop.wait(0.002) if stop is not None else time.sleep(0.002))
-            g = self.bench.generator.state
-            point = (g["frequency_hz"], g["amplitude_vpp"] * self.gain, g["offset_v"] * self.gain,
-                     bool(g["output"]) and self._output)
-            tables = self._tables
-            while left is None or left > 0:
-                limit = left  # a block ends where settling does, so each has one meta
-                cursor = aligner.cursor or 0
-                if cursor < settle_until:
-                    limit = settle_until - cursor if limit is None else min(limit, settle_until - cursor)
-                if (b := aligner.pop(limit)) is None:
-                    break
-                if left is not None:
-                    left -= b.n
-                meta = operating_meta(*point, settling=b.first_index < settle_until, table=tables)
-                yield SampleBlock(b.first_index, b.fs_hz, b.channels, flags=b.flags, gap_samples=b.gap_samples,
-                                  meta={**b.meta, **meta})
+            cursor = bench.next_index
+            # after the first sample (settling is counted from it), every sample the instruments
+            # may still hold is marked settling
+            if cursor is not None and self._apply_commands():
+                settle_until = cursor + int(self.settle_s * self.fs_hz)
+            limit = left  # a block ends where settling does, so each has one meta
+            if cursor is not None and cursor < settle_until:
+                limit = settle_until - cursor if limit is None else min(limit, settle_until - cursor)
+            if (b := bench.read_aligned(limit)) is None:
+                continue
+            if left is not None:
+                left -= b.n
+            g = bench.generator.state
+            meta = operating_meta(g["frequency_hz"], g["amplitude_vpp"] * self.gain, g["offset_v"] * self.gain,
+                                  bool(g["output"]) and self._output, settling=b.first_index < settle_until,
+                                  table=self._tables)
+            yield SampleBlock(b.first_index, b.fs_hz, b.channels, flags=b.flags, gap_samples=b.gap_samples,
+                              meta={**b.meta, **meta})
 
     def close(self) -> None:
         """Output off and everything closed (the drivers switch the output off first)."""
