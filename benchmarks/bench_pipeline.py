@@ -90,8 +90,8 @@ def run_once(fs_hz: float, seconds: float, out_dir: Path, *, block_s: float = 0.
 
     src.blocks = stamped
     port = free_port()
-    sub = subprocess.Popen([sys.executable, __file__, "--subscriber", str(port), str(seconds)],
-                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    sub = subprocess.Popen([sys.executable, "-m", "benchmarks.bench_pipeline", "--subscriber", str(port),
+                            str(seconds)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     bus = ZenohBus("bench", load_zenoh_config(None, listen=[f"tcp/127.0.0.1:{port}"])).open()
     try:
         line = ""
@@ -214,5 +214,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     sys.exit(main())

@@ -199,17 +199,19 @@ def _moved(obj, stage):
 
 
 def cmd_bench(args) -> int:
-    import importlib.util
+    import importlib
 
-    root = Path(__file__).resolve().parents[2] / "benchmarks"
-    path = root / f"bench_{args.name}.py"
-    if not path.exists():
-        known = sorted(p.stem.removeprefix("bench_") for p in root.glob("bench_*.py"))
-        raise BenchError(f"no benchmark {args.name!r} in {root}; known: {', '.join(known) or 'none'}"
-                         " (benchmarks live in the source checkout)")
-    spec = importlib.util.spec_from_file_location(f"hystbench_bench_{args.name}", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    try:
+        benchmarks = importlib.import_module("benchmarks")
+    except ImportError:
+        benchmarks = None
+    if not getattr(benchmarks, "HYSTBENCH_BENCHMARKS", False):
+        raise BenchError("the benchmarks are not installed: they live in the source checkout (`make test` "
+                         "or `pip install -e .` there installs them)")
+    try:
+        module = benchmarks.load(args.name)
+    except LookupError as err:
+        raise BenchError(str(err.args[0])) from None
     return int(module.main(args.rest) or 0)
 
 
