@@ -9,10 +9,10 @@ Per E-core rig (presets as shipped: noise at the paper's level, 0.0015 N rms wit
    average measures the model more than the noise): 40, 80, 160, 320, 480 Hz at the paper's
    amplitude (1.27 A-pp without magnet, 1.4 with) and at 0.9 A-pp, which the fit did not see.
    Accuracy = 100 % x (1 - max|F_measured - H_instr{F_model(i)}| / force range) on the period
-   average (``force_error.synchronous_average`` at the method's true frequency);
+   average (``analysis.periodic.synchronous_average`` at the method's true frequency);
 3. at 320 Hz: Eq. 6's error reduction over Eq. 1 three ways -- through the instrument's whole
    response (as everything here), with the paper's phase-only instrument correction
-   (``acquisition.force_error``), and the best any phase-delay model could do on that very
+   (``analysis.force_error``), and the best any phase-delay model could do on that very
    recording (delay and k0, k1, k2 fitted to it: an upper bound for Eq. 6);
 4. closed loop from rest with learning, 10 iterations: the tracking error against the noise
    floor of the same averaged record; for the magnet rig also after the paper's 1.4 A-pp
@@ -31,12 +31,13 @@ from pathlib import Path
 
 import numpy as np
 
-from hystbench.cli.compensator import (FIT_GRID, JUDGE_FREQS_HZ, current_limit_a, period_data,
-                                                         simulated_sweep, sweep_data)
 from hystbench.compensator import (ForceReference, LearningConfig, RigActuation, fit_models, force_error,
                                    run_closed_loop)
 from hystbench.compensator.models import phase_delay_bound_n
+from hystbench.compensator.sweeps import FIT_GRID, JUDGE_FREQS_HZ, period_data, sweep_data
 from hystbench.config import load_rig
+from hystbench.drivers.protocols.bench_config import load_bench_config
+from hystbench.sim_backend.recordings import simulated_sweep
 from hystbench.sim_backend.rig import SimulatedRig
 
 MAIN_IPP = {"ecore": 1.27, "ecore_pm": 1.4}
@@ -99,7 +100,8 @@ def iron_loops(points, models) -> list[dict]:
 def closed_loop(rig: str, models, spec: str, *, history: bool = False, kind: str = "best", seed: int = 7) -> dict:
     ref = ForceReference.parse(spec)
     kw = {} if history else {"current_pp_a": 0.0}  # history: the preset's own excitation ran before
-    act = RigActuation(SimulatedRig(rig, seed=seed, frequency_hz=ref.frequency_hz, **kw), current_limit_a())
+    limit = load_bench_config().current_limit_a  # the shipped bench's, as `hystbench compensate` takes it
+    act = RigActuation(SimulatedRig(rig, seed=seed, frequency_hz=ref.frequency_hz, **kw), limit)
     res = run_closed_loop(act, models[kind], ref, models.instrument, learn=True, config=LearningConfig(iterations=10))
     return {"rig": rig, "reference": ref.description, "model": kind,
             "start": "after 1.4 A-pp (iron memory)" if history else "from rest",

@@ -20,8 +20,8 @@ from contextlib import ExitStack
 
 import numpy as np
 
-from hystbench.cli.compensator import current_limit_a, quick_models
 from hystbench.compensator import BenchActuation, ForceReference, LearningConfig, run_closed_loop
+from hystbench.compensator.sweeps import quick_models
 from hystbench.drivers.bench import Bench
 from hystbench.drivers.protocols.bench_config import load_bench_config
 from hystbench.sim_backend.emulators.bench import EmulatedBench
@@ -38,7 +38,7 @@ def run(iterations: int = 100, measure_s: float = 0.25) -> dict:
     with ExitStack() as stack:
         emu = stack.enter_context(EmulatedBench(config))
         bench = stack.enter_context(Bench(config.resolved(emu.addresses)))
-        act = BenchActuation(bench, current_limit_a())
+        act = BenchActuation(bench, config.current_limit_a)
         last = [time.perf_counter(), 0]
 
         def on_iteration(rep) -> None:

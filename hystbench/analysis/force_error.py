@@ -19,10 +19,11 @@ loop-eye height (Fig. 17): the vertical opening of the Delta F-current loop, at 
 opening anywhere without magnet (F ~ i^2 has no slope at i = 0, so the loop closes there; it
 opens most near |i| = I / sqrt 2).
 
-The period average is synchronous: every whole period of the record is resampled (cubic
-interpolation) at the same phases of the *estimated true* frequency -- the generator and the ADC
-clocks differ by tens of ppm, so averaging at the nominal frequency would smear the loops -- and
-the periods are averaged.  The figures thus measure the model, not the sensor noise.
+The period average is synchronous (:func:`.periodic.synchronous_average`): every whole period
+of the record is resampled (cubic interpolation) at the same phases of the *estimated true*
+frequency -- the generator and the ADC clocks differ by tens of ppm, so averaging at the nominal
+frequency would smear the loops -- and the periods are averaged.  The figures thus measure the
+model, not the sensor noise.
 """
 
 from __future__ import annotations
@@ -30,54 +31,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from ..config import load_rig
 from ..errors import EstimationError
 from ..physics import presets
 from ..physics.phase_delay_model import PhaseDelayModel, delay_periodic
 from .method import MethodDelays, check_channels, measure_delays, recording_name
+from .periodic import PeriodAverage, synchronous_average
 from ..formats.recording import Recording
 
-__all__ = ["PeriodAverage", "synchronous_average", "loop_eye", "ForceError", "force_error",
-           "phase_delay_model", "analytical_model", "ERROR_KINDS"]
+__all__ = ["loop_eye", "ForceError", "force_error", "phase_delay_model", "analytical_model", "ERROR_KINDS"]
 
 ERROR_KINDS = ("before", "instrument", "hysteresis")
-
-
-@dataclass(frozen=True)
-class PeriodAverage:
-    """One period of each channel, at ``n_points`` phases ``phase`` (cycles, 0 <= phase < 1)."""
-
-    frequency_hz: float
-    periods: int
-    phase: np.ndarray
-    channels: dict[str, np.ndarray]
-    noise_rms: dict[str, float]  # rms of a single period about the average (sensor noise)
-
-    @property
-    def t_s(self) -> np.ndarray:
-        return self.phase / self.frequency_hz
-
-
-def synchronous_average(rec: Recording, frequency_hz: float, n_points: int = 1000,
-                        names: tuple[str, ...] | None = None) -> PeriodAverage:
-    """Average the whole periods of ``rec`` at ``frequency_hz`` (the estimated true frequency)."""
-    names = tuple(rec.channels) if names is None else names
-    if not frequency_hz > 0 or n_points < 8:
-        raise ValueError(f"frequency_hz must be > 0 and n_points >= 8, got {frequency_hz!r}, {n_points!r}")
-    t = np.arange(rec.n) / rec.fs_hz
-    periods = int(np.floor(t[-1] * frequency_hz + 1e-9))
-    if periods < 1:
-        raise EstimationError(f"{recording_name(rec)}: shorter than one period of {frequency_hz:g} Hz")
-    phase = np.arange(n_points) / n_points
-    when = (np.arange(periods)[:, None] + phase[None, :]) / frequency_hz
-    chans, noise = {}, {}
-    for name in names:
-        grid = CubicSpline(t, rec.channels[name])(when)
-        chans[name] = grid.mean(axis=0)
-        noise[name] = float(np.sqrt(np.mean((grid - chans[name]) ** 2))) if periods > 1 else float("nan")
-    return PeriodAverage(float(frequency_hz), periods, phase, chans, noise)
 
 
 def loop_eye(current: np.ndarray, error: np.ndarray, *, at: float | None = None,

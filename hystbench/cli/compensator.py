@@ -5,131 +5,25 @@
     hystbench compensate --rig ecore_pm --force "offset=170,amp=40,freq=320" [--learn]
 
 ``register(subparsers)`` adds them; the CLI's ``main`` turns a BenchError into exit status 2.  The
-recordings are turned into the compensator's period averages here (:func:`period_data`): the
-method's delays give the true frequency and theta_hyst, ``force_error.synchronous_average`` the
-waveforms; the compensator package itself never sees a recording.
+work is the compensator's (:mod:`hystbench.compensator.sweeps`: recordings to period averages, the
+identification on the simulated rig, a model's prediction for a recording), imported when a
+command runs.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, RecordingError
+from ..errors import ConfigError
 from .args import float_in, nonnegative_int, positive_float
 
-__all__ = ["register", "period_data", "sweep_data", "predict_recording", "simulated_sweep", "quick_models",
-           "current_limit_a", "FIT_GRID", "JUDGE_FREQS_HZ"]
+__all__ = ["register"]
 
-#: The identification sweep ``compensate`` runs on the simulated rig when no model file is given:
-#: three frequencies x four amplitudes (the models are judged elsewhere on what this does not hold).
-FIT_GRID = ((40.0, 160.0, 480.0), (0.3, 0.7, 1.1, 1.5))
-JUDGE_FREQS_HZ = (40.0, 80.0, 160.0, 320.0, 480.0)
 #: The model kinds (``compensator.MODEL_KINDS``; repeated so that building the parser imports nothing).
 MODEL_KINDS = ("nonhysteretic", "paper", "best")
-
-
-def period_data(rec, n_points: int = 1000):
-    """One recording as the compensator's :class:`~hystbench.compensator.PeriodData`."""
-    from ..compensator import PeriodData
-    from ..analysis.force_error import synchronous_average
-    from ..analysis.method import measure_delays, recording_name
-
-    d = measure_delays(rec)
-    avg = synchronous_average(rec, d.frequency_hz, n_points, ("current_A", "flux_Wb", "force_N"))
-    se = 2 * np.pi * d.frequency_hz * d.delays_std_s["hysteresis"]
-    return PeriodData(recording_name(rec), d.frequency_hz, rec.frequency_hz, rec.current_pp_a,
-                      avg.channels["current_A"], avg.channels["flux_Wb"], avg.channels["force_N"],
-                      d.theta_hyst_rad, se, avg.noise_rms["force_N"], avg.periods, avg.noise_rms["current_A"])
-
-
-def sweep_data(recs, tick=None) -> tuple[str, list]:
-    """(rig, period averages) of a sweep of one rig; ``tick()`` after each recording (progress)."""
-    rigs = sorted({r.rig for r in recs})
-    if len(rigs) != 1:
-        raise RecordingError(f"a sweep is one rig; these recordings are of {', '.join(rigs) or 'none'}")
-    points = []
-    for r in recs:
-        points.append(period_data(r))
-        if tick is not None:
-            tick()
-    return rigs[0], points
-
-
-def simulated_sweep(rig: str, freqs_hz, ipps_a, *, seed: int = 0, duration_s: float | None = None,
-                    effects=None, tick=None) -> list:
-    """Recordings of the simulated rig, one per (frequency, amplitude); by default 8 periods or
-    0.1 s, whichever is longer (what an identification needs, not what a figure needs)."""
-    from ..sim_backend.rig import SimulatedRig
-    from ..formats.recording import Recording
-
-    recs = []
-    for n, (f, ipp) in enumerate((f, i) for f in freqs_hz for i in ipps_a):
-        sim = SimulatedRig(rig, seed=seed + n, frequency_hz=f, current_pp_a=ipp, effects=effects)
-        block = sim.record(duration_s or max(0.1, 8.0 / f))
-        recs.append(Recording(None, sim.fs_hz, dict(block.channels), sim.metadata()))
-        if tick is not None:
-            tick()
-    return recs
-
-
-def quick_models(rig: str, *, seed: int = 1000, effects=None, tick=None):
-    """A model set identified on the simulated rig from :data:`FIT_GRID` (about 5 s); ``tick()``
-    twice per recording (simulated, averaged)."""
-    from ..compensator import fit_models
-    from ..config import load_rig
-
-    _, points = sweep_data(simulated_sweep(rig, *FIT_GRID, seed=seed, effects=effects, tick=tick), tick=tick)
-    return fit_models(points, load_rig(rig))
-
-
-def predict_recording(models, rec, kind: str) -> tuple[np.ndarray, np.ndarray]:
-    """(time_s, force_N): what the load cell would report for ``rec``'s measured current, sample by
-    sample.  The record is taken as steady-state periodic: its current is averaged over whole
-    periods at the true frequency, the model's force for that period is put through the
-    instrument, and every sample gets the value at its phase."""
-    from ..compensator import predict_measured
-    from ..compensator.periodic import resample
-    from ..analysis.estimation import estimation_errors, sine_fit
-    from ..analysis.force_error import synchronous_average
-    from ..analysis.method import check_channels, recording_name
-
-    where = recording_name(rec)
-    if rec.rig != models.rig:
-        raise RecordingError(f"{where}: a {rec.rig!r} recording, but the models are of {models.rig!r}")
-    check_channels(rec, ("current_A",))
-    with estimation_errors(where):
-        f = float(sine_fit(rec.channels["current_A"], rec.fs_hz, rec.frequency_hz, harmonics=(1, 2, 3)).freq_hz)
-    n = 1000
-    avg = synchronous_average(rec, f, n, ("current_A",))
-    noise = avg.noise_rms["current_A"] / math.sqrt(avg.periods) if avg.periods > 1 else math.nan
-    pred = predict_measured(models[kind], avg.channels["current_A"], f, models.instrument, current_noise_a=noise)
-    fine = resample(pred, 8 * n)  # then linear interpolation at each sample's phase
-    phase = np.mod(np.arange(rec.n) / rec.fs_hz * f, 1.0) * fine.size  # the average's phase 0: sample 0
-    return rec.time_s(), np.interp(phase, np.arange(fine.size + 1), np.append(fine, fine[0]))
-
-
-def current_limit_a() -> float:
-    """The bench's current limit: the smaller of ``[bench] max_current_a`` and the amplifier's
-    ``current_limit_a`` in the shipped ``config/bench.toml`` (what the drivers enforce)."""
-    import tomllib
-
-    from ..config import CONFIG_DIR
-
-    path = CONFIG_DIR / "bench.toml"
-    try:
-        with path.open("rb") as fh:
-            cfg = tomllib.load(fh)
-        limits = [float(cfg["bench"]["max_current_a"])]
-        amp = cfg.get("current_amplifier", {}).get("settings", {}).get("current_limit_a")
-        if amp is not None:
-            limits.append(float(amp))
-    except (OSError, KeyError, ValueError, tomllib.TOMLDecodeError) as err:
-        raise ConfigError(f"{path}: cannot read [bench] max_current_a: {err}") from err
-    return min(limits)
 
 
 def _json_out(obj) -> str:
@@ -145,6 +39,7 @@ def _console():
 # --- hystbench model fit / predict ---------------------------------------------------------------
 def cmd_model_fit(args) -> int:
     from ..compensator import MODEL_KINDS as KINDS, fit_models
+    from ..compensator.sweeps import sweep_data
     from ..config import load_rig
     from ..reports.console import progress
     from ..formats.outputs import output_file
@@ -184,9 +79,9 @@ def cmd_model_fit(args) -> int:
 
 def cmd_model_predict(args) -> int:
     from ..compensator import ModelSet
-    from ..formats.recording import read_recording
-
+    from ..compensator.sweeps import predict_recording
     from ..formats.outputs import output_file
+    from ..formats.recording import read_recording
 
     out = Path(args.out)
     with output_file(out, overwrite=args.overwrite) as tmp:
@@ -235,12 +130,14 @@ def cmd_compensate(args) -> int:
     from contextlib import ExitStack
 
     from ..compensator import ModelSet
-    from ..sim_backend.effects import parse_effect_args
+    from ..compensator.sweeps import FIT_GRID, quick_models
+    from ..drivers.protocols.bench_config import load_bench_config
     from ..reports.console import progress
+    from ..sim_backend.effects import parse_effect_args
 
     ref = _reference(args)
     effects = parse_effect_args(args.effect)
-    limit = args.max_current if args.max_current is not None else current_limit_a()
+    limit = args.max_current if args.max_current is not None else load_bench_config().current_limit_a
     _precheck(args.rig, ref, limit)
     con = _console() if not args.json else None
     if args.model:

@@ -45,36 +45,22 @@ def _check_size(args, recordings: int = 1) -> None:
                           "(`hystbench record` streams long runs to a log)")
 
 
-def _refuse_clipping(rig, block, freq_hz: float, ipp_a: float) -> None:
-    """A channel beyond its ADC full scale is not a measurement: every estimate from it would be
-    wrong without a warning (a recording file keeps no clip flag)."""
-    from ..blocks import BlockFlags
-    from ..errors import SimulationError
-
-    if not block.flags & BlockFlags.CLIP:
-        return
-    q = rig.effects.get("adc_quantisation", {})
-    over = []
-    for ch, x in block.channels.items():
-        key = ch.lower()  # current_A -> current_a, the adc_quantisation parameter
-        if key in q:
-            full = float(q[key])
-            if float(abs(x).max()) >= full * (1 - 2.0 ** (1 - int(q["bits"]))):
-                over.append(f"{ch} (full scale ±{full:g}, adc_quantisation.{key})")
-    raise SimulationError(f"{rig.name} at {freq_hz:g} Hz, {ipp_a:g} A-pp: the ADC clipped {', '.join(over)}; lower "
-                          "--ipp (or --freq), or raise the full scale with --effect adc_quantisation.PARAM=VALUE")
-
-
 def _simulate_one(args, freq_hz: float, ipp_a: float, seed: int):
+    """One recording of the simulated rig; a clipped one is refused before anything is written (a
+    channel beyond its ADC full scale is not a measurement), naming the option to change."""
+    from ..errors import SimulationError
     from ..sim_backend.effects import parse_effect_args
-    from ..sim_backend.rig import SimulatedRig
-    from ..formats.recording import Recording
+    from ..sim_backend.recordings import clipped_channels, simulate_recording
 
-    rig = SimulatedRig(args.rig, fs_hz=args.fs, seed=seed, effects=parse_effect_args(args.effect),
-                       frequency_hz=freq_hz, current_pp_a=ipp_a)
-    block = rig.record(args.duration)
-    _refuse_clipping(rig, block, freq_hz, ipp_a)
-    return Recording(path=None, fs_hz=rig.fs_hz, channels=dict(block.channels), metadata=rig.metadata())
+    rec = simulate_recording(args.rig, freq_hz, ipp_a, args.duration, fs_hz=args.fs, seed=seed,
+                             effects=parse_effect_args(args.effect))
+    if rec.metadata.get("clipped"):
+        over = [f"{ch} (full scale ±{full:g}, adc_quantisation.{ch.lower()})"
+                for ch, full in clipped_channels(rec).items()]
+        raise SimulationError(f"{rec.rig} at {freq_hz:g} Hz, {ipp_a:g} A-pp: the ADC clipped {', '.join(over)}; "
+                              "lower --ipp (or --freq), or raise the full scale with --effect "
+                              "adc_quantisation.PARAM=VALUE")
+    return rec
 
 
 def cmd_simulate(args) -> int:
@@ -218,17 +204,19 @@ def cmd_bench(args) -> int:
 def cmd_demo(args) -> int:
     """The main job: the bench service live (a sweep through the emulated instruments, estimates
     over zenoh, an MCAP log), the paper's sweeps as recordings with their delays, the whole method."""
-    from .method import cmd_paper
     from rich.markup import escape
 
-    from .pipeline import demo_live, demo_sweeps
     from ..reports.console import console
+    from ..reports.demo import demo_sweeps
+    from ..reports.demo_live import demo_live
+    from .method import cmd_paper
+    from .pipeline import format_message
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file, not a folder")
     console().rule("live: the daemon's pipeline, a sweep through the emulated instruments, estimates over zenoh")
-    live = demo_live(out / "live", seconds=6.0)
+    live = demo_live(out / "live", seconds=6.0, show=lambda k, msg: print(format_message(k, msg), flush=True))
     console().print(live["summary"])
     status, failed = demo_sweeps(out)
     if failed:

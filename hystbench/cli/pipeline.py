@@ -1,11 +1,10 @@
 """Command-line wiring of the pipeline: ``watch``, ``ctl``, ``record``, ``replay``, ``export``,
-``recover``, ``daemon``; and :func:`demo_live` / :func:`demo_sweeps`, the demo's parts that run
-the bench.
+``recover``, ``daemon``.
 
 ``register(subparsers)`` adds the commands to the ``hystbench`` parser (whose ``main`` turns a
-:class:`~hystbench.errors.BenchError` into exit status 2); ``python -m
-hystbench.cli.pipeline CMD ...`` runs them on their own.  The work is done in
-the pipeline modules, imported when a command runs.
+:class:`~hystbench.errors.BenchError` into exit status 2).  The work is done in the library
+(``acquisition.record`` records and replays, ``acquisition.control`` talks to a daemon), imported
+when a command runs; :func:`format_message` is how a message is printed on the terminal.
 """
 
 from __future__ import annotations
@@ -18,72 +17,13 @@ from typing import Any, Callable, Iterator
 
 from ..errors import BenchError, RecordingError
 
-__all__ = ["register", "record_log", "replay_log", "demo_live", "demo_sweeps", "format_message"]
+__all__ = ["register", "format_message"]
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
-
-
-# --- record / replay (also used by tests and the demo) ---------------------------------------------
-def _estimation_settings(cfg: dict | None) -> dict:
-    e = dict((cfg or {}).get("estimation") or {})
-    keys = ("periods", "hop_periods", "min_hop_s", "settle_periods", "settle_s", "max_fs_hz")
-    return {k: float(e[k]) for k in keys if k in e}
-
-
-def record_log(source, out: str | Path, *, estimation: dict | None = None, compression: str = "zstd",
-               overwrite: bool = False, on_message: Callable[[str, dict], None] | None = None,
-               timeout_s: float | None = None) -> dict:
-    """Run ``source`` through the pipeline (no zenoh) into one MCAP log; returns a summary."""
-    from ..formats.mcaplog import McapRecorder
-    from ..acquisition.pipeline import Pipeline
-    from ..acquisition.stages import WindowEstimator
-
-    settings = {"periods": 10.0, "settle_periods": 2.0, **(estimation or {})}
-    est = WindowEstimator(source.fs_hz, source.metadata(), **settings)
-    settings["settle_s"] = est.settle_s  # what the live run skipped after each change: replays skip the same
-    meta = {"recording": source.metadata(), "config": {"estimation": settings, "source": source.name}}
-    rig = getattr(getattr(source, "rig", None), "preset", None)
-    if rig:
-        meta["rig"] = {k: v for k, v in rig.items() if not k.startswith("_")}
-    with McapRecorder(out, metadata=meta, compression=compression, overwrite=overwrite) as rec:
-        pipe = Pipeline(source, estimator=est, recorder=rec)
-        estimates = _run_collecting(pipe, on_message, timeout_s, f"{out}: recording failed")
-    return {"log": [str(p) for p in rec.paths], "samples": pipe.stats["source"].samples, "estimates": estimates,
-            "bytes": sum(Path(p).stat().st_size for p in rec.paths), "stats": pipe.stats_dict()}
-
-
-def replay_log(path: str | Path, *, speed: str = "max", out: str | Path | None = None,
-               on_message: Callable[[str, dict], None] | None = None, overwrite: bool = False) -> list[dict]:
-    """Feed a log through the same pipeline (estimation settings from the log); the estimates.
-    With ``out``, the replay is itself recorded."""
-    from ..formats.mcaplog import McapSource
-    from ..acquisition.pipeline import Pipeline
-    from ..acquisition.stages import WindowEstimator
-
-    src = McapSource(path, pace="realtime" if speed == "realtime" else "max")
-    if out is not None:
-        return record_log(src, out, estimation=_estimation_settings(src.config), overwrite=overwrite,
-                          on_message=on_message)["estimates"]
-    est = WindowEstimator(src.fs_hz, src.metadata(), **_estimation_settings(src.config))
-    pipe = Pipeline(src, estimator=est, dtype=src.dtype)
-    return _run_collecting(pipe, on_message, None, f"{path}: replay failed")
-
-
-def _run_collecting(pipe, on_message, timeout_s: float | None, failure: str) -> list[dict]:
-    """Run the pipeline to its end (Ctrl-C or ``timeout_s`` stop it); its estimates, in order."""
-    estimates: list[dict] = []
-    pipe.listeners.append(lambda t, o: estimates.append(dict(o)) if t == "/estimate" else None)
-    if on_message is not None:
-        pipe.listeners.append(on_message)
-    pipe.start()
-    try:
-        if not pipe.join(timeout_s):
-            pipe.stop()
-    except KeyboardInterrupt:
-        pipe.stop()
-    if pipe.error is not None:
-        raise BenchError(f"{failure}: {pipe.error}") from pipe.error
-    return estimates
+_MAX_TIMEOUT_S = 86_400.0  # acquisition.control.MAX_TIMEOUT_S (not imported here: it loads zenoh)
+#: the longest ``record`` runs, s (about 30 years): a bound, so that seconds x rate stays a count of
+#: samples (1e308 s was "cannot convert float infinity to integer"); the daemon is for open-ended runs
+MAX_RECORD_S = 1e9
 
 
 # --- printing ------------------------------------------------------------------------------------------
@@ -299,17 +239,6 @@ def _print_estimate(topic: str, obj: dict) -> None:
         print(format_message("estimate", json.dumps(obj).encode()), flush=True)
 
 
-def _has_measurement(log: Path) -> bool:
-    """Whether ``log`` holds any sample taken with the output on (the bench's idle samples before
-    the first command are no measurement)."""
-    from ..formats.mcaplog import iter_blocks
-
-    try:
-        return any(b.meta.get("output_on", 1.0) for b in iter_blocks(log))
-    except BenchError:
-        return True  # unreadable: keep it for `hystbench recover`, never delete what may hold data
-
-
 def _quiet_on_broken_pipe(show: Callable[[str, dict], None]) -> Callable[[str, dict], None]:
     """``record -v | head``: once the reader has gone, stop printing and go on recording."""
     gone = False
@@ -326,6 +255,8 @@ def _quiet_on_broken_pipe(show: Callable[[str, dict], None]) -> Callable[[str, d
 
 
 def cmd_record(args) -> int:
+    from ..acquisition.record import has_measurement, record_log
+
     out = Path(args.out)
     ours = args.overwrite or not out.exists()  # else the recorder refuses it and it must stay as it is
     src = _source_from_args(args)
@@ -333,7 +264,7 @@ def cmd_record(args) -> int:
         res = record_log(src, out, compression=args.compression, overwrite=args.overwrite,
                          on_message=_quiet_on_broken_pipe(_print_estimate) if args.verbose else None)
     except BenchError as err:  # a log with no measurement in it would only block the retry: remove it
-        if ours and out.is_file() and not _has_measurement(out):
+        if ours and out.is_file() and not has_measurement(out):
             out.unlink()
             raise BenchError(f"{err} (nothing was recorded with the output on; {out} removed)") from err
         raise
@@ -346,6 +277,8 @@ def cmd_record(args) -> int:
 
 
 def cmd_replay(args) -> int:
+    from ..acquisition.record import replay_log
+
     ests = replay_log(args.log, speed=args.speed, out=args.out, overwrite=args.overwrite,
                       on_message=None if args.json else _print_estimate)
     if args.json:
@@ -466,128 +399,3 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("daemon", help="run the bench daemon (systemd-ready; SIGHUP reloads)")
     p.add_argument("--config", help="daemon TOML (default: built-in defaults, the simulated rig)")
     p.set_defaults(func=cmd_daemon)
-
-
-def _clear_demo_live(out: Path, *, remove_dir: bool = False) -> None:
-    """Remove what :func:`demo_live` writes in ``out`` (its config and ``demo-*.mcap`` logs), so
-    the folder only ever holds the last run's log; ``remove_dir``: the folder too, if then empty."""
-    if not out.is_dir():
-        return
-    for p in [out / "demo-daemon.toml", *out.glob("demo-*.mcap")]:
-        p.unlink(missing_ok=True)
-    if remove_dir and not any(out.iterdir()):
-        out.rmdir()
-
-
-def _follow_sweep(ests, status, t_end: float, got: list[dict], errors: list[str]) -> list[float]:
-    """Print estimates as they arrive until the sweep says it is done (or ``t_end``), then those
-    still on their way (a source behind the wall clock delivers the last points late); the
-    frequencies the sweep announced.  The sweep dwells on the source's sample clock, so a source
-    slower than real time takes longer: ``t_end`` moves on while messages still come."""
-    points: list[float] = []
-    done = False
-    while time.monotonic() < t_end:
-        item = ests.get(min(1.0 if done else 0.1, max(0.0, t_end - time.monotonic())))
-        if item is not None:
-            got.append(json.loads(item[1]))
-            print(format_message(item[0], item[1]), flush=True)
-            t_end = t_end if done else max(t_end, time.monotonic() + 10.0)
-        elif done:  # a second without an estimate after the sweep: the pipeline has caught up
-            break
-        while (st := status.get(0.0)) is not None:
-            t_end = t_end if done else max(t_end, time.monotonic() + 10.0)
-            obj = json.loads(st[1])
-            if obj.get("level") == "error":
-                errors.append(str(obj.get("message") or obj.get("event")))
-            if obj.get("event") == "sweep_point":
-                points.append(float(obj.get("frequency_Hz", "nan")))
-            done = done or obj.get("event") in ("sweep_done", "sweep_stopped")
-    return points
-
-
-def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench") -> dict[str, Any]:
-    """The daemon's pipeline in-process, driven the way an operator drives a bench: a short sweep
-    started with ``hystbench ctl``'s control path over zenoh (an ephemeral port on 127.0.0.1)
-    through the emulated instruments' drivers (``source="bench"``; ``"sim"``: the simulated rig
-    directly), its live estimates printed as they arrive, an MCAP log in ``out_dir``.
-
-    The result's ``summary`` is one line for the demo to print.  If the live part fails (the
-    instruments do not answer, the machine is too slow for the emulated bench, no estimate came),
-    ``error`` says why and this run leaves nothing in ``out_dir``: the demo says so and goes on."""
-    from rich.markup import escape
-
-    from ..acquisition.control import BenchControl
-    from ..acquisition.daemon import BenchService, load_daemon_config
-    from ..acquisition.zenoh_bus import Subscription, free_port, key
-
-    out = Path(out_dir)
-    _clear_demo_live(out)  # an earlier run's log is not this run's
-    port = free_port()
-    freqs = [80.0, 160.0, 320.0]
-    dwell = max(seconds / len(freqs), 0.5)
-    toml = out / "demo-daemon.toml"
-    out.mkdir(parents=True, exist_ok=True)
-    toml.write_text(f'[daemon]\nbench = "demo"\nlog_dir = "{out.as_posix()}"\n[source]\nkind = "{source}"\n'
-                    f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n[sweep]\nfrequencies_hz = {freqs}\n'
-                    f'dwell_s = {dwell:g}\n', encoding="utf-8")
-    svc, paths, got, errors, points, error = None, [], [], [], [], None
-    try:
-        svc = BenchService(load_daemon_config(toml)).start()
-        with BenchControl("demo", connect=[f"tcp/127.0.0.1:{port}"], timeout_s=10.0) as ctl:
-            ests, status = Subscription(ctl.session, key("demo", "estimate")), Subscription(ctl.session, key("demo", "status"))
-            try:
-                ctl.request("start_sweep", {"frequencies_hz": freqs, "dwell_s": dwell})
-                points = _follow_sweep(ests, status, time.monotonic() + len(freqs) * dwell + 10.0, got, errors)
-                health = ctl.health()
-            finally:
-                ests.close()
-                status.close()
-        if health.get("pipeline_error"):
-            error = f"the pipeline failed: {health['pipeline_error']}"
-    except BenchError as err:
-        error = str(err)
-    finally:
-        if svc is not None:
-            try:
-                paths = svc.stop()
-            except BenchError as err:
-                error = error or f"stopping the bench: {err}"
-    good = [e for e in got if not e.get("error")]
-    if error is None and not good:
-        error = (f"no live estimate during the {len(freqs) * dwell:g} s sweep"
-                 + (f" ({errors[-1]})" if errors else "") + "; the machine may be too slow for the emulated "
-                 "bench at 100 kS/s")
-    if error is not None:
-        _clear_demo_live(out, remove_dir=True)
-        return {"error": error, "log": [], "estimates": len(got), "refused": len(got) - len(good), "points": points,
-                "hysteresis_deg": {}, "summary": f"[bold red]live part failed[/]: {escape(error)}\n"
-                                                 "(its partial log removed; the demo goes on without it)"}
-    by_f: dict[float, list] = {}
-    for e in good:
-        if e["phases_deg"].get("hysteresis") is not None:
-            by_f.setdefault(e["nominal_frequency_Hz"], []).append(e["phases_deg"]["hysteresis"])
-    logs = [str(p) for p in paths]
-    return {"log": logs, "estimates": len(got), "refused": len(got) - len(good), "error": None, "points": points,
-            "hysteresis_deg": {f"{f:g}": sum(v) / len(v) for f, v in sorted(by_f.items()) if v},
-            "summary": f"{len(got)} live estimates ({len(got) - len(good)} refused while settling); "
-                       f"MCAP log: {escape(', '.join(logs))}"}
-
-
-def demo_sweeps(out_dir: str | Path) -> tuple[int, str | None]:
-    """The demo's sweeps through the drivers from the emulated instruments, their delays and
-    figures (:func:`.demo.run_demo`).  When the instruments fail (a machine too slow for the
-    emulated bench at 100 kS/s: "bench: only 0 of 10000 aligned samples"; gaps in the streams),
-    returns (0, why) after removing what that part writes, so no result of an earlier run is left
-    looking like this one's; the demo says so and goes on with the offline part."""
-    import shutil
-
-    from ..reports.demo import SWEEPS, run_demo
-
-    out = Path(out_dir)
-    try:
-        return run_demo(out), None
-    except BenchError as err:  # InstrumentError, RecordingError (gaps): the bench part failed
-        shutil.rmtree(out / "sweeps", ignore_errors=True)
-        for name in ["summary.json", "force_map.png", *(f"{rig}_current_force.png" for rig, _, _ in SWEEPS)]:
-            (out / name).unlink(missing_ok=True)
-        return 0, str(err)

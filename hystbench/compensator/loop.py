@@ -15,12 +15,13 @@ from typing import Callable
 
 import numpy as np
 
+from ..analysis.periodic import estimate_frequency
 from ..physics.instrument import InstrumentModel
 from .actuation import Actuation
 from .errors import LearningStopped
 from .learning import IterationReport, LearningConfig, LearningController
 from .models import ForceModel
-from .periodic import estimate_frequency, measure_period
+from .periodic import measure_period
 from .reference import ForceReference
 
 __all__ = ["LoopResult", "run_closed_loop", "MEASURE_CHANNELS"]

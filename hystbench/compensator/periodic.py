@@ -3,12 +3,9 @@
 Steady-state AC is what the bench runs and what a signal generator plays (one period, looped), so
 models, inverses and the learning correction all work on period tables.  Here: spectral helpers
 (derivative, resampling, an LTI response applied harmonic by harmonic) and the meter the closed
-loop uses on live sample blocks -- frequency from the generator's own output, a synchronous
-average aligned to the uploaded table, and the noise floor of that average.
-
-The meter duplicates the offline ``acquisition.force_error.synchronous_average`` (cubic
-resampling of every whole period at the estimated true frequency) on purpose: the compensator may
-not import the acquisition package, and online it sees blocks, not recordings.
+loop uses on live sample blocks -- the synchronous average at the generator's true frequency
+aligned to the uploaded table, and the noise floor of that average.  The frequency and the average
+are the analysis package's (:mod:`hystbench.analysis.periodic`), the same as offline.
 """
 
 from __future__ import annotations
@@ -18,12 +15,12 @@ from typing import Callable, Mapping
 
 import numpy as np
 from scipy import signal
-from scipy.interpolate import CubicSpline
 
+from ..analysis.periodic import period_average
 from ..physics.phase_delay_model import delay_periodic
 
 __all__ = ["harmonics", "derivative", "resample", "apply_response", "denoise", "shift", "PeriodMeasurement",
-           "estimate_frequency", "measure_period", "fundamental_phase"]
+           "measure_period", "fundamental_phase"]
 
 Response = Callable[[np.ndarray], np.ndarray]
 
@@ -110,58 +107,17 @@ class PeriodMeasurement:
         return float(np.max(np.abs(self.alternating[name])))
 
 
-def _harmonic_fit(x: np.ndarray, fs: float, f: float, k: int) -> complex:
-    """Complex amplitude of the fundamental from a linear LS fit of DC + k harmonics at f."""
-    t = (np.arange(x.size) - 0.5 * (x.size - 1)) / fs
-    cols = [np.ones_like(t)]
-    for h in range(1, k + 1):
-        cols += [np.cos(2 * np.pi * h * f * t), np.sin(2 * np.pi * h * f * t)]
-    coef = np.linalg.lstsq(np.stack(cols, axis=1), x, rcond=None)[0]
-    return complex(coef[1], -coef[2])
-
-
-def estimate_frequency(x: np.ndarray, fs: float, nominal_hz: float, *, harmonics_fitted: int = 5,
-                       passes: int = 2) -> float:
-    """True frequency of a periodic record near ``nominal_hz``: the fundamental's phase advance
-    from the first to the second half of the record (generator and ADC clocks differ by ppm)."""
-    x = np.asarray(x, float)
-    half = x.size // 2
-    f = float(nominal_hz)
-    for _ in range(passes):
-        a = _harmonic_fit(x[:half], fs, f, harmonics_fitted)
-        b = _harmonic_fit(x[half:2 * half], fs, f, harmonics_fitted)
-        if abs(a) == 0.0 or abs(b) == 0.0:
-            return f
-        dt = half / fs
-        turns = f * dt  # expected whole and fractional cycles between the two centres
-        dphi = np.angle(b / a) - 2 * np.pi * (turns - np.round(turns))
-        dphi = (dphi + np.pi) % (2 * np.pi) - np.pi
-        f += dphi / (2 * np.pi * dt)
-    return f
-
-
 def measure_period(channels: Mapping[str, np.ndarray], fs_hz: float, frequency_hz: float, table: np.ndarray,
                    *, reference: str = "command_V", n_points: int = 1000) -> PeriodMeasurement:
     """Average every whole period of ``channels`` at ``frequency_hz`` and rotate the averages so
     that phase 0 is sample 0 of ``table`` (what was uploaded), found from the ``reference``
     channel's fundamental (the generator's output monitor)."""
-    x0 = np.asarray(channels[reference], float)
-    t = np.arange(x0.size) / fs_hz
-    periods = int(np.floor(t[-1] * frequency_hz + 1e-9))
-    if periods < 2:
-        raise ValueError(f"{x0.size} samples hold {periods} period(s) of {frequency_hz:g} Hz; need >= 2")
-    even = periods - periods % 2
-    phase = np.arange(n_points) / n_points
-    when = (np.arange(periods)[:, None] + phase[None, :]) / frequency_hz
-    signs = np.where(np.arange(even) % 2 == 0, 1.0, -1.0)[:, None]
-    avg, alt = {}, {}
-    for name, x in channels.items():
-        grid = CubicSpline(t, np.asarray(x, float))(when)
-        avg[name] = grid.mean(axis=0)
-        alt[name] = (grid[:even] * signs).mean(axis=0)
+    avg = period_average(channels, fs_hz, frequency_hz, n_points)
+    if avg.periods < 2:  # the floor needs two periods of alternating sign
+        raise ValueError(f"{np.size(channels[reference])} samples hold one period of {frequency_hz:g} Hz; need >= 2")
     tab = resample(np.asarray(table, float), n_points)
-    ratio = fundamental_phase(avg[reference]) / fundamental_phase(tab)
+    ratio = fundamental_phase(avg.channels[reference]) / fundamental_phase(tab)
     lead = np.angle(ratio) / (2 * np.pi)  # the record started this many cycles into the table
-    rot = {k: shift(v, lead) for k, v in avg.items()}
-    rot_alt = {k: shift(v, lead) for k, v in alt.items()}
-    return PeriodMeasurement(float(frequency_hz), periods, rot, rot_alt)
+    rot = {k: shift(v, lead) for k, v in avg.channels.items()}
+    rot_alt = {k: shift(v, lead) for k, v in avg.alternating.items()}
+    return PeriodMeasurement(float(frequency_hz), avg.periods, rot, rot_alt)

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hystbench.cli.main import main as pipeline_main
-from hystbench.cli.pipeline import record_log, replay_log
+from hystbench.acquisition.record import record_log, replay_log
 from hystbench.formats.mcaplog import (ESTIMATE, STATS, McapRecorder, McapSource, iter_blocks, iter_log,
                                            read_mcap_recording)
 from hystbench.analysis.method import measure_delays

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from hystbench.analysis.force_error import (analytical_model, force_error, loop_eye, phase_delay_model,
-                                               synchronous_average)
+from hystbench.analysis.force_error import analytical_model, force_error, loop_eye, phase_delay_model
 from hystbench.analysis.method import measure_delays
+from hystbench.analysis.periodic import synchronous_average
 from hystbench.formats.recording import Recording
 from hystbench.physics.phase_delay_model import PhaseDelayModel
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hystbench.cli.pipeline import record_log
+from hystbench.acquisition.record import record_log
 from hystbench.formats.mcaplog import read_mcap_recording
 from hystbench.analysis.method import measure_delays
 from hystbench.formats.recording import Recording

@@ -4,7 +4,8 @@ simulates a recording the fit did not see (other seeds, other frequencies and am
 
 import pytest
 
-from hystbench.cli.compensator import period_data, quick_models, simulated_sweep
+from hystbench.compensator.sweeps import period_data, quick_models
+from hystbench.sim_backend.recordings import simulated_sweep
 
 
 @pytest.fixture(scope="session")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hystbench.cli.main import main as run  # the hystbench command: BenchError -> exit 2
-from hystbench.cli.compensator import simulated_sweep
+from hystbench.sim_backend.recordings import simulated_sweep
 from hystbench.formats.recording import read_recording, write_recording, write_sweep
 
 

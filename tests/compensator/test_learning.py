@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from hystbench.cli.compensator import current_limit_a
 from hystbench.compensator import (CompensatorError, ForceReference, LearningConfig, LearningStopped, NonHysteretic,
                                    RigActuation, StaticLaw, UnreachableReference, run_closed_loop)
+from hystbench.drivers.protocols.bench_config import load_bench_config
 from hystbench.sim_backend.rig import SimulatedRig
 
 
 def actuation(rig, f, **kw):
-    return RigActuation(SimulatedRig(rig, seed=7, frequency_hz=f, **kw), current_limit_a())
+    return RigActuation(SimulatedRig(rig, seed=7, frequency_hz=f, **kw), load_bench_config().current_limit_a)
 
 
 @pytest.mark.parametrize("rig, spec, start", [

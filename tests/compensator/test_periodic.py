@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from hystbench.compensator.periodic import (apply_response, denoise, derivative, estimate_frequency,
-                                            measure_period, resample, shift)
+from hystbench.analysis.periodic import estimate_frequency
+from hystbench.compensator.periodic import apply_response, denoise, derivative, measure_period, resample, shift
 
 PH = np.arange(400) / 400
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hystbench.cli.pipeline import record_log
+from hystbench.acquisition.record import record_log
 from hystbench.formats.mcaplog import iter_blocks, iter_log, log_metadata
 from hystbench.acquisition.sources import SyntheticSource
 

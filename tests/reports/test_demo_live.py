@@ -5,7 +5,8 @@ the demo go on."""
 from pathlib import Path
 
 from hystbench.reports import demo
-from hystbench.cli.pipeline import demo_live, demo_sweeps
+from hystbench.reports.demo import demo_sweeps
+from hystbench.reports.demo_live import demo_live
 from hystbench.errors import InstrumentError
 
 

@@ -1,0 +1,87 @@
+"""A source through the pipeline into one MCAP log, and a log through the same pipeline again.
+
+``hystbench record`` and ``replay`` without the daemon (no zenoh), and what the tests and the
+demo record with.  A replay estimates with the settings the log was recorded with (its
+``config.estimation`` metadata, settling included), so replay equals live.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from ..errors import BenchError
+from ..formats.mcaplog import McapRecorder, McapSource, iter_blocks
+from .pipeline import Pipeline
+from .stages import WindowEstimator
+
+__all__ = ["record_log", "replay_log", "has_measurement", "estimation_settings"]
+
+Listener = Callable[[str, dict], None]
+
+
+def estimation_settings(cfg: Mapping[str, Any] | None) -> dict[str, float]:
+    """The estimation stage's settings a log was recorded with (its ``config`` metadata)."""
+    e = dict((cfg or {}).get("estimation") or {})
+    keys = ("periods", "hop_periods", "min_hop_s", "settle_periods", "settle_s", "max_fs_hz")
+    return {k: float(e[k]) for k in keys if k in e}
+
+
+def record_log(source, out: str | Path, *, estimation: Mapping[str, float] | None = None,
+               compression: str = "zstd", overwrite: bool = False, on_message: Listener | None = None,
+               timeout_s: float | None = None) -> dict[str, Any]:
+    """Run ``source`` through the pipeline (no zenoh) into one MCAP log; a summary: ``log`` (the
+    paths), ``samples``, ``estimates`` (in order), ``bytes``, ``stats``.  Ctrl-C or ``timeout_s``
+    stop it; a pipeline failure is a ``BenchError`` naming ``out``."""
+    settings = {"periods": 10.0, "settle_periods": 2.0, **(estimation or {})}
+    est = WindowEstimator(source.fs_hz, source.metadata(), **settings)
+    settings["settle_s"] = est.settle_s  # what the live run skipped after each change: replays skip the same
+    meta = {"recording": source.metadata(), "config": {"estimation": settings, "source": source.name}}
+    rig = getattr(getattr(source, "rig", None), "preset", None)
+    if rig:
+        meta["rig"] = {k: v for k, v in rig.items() if not k.startswith("_")}
+    with McapRecorder(out, metadata=meta, compression=compression, overwrite=overwrite) as rec:
+        pipe = Pipeline(source, estimator=est, recorder=rec)
+        estimates = _run_collecting(pipe, on_message, timeout_s, f"{out}: recording failed")
+    return {"log": [str(p) for p in rec.paths], "samples": pipe.stats["source"].samples, "estimates": estimates,
+            "bytes": sum(Path(p).stat().st_size for p in rec.paths), "stats": pipe.stats_dict()}
+
+
+def replay_log(path: str | Path, *, speed: str = "max", out: str | Path | None = None,
+               on_message: Listener | None = None, overwrite: bool = False) -> list[dict]:
+    """Feed a log through the same pipeline (estimation settings from the log); the estimates.
+    With ``out``, the replay is itself recorded."""
+    src = McapSource(path, pace="realtime" if speed == "realtime" else "max")
+    if out is not None:
+        return record_log(src, out, estimation=estimation_settings(src.config), overwrite=overwrite,
+                          on_message=on_message)["estimates"]
+    est = WindowEstimator(src.fs_hz, src.metadata(), **estimation_settings(src.config))
+    pipe = Pipeline(src, estimator=est, dtype=src.dtype)
+    return _run_collecting(pipe, on_message, None, f"{path}: replay failed")
+
+
+def has_measurement(log: str | Path) -> bool:
+    """Whether ``log`` holds any sample taken with the output on (a bench's idle samples before the
+    first command are no measurement); an unreadable log counts as holding one, so that nothing
+    that may hold data is ever deleted on its strength (``hystbench recover`` salvages it)."""
+    try:
+        return any(b.meta.get("output_on", 1.0) for b in iter_blocks(log))
+    except BenchError:
+        return True
+
+
+def _run_collecting(pipe: Pipeline, on_message: Listener | None, timeout_s: float | None, failure: str) -> list[dict]:
+    """Run the pipeline to its end (Ctrl-C or ``timeout_s`` stop it); its estimates, in order."""
+    estimates: list[dict] = []
+    pipe.listeners.append(lambda t, o: estimates.append(dict(o)) if t == "/estimate" else None)
+    if on_message is not None:
+        pipe.listeners.append(on_message)
+    pipe.start()
+    try:
+        if not pipe.join(timeout_s):
+            pipe.stop()
+    except KeyboardInterrupt:
+        pipe.stop()
+    if pipe.error is not None:
+        raise BenchError(f"{failure}: {pipe.error}") from pipe.error
+    return estimates

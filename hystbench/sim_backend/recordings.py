@@ -1,0 +1,63 @@
+"""Recordings of the simulated rig: one operating point, or a sweep of them.
+
+What ``hystbench simulate``/``simulate-sweep`` write and what the compensator is identified on
+(:func:`hystbench.compensator.sweeps.quick_models`).  A block the rig's ADC clipped gives a
+recording with ``clipped: true`` in its sidecar (the recording format's flag), so the method
+refuses it instead of trusting its phases; :func:`clipped_channels` says which channel and at
+which full scale, for a refusal that names the effect parameter to change.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Iterable, Mapping
+
+import numpy as np
+
+from ..blocks import BlockFlags
+from ..formats.recording import Recording
+from .rig import DEFAULT_FS_HZ, SimulatedRig
+
+__all__ = ["simulate_recording", "simulated_sweep", "clipped_channels"]
+
+
+def simulate_recording(rig: str | Mapping[str, Any], frequency_hz: float, current_pp_a: float, duration_s: float,
+                       *, fs_hz: float = DEFAULT_FS_HZ, seed: int = 0,
+                       effects: Mapping[str, Any] | None = None) -> Recording:
+    """``duration_s`` of the simulated rig at one operating point, as a recording (sample 0 at t = 0)."""
+    sim = SimulatedRig(rig, fs_hz=fs_hz, seed=seed, effects=effects, frequency_hz=frequency_hz,
+                       current_pp_a=current_pp_a)
+    block = sim.record(duration_s)
+    meta = sim.metadata()
+    if block.flags & BlockFlags.CLIP:
+        meta["clipped"] = True
+    return Recording(None, sim.fs_hz, dict(block.channels), meta)
+
+
+def simulated_sweep(rig: str | Mapping[str, Any], freqs_hz: Iterable[float], ipps_a: Iterable[float], *,
+                    seed: int = 0, duration_s: float | None = None, effects: Mapping[str, Any] | None = None,
+                    fs_hz: float = DEFAULT_FS_HZ, tick: Callable[[], None] | None = None) -> list[Recording]:
+    """Recordings of the simulated rig, one per (frequency, amplitude), frequency first, seeds
+    ``seed``, ``seed + 1``, ...; by default 8 periods or 0.1 s, whichever is longer (what an
+    identification needs, not what a figure needs).  ``tick()`` after each recording."""
+    ipps = list(ipps_a)
+    recs = []
+    for n, (f, ipp) in enumerate((f, i) for f in freqs_hz for i in ipps):
+        recs.append(simulate_recording(rig, f, ipp, duration_s or max(0.1, 8.0 / f), fs_hz=fs_hz, seed=seed + n,
+                                       effects=effects))
+        if tick is not None:
+            tick()
+    return recs
+
+
+def clipped_channels(rec: Recording) -> dict[str, float]:
+    """The channels of a simulated recording that reached their ADC full scale, each with that
+    full scale (its ``adc_quantisation`` parameter is the channel's name in lower case)."""
+    q = (rec.metadata.get("effects") or {}).get("adc_quantisation") or {}
+    if not rec.metadata.get("clipped") or "bits" not in q:
+        return {}
+    over = {}
+    for ch, x in rec.channels.items():
+        full = q.get(ch.lower())
+        if full is not None and float(np.max(np.abs(x))) >= float(full) * (1 - 2.0 ** (1 - int(q["bits"]))):
+            over[ch] = float(full)
+    return over
