@@ -2,8 +2,8 @@
 
 ``register(subparsers)`` adds the three subcommands to the ``hystbench`` parser; the CLI's ``main``
 turns a :class:`~hystbench.errors.BenchError` into exit status 2 with the message on stderr.
-The work is done in :mod:`.method`, :mod:`.identification`, :mod:`.force_error` and
-:mod:`.paper`, imported when a command runs.
+The work is done in ``analysis.method``, ``reports.identify`` and ``reports.paper``, imported
+when a command runs.
 """
 
 from __future__ import annotations
@@ -12,10 +12,9 @@ import json
 import sys
 from pathlib import Path
 
-from ..errors import RecordingError
 from .args import nonnegative_int
 
-__all__ = ["register", "identify_folder"]
+__all__ = ["register"]
 
 
 def _console():
@@ -74,75 +73,6 @@ def cmd_estimate(args) -> int:
 
 
 # --- identify -----------------------------------------------------------------------------------
-def _instrument_report(name, fit, eddy, reference: str, own_is_model: bool) -> dict:
-    out = {"kind": "instrument", "sweep": name, **fit.as_dict(),
-           "points": int(fit.response.freq_hz.size),
-           "frequency_range_Hz": [float(fit.response.freq_hz[0]), float(fit.response.freq_hz[-1])],
-           "benchmark": own_is_model, "reference": reference, "eddy": eddy.as_dict(),
-           "eddy_lag_flag": eddy.significant}
-    if not own_is_model:
-        out["note"] = ("the two-filter fit above is this coil's own: it absorbs any eddy lag of its magnet, so "
-                       "the instrument model is the reference's")
-    return out
-
-
-def _ecore_report(name, recs) -> dict:
-    from ..analysis.method import measure_delays
-
-    points, by_amp = [], {}
-    for rec in recs:
-        d = measure_delays(rec)
-        points.append({"recording": d.recording, **d.as_dict(), "frequency_Hz": rec.frequency_hz,
-                       "frequency_true_Hz": d.frequency_hz, "current_pp_A": rec.current_pp_a,
-                       "theta_hyst_deg": d.phase_deg("hysteresis"),
-                       "theta_hyst_std_deg": d.phase_std_deg("hysteresis")})
-        by_amp.setdefault(f"{rec.current_pp_a:g}", {})[f"{rec.frequency_hz:g}"] = d.phase_deg("hysteresis")
-    return {"kind": "hysteresis", "sweep": name, "rig": recs[0].rig, "points": points,
-            "theta_hyst_deg_by_amplitude": by_amp}
-
-
-def identify_folder(folder: str | Path, progress=None) -> dict:
-    """``hystbench identify`` as data: a sweep, or a folder of sweeps, identified; ``progress`` is
-    a rich Progress or None."""
-    from ..config import load_rig
-    from ..analysis.identification import eddy_lag, fit_instrument, frequency_response, is_benchmark, preset_instrument
-    from ..analysis.identification import read_sweeps
-
-    task = None if progress is None else progress.add_task(f"reading {folder}", total=None)
-
-    def say(text: str) -> None:
-        if progress is not None:
-            progress.update(task, description=text)
-
-    sweeps = read_sweeps(folder)
-    kinds = {n: load_rig(recs[0].rig).get("actuator") for n, recs in sweeps.items()}
-    dropped = {n: [] for n in sweeps}
-    coils, fits = {}, {}
-    for n, recs in sweeps.items():
-        if kinds[n] == "voicecoil":
-            say(f"{n}: frequency response and instrument fit ({len(recs)} recordings)")
-            coils[n] = frequency_response(recs, dropped=dropped[n])
-            fits[n] = fit_instrument(coils[n])
-    bench = next((n for n, r in coils.items() if is_benchmark(r.rig)), None)
-    reports = {}
-    for n, recs in sweeps.items():
-        if kinds[n] == "voicecoil":
-            if bench is not None:
-                ref_model, ref = fits[bench].model, f"the {bench!r} sweep's fit"
-            else:
-                ref_model, ref = preset_instrument(coils[n].rig), (f"the {coils[n].rig} preset's instrument model "
-                                                                   "(no ferrite sweep to benchmark against)")
-            reports[n] = _instrument_report(n, fits[n], eddy_lag(coils[n], ref_model, ref), ref, n == bench)
-            reports[n]["dropped_points"] = [{"recording": w, "reason": why} for w, why in dropped[n]]
-        elif kinds[n] == "ecore":
-            say(f"{n}: the method's delays ({len(recs)} recordings)")
-            reports[n] = _ecore_report(n, recs)
-        else:
-            raise RecordingError(f"{folder}: sweep {n!r} is of a {kinds[n]} ({recs[0].rig}); identify takes "
-                                 "voice-coil or E-core sweeps")
-    return next(iter(reports.values())) if len(reports) == 1 else {"sweeps": reports}
-
-
 def _print_identify(rep: dict, con) -> None:
     from rich.table import Table
 
@@ -177,9 +107,11 @@ def _print_identify(rep: dict, con) -> None:
 
 def cmd_identify(args) -> int:
     from ..reports.console import progress
+    from ..reports.identify import identify_folder
 
     with progress() as bar:
-        rep = identify_folder(args.sweep_dir, progress=bar)
+        task = bar.add_task(f"reading {args.sweep_dir}", total=None)
+        rep = identify_folder(args.sweep_dir, say=lambda text: bar.update(task, description=text))
     if args.json:
         print(json.dumps(rep, indent=2))
         return 0

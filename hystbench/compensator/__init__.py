@@ -1,6 +1,6 @@
 """compensator: force models, their inverses and the learning correction (issue 6).
 
-    PeriodData            one operating point as period averages (built by acquisition from a recording)
+    PeriodData            one operating point as period averages (``sweeps.period_data`` from a recording)
     StaticLaw             F = k0 + k1 j + k2 j^2 (Eq. 1) and its inverse, reachable range
     NonHysteretic         Eq. 1 with the MEC (the paper's analytical model)
     PaperModel            Eq. 6: Eq. 1 with the current delayed by theta_hyst(f)
@@ -13,7 +13,9 @@
     run_closed_loop       feed-forward plus learning on an Actuation, per-iteration report
     CompensatorStage      the online stage: follows the live theta_hyst estimate (pipeline hook API)
 
-Imports: physics, config and the shared vocabulary only (docs/architecture.md).
+Imports: analysis (the method's delays, the one period averager), physics, formats, config and the
+shared vocabulary, never the live chain (docs/architecture.md).  ``compensator.sweeps`` (recordings
+to period averages, ``quick_models``: the identification on the simulated rig) is imported on its own.
 """
 
 from .actuation import Actuation, BenchActuation, RigActuation

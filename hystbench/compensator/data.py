@@ -1,8 +1,8 @@
 """What the models are fitted on and judged against: one operating point as period averages.
 
-The acquisition side builds these from recordings (the method's delays give the true frequency
-and theta_hyst; the synchronous average gives the waveforms), so the compensator needs nothing of
-recordings or estimators.  All channels of a point share phase 0 (the same instant).
+:func:`.sweeps.period_data` builds these from recordings (the method's delays give the true
+frequency and theta_hyst; the synchronous average gives the waveforms), so the models need nothing
+of recordings or estimators.  All channels of a point share phase 0 (the same instant).
 """
 
 from __future__ import annotations
