@@ -29,12 +29,10 @@ import numpy as np
 from scipy.constants import mu_0
 from scipy.special import erf
 
-from ..config import require
+from ..config.presets import check_material
 from ..errors import ConfigError
 
 __all__ = ["PreisachParams", "HysteresisState", "PreisachHysteresis", "mu_0"]
-
-_KINDS = ("gauss", "lorentz")
 
 
 @dataclass(frozen=True)
@@ -244,27 +242,14 @@ class PreisachHysteresis:
     # ---- construction from a material file -------------------------------------------------
     @classmethod
     def from_config(cls, material: dict[str, Any]) -> "PreisachHysteresis":
-        """From ``hystbench.config.load_material(name)``; a bad key raises ConfigError naming it."""
-        src = material.get("_source", material.get("name", "material"))
-        pre = require(material, "preisach", src, dict)
-        where = f"{src} [preisach]"
-        comps, terms = [], []
-        for i, c in enumerate(require(pre, "components", where, list)):
-            w = f"{where} components[{i}]"
-            comps.append((require(c, "kind", w, str), *(float(require(c, k, w)) for k in
-                                                         ("weight", "centre_a_per_m", "width_a_per_m"))))
-            if comps[-1][0] not in _KINDS or comps[-1][1] <= 0 or comps[-1][3] <= 0:
-                raise ConfigError(f"{w}: 'kind' must be one of {_KINDS}, 'weight' and 'width_a_per_m' > 0")
-        w = f"{src} [reversible]"
-        for i, t in enumerate(require(require(material, "reversible", src, dict), "terms", w, list)):
-            wt = f"{w} terms[{i}]"
-            terms.append((float(require(t, "j_t", wt)), float(require(t, "h_a_per_m", wt))))
-            if terms[-1][0] < 0 or terms[-1][1] <= 0:
-                raise ConfigError(f"{wt}: 'j_t' must be >= 0 and 'h_a_per_m' > 0")
-        scalars = {k: float(require(pre, k, where)) for k in ("j_irr_t", "h_max_a_per_m", "h_scale_a_per_m")}
-        if not comps or min(scalars.values()) <= 0:
-            raise ConfigError(f"{where}: needs components, and 'j_irr_t', 'h_max_a_per_m', 'h_scale_a_per_m' > 0")
-        return cls(PreisachParams(components=tuple(comps), reversible=tuple(terms), **scalars))
+        """From ``hystbench.config.load_material(name)`` (a dict built otherwise is checked here
+        against the same schema); a bad key raises ConfigError naming the file and the key."""
+        m = check_material(material)
+        pre = m["preisach"]
+        comps = tuple((c["kind"], c["weight"], c["centre_a_per_m"], c["width_a_per_m"]) for c in pre["components"])
+        terms = tuple((t["j_t"], t["h_a_per_m"]) for t in m["reversible"]["terms"])
+        return cls(PreisachParams(components=comps, reversible=terms, j_irr_t=pre["j_irr_t"],
+                                  h_max_a_per_m=pre["h_max_a_per_m"], h_scale_a_per_m=pre["h_scale_a_per_m"]))
 
     def initial_state(self) -> HysteresisState:
         """Demagnetised (after a slowly decaying AC field): B = 0, H = 0, nothing remembered."""

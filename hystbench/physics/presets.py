@@ -1,15 +1,15 @@
-"""Physics models built from a rig preset (a dict loaded by ``hystbench.config``).
+"""Physics models built from a rig preset (a dict loaded and checked by ``hystbench.config.load_rig``).
 
 The simulator, the estimators and the compensator all build their models here, so a preset means
-the same actuator everywhere.  Messages name the preset file and the table/key at fault.
+the same actuator everywhere.  The preset's keys were checked when it was loaded (types, units,
+ranges, the tables its actuator needs), so the values are read here as they are; asking an
+actuator's model of a preset of another kind is refused naming the preset.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
-from ..config import require
 from ..errors import ConfigError
 from .instrument import InstrumentModel
 from .mec import ECoreGeometry, ECoreMEC, Magnet
@@ -24,53 +24,34 @@ def where(preset: Mapping[str, Any], table: str | None = None) -> str:
     return base if table is None else f"{base} [{table}]"
 
 
+def _table(preset: Mapping[str, Any], table: str) -> Mapping[str, Any]:
+    t = preset.get(table)
+    if not isinstance(t, Mapping):
+        raise ConfigError(f"{where(preset)}: missing table [{table}] (actuator {preset.get('actuator')!r})")
+    return t
+
+
 def ecore_mec(preset: Mapping[str, Any], *, linear_iron: bool = False) -> ECoreMEC:
     """The E-core's MEC from a rig preset; ``linear_iron`` gives the paper's non-hysteretic
     analytical model with the preset's iron (``linear_mu_r``, and ``incremental_mu_r`` when the
     iron is linearised at its operating point), otherwise iron is ideal."""
-    geo_t = preset.get("geometry")
-    if not isinstance(geo_t, dict):
-        raise ConfigError(f"{where(preset)}: missing table [geometry]")
-    geo = ECoreGeometry(
-        **{k: float(require(geo_t, k, where(preset, "geometry"))) for k in (
-            "outer_tooth_width_m", "middle_tooth_width_m", "depth_m", "slot_width_m",
-            "slot_height_m", "airgap_m", "iron_path_length_m", "middle_tooth_recess_m")},
-        fringe_height_m=float(geo_t.get("fringe_height_m", 0.0)),
-        coil_turns=int(require(preset.get("coil", {}), "turns", where(preset, "coil"), int)),
-    )
-    magnet = None
-    if "magnet" in preset:
-        m = preset["magnet"]
-        magnet = Magnet(
-            length_m=float(require(m, "length_m", where(preset, "magnet"))),
-            remanence_t=float(require(m, "remanence_t", where(preset, "magnet"))),
-            recoil_mu_r=float(m.get("recoil_mu_r", 1.05)),
-            conductivity_s_per_m=float(m.get("conductivity_s_per_m", 0.0)),
-        )
-    mu_r, mu_inc = math.inf, None
+    geo = ECoreGeometry(**_table(preset, "geometry"), coil_turns=_table(preset, "coil")["turns"])
+    m = preset.get("magnet")
+    magnet = None if m is None else Magnet(m["length_m"], m["remanence_t"], m["recoil_mu_r"],
+                                           m["conductivity_s_per_m"])
+    mu_r, mu_inc = float("inf"), None
     if linear_iron:
-        iron = preset.get("iron", {})
-        mu_r = float(require(iron, "linear_mu_r", where(preset, "iron")))
-        if "incremental_mu_r" in iron:
-            mu_inc = float(require(iron, "incremental_mu_r", where(preset, "iron")))
+        iron = _table(preset, "iron")
+        mu_r, mu_inc = iron["linear_mu_r"], iron.get("incremental_mu_r")
     return ECoreMEC(geo, magnet, iron_mu_r=mu_r, iron_incremental_mu_r=mu_inc)
 
 
 def voice_coil(preset: Mapping[str, Any]) -> VoiceCoil:
-    vc = preset.get("voicecoil", {})
-    w = where(preset, "voicecoil")
-    return VoiceCoil(
-        float(require(vc, "force_constant_n_per_a", w)),
-        float(vc.get("magnet_conductivity_s_per_m", 0.0)),
-        float(vc.get("magnet_eddy_depth_m", 0.0)),
-    )
+    vc = _table(preset, "voicecoil")
+    return VoiceCoil(vc["force_constant_n_per_a"], vc["magnet_conductivity_s_per_m"], vc["magnet_eddy_depth_m"])
 
 
 def instrument(preset: Mapping[str, Any]) -> InstrumentModel:
     """The paper's two-filter instrument model with the preset's parameters."""
-    t = preset.get("instrument")
-    if not isinstance(t, dict):
-        raise ConfigError(f"{where(preset)}: missing table [instrument]")
-    w = where(preset, "instrument")
-    return InstrumentModel(fn_hz=float(require(t, "fn_hz", w)), zeta_n=float(require(t, "zeta_n", w)),
-                           f0_hz=float(require(t, "f0_hz", w)), zeta_0=float(require(t, "zeta_0", w)))
+    t = _table(preset, "instrument")
+    return InstrumentModel(fn_hz=t["fn_hz"], zeta_n=t["zeta_n"], f0_hz=t["f0_hz"], zeta_0=t["zeta_0"])

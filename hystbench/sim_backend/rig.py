@@ -15,10 +15,10 @@ import numpy as np
 
 from .. import __version__
 from ..blocks import SampleBlock, concatenate
-from ..config import load_rig, require
+from ..config import load_rig
+from ..config.effects import resolve_effects
 from ..errors import ConfigError
 from .actuators import build_actuator
-from .effects import resolve_effects
 from .measurement import MeasurementChain
 
 __all__ = ["SimulatedRig", "DEFAULT_FS_HZ"]
@@ -37,18 +37,17 @@ class SimulatedRig:
                  frequency_hz: float | None = None, current_pp_a: float | None = None,
                  offset_a: float = 0.0, generator_clock_ppm: float = DEFAULT_GENERATOR_CLOCK_PPM,
                  warmup_s: float | None = None) -> None:
-        self.preset = dict(load_rig(rig) if isinstance(rig, str) else rig)
-        self.name = str(self.preset.get("name"))
-        where = str(self.preset.get("_source", self.name))
+        self.preset = load_rig(rig)  # a name, a path or a dict: checked against the preset schema
+        self.name = str(self.preset["name"])
+        where = self.preset["_source"]
         if not (math.isfinite(fs_hz) and fs_hz > 0):
             raise ConfigError(f"{where}: the sample rate must be a finite number of Hz > 0, got {fs_hz}")
         self.fs_hz = float(fs_hz)
         self.seed = int(seed)
-        self.effects = resolve_effects(self.preset.get("effects", {}), effects, where, fs_hz=self.fs_hz)
+        self.effects = resolve_effects(self.preset["effects"], effects, where, fs_hz=self.fs_hz)
         self.generator_clock_ppm = float(generator_clock_ppm)
-        self.amplifier_gain_a_per_v = float(require(self.preset.get("amplifier", {}), "gain_a_per_v",
-                                                    f"{where} [amplifier]"))
-        exc = self.preset.get("excitation", {})
+        self.amplifier_gain_a_per_v = self.preset["amplifier"]["gain_a_per_v"]
+        exc = self.preset["excitation"]
         self.actuator = build_actuator(self.preset, self.effects, self.fs_hz)
         self.channels = ["current_A"]
         if self.actuator.has_force:
@@ -56,14 +55,14 @@ class SimulatedRig:
         if self.actuator.has_flux:
             self.channels += ["flux_Wb", "sense_V"]
         self.channels.append("command_V")
-        self.sense_turns = int(self.preset.get("sense", {}).get("turns", 1))
+        self.sense_turns = self.preset["sense"]["turns"]
         self.chain = MeasurementChain(self.preset, self.effects, self.fs_hz, self.channels, self.seed)
         self.output_enabled = True
         self._waveform: np.ndarray | None = None
         self._cycle = 0.0  # generator phase at the next sample, in cycles [0, 1)
         # None (not 0, not any falsy value) means "the preset's": a 0 Hz request must be refused
-        self.set_excitation(float(exc.get("frequency_hz", 320.0) if frequency_hz is None else frequency_hz),
-                            float(exc.get("current_pp_a", 1.0) if current_pp_a is None else current_pp_a),
+        self.set_excitation(float(exc["frequency_hz"] if frequency_hz is None else frequency_hz),
+                            float(exc["current_pp_a"] if current_pp_a is None else current_pp_a),
                             offset_a)
         if warmup_s is not None and not (math.isfinite(warmup_s) and warmup_s >= 0):
             raise ConfigError(f"{self.name}: warmup_s must be a finite number of seconds >= 0, got {warmup_s}")

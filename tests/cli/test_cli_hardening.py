@@ -129,7 +129,7 @@ def test_a_negative_charge_amplifier_time_constant_is_refused(tmp_path, capsys):
     code, out, err = run(SIMULATE[:-1] + [tmp_path / "run", "--effect", "charge_amp_highpass=-1"], capsys)
     line = error_line(err)
     assert code == 2
-    assert "charge_amp_highpass.time_constant_s" in line and "-1" in line and "(0, inf)" in line
+    assert "charge_amp_highpass.time_constant_s: must be > 0, got -1.0" in line
     assert files_under(tmp_path) == []
 
 
@@ -137,10 +137,10 @@ def test_a_frequency_above_nyquist_is_refused_once_the_sample_rate_is_known(tmp_
     base = SIMULATE[:-1] + [tmp_path / "run", "--fs", "1000", "--freq", "100"]
     code, out, err = run(with_option(base, "--rig", "ecore") + ["--effect", "mains_pickup.frequency_hz=600"],
                          capsys)
-    assert code == 2 and "mains_pickup.frequency_hz = 600" in error_line(err) and "fs/2 = 500" in error_line(err)
+    assert code == 2 and "mains_pickup.frequency_hz: must be below fs/2 = 500 Hz, got 600.0" in error_line(err)
     # the voice coil's own frame modes (850 and 1175 Hz) cannot be sampled at 1 kS/s either
     code, out, err = run(base, capsys)
-    assert code == 2 and "frame_resonance.frequencies_hz = 850" in error_line(err)
+    assert code == 2 and "[effects.frame_resonance] frequencies_hz: must be below fs/2 = 500 Hz, got 850.0" in error_line(err)
     assert files_under(tmp_path) == []
 
 

@@ -8,11 +8,10 @@ from typing import Any, Mapping
 import numpy as np
 from scipy import signal
 
-from ...config import load_material, require
-from ...errors import ConfigError, SimulationError
+from ...config import load_material
+from ...errors import SimulationError
 from ...physics.eddy import cylinder_eddy_coefficient, lamination_eddy_coefficient
 from ...physics.presets import ecore_mec
-from ...physics.presets import where as preset_where
 from ...physics.permeance import mu_0
 from .base import ActuatorOutput
 
@@ -66,8 +65,7 @@ class ECoreActuator:
         self._douter_dz = (np.array(self.mec.flux_coefficients(self.z0_m + h).outer_tooth)
                            - np.array(self.mec.flux_coefficients(self.z0_m - h).outer_tooth)) / (2 * h)
         self.magnet_mmf_a = self.mec.magnet_mmf_a
-        iron = preset.get("iron", {})
-        where = preset_where(preset, "iron")
+        iron = preset["iron"]
 
         self.hysteresis = None
         self._irreversible = "static_hysteresis" in effects
@@ -76,22 +74,19 @@ class ECoreActuator:
             from ...physics.hysteresis import PreisachHysteresis  # heavy tables only when needed
 
             self.hysteresis = PreisachHysteresis.from_config(
-                load_material(require(iron, "material", where, str)))
+                load_material(iron["material"]))
             self._h_state = self.hysteresis.initial_state()
         self._eddy_coef = 0.0
         if "lamination_eddy_currents" in effects:
-            self._eddy_coef = lamination_eddy_coefficient(
-                float(require(iron, "conductivity_s_per_m", where)),
-                float(require(iron, "lamination_thickness_m", where)))
+            self._eddy_coef = lamination_eddy_coefficient(iron["conductivity_s_per_m"],
+                                                          iron["lamination_thickness_m"])
         self._magnet_eddy = 0.0
         if "magnet_eddy_currents" in effects and "magnet" in preset:
             m = preset["magnet"]
-            self._magnet_eddy = cylinder_eddy_coefficient(
-                float(m.get("conductivity_s_per_m", 0.0)), float(m.get("eddy_radius_m", 0.0))
-            ) * float(m["length_m"])
+            self._magnet_eddy = cylinder_eddy_coefficient(m["conductivity_s_per_m"], m["eddy_radius_m"]) * m["length_m"]
         # nu0: the iron's linear reluctivity, solved exactly; only the rest is iterated, so the
         # closer nu0 is to the slope the iron really shows, the faster the passes converge.
-        self._nu0 = 1.0 / (mu_0 * float(require(iron, "linear_mu_r", where)))
+        self._nu0 = 1.0 / (mu_0 * iron["linear_mu_r"])
         if self.hysteresis is not None:
             self._nu0 = _minor_loop_reluctivity(self.hysteresis)
         d = np.diag([self._eddy_coef * self.iron_length_m, self._magnet_eddy])

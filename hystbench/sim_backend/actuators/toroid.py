@@ -13,9 +13,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ...config import load_material, require
+from ...config import load_material
 from ...physics.eddy import lamination_eddy_coefficient
-from ...physics.presets import where
 from .base import ActuatorOutput
 
 __all__ = ["ToroidCore"]
@@ -28,26 +27,18 @@ class ToroidCore:
     def __init__(self, preset: Mapping[str, Any], effects: Mapping[str, Mapping[str, Any]], fs_hz: float):
         from ...physics.hysteresis import PreisachHysteresis
 
-        ring = preset.get("toroid", {})
-        r_in = float(require(ring, "inner_radius_m", where(preset, "toroid")))
-        r_out = float(require(ring, "outer_radius_m", where(preset, "toroid")))
-        height = float(require(ring, "height_m", where(preset, "toroid")))
-        self.area_m2 = (r_out - r_in) * height
-        self.path_m = np.pi * (r_in + r_out)  # mean magnetic path
-        self.turns = int(require(preset.get("coil", {}), "turns", where(preset, "coil"), int))
-        self.tesla_per_a = float(require(preset.get("amplifier", {}), "flux_density_per_a_t",
-                                         where(preset, "amplifier")))
-        iron = preset.get("iron", {})
-        self.hysteresis = PreisachHysteresis.from_config(
-            load_material(require(iron, "material", where(preset, "iron"), str)))
+        ring, iron = preset["toroid"], preset["iron"]  # checked by hystbench.config.load_rig
+        self.area_m2 = (ring["outer_radius_m"] - ring["inner_radius_m"]) * ring["height_m"]
+        self.path_m = np.pi * (ring["inner_radius_m"] + ring["outer_radius_m"])  # mean magnetic path
+        self.turns = preset["coil"]["turns"]
+        self.tesla_per_a = preset["amplifier"]["flux_density_per_a_t"]
+        self.hysteresis = PreisachHysteresis.from_config(load_material(iron["material"]))
         self._state = self.hysteresis.initial_state()
         self._irreversible = "static_hysteresis" in effects
         self._saturation = "iron_saturation" in effects
         self._eddy = 0.0
         if "lamination_eddy_currents" in effects:
-            self._eddy = lamination_eddy_coefficient(
-                float(require(iron, "conductivity_s_per_m", where(preset, "iron"))),
-                float(require(iron, "lamination_thickness_m", where(preset, "iron"))))
+            self._eddy = lamination_eddy_coefficient(iron["conductivity_s_per_m"], iron["lamination_thickness_m"])
 
     def dc_flux_wb(self, current_a: float) -> float:
         return self.tesla_per_a * current_a * self.area_m2

@@ -1,9 +1,9 @@
-"""The effect catalogue: public names, switching and parameter parsing."""
+"""The effect catalogue (hystbench.config.effects): public names, switching and parameter parsing."""
 
 import pytest
 
 from hystbench.errors import ConfigError
-from hystbench.sim_backend.effects import CATALOGUE, parse_effect_args, resolve_effects, validate_effects
+from hystbench.config.effects import CATALOGUE, parse_effect_args, resolve_effects, validate_effects
 
 DESIGN_NAMES = {  # ../shared/design.md, "Names of physical effects (a public interface)"
     "static_hysteresis", "lamination_eddy_currents", "magnet_eddy_currents", "iron_saturation",
@@ -57,8 +57,9 @@ def test_every_parameter_has_a_range_that_holds_its_default():
     for e in CATALOGUE.values():
         assert set(e.ranges) == set(e.defaults), e.name
         for k, v in e.defaults.items():
+            assert e.params[k].problem(v) is None, f"{e.name}.{k} = {v}"
             for item in (v if isinstance(v, list) else [v]):
-                assert e.ranges[k].problem(item, 100_000.0) is None, f"{e.name}.{k} = {item}"
+                assert k not in e.nyquist or item < 100_000.0 / 2, f"{e.name}.{k} = {item}"
 
 
 @pytest.mark.parametrize("name, param, bad", [
@@ -76,20 +77,22 @@ def test_every_parameter_has_a_range_that_holds_its_default():
     ("amplifier_distortion", "second", float("inf")),
 ])
 def test_a_value_outside_its_range_names_effect_param_value_and_range(name, param, bad):
-    rng = str(CATALOGUE[name].ranges[param])
-    for call in (lambda: parse_effect_args([f"{name}.{param}={bad}"]),
-                 lambda: resolve_effects({name: {param: bad}}, where="rig.toml"),
-                 lambda: validate_effects({name: {param: bad}}, "daemon.toml [source] effects")):
+    rng = CATALOGUE[name].params[param].range_text() or "finite"
+    for where, call in (("--effect", lambda: parse_effect_args([f"{name}.{param}={bad}"])),
+                        ("rig.toml", lambda: resolve_effects({name: {param: bad}}, where="rig.toml")),
+                        ("daemon.toml [source] effects",
+                         lambda: validate_effects({name: {param: bad}}, "daemon.toml [source] effects"))):
         with pytest.raises(ConfigError) as err:
             call()
         msg = str(err.value)
-        assert f"{name}.{param} = {bad!r}" in msg and rng in msg, msg
+        assert msg.startswith(where) and name in msg and f"{param}: must be" in msg and rng in msg, msg
+        assert msg.endswith(f"got {bad!r}"), msg
 
 
 def test_frequencies_must_be_below_half_the_sample_rate_once_it_is_known():
     table = {"frame_resonance": {"frequencies_hz": [850.0, 30_000.0]}}
     assert validate_effects(table, "x")["frame_resonance"]["frequencies_hz"] == [850.0, 30_000.0]
-    with pytest.raises(ConfigError, match=r"frequencies_hz = 30000.0 is not below fs/2 = 25000 Hz"):
+    with pytest.raises(ConfigError, match=r"frame_resonance.frequencies_hz: must be below fs/2 = 25000 Hz, got 30000"):
         validate_effects(table, "x", fs_hz=50_000.0)
 
 
@@ -104,7 +107,7 @@ def test_the_daemons_effects_table_takes_switches_numbers_and_tables():
     for bad, words in [({"sensor_noise": "loud"}, "true/false, a number or a table"),
                        ({"channel_skew": 1e-6}, "several parameters"),
                        ({"bogus": True}, "unknown effect 'bogus'"),
-                       ({"sensor_noise": {"force_n": True}}, "is not a number")]:
+                       ({"sensor_noise": {"force_n": True}}, "must be a number")]:
         with pytest.raises(ConfigError, match=words) as err:
             validate_effects(bad, "daemon.toml [source] effects")
         assert str(err.value).startswith("daemon.toml [source] effects")
