@@ -24,12 +24,12 @@ import signal
 import sys
 import threading
 import time
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..config.schema import NUM, Key
+from ..config import read_toml
+from ..config.schema import NUM, Key, check_table
 from ..errors import BenchError, ConfigError, InstrumentError
 from ..formats.mcaplog.recorder import COMPRESSIONS, IDLE_RAW
 from .sd_notify import Notifier
@@ -41,12 +41,14 @@ __all__ = ["load_daemon_config", "DaemonConfig", "BenchService", "run_daemon", "
 log = logging.getLogger("hystbench.daemon")
 
 _NUM = NUM
+_ENDPOINT = Key(str, None, "endpoints like 'tcp/127.0.0.1:7447'")
 #: No new samples for this long and the watchdog is no longer fed.
 STALL_S = 5.0
 #: Retention of the logs runs at start and this often.
 HOUSEKEEPING_S = 60.0
-#: section -> key -> :class:`Key` (type, default, unit, legal range, meaning).  docs/config.md is
-#: generated from this table (``python -m hystbench.config_reference``).
+#: section -> key -> :class:`Key` (type, default, unit, legal range, meaning).  The file is checked
+#: against it by :func:`~hystbench.config.schema.check_table`, and docs/config.md is generated from
+#: it (``python -m hystbench.reports.config_reference``).
 DEFAULTS: dict[str, dict[str, Key]] = {
     "daemon": {
         "bench": Key(str, "bench1", "the bench's name: the zenoh key space is hystbench/<bench>/... (no / * $ ? #)"),
@@ -101,14 +103,15 @@ DEFAULTS: dict[str, dict[str, Key]] = {
         "enabled": Key(bool, True, "publish on zenoh and answer queries and commands"),
         "config": Key(str, "", "a zenoh json5 file (e.g. hystbench/config/zenoh-acl.json5); \"\": an embedded "
                       "peer, multicast scouting off"),
-        "listen": Key(list, ["tcp/127.0.0.1:7447"], "endpoints to listen on (replace the config file's when given)"),
-        "connect": Key(list, [], "endpoints to connect to (replace the config file's when given)"),
+        "listen": Key(list, ["tcp/127.0.0.1:7447"], "endpoints to listen on (replace the config file's when given)",
+                      items=_ENDPOINT),
+        "connect": Key(list, [], "endpoints to connect to (replace the config file's when given)", items=_ENDPOINT),
         "publish_raw": Key(bool, True, "raw blocks on hystbench/<bench>/raw, one message per block"),
         "raw_per_channel": Key(bool, False, "... or one per channel on hystbench/<bench>/raw/<channel>"),
     },
     "sweep": {
         "frequencies_hz": Key(list, [40.0, 80.0, 160.0, 320.0, 480.0], "what cmd/start_sweep runs when not told "
-                              "otherwise: a non-empty list of frequencies > 0", "Hz"),
+                              "otherwise", "Hz", items=Key(_NUM, None, "frequencies", "Hz", gt=0), nonempty=True),
         "current_pp_a": Key(_NUM, 1.4, "sweep current, peak to peak", "A", ge=0),
         "dwell_s": Key(_NUM, 1.0, "time at each frequency", "s", gt=0),
         "autostart": Key(bool, False, "start one sweep when the daemon starts"),
@@ -143,46 +146,17 @@ class DaemonConfig:
         return copy.deepcopy(self.values)
 
 
-def _check(section: str, k: str, v: Any, where: str) -> Any:
-    spec = DEFAULTS[section][k]
-    name = f"{where} [{section}] {k}"
-    bad = spec.problem(v)
-    if bad:
-        raise ConfigError(f"{name}: {bad}, got {v!r}")
-    if section == "sweep" and k == "frequencies_hz" and (not v or not all(
-            isinstance(f, _NUM) and not isinstance(f, bool) and f > 0 for f in v)):
-        raise ConfigError(f"{name}: must be a non-empty list of frequencies > 0 Hz, got {v!r}")
-    if section == "zenoh" and k in ("listen", "connect") and not all(isinstance(e, str) for e in v):
-        raise ConfigError(f"{name}: must be a list of endpoints like 'tcp/127.0.0.1:7447', got {v!r}")
-    return float(v) if spec.kind is _NUM else v
+#: The daemon file's schema: one table per section of :data:`DEFAULTS`, each optional.
+SCHEMA: dict[str, Key] = {s: Key(dict, {}, f"[{s}]", table=keys) for s, keys in DEFAULTS.items()}
 
 
 def load_daemon_config(path: str | Path | None) -> DaemonConfig:
     """Read and check a daemon TOML file (None: the defaults)."""
     where = str(path) if path is not None else "(defaults)"
-    data: dict[str, Any] = {}
-    if path is not None:
-        try:
-            data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-        except FileNotFoundError as err:
-            raise ConfigError(f"{path}: no such file") from err
-        except (OSError, UnicodeDecodeError) as err:
-            raise ConfigError(f"{path}: cannot read: {err}") from err
-        except tomllib.TOMLDecodeError as err:
-            raise ConfigError(f"{path}: not valid TOML: {err}") from err
+    data = read_toml(path) if path is not None else {}
     data = _bench_file_as_daemon_config(data, path, where)
-    values = {s: {k: copy.deepcopy(d.default) for k, d in keys.items()} for s, keys in DEFAULTS.items()}
-    given = set()
-    for section, table in data.items():
-        if section not in DEFAULTS:
-            raise ConfigError(f"{where}: unknown section [{section}]; known: {', '.join(DEFAULTS)}")
-        if not isinstance(table, dict):
-            raise ConfigError(f"{where}: [{section}] must be a table")
-        for k, v in table.items():
-            if k not in DEFAULTS[section]:
-                raise ConfigError(f"{where} [{section}]: unknown key {k!r}; known: {', '.join(DEFAULTS[section])}")
-            values[section][k] = _check(section, k, v, where)
-            given.add((section, k))
+    values = check_table(data, where, SCHEMA)
+    given = {(s, k) for s, table in data.items() for k in table}
     from .zenoh_bus import key
 
     try:
@@ -212,9 +186,6 @@ def load_daemon_config(path: str | Path | None) -> DaemonConfig:
     return DaemonConfig(values, frozenset(given), where)
 
 
-_BENCH_FILE_TABLES = {"bench", "sim", "signal_generator", "current_amplifier", "charge_amplifier", "flux_integrator"}
-
-
 def _bench_file_as_daemon_config(data: dict[str, Any], path, where: str) -> dict[str, Any]:
     """A bench file given as the daemon's config (it has a [bench] table): the daemon's defaults
     with ``[source] kind = "bench"`` and that file, which is checked as a bench file."""
@@ -224,9 +195,6 @@ def _bench_file_as_daemon_config(data: dict[str, Any], path, where: str) -> dict
     if mixed:
         raise ConfigError(f"{where}: has a bench file's [bench] table and the daemon's [{mixed[0]}]; keep them "
                           "apart and name the bench file in the daemon file's [source] bench_file")
-    other = sorted(set(data) - _BENCH_FILE_TABLES)
-    if other:
-        raise ConfigError(f"{where}: unknown table [{other[0]}] in a bench file; known: {', '.join(sorted(_BENCH_FILE_TABLES))}")
     return {"source": {"kind": "bench", "bench_file": str(path)}}
 
 

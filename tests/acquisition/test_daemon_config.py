@@ -128,3 +128,27 @@ def test_state_directory_systemd_then_xdg_then_home(monkeypatch, tmp_path: Path)
     assert state_dir()[0] == tmp_path / "home" / ".local" / "state" / "hystbench"
     cfg = _cfg(tmp_path, "")  # an explicit log_dir wins
     assert load_daemon_config(cfg)["daemon"]["log_dir"] == str(tmp_path / "logs")
+
+
+def test_a_bench_file_as_config_is_checked_as_a_bench_file(tmp_path: Path) -> None:
+    """The daemon hands a bench file to the bench file's own schema: a table no bench file has is
+    refused naming the file and the table, a bad key in it naming the table and the key."""
+    bench = hardware_bench_file(tmp_path)
+    extra = tmp_path / "extra.toml"
+    extra.write_text(bench.read_text(encoding="utf-8") + '\n[oscilloscope]\nurl = "x"\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=rf"^{extra}: unknown section \[oscilloscope\]; known: bench, sim, "):
+        load_daemon_config(extra)
+    bad = tmp_path / "bad.toml"
+    bad.write_text(bench.read_text(encoding="utf-8").replace("heartbeat_s = 0.1", "heartbeat_s = -0.1"),
+                   encoding="utf-8")
+    with pytest.raises(ConfigError, match=rf"^{bad} \[bench\] heartbeat_s: must be > 0, got -0.1"):
+        load_daemon_config(bad)
+
+
+def test_a_daemon_file_that_is_not_utf8_is_refused_naming_it(tmp_path: Path) -> None:
+    path = tmp_path / "latin.toml"
+    path.write_bytes(b'[daemon]\nbench = "b\xe9nch"\n')
+    with pytest.raises(ConfigError, match=rf"^{path}: cannot read the file"):
+        load_daemon_config(path)
+    with pytest.raises(ConfigError, match=rf"^{tmp_path / 'absent.toml'}: no such file"):
+        load_daemon_config(tmp_path / "absent.toml")

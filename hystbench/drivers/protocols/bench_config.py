@@ -2,26 +2,27 @@
 settings, and ``backend = "sim"`` (emulated) or ``"hardware"``.
 
 A pure schema: the drivers' :class:`~hystbench.drivers.bench.Bench` and the emulated bench both read
-it.  Every bad table, key or value is a ConfigError naming the file and the key.  Instrument
-settings are checked against the instruments' own command tables.
+it.  The file is checked by :func:`hystbench.config.schema.check_table` against :data:`SCHEMA`, so
+every bad table, key or value is a ConfigError naming the file, the table and the key.  The
+ranges of the instruments' settings are read from the instruments' own command tables; what
+differs from one instrument to the next (its options, the address it needs on hardware, where
+its emulator is) is one row of ``_KINDS``.
 """
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from ...config import CONFIG_DIR, read_toml
-from ...config.schema import NUM, Key
+from ...config.schema import NUM, OPTIONAL, Key, check_table
 from ...errors import ConfigError
 from . import can_integrator, charge_amp, modbus_map, scpi
 
 __all__ = ["InstrumentConfig", "BenchConfig", "load_bench_config", "INSTRUMENTS", "DEFAULT_BENCH", "SCHEMA", "SETTINGS"]
 
 DEFAULT_BENCH = CONFIG_DIR / "bench.toml"
-INSTRUMENTS = ("signal_generator", "current_amplifier", "charge_amplifier", "flux_integrator")
 
 # options per instrument: key -> Key (type, default, meaning, unit, legal values)
 _OPTIONS: dict[str, dict[str, Key]] = {
@@ -62,8 +63,6 @@ _COMMON = {
     "skew_s": Key(NUM, 0.0, "this instrument's stream lags the common clock by this much", "s"),
     "timeout_s": Key(NUM, 0.0, "reply deadline of this instrument (0: [bench] timeout_s)", "s", ge=0),
 }
-_REQUIRED_HW = {"signal_generator": ("url",), "current_amplifier": (),
-                "charge_amplifier": ("url",), "flux_integrator": ("channel",)}
 
 _BENCH = {
     "max_current_a": Key(NUM, None, "the driver layer refuses any command that could drive more than this",
@@ -72,7 +71,6 @@ _BENCH = {
     "timeout_s": Key(NUM, 1.0, "reply deadline of every command", "s", gt=0),
     "stall_timeout_s": Key(NUM, 0.5, "a stream silent this long is reconnected", "s", gt=0),
     "heartbeat_s": Key(NUM, 0.1, "status poll period (feeds the amplifier's watchdog, detects faults)", "s", gt=0),
-    "backoff": Key(dict, {}, "the reconnection schedule: [bench.backoff]"),
 }
 _BACKOFF = {
     "initial_s": Key(NUM, 0.05, "first wait before reconnecting", "s", gt=0),
@@ -90,66 +88,95 @@ _SIM = {
     "load_cell_pc_per_n": Key(NUM, 3.5, "the emulated load cell's true sensitivity", "pC/N", gt=0),
     "samples_per_frame": Key(int, 500, "TCP/serial stream frames (CAN FD frames hold 10)", "samples", gt=0),
 }
-#: table name -> its keys, in the file's order (docs/config.md is generated from this).
-SCHEMA: dict[str, dict[str, Key]] = {"bench": {k: v for k, v in _BENCH.items() if k != "backoff"},
-                                     "bench.backoff": _BACKOFF, "sim": _SIM,
-                                     **{n: {**_COMMON, **_OPTIONS[n]} for n in INSTRUMENTS}}
 
 
-def _setting_check(instrument: str, key: str, value: Any) -> None:
-    """ValueError if ``value`` is not a legal ``key`` of the instrument's own command table."""
-    if instrument == "signal_generator":
-        if key not in ("frequency_hz", "amplitude_vpp", "offset_v"):
-            raise KeyError(key)
-        scpi.GENERATOR[key].check(key, value)
-    elif instrument == "current_amplifier":
-        reg = {"gain_a_per_v": "gain", "current_limit_a": "current_limit", "watchdog_s": "watchdog"}[key]
-        modbus_map.REGISTERS[reg].to_raw(float(value))
-    elif instrument == "charge_amplifier":
-        if key not in ("sensitivity_pc_per_n", "scale_n_per_v", "time_constant", "lowpass_hz"):
-            raise KeyError(key)
-        charge_amp.COMMANDS[key].check(key, value)
-    else:
-        op = can_integrator.OPS[{"gain_v_per_wb": "set_gain", "turns": "set_turns"}[key]]
-        if not op.minimum <= float(value) <= op.maximum:
-            raise ValueError(f"{key} = {value!r} outside [{op.minimum}, {op.maximum}]")
+def _scpi(key: str) -> Key:
+    c = scpi.GENERATOR[key]
+    return Key(NUM, OPTIONAL, c.doc, c.unit, ge=c.minimum, le=c.maximum)
 
 
-_SETTING_KEYS = {
-    "signal_generator": ("frequency_hz", "amplitude_vpp", "offset_v"),
-    "current_amplifier": ("gain_a_per_v", "current_limit_a", "watchdog_s"),
-    "charge_amplifier": ("sensitivity_pc_per_n", "scale_n_per_v", "time_constant", "lowpass_hz"),
-    "flux_integrator": ("gain_v_per_wb", "turns"),
+def _register(register: str, unit: str) -> Key:
+    r = modbus_map.REGISTERS[register]
+    return Key(NUM, OPTIONAL, r.doc, unit, ge=r.minimum * r.scale, le=r.maximum * r.scale)
+
+
+def _mnemonic(key: str) -> Key:
+    m = charge_amp.COMMANDS[key]
+    if m.kind == "choice":
+        return Key(str, OPTIONAL, m.doc, choices=m.choices)
+    return Key(NUM, OPTIONAL, m.doc, m.unit, ge=m.minimum, le=m.maximum)
+
+
+def _op(op: str, unit: str) -> Key:
+    o = can_integrator.OPS[op]
+    return Key(int if o.value == "u32" else NUM, OPTIONAL, o.doc, unit, ge=o.minimum, le=o.maximum)
+
+
+#: instrument -> its ``settings`` keys and their ranges, read from the instrument's own command
+#: table (left out: not sent; the ones given are sent in file order when the bench opens).
+SETTINGS: dict[str, dict[str, Key]] = {
+    "signal_generator": {k: _scpi(k) for k in ("frequency_hz", "amplitude_vpp", "offset_v")},
+    "current_amplifier": {"gain_a_per_v": _register("gain", "A/V"), "current_limit_a": _register("current_limit", "A"),
+                          "watchdog_s": _register("watchdog", "s")},
+    "charge_amplifier": {k: _mnemonic(k) for k in ("sensitivity_pc_per_n", "scale_n_per_v", "time_constant",
+                                                    "lowpass_hz")},
+    "flux_integrator": {"gain_v_per_wb": _op("set_gain", "V/Wb"), "turns": _op("set_turns", "")},
 }
 
 
-def _settings_schema() -> dict[str, dict[str, Key]]:
-    """The settings' legal values, read from the instruments' own command tables (which
-    ``_setting_check`` enforces), as Keys for docs/config.md (default None: not sent)."""
-    out: dict[str, dict[str, Key]] = {}
-    for key in _SETTING_KEYS["signal_generator"]:
-        c = scpi.GENERATOR[key]
-        out.setdefault("signal_generator", {})[key] = Key(NUM, None, c.doc, c.unit, ge=c.minimum, le=c.maximum)
-    regs = {"gain_a_per_v": "A/V", "current_limit_a": "A", "watchdog_s": "s"}
-    for key, unit in regs.items():
-        r = modbus_map.REGISTERS[{"gain_a_per_v": "gain", "current_limit_a": "current_limit",
-                                  "watchdog_s": "watchdog"}[key]]
-        out.setdefault("current_amplifier", {})[key] = Key(NUM, None, r.doc, unit, ge=r.minimum * r.scale,
-                                                           le=r.maximum * r.scale)
-    for key in _SETTING_KEYS["charge_amplifier"]:
-        m = charge_amp.COMMANDS[key]
-        out.setdefault("charge_amplifier", {})[key] = (
-            Key(str, None, m.doc, choices=m.choices) if m.kind == "choice"
-            else Key(NUM, None, m.doc, m.unit, ge=m.minimum, le=m.maximum))
-    for key, (op, unit) in {"gain_v_per_wb": ("set_gain", "V/Wb"), "turns": ("set_turns", "")}.items():
-        o = can_integrator.OPS[op]
-        out.setdefault("flux_integrator", {})[key] = Key(int if o.value == "u32" else NUM, None, o.doc, unit,
-                                                         ge=o.minimum, le=o.maximum)
-    return out
+def _emulated_generator(opts: Mapping[str, Any], a: Mapping[str, Any]) -> dict[str, Any]:
+    return {"url": "socket://" + a["scpi_tcp"] if opts["transport"] == "tcp" else a["serial"],
+            "stream_url": "tcp://" + a["stream_tcp"]}
 
 
-#: instrument -> its ``settings`` keys and their ranges (from the instruments' command tables).
-SETTINGS: dict[str, dict[str, Key]] = _settings_schema()
+def _emulated_amplifier(opts: Mapping[str, Any], a: Mapping[str, Any]) -> dict[str, Any]:
+    host, _, port = a["modbus_tcp"].rpartition(":")
+    return {"host": host, "port": int(port), "unit": int(a["unit"]), "serial_port": a.get("modbus_rtu", ""),
+            "stream_url": "tcp://" + a["stream_tcp"]}
+
+
+def _emulated_charge_amp(opts: Mapping[str, Any], a: Mapping[str, Any]) -> dict[str, Any]:
+    return {"url": a["serial"], "stream_url": a["stream_serial"]}
+
+
+def _emulated_integrator(opts: Mapping[str, Any], a: Mapping[str, Any]) -> dict[str, Any]:
+    return {"interface": a["can_interface"], "channel": a["can_channel"], "node": int(a["node"])}
+
+
+@dataclass(frozen=True)
+class _Kind:
+    """What the bench file says about one instrument: its options, the address options a
+    ``hardware`` backend needs (given its options), and where an emulated one is (from the
+    addresses ``hystbench emulate`` prints)."""
+
+    options: Mapping[str, Key]
+    address: Callable[[Mapping[str, Any]], tuple[str, ...]]
+    emulated_at: Callable[[Mapping[str, Any], Mapping[str, Any]], dict[str, Any]]
+
+
+_KINDS: dict[str, _Kind] = {
+    "signal_generator": _Kind(_OPTIONS["signal_generator"], lambda o: ("url",), _emulated_generator),
+    "current_amplifier": _Kind(_OPTIONS["current_amplifier"],
+                               lambda o: ("host",) if o["transport"] == "tcp" else ("serial_port",),
+                               _emulated_amplifier),
+    "charge_amplifier": _Kind(_OPTIONS["charge_amplifier"], lambda o: ("url",), _emulated_charge_amp),
+    "flux_integrator": _Kind(_OPTIONS["flux_integrator"], lambda o: ("channel",), _emulated_integrator),
+}
+
+#: The instruments' tables, in the file's order.
+INSTRUMENTS = tuple(_KINDS)
+
+#: The bench file's schema: [bench] (with [bench.backoff]), [sim] and one table per instrument
+#: (with its [NAME.settings]), in the file's order; docs/config.md is generated from it.
+SCHEMA: dict[str, Key] = {
+    "bench": Key(dict, {}, "the bench's limits and timing", table={
+        **_BENCH, "backoff": Key(dict, {}, "the reconnection schedule", table=_BACKOFF)}),
+    "sim": Key(dict, {}, "the emulated bench (only used by backend = \"sim\" instruments)", table=_SIM),
+    **{name: Key(dict, None, f"the {name.replace('_', ' ')}", table={
+        **_COMMON, **k.options,
+        "settings": Key(dict, {}, "applied in file order when the bench opens", table=SETTINGS[name])})
+       for name, k in _KINDS.items()},
+}
 
 
 @dataclass(frozen=True)
@@ -201,67 +228,22 @@ class BenchConfig:
                 a = addresses.get(name)
                 if a is None:
                     raise ConfigError(f"{self.source}: no emulator address for [{name}]")
-                if name == "signal_generator":
-                    opts["url"] = "socket://" + a["scpi_tcp"] if opts["transport"] == "tcp" else a["serial"]
-                    opts["stream_url"] = "tcp://" + a["stream_tcp"]
-                elif name == "current_amplifier":
-                    host, _, port = a["modbus_tcp"].rpartition(":")
-                    opts.update(host=host, port=int(port), unit=int(a["unit"]), serial_port=a.get("modbus_rtu", ""),
-                                stream_url="tcp://" + a["stream_tcp"])
-                elif name == "charge_amplifier":
-                    opts.update(url=a["serial"], stream_url=a["stream_serial"])
-                else:
-                    opts.update(interface=a["can_interface"], channel=a["can_channel"], node=int(a["node"]))
+                opts.update(_KINDS[name].emulated_at(opts, a))
             out[name] = replace(inst, options=opts)
         return replace(self, instruments=out)
 
 
-def _table(data: Any, where: str, schema: Mapping[str, Key]) -> dict[str, Any]:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{where}: must be a table")
-    unknown = sorted(set(data) - set(schema))
-    if unknown:
-        raise ConfigError(f"{where}: unknown key {unknown[0]!r}; known: {', '.join(schema)}")
-    out = {}
-    for key, spec in schema.items():
-        if key not in data:
-            if spec.default is None:
-                raise ConfigError(f"{where}: missing key {key!r}")
-            out[key] = copy.deepcopy(spec.default)
-            continue
-        value = data[key]
-        bad = spec.problem(value)
-        if bad:
-            raise ConfigError(f"{where}: key {key!r} {bad}, got {value!r}")
-        out[key] = value
-    return out
-
-
-def _instrument(name: str, data: Any, src: str) -> InstrumentConfig:
-    where = f"{src} [{name}]"
-    if not isinstance(data, dict):
-        raise ConfigError(f"{where}: must be a table")
-    body = dict(data)
-    settings = body.pop("settings", {})
-    opts = _table(body, where, {**_COMMON, **_OPTIONS[name]})
+def _instrument(name: str, table: dict[str, Any], raw: Mapping[str, Any], src: str) -> InstrumentConfig:
+    """An instrument from its checked table (``raw``: as written, for the settings' order)."""
+    opts = dict(table)
     if opts["backend"] == "hardware":
-        need = list(_REQUIRED_HW[name])
-        if name == "current_amplifier":
-            need.append("host" if opts["transport"] == "tcp" else "serial_port")
-        for key in need:
+        for key in _KINDS[name].address(opts):
             if not opts[key]:
-                raise ConfigError(f"{where}: key {key!r} is required with backend = \"hardware\"")
-    if not isinstance(settings, dict):
-        raise ConfigError(f"{where}.settings: must be a table")
-    for key, value in settings.items():
-        if key not in _SETTING_KEYS[name]:
-            raise ConfigError(f"{src} [{name}.settings]: unknown key {key!r}; known: {', '.join(_SETTING_KEYS[name])}")
-        try:
-            _setting_check(name, key, value)
-        except (ValueError, TypeError) as err:
-            raise ConfigError(f"{src} [{name}.settings]: key {key!r}: {err}") from err
-    backend, skew, timeout = opts.pop("backend"), float(opts.pop("skew_s")), float(opts.pop("timeout_s"))
-    return InstrumentConfig(name, backend, opts, dict(settings), skew, timeout or None)
+                raise ConfigError(f"{src} [{name}] {key}: required with backend = \"hardware\"")
+    given = opts.pop("settings")
+    settings = {k: given[k] for k in raw.get("settings", {})}  # sent in the file's order
+    backend, skew, timeout = opts.pop("backend"), opts.pop("skew_s"), opts.pop("timeout_s")
+    return InstrumentConfig(name, backend, opts, settings, skew, timeout or None)
 
 
 def load_bench_config(path: str | Path | None = None) -> BenchConfig:
@@ -269,15 +251,9 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
     path = Path(path) if path is not None else DEFAULT_BENCH
     src = str(path)
     data = read_toml(path, "bench file")
-    unknown = sorted(set(data) - {"bench", "sim", *INSTRUMENTS})
-    if unknown:
-        raise ConfigError(f"{src}: unknown table [{unknown[0]}]; known: bench, sim, {', '.join(INSTRUMENTS)}")
-    bench = _table(data.get("bench", {}), f"{src} [bench]", _BENCH)
-    backoff = _table(bench.pop("backoff"), f"{src} [bench.backoff]", _BACKOFF)
-    sim = _table(data.get("sim", {}), f"{src} [sim]", _SIM)
-    missing = [n for n in INSTRUMENTS if n not in data]
-    if missing:
-        raise ConfigError(f"{src}: missing table [{missing[0]}]")
-    instruments = {n: _instrument(n, data[n], src) for n in INSTRUMENTS}
-    return BenchConfig(src, float(bench["max_current_a"]), float(bench["fs_hz"]), float(bench["timeout_s"]),
-                       float(bench["stall_timeout_s"]), float(bench["heartbeat_s"]), backoff, sim, instruments)
+    cfg = check_table(data, src, SCHEMA)
+    bench = cfg["bench"]
+    backoff = bench.pop("backoff")
+    instruments = {n: _instrument(n, cfg[n], data[n], src) for n in INSTRUMENTS}
+    return BenchConfig(src, bench["max_current_a"], bench["fs_hz"], bench["timeout_s"], bench["stall_timeout_s"],
+                       bench["heartbeat_s"], backoff, cfg["sim"], instruments)
