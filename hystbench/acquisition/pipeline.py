@@ -8,15 +8,17 @@ Threads, each with a bounded hand-off and counters of what it had to drop:
   (the default for a source paced ``max``: a replay, a simulation) holds the source back until
   the slowest stage has room instead, so it loses nothing and gives what the live run gave;
 - *estimate*: a ring reader; copies each run into the :class:`WindowEstimator` and releases the
-  view (a lapped view resets the estimator: nothing torn is estimated), then emits estimates and
-  the compensator's state;
+  view (a lapped view resets the estimator: nothing torn is estimated), then emits each
+  :class:`~hystbench.messages.Estimate` and hands it (with its window of samples, to a compensator
+  that learns) to the compensator, whose state it emits;
 - *record*: a ring reader writing raw blocks to MCAP, cut where the source cut them (so a log
   replayed and recorded again has the same blocks), plus the JSON messages others emit through
   a bounded queue (full: the message is dropped and counted);
 - *stats*: every ``stats_interval_s`` publishes per-stage counters on ``stats`` (and logs them).
 
 ``emit(topic, obj)`` is the one way a message leaves: to the recorder's queue, to zenoh and to
-``listeners`` (callables, e.g. a live printout).
+``listeners`` (callables, e.g. a live printout), each as the same JSON-able dict (a typed message
+such as an :class:`~hystbench.messages.Estimate` is turned into one there, once).
 """
 
 from __future__ import annotations
@@ -28,22 +30,41 @@ import sys
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any, Callable, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
 from ..blocks import BlockFlags, SampleBlock
 from ..errors import ConfigError
 from ..formats.mcaplog.schemas import COMPENSATOR, ESTIMATE, STATS, STATUS
+from ..messages import Estimate
 from .ring import RingBuffer, RingRead, RingReader
 from .sources import Controllable
 from .stages import WindowEstimator
 
-__all__ = ["Pipeline", "StageStats", "CompensatorHook"]
+__all__ = ["Pipeline", "StageStats", "CompensatorHook", "Compensator", "Message"]
 
 log = logging.getLogger("hystbench.pipeline")
 _TOPIC_NAMES = {ESTIMATE: "estimate", COMPENSATOR: "compensator", STATUS: "status", STATS: "stats"}
+
+
+@runtime_checkable
+class Message(Protocol):
+    """A typed message (:class:`~hystbench.messages.Estimate`): it knows its JSON."""
+
+    def to_json(self) -> dict[str, Any]: ...
+
+
+@runtime_checkable
+class Compensator(Protocol):
+    """What :class:`CompensatorHook` drives (the pipeline knows a compensator only by this).
+
+    ``update(estimate)`` returns the compensator's state (a JSON-able dict, published on
+    ``compensator``) or None.  One whose ``learns`` attribute is true is called
+    ``update(estimate, window)`` with the estimate's samples (a :class:`SampleBlock`)."""
+
+    def update(self, estimate: Estimate, window: SampleBlock | None = None) -> dict | None: ...
 
 
 @dataclass
@@ -78,13 +99,13 @@ class Pipeline:
     ``recorder`` is a started :class:`~.mcaplog.McapRecorder` (or None), ``bus`` an open
     :class:`~.zenoh_bus.ZenohBus` (or None), ``estimator`` a :class:`WindowEstimator` (or None),
     ``compensator`` a callable (estimate, window) -> state (e.g. :class:`CompensatorHook`); the
-    window is the estimate's samples when the estimator keeps them, else None.  ``lossless``
-    (default: whether the source's ``pace`` is ``"max"``) makes the source wait for the slowest
-    stage instead of overrunning it; ``backpressure`` is set while it waits.
+    window is the estimate's samples (a :class:`SampleBlock`) when the estimator keeps them, else
+    None.  ``lossless`` (default: whether the source's ``pace`` is ``"max"``) makes the source
+    wait for the slowest stage instead of overrunning it; ``backpressure`` is set while it waits.
     """
 
     def __init__(self, source, *, estimator: WindowEstimator | None = None, recorder=None, bus=None,
-                 compensator: Callable[[Mapping[str, Any], Mapping[str, Any] | None], dict | None] | None = None,
+                 compensator: Callable[[Estimate, SampleBlock | None], dict | None] | None = None,
                  ring_seconds: float = 2.0, dtype: Any = np.float32, queue_size: int = 1024,
                  stats_interval_s: float = 1.0, publish_raw: bool = True,
                  gil_switch_s: float | None = 0.0005, background_nice: int = 10,
@@ -180,7 +201,10 @@ class Pipeline:
             self._source_done.set()
 
     # --- messages --------------------------------------------------------------------------------
-    def emit(self, topic: str, obj: Mapping[str, Any]) -> None:
+    def emit(self, topic: str, message: Mapping[str, Any] | Message) -> None:
+        """``message`` (a dict, or a typed message turned into its JSON here) to the recorder, the
+        bus and the listeners."""
+        obj = message if isinstance(message, Mapping) else message.to_json()
         if self.recorder is not None:
             try:
                 self._queue.put_nowait((topic, dict(obj)))
@@ -344,24 +368,24 @@ class Pipeline:
             est.append(got.block)
             if not r.release(got):  # lapped while copying: what was copied may be torn
                 est.reset()
-                est.estimates()  # and so may the windows just cut from it: dropped
+                est.windowed()  # and so may the windows just cut from it: dropped
                 self.status("warning", "estimator_overrun", f"estimation lost {got.n} samples at {got.block.first_index}")
             st.lost_samples = r.lost_samples
             st.blocks += 1
             st.samples += got.n
-            for e in est.estimates():
-                e["t_ns"] = self.index_time_ns(e["end_index"])
-                window = e.pop("window", None)  # samples for a learning compensator, never published
-                if e.get("outliers"):
+            for e, window in est.windowed():  # the window: samples for a learning compensator, never published
+                e = replace(e, t_ns=self.index_time_ns(e.end_index))
+                if e.outliers:
                     from ..analysis.method import outlier_summary
 
-                    self.status("warning", "outliers", f"window [{e['first_index']}..{e['end_index']}): left out "
-                                f"{outlier_summary(e['outliers'])}", outliers=e["outliers"])
+                    found = {c: list(v) for c, v in e.outliers.items()}
+                    self.status("warning", "outliers", f"window [{e.first_index}..{e.end_index}): left out "
+                                f"{outlier_summary(found)}", outliers=found)
                 self.emit(ESTIMATE, e)
                 if self.compensator is not None:
                     state = self.compensator(e, window)
                     if state:
-                        self.emit(COMPENSATOR, {"t_ns": e["t_ns"], "first_index": e["first_index"], **state})
+                        self.emit(COMPENSATOR, {"t_ns": e.t_ns, "first_index": e.first_index, **state})
             st.busy_s += time.monotonic() - t0
             self._latency(st, got.end)
 
@@ -446,19 +470,17 @@ class Pipeline:
 
 
 class CompensatorHook:
-    """Hands each estimate to the compensator (when there is one) and applies what it asks for.
+    """Hands each estimate to the compensator (a :class:`Compensator`) and applies what it asks for.
 
-    The compensator is any object with ``update(estimate: dict) -> dict | None``; the dict it
-    returns is its state, published on ``compensator``.  One that ``learns`` (a true attribute)
-    also gets the estimate's samples, under ``window``: the estimator must keep them
-    (``wants_windows``).  If the state says ``output_off`` the source's output goes off before
-    anything else; if it holds ``waveform_A`` (one period of current, uniformly sampled) and
-    ``frequency_Hz``, the waveform is uploaded to the source (a :class:`Controllable`).  After an
-    output off, ``tripped`` says why, and the daemon refuses to switch the output on again until
-    it is reloaded.  A compensator that raises is reported, never fatal.
+    A compensator that ``learns`` also gets each estimate's samples: the estimator must keep them
+    (``wants_windows``).  If the state it returns says ``output_off`` the source's output goes off
+    before anything else; if it holds ``waveform_a`` (one period of current, uniformly sampled)
+    and ``frequency_hz``, the waveform is uploaded to the source (a :class:`Controllable`).  After
+    an output off, ``tripped`` says why, and the daemon refuses to switch the output on again
+    until it is reloaded.  A compensator that raises is reported, never fatal.
     """
 
-    def __init__(self, compensator: Any, source: Any = None) -> None:
+    def __init__(self, compensator: Compensator, source: Any = None) -> None:
         if not callable(getattr(compensator, "update", None)):
             raise ConfigError(f"compensator {compensator!r} has no update(estimate) method")
         self.compensator, self.source = compensator, source
@@ -467,18 +489,18 @@ class CompensatorHook:
         self.last_error = ""
         self.tripped = ""  # why the compensator switched the output off (then it stays off)
 
-    def __call__(self, estimate: Mapping[str, Any], window: Mapping[str, Any] | None = None) -> dict | None:
-        if estimate.get("error"):
+    def __call__(self, estimate: Estimate, window: SampleBlock | None = None) -> dict | None:
+        if estimate.error:
             return None
-        payload = dict(estimate)
-        if window is not None and self.wants_windows:
-            payload["window"] = window
         try:
-            state = self.compensator.update(payload)
+            if self.wants_windows and window is not None:
+                state = self.compensator.update(estimate, window)
+            else:
+                state = self.compensator.update(estimate)
         except Exception as err:  # the compensator is someone else's code: report, carry on
             self.errors += 1
             self.last_error = f"{type(err).__name__}: {err}"
-            return {"error": self.last_error, "first_index": estimate.get("first_index")}
+            return {"error": self.last_error, "first_index": estimate.first_index}
         if not state:
             return None
         state = dict(state)
@@ -487,8 +509,9 @@ class CompensatorHook:
             if isinstance(self.source, Controllable):
                 self.source.set_output(False)
                 state["output_switched_off"] = True
-        wave = state.pop("waveform_A", None)
+        wave = state.pop("waveform_a", None)
         if wave is not None and isinstance(self.source, Controllable):
-            self.source.set_waveform(np.asarray(wave, dtype=float), float(state.get("frequency_Hz", estimate["nominal_frequency_Hz"])))
+            self.source.set_waveform(np.asarray(wave, dtype=float),
+                                     float(state.get("frequency_hz", estimate.nominal_frequency_hz)))
             state["waveform_applied"] = True
         return state

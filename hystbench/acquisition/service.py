@@ -315,7 +315,7 @@ class BenchService:
                     src.set_excitation(f, ipp, self.point.offset_a)
                     src.set_output(True)
                     reached = p.after_samples(round(dwell * src.fs_hz))  # from the command on
-                p.status("info", "sweep_point", f"{f:g} Hz, {ipp:g} A-pp", point=k, frequency_Hz=f, current_pp_A=ipp)
+                p.status("info", "sweep_point", f"{f:g} Hz, {ipp:g} A-pp", point=k, frequency_hz=f, current_pp_a=ipp)
                 fault = self._dwell(p, reached, stop)
                 if fault is not None:
                     if fault:

@@ -23,13 +23,11 @@ import numpy as np
 
 from ..blocks import SampleBlock
 from ..errors import ConfigError
+from ..messages import OPERATING_KEYS, OperatingPoint
 
 __all__ = ["Source", "Controllable", "RigSource", "SyntheticSource", "BenchSource", "bench_source", "operating_meta",
            "OPERATING_KEYS"]
 
-#: Block meta keys that name the operating point: a change of any of them starts a new run of the
-#: estimator and a new segment of a log.
-OPERATING_KEYS = ("frequency_hz", "current_pp_a", "offset_a", "output_on", "settling", "table")
 
 
 @runtime_checkable
@@ -61,15 +59,10 @@ class Controllable(Protocol):
 
 def operating_meta(frequency_hz: float, current_pp_a: float, offset_a: float, output_on: bool,
                    settling: bool = False, table: int = 0) -> dict[str, float]:
-    """Block meta naming the operating point; ``settling`` marks samples that may still be from
-    before the last command (instruments apply it somewhere in their stream's latency); ``table``
-    counts the changes of what the generator plays (a sine set, a waveform uploaded), so samples
-    with one count were played with one waveform."""
-    meta = {"frequency_hz": float(frequency_hz), "current_pp_a": float(current_pp_a),
-            "offset_a": float(offset_a), "output_on": 1.0 if output_on else 0.0, "table": float(table)}
-    if settling:
-        meta["settling"] = 1.0
-    return meta
+    """Block meta naming the operating point (:meth:`~hystbench.messages.OperatingPoint.to_meta`;
+    ``settling`` and ``table``: see :class:`~hystbench.messages.OperatingPoint`)."""
+    return OperatingPoint(float(frequency_hz), float(current_pp_a), float(offset_a), bool(output_on),
+                          bool(settling), int(table)).to_meta()
 
 
 def _counted(source: Any, command: Callable[[], None]) -> Callable[[], None]:
@@ -185,6 +178,9 @@ class SyntheticSource:
     lags current by ``flux_lag_s``, force lags flux by ``force_lag_s`` (with-magnet E-core shape).
     """
 
+    #: the replayed buffer's length limit, per channel (4 float32 channels: 160 MB)
+    MAX_BUFFER_SAMPLES = 10_000_000
+
     def __init__(self, *, fs_hz: float = 1e6, frequency_hz: float = 320.0, block_samples: int = 10_000,
                  channels: tuple[str, ...] = ("current_A", "force_N", "flux_Wb", "command_V"),
                  pace: str = "realtime", duration_s: float | None = None, dtype: Any = np.float32,
@@ -198,6 +194,10 @@ class SyntheticSource:
         length = period * self.block_samples // math.gcd(period, self.block_samples)
         while length < 4 * self.block_samples:
             length *= 2
+        if length > self.MAX_BUFFER_SAMPLES:
+            raise ConfigError(f"{self.name}: {period} samples per period in blocks of {self.block_samples} need a "
+                              f"buffer of {length:.3g} samples per channel, more than {self.MAX_BUFFER_SAMPLES:.0e}; "
+                              "lower fs_hz or block_samples, or raise frequency_hz")
         t = np.arange(length) / self.fs_hz
         w = 2 * np.pi * self.frequency_hz
         rng = np.random.default_rng(seed)

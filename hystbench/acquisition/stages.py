@@ -2,8 +2,9 @@
 
 :class:`WindowEstimator` cuts the stream into windows of whole periods anchored on sample indices
 (not on block boundaries, so any cut of the same samples gives the same estimates) and runs
-:func:`~.method.measure_delays` on each.  Runs follow the operating point the sources put in
-every block's meta (see :mod:`.sources`).
+:func:`~.method.measure_window` on each.  Runs follow the :class:`~hystbench.messages.OperatingPoint`
+the sources put in every block's meta (see :mod:`.sources`); what the rig preset says (is it an
+E-core, has it a magnet) is read once, when the estimator is made.
 """
 
 from __future__ import annotations
@@ -15,9 +16,9 @@ import numpy as np
 from ..blocks import SampleBlock
 from ..config import load_rig
 from ..errors import BenchError, ConfigError
-from ..formats.recording import Recording
+from ..formats.recording import sidecar_point
+from ..messages import Estimate, OperatingPoint
 from ..analysis.settling import settle_samples, settling_time_s
-from .sources import OPERATING_KEYS
 
 __all__ = ["WindowEstimator"]
 
@@ -35,19 +36,23 @@ class WindowEstimator:
     its instrument's slowest time constants) or ``settle_periods`` periods (the iron's loop),
     whichever is longer.  A gap, an overrun or a new operating point starts a new run, so windows
     never straddle them or the settling after them; windows with the output off or marked
-    ``settling`` (samples that may predate a command) are not estimated.  Above ``max_fs_hz`` each channel is averaged over ``decimate`` samples first (the
-    same delay in every channel, so the delays between them are unchanged).
+    ``settling`` (samples that may predate a command) are not estimated.  Above ``max_fs_hz``
+    each channel is averaged over ``decimate`` samples first (the same delay in every channel, so
+    the delays between them are unchanged).
 
-    ``append`` copies the samples in (so a ring view can be released at once); ``estimates``
-    returns the windows completed since.  E-core rigs get :func:`~.method.measure_delays` with all
-    its checks; other rigs the plain :func:`~.estimation.phase_delay` of force (and flux) behind
-    current.  A window the method refuses gives an estimate with ``error`` set; gross outliers are
-    left out of the fits and named by source sample index under ``outliers`` (channel -> indices).
+    ``metadata`` is the source's recording sidecar: its rig, and the nominal operating point for
+    blocks whose meta names none.  ``append`` copies the samples in (so a ring view can be
+    released at once); ``estimates`` returns the :class:`~hystbench.messages.Estimate` s of the
+    windows completed since.  E-core rigs get the method (:func:`~.method.measure_window`) with
+    all its checks; other rigs the plain :func:`~.estimation.phase_delay` of force (and flux)
+    behind current.  A window the method refuses gives an estimate with ``error`` set; gross
+    outliers are left out of the fits and named by source sample index under ``outliers``.
 
     Each estimate names the waveform ``table`` its samples were played with.  With
-    ``keep_windows`` it also carries its samples under ``window`` (``fs_Hz`` and ``channels``,
-    ``command_V`` included when the source has it): a learning compensator averages them; the
-    pipeline takes them out before the estimate is published.
+    ``keep_windows``, :meth:`windowed` pairs each estimate with its samples as a
+    :class:`~hystbench.blocks.SampleBlock` (at the decimated rate, ``command_V`` included when the
+    source has it, its operating point in ``meta``): a learning compensator averages them; they
+    are never published.
     """
 
     def __init__(self, fs_hz: float, metadata: Mapping[str, Any], *, periods: float = 10.0,
@@ -58,30 +63,30 @@ class WindowEstimator:
         if settle_s is not None and not settle_s >= 0:
             raise ConfigError(f"estimation settle_s must be >= 0, got {settle_s}")
         self.fs_hz = float(fs_hz)
-        self.metadata = dict(metadata)
         self.periods, self.hop_periods = float(periods), float(hop_periods or periods)
         self.min_hop_s, self.settle_periods = float(min_hop_s), float(settle_periods)
         self.settle_s = settling_time_s(metadata) if settle_s is None else float(settle_s)
         self.decimate = max(1, int(self.fs_hz // max_fs_hz))
         self.keep_windows = bool(keep_windows)
-        rig = str(self.metadata.get("rig", ""))
+        self.rig = str(metadata.get("rig", ""))
+        self.nominal = sidecar_point(metadata)  # for blocks whose meta names no operating point
         try:
-            preset = load_rig(rig)
+            preset = load_rig(self.rig)
         except BenchError:
             preset = {}
         self.method = preset.get("actuator") == "ecore"
+        self.magnet = "magnet" in preset
         from ..analysis.estimation import phase_delay  # imported here, not at the first window (scipy: ~1 s)
-        from ..analysis.method import measure_delays
+        from ..analysis.method import measure_window
 
-        self._phase_delay, self._measure_delays = phase_delay, measure_delays
+        self._phase_delay, self._measure_window = phase_delay, measure_window
         self.errors = 0
-        self._out: list[dict] = []
+        self._out: list[tuple[Estimate, SampleBlock | None]] = []
         self.reset()
 
     def reset(self) -> None:
         """Forget the run in progress (after torn or lost samples)."""
-        self._key: tuple | None = None
-        self._table = 0
+        self._point: OperatingPoint | None = None
         self._buf: dict[str, np.ndarray] = {}
         self._start = 0  # source index of _buf[...][0]
         self._fill = 0
@@ -89,13 +94,11 @@ class WindowEstimator:
         self._end: int | None = None
         self._next_end = 0
 
-    def _begin(self, block: SampleBlock) -> None:
+    def _begin(self, block: SampleBlock, point: OperatingPoint) -> None:
         self.reset()
-        m = block.meta
-        self._key = tuple(m.get(k) for k in OPERATING_KEYS)
-        self._f = float(m.get("frequency_hz") or self.metadata["frequency_Hz"])
-        self._ipp = float(m.get("current_pp_a") if m.get("current_pp_a") is not None else self.metadata.get("current_pp_A", 0.0))
-        self._on = m.get("output_on", 1.0) != 0.0 and not m.get("settling")
+        self._point = point
+        self._f, self._ipp = point.frequency_hz, point.current_pp_a
+        self._where = f"{self.rig} window at {self._f:g} Hz, {self._ipp:g} A-pp"
         spp = self.fs_hz / self._f
         k = self.decimate
         self._win = max(k, int(round(self.periods * spp / k)) * k)
@@ -105,7 +108,6 @@ class WindowEstimator:
         self._next_end = block.first_index + settle + self._win
         wanted = _METHOD_CHANNELS + (("command_V",) if self.keep_windows else ())
         self._names = [c for c in wanted if c in block.channels]
-        self._table = int(m.get("table") or 0)
         cap = self._win + self._hop + block.n
         self._buf = {c: np.empty(cap, dtype=np.float64) for c in self._names}
         self._start, self._fill = block.first_index, 0
@@ -113,11 +115,11 @@ class WindowEstimator:
     def append(self, block: SampleBlock) -> None:
         if block.n == 0:
             return
-        key = tuple(block.meta.get(k) for k in OPERATING_KEYS)
-        if key != self._key or block.first_index != self._end:
-            self._begin(block)
+        point = OperatingPoint.from_meta(block.meta, self.nominal)
+        if point != self._point or block.first_index != self._end:
+            self._begin(block, point)
         self._end = block.end_index
-        if not self._on or len([c for c in self._names if c in _METHOD_CHANNELS]) < 2:
+        if not point.excited or len([c for c in self._names if c in _METHOD_CHANNELS]) < 2:
             return
         need = self._fill + block.n
         cap = next(iter(self._buf.values())).size
@@ -138,11 +140,17 @@ class WindowEstimator:
             self._out.append(self._estimate(self._next_end - self._win, self._next_end))
             self._next_end += self._hop
 
-    def estimates(self) -> list[dict]:
+    def windowed(self) -> list[tuple[Estimate, SampleBlock | None]]:
+        """The windows completed since the last call: each estimate with its samples (None unless
+        ``keep_windows``)."""
         out, self._out = self._out, []
         return out
 
-    def push(self, block: SampleBlock) -> list[dict]:
+    def estimates(self) -> list[Estimate]:
+        """The estimates of the windows completed since the last call."""
+        return [e for e, _ in self.windowed()]
+
+    def push(self, block: SampleBlock) -> list[Estimate]:
         """``append`` then ``estimates``."""
         self.append(block)
         return self.estimates()
@@ -154,40 +162,43 @@ class WindowEstimator:
             chans = {c: x.reshape(-1, k).mean(axis=1) for c, x in chans.items()}
         return chans, self.fs_hz / k
 
-    def _estimate(self, a: int, b: int) -> dict:
-        phase_delay, measure_delays = self._phase_delay, self._measure_delays
+    def _estimate(self, a: int, b: int) -> tuple[Estimate, SampleBlock | None]:
         chans, fs = self._window(a, b)
-        out: dict[str, Any] = {"first_index": int(a), "end_index": int(b), "t_ns": round(b * 1e9 / self.fs_hz),
-                               "nominal_frequency_Hz": self._f, "current_pp_A": self._ipp, "table": self._table,
-                               "error": None}
+        window = None
         if self.keep_windows:
-            out["window"] = {"fs_Hz": fs, "channels": {c: x.copy() for c, x in chans.items()}}
+            window = SampleBlock(a // self.decimate, fs, {c: x.copy() for c, x in chans.items()},
+                                 meta=self._point.to_meta())
             chans = {c: x for c, x in chans.items() if c in _METHOD_CHANNELS}
-        meta = {**{k: v for k, v in self.metadata.items() if k in ("rig",)}, "frequency_Hz": self._f,
-                "sample_rate_Hz": fs, "current_pp_A": self._ipp}
+        at = {"first_index": int(a), "end_index": int(b), "t_ns": round(b * 1e9 / self.fs_hz),
+              "nominal_frequency_hz": self._f, "current_pp_a": self._ipp, "table": self._point.table}
         try:
             if self.method:
-                d = measure_delays(Recording(None, fs, chans, meta))
-                out.update(d.as_dict())
+                d = self._measure_window(chans, fs, self._f, magnet=self.magnet, current_pp_a=self._ipp,
+                                         where=self._where)
+                f, fse, harmonic = d.frequency_hz, d.frequency_std_hz, d.harmonic
+                delays, stds, found = d.delays_s, d.delays_std_s, d.outliers
             else:
-                x = chans["current_A"]
-                delays, stds, f, fse = {}, {}, self._f, 0.0
-                found: dict[str, set[int]] = {}
-                for name, c in (("total", "force_N"), ("hysteresis", "flux_Wb")):
-                    if chans.get(c) is not None:
-                        r = phase_delay(x, chans[c], fs, self._f)
-                        delays[name], stds[name] = float(r.delay_s), float(r.delay_se_s)
-                        f, fse = float(r.freq_hz), float(r.freq_se_hz)
-                        found.setdefault("current_A", set()).update(r.x.outliers.tolist())
-                        found.setdefault(c, set()).update(r.y.outliers.tolist())
-                outliers = {c: sorted(v) for c, v in found.items() if v}
-                out.update({"frequency_Hz": f, "frequency_std_Hz": fse, "harmonic": 1, "delays_s": delays,
-                            "delays_std_s": stds, "phases_deg": {k: 360 * f * v for k, v in delays.items()},
-                            "phases_std_deg": {k: 360 * f * v for k, v in stds.items()},
-                            "outliers": outliers, "outliers_excluded": bool(outliers)})
-            # window sample -> source sample index (the first of its group when decimated)
-            out["outliers"] = {c: [a + self.decimate * i for i in v] for c, v in out["outliers"].items()}
+                f, fse, harmonic, delays, stds, found = self._phase_delays(chans, fs)
         except (BenchError, ValueError) as err:
             self.errors += 1
-            out["error"] = str(err)
-        return out
+            return Estimate(**at, error=str(err)), window
+        # window sample -> source sample index (the first of its group when decimated)
+        outliers = {c: tuple(a + self.decimate * i for i in v) for c, v in found.items() if len(v)}
+        return Estimate(**at, frequency_hz=f, frequency_std_hz=fse, harmonic=harmonic, delays_s=dict(delays),
+                        delays_std_s=dict(stds), phases_deg={k: 360.0 * f * v for k, v in delays.items()},
+                        phases_std_deg={k: 360.0 * f * v for k, v in stds.items()}, outliers=outliers,
+                        outliers_excluded=bool(outliers)), window
+
+    def _phase_delays(self, chans: Mapping[str, np.ndarray], fs: float) -> tuple:
+        """Rigs other than E-cores: force (total) and flux (hysteresis) behind current."""
+        x = chans["current_A"]
+        delays, stds, f, fse = {}, {}, self._f, 0.0
+        found: dict[str, set[int]] = {}
+        for name, c in (("total", "force_N"), ("hysteresis", "flux_Wb")):
+            if chans.get(c) is not None:
+                r = self._phase_delay(x, chans[c], fs, self._f)
+                delays[name], stds[name] = float(r.delay_s), float(r.delay_se_s)
+                f, fse = float(r.freq_hz), float(r.freq_se_hz)
+                found.setdefault("current_A", set()).update(r.x.outliers.tolist())
+                found.setdefault(c, set()).update(r.y.outliers.tolist())
+        return f, fse, 1, delays, stds, {c: sorted(v) for c, v in found.items()}

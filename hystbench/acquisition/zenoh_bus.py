@@ -12,10 +12,13 @@ Key space (``<bench>`` is the daemon's bench name, see docs/zenoh.md)::
     hystbench/<bench>/health          queryable: state, uptime, counters
     hystbench/<bench>/cmd/<verb>      queryable: start_sweep, stop_sweep, set_excitation, output
 
-Raw payload: ``u32 little-endian header length H``, ``H`` bytes of UTF-8 JSON header, then for
-each channel of ``header["channels"]`` in order, ``n`` little-endian values of its ``dtype``
-(``float32`` or ``float64``).  The header holds ``first_index``, ``n``, ``fs_hz``, ``t0_ns``,
-``flags``, ``gap_samples`` and, per channel, ``name``, ``unit`` and ``dtype``.
+Raw payload: the binary framing of the one raw-block codec (:mod:`hystbench.formats.raw_block`,
+which the MCAP log's JSON framing shares its header with): ``u32 little-endian header length H``,
+``H`` bytes of UTF-8 JSON header, then for each channel of ``header["channels"]`` in order, ``n``
+little-endian values of its ``dtype`` (``float32`` or ``float64``).  The header holds
+``first_index``, ``n``, ``fs_hz``, ``t0_ns``, ``flags``, ``gap_samples``, ``meta`` (the operating
+point and settling) and, per channel, ``name``, ``unit`` and ``dtype``.  Estimates are the JSON of
+:class:`hystbench.messages.Estimate` (read them with ``Estimate.from_json``).
 """
 
 from __future__ import annotations
@@ -25,28 +28,24 @@ import logging
 import queue
 import re
 import socket
-import struct
 import threading
 import time
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
-import numpy as np
-
-from ..blocks import CHANNEL_UNITS, BlockFlags, SampleBlock
+from ..blocks import SampleBlock
 from ..errors import BenchError, ConfigError
 from .bench_commands import COMMANDS as _COMMAND_ARGS
 from ..formats.mcaplog.schemas import json_bytes
+from ..formats.raw_block import BINARY_ENCODING, encode_binary
 
-__all__ = ["PREFIX", "key", "encode_raw", "decode_raw", "peer_config", "load_zenoh_config", "ZenohBus",
+__all__ = ["PREFIX", "key", "peer_config", "load_zenoh_config", "ZenohBus",
            "Subscription", "send_command", "query_json", "free_port", "open_session", "ListenError", "COMMANDS"]
 
 log = logging.getLogger("hystbench.zenoh")
 
 PREFIX = "hystbench"
 COMMANDS = tuple(_COMMAND_ARGS)
-_DTYPES = {"float32": np.dtype("<f4"), "float64": np.dtype("<f8")}
-RAW_ENCODING = "application/octet-stream;hystbench.raw.v1"
 
 
 def key(bench: str, *parts: str) -> str:
@@ -54,41 +53,6 @@ def key(bench: str, *parts: str) -> str:
     if not bench or any(ch in bench for ch in "/*$?#"):
         raise ConfigError(f"bench name {bench!r} must be non-empty and contain none of / * $ ? #")
     return "/".join((PREFIX, bench, *parts))
-
-
-# --- payload codecs -----------------------------------------------------------------------------
-def encode_raw(block: SampleBlock, channels: list[str] | None = None, units: Mapping[str, str] | None = None) -> bytes:
-    names = list(block.channels) if channels is None else channels
-    arrays, descs = [], []
-    for name in names:
-        x = np.asarray(block.channels[name])
-        dt = "float32" if x.dtype == np.float32 else "float64"
-        arrays.append(np.ascontiguousarray(x, dtype=_DTYPES[dt]))
-        unit = (units or {}).get(name) or CHANNEL_UNITS.get(name) or name.rsplit("_", 1)[-1]
-        descs.append({"name": name, "unit": unit, "dtype": dt})
-    head = json.dumps({"v": 1, "first_index": int(block.first_index), "n": int(block.n), "fs_hz": float(block.fs_hz),
-                       "t0_ns": int(block.t0_ns), "flags": int(block.flags), "gap_samples": int(block.gap_samples),
-                       "channels": descs}).encode()
-    return b"".join([struct.pack("<I", len(head)), head, *(a.data for a in arrays)])
-
-
-def decode_raw(payload: bytes | bytearray | memoryview) -> SampleBlock:
-    """The inverse of :func:`encode_raw` (arrays are views of ``payload``, read-only)."""
-    buf = memoryview(payload)
-    try:
-        (h,) = struct.unpack_from("<I", buf, 0)
-        head = json.loads(bytes(buf[4:4 + h]))
-        off, n, channels = 4 + h, int(head["n"]), {}
-        for ch in head["channels"]:
-            dt = _DTYPES[ch["dtype"]]
-            channels[ch["name"]] = np.frombuffer(buf, dtype=dt, count=n, offset=off)
-            off += n * dt.itemsize
-        if off != len(buf):
-            raise ValueError(f"payload has {len(buf)} bytes, the header describes {off}")
-        return SampleBlock(int(head["first_index"]), float(head["fs_hz"]), channels,
-                           flags=BlockFlags(int(head["flags"])), gap_samples=int(head["gap_samples"]))
-    except (ValueError, KeyError, TypeError, struct.error) as err:
-        raise BenchError(f"not a hystbench raw payload: {err}") from err
 
 
 # --- configuration ----------------------------------------------------------------------------------
@@ -248,14 +212,16 @@ class ZenohBus:
         default because each put costs a release and re-acquisition of the GIL: four per block
         doubled the p99 latency at 4 x 1 MS/s (docs/pipeline.md)."""
         if not self.per_channel:
-            self._put(self._publisher("raw", express=True), encode_raw(block, None, units), RAW_ENCODING)
+            self._put(self._publisher("raw", express=True), encode_binary(block, None, units), BINARY_ENCODING)
             return
         for name in block.channels:
-            self._put(self._publisher("raw", name, express=True), encode_raw(block, [name], units), RAW_ENCODING)
+            self._put(self._publisher("raw", name, express=True), encode_binary(block, [name], units), BINARY_ENCODING)
 
-    def publish(self, topic: str, obj: Mapping[str, Any]) -> None:
-        """A JSON message on ``estimate``, ``compensator``, ``status`` or ``stats``."""
-        self._put(self._publisher(topic), json_bytes(obj), "application/json")
+    def publish(self, topic: str, obj: Any) -> None:
+        """A JSON message on ``estimate``, ``compensator``, ``status`` or ``stats``: a dict, or a
+        typed message (an :class:`~hystbench.messages.Estimate`) as its ``to_json()``."""
+        self._put(self._publisher(topic), json_bytes(obj if isinstance(obj, Mapping) else obj.to_json()),
+                  "application/json")
 
     def _put(self, pub, payload: bytes, encoding: str) -> None:
         try:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -38,7 +39,7 @@ from .estimation import OUTLIER_SIGMAS, covariance_delay, estimation_errors, gro
 from .estimation import find_outliers as estimation_find_outliers
 from ..formats.recording import Recording
 
-__all__ = ["MethodDelays", "measure_delays", "has_magnet", "covariance_delays", "estimate",
+__all__ = ["MethodDelays", "measure_delays", "measure_window", "has_magnet", "covariance_delays", "estimate",
            "recording_name", "check_channels", "check_fit_quality", "find_outliers", "outlier_summary",
            "MAX_FREQUENCY_OFFSET", "MIN_EXPLAINED", "MIN_EXPLAINED_ANYWAY", "MAX_OUTLIER_FRACTION"]
 
@@ -289,8 +290,35 @@ def measure_delays(rec: Recording) -> MethodDelays:
     """Hysteresis, instrument and total delay of one recording (paper Secs. III, V, VI), with
     each channel's gross outliers left out (and named in the result): the current's and the
     flux's found by their joint fit, the force's by its own fit at the frequency found."""
+    return _measure(rec, _require_ecore(rec))
+
+
+@dataclass(frozen=True)
+class _Window:
+    """What the method reads of a recording, for bare samples (the live estimator's windows)."""
+
+    path: str
+    channels: Mapping[str, np.ndarray]
+    fs_hz: float
+    frequency_hz: float
+    current_pp_a: float
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return len(next(iter(self.channels.values())))
+
+
+def measure_window(channels: Mapping[str, np.ndarray], fs_hz: float, frequency_hz: float, *, magnet: bool,
+                   current_pp_a: float = math.nan, where: str = "window") -> MethodDelays:
+    """:func:`measure_delays` on bare samples of an E-core rig (``magnet``: whether it has one),
+    named ``where`` in errors: the live estimator knows its rig once per run, so no sidecar is
+    checked and no rig preset read for each window."""
+    return _measure(_Window(where, channels, float(fs_hz), float(frequency_hz), float(current_pp_a)), magnet)
+
+
+def _measure(rec: Recording | _Window, magnet: bool) -> MethodDelays:
     where = recording_name(rec)
-    magnet = _require_ecore(rec)
     names = ("current_A", "flux_Wb", "force_N")
     ch = check_channels(rec, names)
     current, flux, force = ch["current_A"], ch["flux_Wb"], ch["force_N"]

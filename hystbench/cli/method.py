@@ -33,7 +33,7 @@ def cmd_estimate(args) -> int:
     from ..formats.recording import read_recording
 
     if Path(args.path).suffix.lower() == ".mcap":
-        from ..formats.mcaplog import read_mcap_recording
+        from ..analysis.log_recordings import read_mcap_recording
 
         rec = read_mcap_recording(args.path, segment=args.segment)
     else:

@@ -1,10 +1,11 @@
 """The online compensator: follows the live hysteresis-delay estimate and re-shapes the current.
 
-It has the pipeline's compensator interface (``acquisition.pipeline.CompensatorHook``):
-``update(estimate) -> state | None``, where ``estimate`` is one window of the method's delays
-(``frequency_Hz``, ``delays_s['hysteresis']`` = flux behind current, ``error``).  The state it
-returns is published on the ``compensator`` topic; when it holds ``waveform_A`` (one period of
-current) and ``frequency_Hz`` the hook uploads it to the source.
+It has the pipeline's compensator interface (``acquisition.pipeline.Compensator``):
+``update(estimate, window=None) -> state | None``, where ``estimate`` is a
+:class:`~hystbench.messages.Estimate` of one window (``frequency_hz``, ``delays_s['hysteresis']`` =
+flux behind current, ``error``).  The state it returns is published on the ``compensator`` topic;
+when it holds ``waveform_a`` (one period of current) and ``frequency_hz`` the hook uploads it to
+the source.
 
 Following the live theta_hyst (smoothed, exponential weight ``smoothing``):
 
@@ -16,8 +17,8 @@ Following the live theta_hyst (smoothed, exponential weight ``smoothing``):
 The table is recomputed and re-sent only when the theta used moves by more than ``retune_deg``
 (so estimation noise does not keep the generator busy).
 
-Learning online (``learning`` given): each estimate then carries its window of samples; a window
-played entirely with the last table sent (its ``table`` count is the one that table gets when the
+Learning online (``learning`` given): each estimate then comes with its window of samples (a
+:class:`~hystbench.blocks.SampleBlock`); a window played entirely with the last table sent (its ``table`` count is the one that table gets when the
 source applies it; a window of an older table, or of someone else's command, is skipped) is averaged over its whole periods (:func:`~.periodic.measure_period`, aligned to the table by
 ``command_V``) and handed to the same :class:`~.learning.LearningController` as the offline loop,
 which returns the next table.  It is repetitive control: it runs as long as the stage does
@@ -30,10 +31,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
+from ..blocks import SampleBlock
+from ..messages import Estimate
 from ..physics.instrument import InstrumentModel
 from .errors import LearningStopped, UnreachableReference
 from .hysteresis_eddy import HysteresisEddyModel
@@ -95,33 +98,31 @@ class CompensatorStage:
                                         current_limit_a=self.limit_a)
         return self.learner.retarget(model)
 
-    def _learn(self, estimate: Mapping[str, Any]) -> bool:
+    def _learn(self, estimate: Estimate, window: SampleBlock | None) -> bool:
         """One learning step on the estimate's window, if it was played with the last table; True
         when it gave a new table.  LearningStopped propagates."""
-        window = estimate.get("window")
-        if self.learner is None or not window or int(estimate.get("table", -1)) != self._table_expected:
+        if self.learner is None or window is None or window.n == 0 or estimate.table != self._table_expected:
             return False  # another waveform (ours not yet applied, or someone else's command) played
-        chans = {c: np.asarray(x, float) for c, x in window["channels"].items()
+        chans = {c: np.asarray(x, float) for c, x in window.channels.items()
                  if c in ("force_N", "current_A", "command_V")}
         ref = "command_V" if "command_V" in chans else "current_A"
-        m = measure_period(chans, float(window["fs_Hz"]), float(estimate["frequency_Hz"]), self.current_a,
-                           reference=ref)
+        m = measure_period(chans, window.fs_hz, estimate.frequency_hz, self.current_a, reference=ref)
         self.learner.assess(m, len(self.learner.history))
         self.current_a = self.learner.update(m)
         self.status = "learning"
         return True
 
-    def update(self, estimate: Mapping[str, Any]) -> dict | None:
-        """One estimate in, the state (with a new table when it changed) out."""
+    def update(self, estimate: Estimate, window: SampleBlock | None = None) -> dict | None:
+        """One estimate (and, learning, its window of samples) in, the state (with a new table
+        when it changed) out."""
         if self.stopped:
             return None
-        if estimate.get("error"):
-            self.status = f"waiting: estimate refused ({estimate['error']})"
+        if estimate.error:
+            self.status = f"waiting: estimate refused ({estimate.error})"
             return None
-        try:
-            delay = float(estimate["delays_s"]["hysteresis"])
-            f_est = float(estimate.get("frequency_Hz", self.reference.frequency_hz))
-        except (KeyError, TypeError, ValueError):
+        delay = estimate.delays_s.get("hysteresis", math.nan)
+        f_est = estimate.frequency_hz if math.isfinite(estimate.frequency_hz) else self.reference.frequency_hz
+        if not math.isfinite(delay):
             self.status = "waiting: estimate without a hysteresis delay"
             return None
         self.estimates += 1
@@ -138,7 +139,7 @@ class CompensatorStage:
                 self.status = f"holding the last table: {err}"
         if not send:
             try:
-                send = self._learn(estimate)
+                send = self._learn(estimate, window)
             except LearningStopped as err:
                 self.stopped = True
                 self.status = f"stopped, output off: {err}"
@@ -146,23 +147,23 @@ class CompensatorStage:
         if send:
             self.updates += 1
             # the source applies sends in order: each moves its count on by one
-            self._table_expected = max(self._table_expected, int(estimate.get("table", 0))) + 1
+            self._table_expected = max(self._table_expected, estimate.table) + 1
         state = self.state()
         if send:
-            state["waveform_A"] = self.current_a.copy()
+            state["waveform_a"] = self.current_a.copy()
         return state
 
     def state(self) -> dict:
         th_model = self._model_theta()
-        out = {"model": self.model.kind, "frequency_Hz": self.reference.frequency_hz,
+        out = {"model": self.model.kind, "frequency_hz": self.reference.frequency_hz,
                "reference": self.reference.description, "status": self.status,
                "theta_live_deg": None if self.theta_live is None else math.degrees(self.theta_live),
-               "theta_model_deg": math.degrees(th_model), "peak_current_A": float(np.max(np.abs(self.current_a))),
+               "theta_model_deg": math.degrees(th_model), "peak_current_a": float(np.max(np.abs(self.current_a))),
                "tables_sent": self.updates, "estimates": self.estimates}
         if isinstance(self.model, HysteresisEddyModel):
             out["tau_s"] = self.model.tau_s
         if self.learner is not None and self.learner.history:
             rep = self.learner.history[-1]
-            out["learning"] = {"iteration": rep.iteration, "error_N": rep.max_error_n,
-                               "noise_floor_N": rep.noise_floor_n, "ratio": rep.ratio, "status": rep.status}
+            out["learning"] = {"iteration": rep.iteration, "error_n": rep.max_error_n,
+                               "noise_floor_n": rep.noise_floor_n, "ratio": rep.ratio, "status": rep.status}
         return out

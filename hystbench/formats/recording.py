@@ -29,10 +29,11 @@ import numpy as np
 from ..blocks import CHANNEL_UNITS, BlockFlags, SampleBlock, concatenate
 from ..config import rig_names
 from ..errors import RecordingError
+from ..messages import OperatingPoint
 from .text_chunks import count_line_ends, text_chunks
 
 __all__ = ["REQUIRED_KEYS", "TIME_TOL_PERIODS", "Recording", "read_recording", "write_recording",
-           "read_sweep", "write_sweep", "sweep_stem"]
+           "read_sweep", "write_sweep", "sweep_stem", "sidecar_point", "with_point"]
 
 #: Sidecar keys every recording must have.
 REQUIRED_KEYS = ("rig", "frequency_Hz", "sample_rate_Hz", "current_pp_A")
@@ -449,6 +450,33 @@ def write_recording(rec: Recording, stem: str | Path, *, overwrite: bool = False
             tmp.unlink(missing_ok=True)
     rec.path = stem
     return csv_path, json_path
+
+
+def sidecar_point(metadata: Mapping[str, Any]) -> OperatingPoint:
+    """The nominal operating point a sidecar names: the one place the interchange spellings
+    (``frequency_Hz``, ``current_pp_A``, ``offset_A``) meet the live path's (:mod:`hystbench.messages`);
+    a key the sidecar lacks is NaN (offset: 0)."""
+    get = metadata.get
+    return OperatingPoint(float(get("frequency_Hz", math.nan)), float(get("current_pp_A", math.nan)),
+                          float(get("offset_A", 0.0)))
+
+
+def with_point(metadata: Mapping[str, Any], point: OperatingPoint) -> dict[str, Any]:
+    """The sidecar ``metadata`` for samples played at ``point`` (its NaN fields leave the sidecar's
+    value): output off says ``output_on: false`` and 0 A-pp (the generator's setting is kept as
+    ``generator_current_pp_A``), settling ``settling: true``."""
+    meta = dict(metadata)
+    for value, key in ((point.frequency_hz, "frequency_Hz"), (point.current_pp_a, "current_pp_A"),
+                       (point.offset_a, "offset_A")):
+        if not math.isnan(value):
+            meta[key] = float(value)
+    if not point.output_on:
+        meta["generator_current_pp_A"] = meta.get("current_pp_A", 0.0)
+        meta["current_pp_A"] = 0.0
+        meta["output_on"] = False
+    if point.settling:
+        meta["settling"] = True
+    return meta
 
 
 def sweep_stem(rec: Recording) -> str:

@@ -60,7 +60,7 @@ def _follow_sweep(ests: Subscription, status: Subscription, t_end: float, got: l
             if obj.get("level") == "error":
                 errors.append(str(obj.get("message") or obj.get("event")))
             if obj.get("event") == "sweep_point":
-                points.append(float(obj.get("frequency_Hz", "nan")))
+                points.append(float(obj.get("frequency_hz", "nan")))
             done = done or obj.get("event") in ("sweep_done", "sweep_stopped")
     return points
 
@@ -122,7 +122,7 @@ def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench", 
     by_f: dict[float, list] = {}
     for e in good:
         if e["phases_deg"].get("hysteresis") is not None:
-            by_f.setdefault(e["nominal_frequency_Hz"], []).append(e["phases_deg"]["hysteresis"])
+            by_f.setdefault(e["nominal_frequency_hz"], []).append(e["phases_deg"]["hysteresis"])
     logs = [str(p) for p in paths]
     return {"log": logs, "estimates": len(got), "refused": len(got) - len(good), "error": None, "points": points,
             "hysteresis_deg": {f"{f:g}": sum(v) / len(v) for f, v in sorted(by_f.items()) if v},

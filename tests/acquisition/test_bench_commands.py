@@ -118,7 +118,7 @@ def test_random_commands_never_end_the_service_nor_exceed_the_limit(tmp_path: Pa
         one()
         seen = threading.Event()
         svc.pipeline.listeners.append(lambda topic, obj: seen.set() if topic == "/estimate" and obj[
-            "nominal_frequency_Hz"] == 320.0 and obj["current_pp_A"] == 3.6 else None)
+            "nominal_frequency_hz"] == 320.0 and obj["current_pp_a"] == 3.6 else None)
         for verb, args in (("stop_sweep", {}), ("set_excitation", {"frequency_hz": 320.0, "current_pp_a": 3.6,
                                                                    "offset_a": 0.0}),
                            ("output", {"on": True})):  # the most the bench allows, driven for sure

@@ -57,9 +57,9 @@ def test_set_excitation_and_output_reach_the_rig(bench, capsys) -> None:
             item = sub.get(SAFETY_S)
             assert item is not None, "no estimate at 160 Hz arrived"
             e = json.loads(item[1])
-            if e["nominal_frequency_Hz"] == 160.0 and not e.get("error"):
+            if e["nominal_frequency_hz"] == 160.0 and not e.get("error"):
                 break
-        assert e["current_pp_A"] == pytest.approx(1.0) and e["frequency_Hz"] == pytest.approx(160.0, rel=1e-3)
+        assert e["current_pp_a"] == pytest.approx(1.0) and e["frequency_hz"] == pytest.approx(160.0, rel=1e-3)
     finally:
         sub.close()
         watcher.close()

@@ -22,6 +22,7 @@ from hystbench.acquisition.daemon import load_daemon_config
 from hystbench.formats.mcaplog import RAW, STATUS, iter_blocks, iter_log, log_metadata, recover
 from hystbench.acquisition.zenoh_bus import free_port, load_zenoh_config, open_session, peer_config, query_json
 from hystbench.errors import ConfigError, RecordingError
+from hystbench.messages import Estimate
 
 ROOT = Path(__file__).resolve().parents[2]
 FS = 100_000.0
@@ -272,7 +273,7 @@ def test_after_the_compensator_switched_the_output_off_it_stays_off(tmp_path: Pa
         hook = CompensatorHook(type("Stopped", (), {"update": lambda self, e: {"output_off": True,
                                                                                 "status": "stopped: diverging"}})(),
                                svc.source)
-        assert hook({"error": None}) == {"status": "stopped: diverging", "output_switched_off": True}
+        assert hook(Estimate(0, 1000, 0, 320.0, 1.4)) == {"status": "stopped: diverging", "output_switched_off": True}
         deadline = time.monotonic() + HANG_S  # a safety timeout: the loop ends on the event
         while svc.source.rig.output_enabled and time.monotonic() < deadline:
             time.sleep(0.02)

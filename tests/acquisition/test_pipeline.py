@@ -14,13 +14,14 @@ from hypothesis import strategies as st
 
 from hystbench.cli.main import main as pipeline_main
 from hystbench.acquisition.record import record_log, replay_log
-from hystbench.formats.mcaplog import (ESTIMATE, STATS, McapRecorder, McapSource, iter_blocks, iter_log,
-                                           read_mcap_recording)
+from hystbench.analysis.log_recordings import read_mcap_recording
+from hystbench.formats.mcaplog import ESTIMATE, STATS, McapRecorder, McapSource, iter_blocks, iter_log
 from hystbench.analysis.method import measure_delays
 from hystbench.acquisition.pipeline import CompensatorHook, Pipeline
 from hystbench.acquisition.sources import Controllable, RigSource, Source, SyntheticSource
 from hystbench.acquisition.stages import WindowEstimator
 from hystbench.blocks import SampleBlock, concatenate
+from hystbench.messages import Estimate, OperatingPoint
 from hystbench.sim_backend.rig import SimulatedRig
 
 
@@ -29,10 +30,12 @@ def rig_source(seconds: float = 0.6, block: int = 1000, **kw) -> RigSource:
     return RigSource(rig, block_samples=block, pace="max", duration_s=seconds)
 
 
-def same_estimates(a: list[dict], b: list[dict]) -> None:
-    """Equal, key for key, except the log time (the replay has no recorder clock)."""
+def same_estimates(a: list, b: list) -> None:
+    """Equal, key for key, except the log time (the replay has no recorder clock); estimates as
+    :class:`Estimate` s or as their JSON (from a log or a listener)."""
     assert len(a) == len(b) and a
     for x, y in zip(a, b):
+        x, y = (e.to_json() if isinstance(e, Estimate) else e for e in (x, y))
         assert {k: v for k, v in x.items() if k != "t_ns"} == {k: v for k, v in y.items() if k != "t_ns"}
 
 
@@ -96,13 +99,13 @@ def test_estimator_runs_reset_at_changes_gaps_and_output_off() -> None:
     first = SampleBlock(0, _STREAM.fs_hz, {c: x[:h] for c, x in _STREAM.channels.items()}, meta=_STREAM.meta)
     second = SampleBlock(h + 50, _STREAM.fs_hz, {c: x[h:] for c, x in _STREAM.channels.items()}, meta=_STREAM.meta)
     out = we.push(first) + we.push(second)  # the gap starts a new run: no window straddles it
-    assert out and all(e["end_index"] <= h or e["first_index"] >= h + 50 for e in out)
+    assert out and all(e.end_index <= h or e.first_index >= h + 50 for e in out)
     off = dict(_STREAM.meta, output_on=0.0)
     assert we.push(SampleBlock(n + 100, _STREAM.fs_hz, dict(_STREAM.channels), meta=off)) == []
     flat = {c: np.full(2000, 1.0) for c in _STREAM.channels}  # output "on" but nothing there
     bad = WindowEstimator(_STREAM.fs_hz, meta, periods=4, settle_periods=0, settle_s=0).push(
         SampleBlock(0, _STREAM.fs_hz, flat, meta=_STREAM.meta))
-    assert bad and "flat" in bad[0]["error"]
+    assert bad and "flat" in bad[0].error
 
 
 class _Finished(SyntheticSource):
@@ -224,12 +227,12 @@ class FakeCompensator:
     def __init__(self) -> None:
         self.seen = []
 
-    def update(self, estimate: dict) -> dict:
+    def update(self, estimate: Estimate) -> dict:
         self.seen.append(estimate)
         if len(self.seen) == 2:
             raise RuntimeError("model not ready")
-        return {"gain": 1.0 + len(self.seen), "waveform_A": np.sin(np.linspace(0, 2 * np.pi, 64, endpoint=False)),
-                "frequency_Hz": 320.0}
+        return {"gain": 1.0 + len(self.seen), "waveform_a": np.sin(np.linspace(0, 2 * np.pi, 64, endpoint=False)),
+                "frequency_hz": 320.0}
 
 
 def test_compensator_hook_publishes_state_applies_waveforms_and_survives_errors() -> None:
@@ -244,7 +247,7 @@ def test_compensator_hook_publishes_state_applies_waveforms_and_survives_errors(
     assert pipe.join(30) and pipe.error is None
     assert len(comp.seen) >= 3 and len(states) == len(comp.seen)
     assert "model not ready" in states[1]["error"]
-    assert states[0]["gain"] == 2.0 and states[0]["waveform_applied"] and "waveform_A" not in states[0]
+    assert states[0]["gain"] == 2.0 and states[0]["waveform_applied"] and "waveform_a" not in states[0]
     assert waves and waves[0] == (64, 320.0)
 
 
@@ -351,8 +354,8 @@ def test_every_change_of_what_the_generator_plays_starts_a_new_run() -> None:
         assert b.meta["table"] == step // 3
         out += est.push(b)
     for e in out:  # every window lies within the blocks of its own waveform
-        assert e["table"] == e["first_index"] // span == (e["end_index"] - 1) // span, e
-    assert {e["table"] for e in out} == {0, 1, 2}
+        assert e.table == e.first_index // span == (e.end_index - 1) // span, e
+    assert {e.table for e in out} == {0, 1, 2}
 
 
 def test_a_learning_hook_gets_the_windows_and_the_published_estimates_do_not() -> None:
@@ -362,8 +365,8 @@ def test_a_learning_hook_gets_the_windows_and_the_published_estimates_do_not() -
     class Learner:
         learns = True
 
-        def update(self, estimate: dict) -> None:
-            got.append(estimate)
+        def update(self, estimate: Estimate, window: SampleBlock | None = None) -> None:
+            got.append((estimate, window))
 
     hook = CompensatorHook(Learner(), src)
     est = WindowEstimator(src.fs_hz, src.metadata(), keep_windows=hook.wants_windows)
@@ -373,7 +376,11 @@ def test_a_learning_hook_gets_the_windows_and_the_published_estimates_do_not() -
     pipe.start()
     assert pipe.join(30) and pipe.error is None
     assert published and all("window" not in e and e["table"] == 0 for e in published)
-    w = got[0]["window"]
-    n = got[0]["end_index"] - got[0]["first_index"]
-    assert set(w["channels"]) >= {"current_A", "force_N", "flux_Wb", "command_V"} and w["fs_Hz"] == src.fs_hz
-    assert all(x.size == n for x in w["channels"].values())
+    e, w = got[0]
+    assert isinstance(w, SampleBlock) and w.n == e.end_index - e.first_index and w.first_index == e.first_index
+    assert set(w.channels) >= {"current_A", "force_N", "flux_Wb", "command_V"} and w.fs_hz == src.fs_hz
+    assert OperatingPoint.from_meta(w.meta) == OperatingPoint(320.0, 1.4, table=0)
+    # the window's samples are the source's own (as the ring's float32 held them) from its first index on
+    whole = concatenate(list(rig_source(0.6).blocks()))
+    i = w.first_index - whole.first_index
+    np.testing.assert_array_equal(w.channels["force_N"], whole.channels["force_N"][i:i + w.n].astype(np.float32))

@@ -109,7 +109,7 @@ def test_each_point_gets_its_dwell_in_samples_of_the_source_clock(tmp_path: Path
             if b.meta.get("output_on"):
                 on[b.meta["frequency_hz"]] += b.n
     assert dict(on) == {f: round(DWELL_S * FS) for f in FREQS}, dict(on)
-    per_point = Counter(e["nominal_frequency_Hz"] for e in estimates if not e.get("error"))
+    per_point = Counter(e["nominal_frequency_hz"] for e in estimates if not e.get("error"))
     assert all(per_point[f] > 0 for f in FREQS), per_point
 
 

@@ -17,11 +17,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hystbench.acquisition.daemon import BenchService, load_daemon_config
-from hystbench.acquisition.zenoh_bus import (Subscription, decode_raw, encode_raw, free_port, key, load_zenoh_config,
-                                             open_session, peer_config, query_json, send_command)
+from hystbench.acquisition.zenoh_bus import (Subscription, ZenohBus, free_port, key, load_zenoh_config, open_session,
+                                             peer_config, query_json, send_command)
 from hystbench.blocks import BlockFlags, SampleBlock
 from hystbench.config import CONFIG_DIR
 from hystbench.errors import BenchError, ConfigError
+from hystbench.formats.mcaplog import RAW, iter_blocks
+from hystbench.formats.mcaplog.schemas import SCHEMAS, schema_bytes
+from hystbench.formats.raw_block import decode, encode_binary
+from hystbench.messages import Estimate, OperatingPoint
 
 ROOT = Path(__file__).resolve().parents[2]
 HANG_S = 60.0  # a safety timeout: waits end on their event, only a hang takes this long
@@ -50,12 +54,12 @@ def test_raw_payload_round_trip(n, dtype, first, flags, gap) -> None:
     rng = np.random.default_rng(n)
     blk = SampleBlock(first, 100_000.0, {"current_A": rng.standard_normal(n).astype(dtype),
                                          "flux_Wb": rng.standard_normal(n).astype(dtype)}, flags=flags, gap_samples=gap)
-    payload = encode_raw(blk, ["flux_Wb"])
+    payload = encode_binary(blk, ["flux_Wb"])
     (h,) = np.frombuffer(payload[:4], "<u4")  # the documented layout, read by hand
     head = json.loads(payload[4:4 + h])
     assert head["channels"] == [{"name": "flux_Wb", "unit": "Wb", "dtype": np.dtype(dtype).name}]
     assert len(payload) == 4 + h + n * np.dtype(dtype).itemsize
-    back = decode_raw(payload)
+    back = decode(payload)
     assert (back.first_index, back.flags, back.gap_samples, list(back.channels)) == (first, flags, gap, ["flux_Wb"])
     assert back.channels["flux_Wb"].tobytes() == blk.channels["flux_Wb"].tobytes()
 
@@ -65,8 +69,52 @@ def test_key_space_and_bad_payloads() -> None:
     for bad in ("", "a/b", "x*", "q?"):
         with pytest.raises(ConfigError, match="bench name"):
             key(bad)
-    with pytest.raises(BenchError, match="raw payload"):
-        decode_raw(b"\x05\x00\x00\x00{}")
+    with pytest.raises(BenchError, match="hystbench/t/raw: not a hystbench.RawBlock"):
+        decode(b"\x05\x00\x00\x00{}", "hystbench/t/raw")
+
+
+def test_a_remote_subscriber_sees_the_operating_point_and_the_bytes_decode_through_the_mcap_path(tmp_path) -> None:
+    """A raw block published on zenoh reaches a subscriber in another session over TCP on
+    loopback with its meta (operating point, settling, waveform table) as published; and the very
+    payload it received, put in an MCAP log as a /raw message, reads back through the log reader
+    as the same block (one codec: before, zenoh dropped the meta and its bytes were no RawBlock)."""
+    port = free_port()
+    bus = ZenohBus("t", load_zenoh_config(None, listen=[f"tcp/127.0.0.1:{port}"])).open()
+    s = client(port)
+    sub = Subscription(s, key("t", "raw"))
+    point = OperatingPoint(320.0, 1.4, offset_a=0.1, output_on=True, settling=True, table=3)
+    rng = np.random.default_rng(5)
+    blk = SampleBlock(123_456, 100_000.0, {"current_A": rng.standard_normal(500).astype(np.float32),
+                                           "force_N": rng.standard_normal(500)},
+                      flags=BlockFlags.GAP, gap_samples=17, meta=point.to_meta())
+    try:
+        got, deadline = None, time.monotonic() + HANG_S  # a safety timeout: the loop ends on the delivery
+        while got is None and time.monotonic() < deadline:  # discovery: put until the subscriber has one
+            bus.publish_block(blk)
+            got = sub.get(0.5)
+        assert got is not None, "no raw block reached the subscriber"
+    finally:
+        sub.close()
+        s.close()
+        bus.close()
+    keyexpr, payload, _ = got
+    back = decode(payload, keyexpr)
+    assert OperatingPoint.from_meta(back.meta) == point and dict(back.meta) == point.to_meta()
+    assert (back.first_index, back.fs_hz, back.flags, back.gap_samples) == (123_456, 100_000.0, BlockFlags.GAP, 17)
+    for c, x in blk.channels.items():
+        assert back.channels[c].dtype == x.dtype and back.channels[c].tobytes() == x.tobytes()
+    from mcap.writer import Writer
+
+    with open(tmp_path / "z.mcap", "wb") as fh:  # the received bytes, as they came, in a log
+        w = Writer(fh)
+        w.start(profile="hystbench")
+        schema = w.register_schema(SCHEMAS[RAW][0], "jsonschema", schema_bytes(RAW))
+        w.add_message(w.register_channel(RAW, "json", schema), log_time=0, data=payload, publish_time=0)
+        w.finish()
+    (logged,) = iter_blocks(tmp_path / "z.mcap")
+    assert (logged.first_index, logged.flags, logged.gap_samples, dict(logged.meta)) == \
+        (back.first_index, back.flags, back.gap_samples, dict(back.meta))
+    assert all(logged.channels[c].tobytes() == x.tobytes() for c, x in blk.channels.items())
 
 
 def service(tmp_path: Path, extra: str = "", **kw) -> tuple[BenchService, int]:
@@ -100,12 +148,13 @@ def test_bench_on_zenoh_publishes_answers_and_obeys(tmp_path: Path) -> None:
         assert send_command(s, "t", "start_sweep")["points"] == 2
         with pytest.raises(BenchError, match="a sweep is running"):
             send_command(s, "t", "start_sweep")
-        got = [json.loads(p) for _, p, _ in est.iter(count=4, seconds=HANG_S)]
-        assert len(got) == 4 and all(not e["error"] for e in got)
-        assert {e["nominal_frequency_Hz"] for e in got} <= {160.0, 320.0}
+        got = [Estimate.from_json(json.loads(p)) for _, p, _ in est.iter(count=4, seconds=HANG_S)]
+        assert len(got) == 4 and all(not e.error for e in got)
+        assert {e.nominal_frequency_hz for e in got} <= {160.0, 320.0}
         k, payload, _ = raw.get(HANG_S)
-        blk = decode_raw(payload)
+        blk = decode(payload, k)
         assert k == "hystbench/t/raw" and blk.n == 1000 and blk.fs_hz == 100_000.0
+        assert OperatingPoint.from_meta(blk.meta).current_pp_a == 1.4  # what was played: the configured default
         assert list(blk.channels) == ["current_A", "force_N", "flux_Wb", "sense_V", "command_V"]
         assert seen(status, "sweep_point")
         st_ = json.loads(stats.get(HANG_S)[1])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hystbench.acquisition.record import record_log
-from hystbench.formats.mcaplog import read_mcap_recording
+from hystbench.analysis.log_recordings import read_mcap_recording
 from hystbench.analysis.method import measure_delays
 from hystbench.formats.recording import Recording
 from hystbench.analysis.settling import settling_time_s
@@ -58,7 +58,7 @@ def test_the_first_window_after_output_on_agrees_with_the_steady_state() -> None
     standard error 2-5 fold and biased it)."""
     src = _switched_on(0.6)
     est = WindowEstimator(src.fs_hz, src.metadata(), min_hop_s=0.0)
-    out = [e for b in _stream(src) for e in est.push(b)]
+    out = [e.to_json() for b in _stream(src) for e in est.push(b)]
     assert out and not any(e["error"] for e in out)
     on = round(OFF_S * src.fs_hz)
     first, steady = out[0], out[len(out) // 2:]

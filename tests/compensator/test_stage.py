@@ -5,27 +5,30 @@ import math
 import numpy as np
 import pytest
 
+from hystbench.blocks import SampleBlock
 from hystbench.compensator import CompensatorStage, ForceReference, LearningConfig, NonHysteretic, StaticLaw
+from hystbench.messages import Estimate
 
 REF = "offset=170,amp=40,freq=320"
 
 
-def estimate(theta_deg, f=320.008, error=None):
-    return {"error": error, "frequency_Hz": f, "nominal_frequency_Hz": 320.0, "first_index": 0, "end_index": 1,
-            "delays_s": {"hysteresis": math.radians(theta_deg) / (2 * math.pi * f), "instrument": 6e-6, "total": 1.8e-5}}
+def estimate(theta_deg, f=320.008, error=None, table=0):
+    return Estimate(0, 1, 0, nominal_frequency_hz=320.0, current_pp_a=1.4, table=table, error=error, frequency_hz=f,
+                    delays_s={"hysteresis": math.radians(theta_deg) / (2 * math.pi * f), "instrument": 6e-6,
+                              "total": 1.8e-5})
 
 
 def test_paper_model_follows_the_live_theta_and_resends_only_on_change(models_pm):
     stage = CompensatorStage(models_pm["paper"], ForceReference.parse(REF), current_limit_a=1.8)
     first = stage.update(estimate(1.50))
-    assert first["waveform_A"].shape == (1000,) and first["frequency_Hz"] == 320.0
+    assert first["waveform_a"].shape == (1000,) and first["frequency_hz"] == 320.0
     assert first["theta_live_deg"] == pytest.approx(1.50) and first["theta_model_deg"] == pytest.approx(1.50)
-    assert "waveform_A" not in stage.update(estimate(1.50))
-    assert "waveform_A" not in stage.update(estimate(1.55))  # 0.3 x 0.05 deg: below the retune step
+    assert "waveform_a" not in stage.update(estimate(1.50))
+    assert "waveform_a" not in stage.update(estimate(1.55))  # 0.3 x 0.05 deg: below the retune step
     moved = stage.update(estimate(1.80))
-    assert "waveform_A" in moved and moved["theta_model_deg"] == pytest.approx(moved["theta_live_deg"])
+    assert "waveform_a" in moved and moved["theta_model_deg"] == pytest.approx(moved["theta_live_deg"])
     lead = lambda w: np.degrees(np.angle(np.fft.rfft(w)[1]))  # noqa: E731
-    assert lead(moved["waveform_A"]) > lead(first["waveform_A"])  # more lag measured, more lead given
+    assert lead(moved["waveform_a"]) > lead(first["waveform_a"])  # more lag measured, more lead given
     assert stage.update(estimate(1.5, error="flat channel")) is None
     assert "refused" in stage.state()["status"] and stage.state()["tables_sent"] == 2
 
@@ -35,7 +38,7 @@ def test_our_model_puts_a_drift_of_theta_into_its_eddy_time_constant(models_pm):
     own = stage.state()["theta_model_deg"]
     tau0 = stage.state()["tau_s"]
     s = stage.update(estimate(own + 0.3))
-    assert s["tau_s"] > tau0 and "waveform_A" in s
+    assert s["tau_s"] > tau0 and "waveform_a" in s
     assert s["theta_model_deg"] == pytest.approx(own + 0.3, abs=0.05)
 
 
@@ -54,8 +57,8 @@ def test_stage_with_the_live_estimator(models_pm):
             s = stage.update(e)
             if s is not None:
                 states.append(s)
-                if "waveform_A" in s:
-                    rig.set_waveform(s.pop("waveform_A"), s["frequency_Hz"])
+                if "waveform_a" in s:
+                    rig.set_waveform(s.pop("waveform_a"), s["frequency_hz"])
     assert states and states[0]["tables_sent"] == 1
     assert 1.0 < states[-1]["theta_live_deg"] < 1.8  # flux behind current at 320 Hz with magnet
 
@@ -142,8 +145,7 @@ def run_online(stage, blocks: int):
         if k == blocks:
             break
         est.append(block)
-        for e in est.estimates():
-            window = e.pop("window", None)
+        for e, window in est.windowed():
             if (s := hook(e, window)) is not None:
                 states.append(s)
     return rig, states
@@ -164,7 +166,7 @@ def test_online_learning_takes_the_paper_model_to_the_noise_floor(models_pm):
     assert ratios[0] > 4.0, ratios  # Eq. 6 alone is well above the floor: the learning has work to do
     reached = next(i for i, r in enumerate(ratios) if r <= 2.0)
     assert reached <= 10 and max(ratios[reached:]) <= 3.0, ratios
-    assert steps[-1]["noise_floor_N"] < 0.1  # the sensor's noise (0.03 N rms) averaged over 20 periods
+    assert steps[-1]["noise_floor_n"] < 0.1  # the sensor's noise (0.03 N rms) averaged over 20 periods
     assert rig.output_enabled and states[-1]["status"] == "learning"
     assert states[-1]["tables_sent"] >= len(steps) + 1  # the feed-forward, one per step (and theta retunes)
 
@@ -230,14 +232,14 @@ def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tm
     assert len({e["table"] for e in estimates}) >= 4  # the sine, then a table per step
 
 
-def period_window(table: np.ndarray, fs: float = 100_000.0, f: float = 320.0, periods: int = 20) -> dict:
+def period_window(table: np.ndarray, fs: float = 100_000.0, f: float = 320.0, periods: int = 20) -> SampleBlock:
     """A window of samples playing ``table`` (current and generator output) and a force at the
     reference, as the estimator hands it over."""
     t = np.arange(int(periods * fs / f)) / fs
     phase = np.mod(t * f, 1.0)
     cur = np.interp(phase, np.arange(table.size + 1) / table.size, np.append(table, table[0]))
     force = 170.0 + 40.0 * np.sin(2 * np.pi * phase)
-    return {"fs_Hz": fs, "channels": {"current_A": cur, "command_V": 2 * cur, "force_N": force}}
+    return SampleBlock(0, fs, {"current_A": cur, "command_V": 2 * cur, "force_N": force})
 
 
 def test_learning_uses_only_windows_of_the_last_table_sent(models_pm):
@@ -248,14 +250,14 @@ def test_learning_uses_only_windows_of_the_last_table_sent(models_pm):
                              learning=LearningConfig(), instrument=models_pm.instrument)  # theta: the last estimate's
     win = period_window(stage.current_a)
     learned = lambda: len(stage.learner.history)  # noqa: E731
-    first = stage.update({**estimate(1.5), "table": 0, "window": win})
-    assert "waveform_A" in first and learned() == 0  # the sine's window: nothing to learn from
-    late = stage.update({**estimate(2.5), "table": 0, "window": win})  # theta moved: a second table
-    assert "waveform_A" in late and learned() == 0
-    assert stage.update({**estimate(2.5), "table": 1, "window": win}) is not None and learned() == 0  # the first
-    s = stage.update({**estimate(2.5), "table": 2, "window": period_window(stage.current_a)})
-    assert learned() == 1 and "waveform_A" in s and s["learning"]["iteration"] == 0
-    stage.update({**estimate(2.5), "table": 5, "window": win})  # someone else's command played
+    first = stage.update(estimate(1.5, table=0), win)
+    assert "waveform_a" in first and learned() == 0  # the sine's window: nothing to learn from
+    late = stage.update(estimate(2.5, table=0), win)  # theta moved: a second table
+    assert "waveform_a" in late and learned() == 0
+    assert stage.update(estimate(2.5, table=1), win) is not None and learned() == 0  # the first
+    s = stage.update(estimate(2.5, table=2), period_window(stage.current_a))
+    assert learned() == 1 and "waveform_a" in s and s["learning"]["iteration"] == 0
+    stage.update(estimate(2.5, table=5), win)  # someone else's command played
     assert learned() == 1
 
 
@@ -266,5 +268,5 @@ def test_a_retune_out_of_reach_leaves_the_stage_as_it_was(models_pm):
     model, table = stage.model, stage.current_a.copy()
     stage.limit_a = stage.learner.limit_a = 0.1  # any new table is now out of reach
     s = stage.update(estimate(stage.state()["theta_model_deg"] + 5.0))
-    assert "holding the last table" in s["status"] and "waveform_A" not in s
+    assert "holding the last table" in s["status"] and "waveform_a" not in s
     assert stage.model is model and stage.learner.model is model and np.array_equal(stage.current_a, table)

@@ -14,9 +14,10 @@ from hypothesis import strategies as st
 from mcap.reader import make_reader
 
 from hystbench.cli.main import main as pipeline_main
-from hystbench.formats.mcaplog import (ESTIMATE, RAW, STATUS, TOPICS, McapRecorder, decode_block, encode_block,
-                                           iter_blocks, iter_log, log_metadata, read_mcap_recording,
-                                           read_mcap_segments, recover)
+from hystbench.analysis.log_recordings import read_mcap_recording, read_mcap_segments
+from hystbench.formats.mcaplog import (ESTIMATE, RAW, STATUS, TOPICS, McapRecorder, iter_blocks, iter_log,
+                                       log_metadata, recover)
+from hystbench.formats.raw_block import decode, encode_json
 from hystbench.formats.recording import read_recording
 from hystbench.acquisition.sources import operating_meta
 from hystbench.blocks import BlockFlags, SampleBlock
@@ -62,10 +63,10 @@ def test_raw_block_codec_round_trip_is_exact(arr, first, flags, gap, meta) -> No
     dtype, a, b = arr
     blk = SampleBlock(first, 51_200.0, {"current_A": np.array(a, dtype=dtype), "force_N": np.array(b, dtype=dtype)},
                       flags=flags, gap_samples=gap, meta=meta)
-    data = encode_block(blk)
+    data = encode_json(blk)
     obj = json.loads(data)  # plain JSON, as Foxglove reads it
     assert [c["unit"] for c in obj["channels"]] == ["A", "N"]
-    back = decode_block(data)
+    back = decode(data)
     assert (back.first_index, back.fs_hz, back.flags, back.gap_samples, dict(back.meta)) == \
         (first, 51_200.0, flags, gap, meta)
     for name in blk.channels:
@@ -75,7 +76,7 @@ def test_raw_block_codec_round_trip_is_exact(arr, first, flags, gap, meta) -> No
 
 def test_decode_refuses_garbage_naming_where() -> None:
     with pytest.raises(RecordingError, match="msg 7: not a hystbench.RawBlock"):
-        decode_block(b'{"first_index": 0}', "msg 7")
+        decode(b'{"first_index": 0}', "msg 7")
 
 
 def test_recorder_life_cycle_schemas_and_metadata(tmp_path: Path) -> None:
@@ -237,3 +238,47 @@ def test_unfinished_log_is_refused_with_a_pointer_to_recover(finished_log, tmp_p
     (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all")
     with pytest.raises(RecordingError, match="bad magic"):
         recover(tmp_path / "junk.mcap")
+
+
+def _conforms(value, schema: dict) -> bool:
+    """``value`` is of the JSON schema's type (the subset the log's schemas use), all the way down."""
+    types = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
+    checks = {"null": lambda v: v is None, "boolean": lambda v: isinstance(v, bool),
+              "integer": lambda v: isinstance(v, int) and not isinstance(v, bool),
+              "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+              "string": lambda v: isinstance(v, str),
+              "array": lambda v: isinstance(v, list) and all(_conforms(x, schema["items"]) for x in v),
+              "object": lambda v: isinstance(v, dict) and all(_conforms(x, schema["additionalProperties"])
+                                                              for x in v.values())}
+    return any(checks[t](value) for t in types)
+
+
+def test_the_estimate_schema_in_a_log_is_exactly_the_estimate_type(tmp_path: Path) -> None:
+    """The JSON schema a log registers for /estimate names every field of ``Estimate`` and nothing
+    else, with the fields' types: every estimate the pipeline logged conforms to it, key for key,
+    and reads back as an ``Estimate`` that writes the same JSON."""
+    from dataclasses import fields
+
+    from hystbench.acquisition.pipeline import Pipeline
+    from hystbench.acquisition.sources import SyntheticSource
+    from hystbench.acquisition.stages import WindowEstimator
+    from hystbench.messages import Estimate
+
+    src = SyntheticSource(fs_hz=20_000.0, block_samples=500, pace="max", duration_s=0.3, noise=1e-3, seed=1)
+    with McapRecorder(tmp_path / "e.mcap", metadata={"recording": src.metadata()}) as rec:
+        pipe = Pipeline(src, estimator=WindowEstimator(src.fs_hz, src.metadata(), periods=4.0, min_hop_s=0.0),
+                        recorder=rec).start()
+        assert pipe.join(60) and pipe.error is None
+    with open(tmp_path / "e.mcap", "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    (channel,) = [c for c in summary.channels.values() if c.topic == ESTIMATE]
+    schema = json.loads(summary.schemas[channel.schema_id].data)
+    assert summary.schemas[channel.schema_id].name == schema["title"] == "hystbench.Estimate"
+    assert list(schema["properties"]) == [f.name for f in fields(Estimate)]
+    logged = [m.json() for m in iter_log(tmp_path / "e.mcap", [ESTIMATE])]
+    assert len(logged) >= 5 and not any(e["error"] for e in logged)
+    for e in logged:
+        assert set(e) == set(schema["properties"]) and set(schema["required"]) <= set(e)
+        assert all(_conforms(e[k], p) for k, p in schema["properties"].items()), e
+        assert json.loads(json.dumps(Estimate.from_json(e).to_json())) == e
+        assert e["harmonic"] == 1 and abs(e["delays_s"]["hysteresis"] - 10e-6) < 0.5e-6  # the synthetic flux lag

@@ -1,18 +1,18 @@
 """MCAP logs: the recorder (one log per session, small chunks, rotation), readers, recovery.
 
 - :class:`McapRecorder` — ``start`` -> ``add_block`` / ``add_message`` -> ``finish``; a context manager.
-- :func:`read_mcap_recording`, :func:`read_mcap_segments` — a log as interchange-format recordings.
 - :func:`iter_blocks`, :func:`iter_log`, :func:`log_metadata`, :class:`McapSource` — replay.
+- :func:`segments` — a log's blocks by operating point (:class:`Segment`, each as a recording); the
+  log as the live estimator saw it (settling left out) is :mod:`hystbench.analysis.log_recordings`.
 - :func:`recover` — salvage every complete chunk of a log whose writer was killed.
-- :mod:`.schemas` — topics, JSON schemas, the raw-block codec (documented in docs/pipeline.md).
+- :mod:`.schemas` — topics and JSON schemas (documented in docs/pipeline.md); raw blocks are the
+  JSON framing of :mod:`hystbench.formats.raw_block`.
 """
 
-from .reader import (LogMessage, McapSource, iter_blocks, iter_log, log_metadata, read_mcap_recording,
-                     read_mcap_segments)
+from .reader import LogMessage, McapSource, Segment, iter_blocks, iter_log, log_metadata, segments
 from .recorder import COMPRESSIONS, McapRecorder
 from .recover import RecoverReport, recover
-from .schemas import COMPENSATOR, ESTIMATE, RAW, STATS, STATUS, TOPICS, decode_block, encode_block
+from .schemas import COMPENSATOR, ESTIMATE, RAW, STATS, STATUS, TOPICS
 
-__all__ = ["McapRecorder", "COMPRESSIONS", "read_mcap_recording", "read_mcap_segments", "iter_blocks",
-           "iter_log", "log_metadata", "LogMessage", "McapSource", "recover", "RecoverReport",
-           "encode_block", "decode_block", "RAW", "ESTIMATE", "COMPENSATOR", "STATUS", "STATS", "TOPICS"]
+__all__ = ["McapRecorder", "COMPRESSIONS", "segments", "Segment", "iter_blocks", "iter_log", "log_metadata",
+           "LogMessage", "McapSource", "recover", "RecoverReport", "RAW", "ESTIMATE", "COMPENSATOR", "STATUS", "STATS", "TOPICS"]

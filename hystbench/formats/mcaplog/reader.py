@@ -1,18 +1,17 @@
-"""Reading hystbench MCAP logs: messages, raw blocks, operating-point segments, recordings.
+"""Reading hystbench MCAP logs: messages, raw blocks, operating-point segments, replay.
 
 A log of a whole session may hold several operating points (a sweep) and gaps; a *segment* is a
-run of contiguous raw blocks with one operating point (block meta :data:`OPERATING_KEYS`).  The
-start of each is the bench settling after the change (or after a gap: what happened in it is not
-known): the samples the live estimator skips (:mod:`..settling`; the log's own ``settle_s`` and
-``settle_periods`` when it records them) form a segment of their own, marked ``settling`` and
-left out like the output-off ones, so an offline estimate sees what the live one saw.
-:func:`read_mcap_recording` gives the one segment of a log as a :class:`Recording` (what
-``hystbench estimate LOG.mcap`` needs); :func:`read_mcap_segments` gives them all (``export``).
+run of contiguous raw blocks with one :class:`~hystbench.messages.OperatingPoint` (block meta),
+and :meth:`Segment.recording` gives one as an interchange-format :class:`Recording` with that
+point in its sidecar.  Which samples of a segment the live estimator skipped as settling is the
+analysis' business: :mod:`hystbench.analysis.log_recordings` gives a log's segments as the
+estimator saw them (``hystbench estimate LOG.mcap``, ``export``).
 A log that was not finished (the writer was killed) is refused with a pointer to ``recover``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass
@@ -21,13 +20,12 @@ from typing import Any, Iterable, Iterator
 
 from ...blocks import BlockFlags, SampleBlock
 from ...errors import RecordingError
-from ..recording import Recording
-from ...analysis.settling import settle_samples, settling_time_s
-from ...acquisition.sources import OPERATING_KEYS
-from .schemas import RAW, decode_block
+from ...messages import OperatingPoint
+from ..raw_block import decode
+from ..recording import Recording, with_point
+from .schemas import RAW
 
-__all__ = ["LogMessage", "iter_log", "iter_blocks", "log_metadata", "read_mcap_segments",
-           "read_mcap_recording", "McapSource", "Segment"]
+__all__ = ["LogMessage", "iter_log", "iter_blocks", "log_metadata", "segments", "McapSource", "Segment"]
 
 
 @dataclass(frozen=True)
@@ -92,11 +90,11 @@ def iter_blocks(path: str | Path) -> Iterator[SampleBlock]:
     """The raw sample blocks, in order."""
     path = Path(path)
     for k, m in enumerate(iter_log(path, [RAW])):
-        yield decode_block(m.data, f"{path}: raw message {k}")
+        yield decode(m.data, f"{path}: raw message {k}")
 
 
-def _point(block: SampleBlock) -> tuple:
-    return tuple(block.meta.get(k) for k in OPERATING_KEYS)
+def _point(block: SampleBlock) -> OperatingPoint:
+    return OperatingPoint.from_meta(block.meta)
 
 
 @dataclass
@@ -115,13 +113,18 @@ class Segment:
         return sum(b.n for b in self.blocks)
 
     @property
+    def point(self) -> OperatingPoint:
+        """The operating point of the blocks (the fields their meta lacks: NaN, on, settled)."""
+        return _point(self.blocks[0])
+
+    @property
     def output_off(self) -> bool:
-        return self.blocks[0].meta.get("output_on", 1.0) == 0.0
+        return not self.point.output_on
 
     @property
     def settling(self) -> bool:
         """Samples that may predate a command, or the transient after the segment's start."""
-        return self.transient or bool(self.blocks[0].meta.get("settling"))
+        return self.transient or self.point.settling
 
     @property
     def idle(self) -> bool:
@@ -149,22 +152,12 @@ class Segment:
         """The segment with the operating point its blocks carried (not the log's first one):
         an output-off segment says ``output_on: false`` and 0 A-pp (the generator's setting is
         kept as ``generator_current_pp_A``), a settling one ``settling: true``."""
-        meta = dict(base)
-        m = self.blocks[0].meta
-        for key, meta_key in (("frequency_hz", "frequency_Hz"), ("current_pp_a", "current_pp_A"),
-                              ("offset_a", "offset_A")):
-            if key in m:
-                meta[meta_key] = float(m[key])
-        if self.output_off:
-            meta["generator_current_pp_A"] = meta.get("current_pp_A", 0.0)
-            meta["current_pp_A"] = 0.0
-            meta["output_on"] = False
-        if self.settling:
-            meta["settling"] = True
+        point = self.point
+        meta = with_point(base, dataclasses.replace(point, settling=self.settling))
         meta["sample_rate_Hz"] = self.blocks[0].fs_hz
         meta["mcap_source"] = {"log": str(path), "first_index": self.first_index, "samples": self.n}
-        if "table" in m:  # which waveform the generator played (a count of changes, see sources)
-            meta["mcap_source"]["table"] = int(m["table"])
+        if "table" in self.blocks[0].meta:  # which waveform the generator played (a count of changes, see sources)
+            meta["mcap_source"]["table"] = point.table
         try:
             rec = Recording.from_blocks(self.blocks, meta)
         except RecordingError as err:
@@ -172,7 +165,8 @@ class Segment:
         return rec
 
 
-def _segments(blocks: Iterable[SampleBlock]) -> list[Segment]:
+def segments(blocks: Iterable[SampleBlock]) -> list[Segment]:
+    """Contiguous blocks with one operating point and one set of channels, as segments."""
     out: list[Segment] = []
     for b in blocks:
         if b.n == 0:
@@ -184,77 +178,6 @@ def _segments(blocks: Iterable[SampleBlock]) -> list[Segment]:
         else:
             out.append(Segment([b]))
     return out
-
-
-def _settle(meta: dict[str, dict], base: dict):
-    """(settle_s, settle_periods) of the log: what its live estimator skipped after a change."""
-    est = (meta.get("config") or {}).get("estimation") or {}
-    try:
-        settle_s = float(est["settle_s"]) if "settle_s" in est else settling_time_s(base)
-        periods = float(est.get("settle_periods", 2.0))
-    except (TypeError, ValueError):
-        settle_s, periods = settling_time_s(base), 2.0
-    return settle_s, periods
-
-
-def _split_settling(segs: list[Segment], base: dict, settle_s: float, settle_periods: float) -> list[Segment]:
-    """Each excited segment's first samples (the settling after its start) as a segment of their own."""
-    out: list[Segment] = []
-    for s in segs:
-        if s.idle:
-            out.append(s)
-            continue
-        m = s.blocks[0].meta
-        f = float(m.get("frequency_hz") or base.get("frequency_Hz") or 0.0)
-        fs = s.blocks[0].fs_hz
-        n = settle_samples(settle_s, settle_periods, fs, f)
-        if n <= 0:
-            out.append(s)
-            continue
-        head, rest = s.split(n)
-        out.append(head)
-        if rest is not None:
-            out.append(rest)
-    return out
-
-
-def read_mcap_segments(path: str | Path, *, include_idle: bool = False) -> list[Recording]:
-    """Every segment of the log as a Recording (metadata: the log's ``recording`` record with the
-    segment's operating point); output-off and settling segments only with ``include_idle``."""
-    path = Path(path)
-    meta = log_metadata(path)
-    base = meta.get("recording")
-    if base is None:
-        raise RecordingError(f"{path}: no 'recording' metadata record (rig, frequency_Hz, ...); "
-                             "not a hystbench log?")
-    segs = _split_settling(_segments(iter_blocks(path)), base, *_settle(meta, base))
-    segs = [s for s in segs if include_idle or not s.idle]
-    if not segs:
-        raise RecordingError(f"{path}: no raw samples{'' if include_idle else ' with the output on and settled'}")
-    recs = []
-    for s in segs:
-        rec = s.recording(base, path)
-        rec.path = path
-        recs.append(rec)
-    return recs
-
-
-def read_mcap_recording(path: str | Path, segment: int | None = None) -> Recording:
-    """The log's samples as one Recording: its only segment, or segment number ``segment``."""
-    path = Path(path)
-    recs = read_mcap_segments(path)
-    if segment is None:
-        if len(recs) > 1:
-            points = ", ".join(f"{r.frequency_hz:g} Hz/{r.current_pp_a:g} A-pp" + (
-                f" table {r.metadata['mcap_source']['table']}" if "table" in r.metadata["mcap_source"] else "")
-                for r in recs[:6])
-            raise RecordingError(f"{path}: {len(recs)} segments (operating points or gaps: {points}"
-                                 f"{', ...' if len(recs) > 6 else ''}); choose one, or "
-                                 f"`hystbench export {path} --out DIR` writes each")
-        return recs[0]
-    if not 0 <= segment < len(recs):
-        raise RecordingError(f"{path}: segment {segment} does not exist (0..{len(recs) - 1})")
-    return recs[segment]
 
 
 class McapSource:

@@ -24,7 +24,8 @@ from typing import Any, Mapping
 from ... import __version__
 from ...blocks import BlockFlags, SampleBlock
 from ...errors import RecordingError
-from .schemas import RAW, SCHEMAS, TOPICS, encode_block, json_bytes, schema_bytes
+from ..raw_block import encode_json
+from .schemas import RAW, SCHEMAS, TOPICS, json_bytes, schema_bytes
 
 __all__ = ["McapRecorder", "COMPRESSIONS", "IDLE_RAW", "IDLE_EVERY_S", "IDLE_SNAPSHOT_S"]
 
@@ -167,9 +168,9 @@ class McapRecorder:
         """One raw block (every channel); with the output off, what ``idle_raw`` keeps of it."""
         if self.idle_raw != "full" and not block.meta.get("output_on", 1.0):
             for piece in self._idle_pieces(block):
-                self._add(RAW, encode_block(piece, self.units), self.epoch_ns + piece.t0_ns)
+                self._add(RAW, encode_json(piece, self.units), self.epoch_ns + piece.t0_ns)
             return
-        self._add(RAW, encode_block(block, self.units), self.epoch_ns + block.t0_ns)
+        self._add(RAW, encode_json(block, self.units), self.epoch_ns + block.t0_ns)
         self.raw_end_added = block.end_index
 
     def _idle_pieces(self, block: SampleBlock) -> list[SampleBlock]:

@@ -1,31 +1,25 @@
-"""What goes into a hystbench MCAP log: topics, their JSON schemas, and the raw-block codec.
+"""What goes into a hystbench MCAP log: topics and their JSON schemas.
 
 Every message is JSON (message encoding ``json``) with a ``jsonschema`` schema, which Foxglove and
-the reference readers decode without plug-ins.  A raw sample block carries its samples as one
-base64 string per channel (schema ``contentEncoding: base64``): little-endian ``float32`` or
-``float64`` values, exactly the bytes the pipeline held.  Why not a binary message encoding:
-Foxglove would show nothing of it; base64 costs 33 % before compression and about 1 ms per
-megabyte, and zstd takes most of the 33 % back (the alphabet has 6 bits per character).
+the reference readers decode without plug-ins.  A raw sample block is the JSON framing of the one
+raw-block codec (:mod:`hystbench.formats.raw_block`: samples as base64, exactly the bytes the
+pipeline held); an estimate is :class:`hystbench.messages.Estimate`, its schema derived from the
+class's fields.
 """
 
 from __future__ import annotations
 
-import base64
 import json
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
-from ...blocks import CHANNEL_UNITS, BlockFlags, SampleBlock
-from ...errors import RecordingError
+from ...messages import Estimate
+from ..raw_block import DTYPES
 
-__all__ = ["RAW", "ESTIMATE", "COMPENSATOR", "STATUS", "STATS", "TOPICS", "SCHEMAS",
-           "encode_block", "decode_block"]
+__all__ = ["RAW", "ESTIMATE", "COMPENSATOR", "STATUS", "STATS", "TOPICS", "SCHEMAS", "schema_bytes", "json_bytes"]
 
 RAW, ESTIMATE, COMPENSATOR, STATUS, STATS = "/raw", "/estimate", "/compensator", "/status", "/stats"
-
-
-_DTYPES = {"float32": np.dtype("<f4"), "float64": np.dtype("<f8")}
 
 _RAW_SCHEMA = {
     "title": "hystbench.RawBlock",
@@ -39,7 +33,9 @@ _RAW_SCHEMA = {
         "flags": {"type": "integer", "description": "1 GAP, 2 OVERRUN, 4 CLIP"},
         "flag_names": {"type": "array", "items": {"type": "string"}},
         "gap_samples": {"type": "integer", "description": "sample indices missing just before this block"},
-        "meta": {"type": "object", "additionalProperties": {"type": "number"}},
+        "meta": {"type": "object", "additionalProperties": {"type": "number"},
+                 "description": "the operating point: frequency_hz, current_pp_a, offset_a, output_on (1/0), "
+                                "settling (1 when set), table"},
         "channels": {
             "type": "array",
             "items": {
@@ -47,7 +43,7 @@ _RAW_SCHEMA = {
                 "properties": {
                     "name": {"type": "string"},
                     "unit": {"type": "string"},
-                    "dtype": {"type": "string", "enum": list(_DTYPES)},
+                    "dtype": {"type": "string", "enum": list(DTYPES)},
                     "data": {"type": "string", "contentEncoding": "base64",
                              "description": "n little-endian values of dtype"},
                 },
@@ -58,21 +54,6 @@ _RAW_SCHEMA = {
     "required": ["first_index", "n", "fs_hz", "t0_ns", "flags", "gap_samples", "channels"],
 }
 
-_NUM_MAP = {"type": "object", "additionalProperties": {"type": "number"}}
-_ESTIMATE_SCHEMA = {
-    "title": "hystbench.Estimate",
-    "description": "Delays over one window of whole periods (positive: the later-named signal lags)",
-    "type": "object",
-    "properties": {
-        "first_index": {"type": "integer"}, "end_index": {"type": "integer"}, "t_ns": {"type": "integer"},
-        "frequency_Hz": {"type": "number"}, "frequency_std_Hz": {"type": "number"},
-        "nominal_frequency_Hz": {"type": "number"}, "current_pp_A": {"type": "number"},
-        "harmonic": {"type": "integer"}, "table": {"type": "integer"},
-        "delays_s": _NUM_MAP, "delays_std_s": _NUM_MAP, "phases_deg": _NUM_MAP, "phases_std_deg": _NUM_MAP,
-        "error": {"type": ["string", "null"]},
-    },
-    "required": ["first_index", "end_index", "t_ns"],
-}
 _OBJECT_SCHEMA = {"type": "object", "additionalProperties": True}
 _STATUS_SCHEMA = {
     "title": "hystbench.Status",
@@ -86,7 +67,7 @@ _STATUS_SCHEMA = {
 #: topic -> (schema name, JSON schema)
 SCHEMAS: dict[str, tuple[str, dict]] = {
     RAW: ("hystbench.RawBlock", _RAW_SCHEMA),
-    ESTIMATE: ("hystbench.Estimate", _ESTIMATE_SCHEMA),
+    ESTIMATE: (Estimate.SCHEMA_TITLE, Estimate.json_schema()),
     COMPENSATOR: ("hystbench.CompensatorState", {"title": "hystbench.CompensatorState", **_OBJECT_SCHEMA}),
     STATUS: ("hystbench.Status", _STATUS_SCHEMA),
     STATS: ("hystbench.PipelineStats", {"title": "hystbench.PipelineStats", **_OBJECT_SCHEMA}),
@@ -94,51 +75,8 @@ SCHEMAS: dict[str, tuple[str, dict]] = {
 TOPICS = tuple(SCHEMAS)
 
 
-def _dtype_name(x: np.ndarray) -> str:
-    if x.dtype == np.float32:
-        return "float32"
-    return "float64"
-
-
-def encode_block(block: SampleBlock, units: Mapping[str, str] | None = None) -> bytes:
-    """One raw block as the JSON of ``hystbench.RawBlock`` (built as bytes: the big base64 strings
-    are not scanned again by a JSON encoder)."""
-    units = units or {}
-    head = {"first_index": int(block.first_index), "n": int(block.n), "fs_hz": float(block.fs_hz),
-            "t0_ns": int(block.t0_ns), "flags": int(block.flags),
-            "flag_names": [f.name for f in BlockFlags if f and f in block.flags],
-            "gap_samples": int(block.gap_samples), "meta": {k: float(v) for k, v in block.meta.items()}}
-    parts = [json.dumps(head, allow_nan=False)[:-1].encode(), b',"channels":[']
-    for i, (name, x) in enumerate(block.channels.items()):
-        dt = _dtype_name(np.asarray(x))
-        arr = np.ascontiguousarray(x, dtype=_DTYPES[dt])
-        unit = units.get(name) or CHANNEL_UNITS.get(name) or name.rsplit("_", 1)[-1]
-        desc = json.dumps({"name": name, "unit": unit, "dtype": dt})[:-1].encode()
-        parts += [b"," if i else b"", desc, b',"data":"', base64.b64encode(arr.data), b'"}']
-    parts.append(b"]}")
-    return b"".join(parts)
-
-
-def decode_block(data: bytes | bytearray | memoryview, where: str = "raw block") -> SampleBlock:
-    """The inverse of :func:`encode_block`; a malformed message is a RecordingError naming ``where``."""
-    try:
-        obj = json.loads(data)
-        channels = {}
-        for ch in obj["channels"]:
-            dt = _DTYPES[ch["dtype"]]
-            x = np.frombuffer(base64.b64decode(ch["data"], validate=True), dtype=dt)
-            channels[ch["name"]] = x.astype(dt.newbyteorder("="), copy=False)
-        n = int(obj["n"])
-        if any(x.size != n for x in channels.values()):
-            raise ValueError(f"channel lengths {[x.size for x in channels.values()]} differ from n={n}")
-        return SampleBlock(int(obj["first_index"]), float(obj["fs_hz"]), channels,
-                           flags=BlockFlags(int(obj["flags"])), gap_samples=int(obj["gap_samples"]),
-                           meta=dict(obj.get("meta") or {}))
-    except (ValueError, KeyError, TypeError) as err:
-        raise RecordingError(f"{where}: not a hystbench.RawBlock: {err}") from err
-
-
 def schema_bytes(topic: str) -> bytes:
+    """The JSON schema registered for ``topic``."""
     return json.dumps(SCHEMAS[topic][1]).encode()
 
 
