@@ -1,19 +1,58 @@
-"""One exception tree for the whole service.
+"""One exception tree for the whole service, drawn here once (every class the package defines;
+``tests/test_errors.py`` fails when one is missing from this drawing or off the tree).
 
-    BenchError
-     ├── ConfigError            a preset, bench file or command-line value is wrong (names the key)
-     ├── RecordingError         a recording or log cannot be read or written (names file/line/column)
-     ├── EstimationError        the data cannot give the asked-for estimate (names the recording)
-     ├── SimulationError        the simulated rig cannot follow what it was asked (names rig and why)
-     └── InstrumentError        an instrument misbehaves (names the instrument and command)
-          ├── ConnectionLost
-          ├── ProtocolError
-          └── InstrumentTimeout  (also a TimeoutError)
+    BenchError                           hystbench.errors: the base; the CLI prints it, exit 2
+     ├── ConfigError                     a preset, bench file, daemon file, command-line value or command
+     │                                   argument is wrong (names the file/key/option); config/, physics/
+     │                                   presets, sim_backend/, acquisition/ (bench_commands, daemon,
+     │                                   sources, stages), cli/   (also a ValueError)
+     ├── RecordingError                  a recording or log cannot be read or written (names file/line/
+     │                                   column); formats/, analysis/identification, cli/   (also ValueError)
+     ├── EstimationError                 the data cannot give the asked-for estimate (names the recording);
+     │                                   analysis/   (also a ValueError)
+     ├── SimulationError                 the simulated rig cannot follow what it was asked (names rig and
+     │                                   why); sim_backend/actuators/ecore, cli/main (a clipped ADC)
+     ├── CommandRefused                  a command the bench cannot carry out now: not running, a sweep is
+     │                                   running, the compensator switched the output off, the source takes
+     │                                   no commands (acquisition/service, zenoh_bus); on the client side
+     │                                   (acquisition/control, zenoh_bus.send_command) any ``ok: false``
+     │                                   reply, with the daemon's ``reply``
+     ├── NetworkError                    the zenoh network: an endpoint, a reply
+     │    ├── ListenError                acquisition/zenoh_bus.open_session: a listen endpoint is taken
+     │    └── NoReply                    nobody answered a command or query in time; acquisition/control,
+     │                                   zenoh_bus.send_command   (also a TimeoutError)
+     ├── InstrumentError                 an instrument misbehaves (names the instrument and command)
+     │    ├── ConnectionLost             drivers/base, drivers/stream   (also a ConnectionError)
+     │    ├── ProtocolError              an answer the protocol does not allow; drivers/base, the drivers'
+     │    │    │                         identification checks
+     │    │    └── FrameError            drivers/protocols/framing: bytes that are no valid sample frame
+     │    │                              (also a ValueError)
+     │    ├── InstrumentTimeout          drivers/base, drivers/bench (aligned acquisition)   (also a
+     │    │                              TimeoutError)
+     │    ├── ScpiError                  drivers/signal_generator: the generator's error queue
+     │    ├── ModbusError                drivers/current_amplifier: a Modbus exception response
+     │    ├── ModbusException            drivers/protocols/modbus_map: an emulated register refuses a
+     │    │                              request (the server answers it as an exception response)
+     │    ├── ChargeAmpError             drivers/charge_amplifier: the amplifier's error reply
+     │    ├── IntegratorError            drivers/flux_integrator: the integrator's result code
+     │    ├── SafetyLimitError           drivers/safety: a command would exceed the current limit
+     │    │                              (also a ValueError)
+     │    └── FaultLatched               drivers/current_amplifier: the amplifier reports latched fault
+     │                                   bits; drivers/bench acts on it at once (defined in drivers/base)
+     └── CompensatorError                compensator/: a force model or the loop cannot do what was asked
+          ├── UnreachableReference       compensator/static, learning: a force beyond the actuator
+          │                              (also a ValueError)
+          └── LearningStopped            compensator/learning: the loop stopped itself, output off
 
 Every message names what is at fault; code that converts a lower-level error raises ``... from err``.
+A refusal at run time is a :class:`CommandRefused`, never a :class:`ConfigError`: nothing in the
+files or options is wrong, the bench is busy or off.  The extra bases (``ValueError``,
+``TimeoutError``) keep older ``except`` clauses working; new code catches the tree's classes.
 """
 
 from __future__ import annotations
+
+from typing import Any, Mapping
 
 
 class BenchError(Exception):
@@ -34,6 +73,24 @@ class EstimationError(BenchError, ValueError):
 
 class SimulationError(BenchError):
     """The simulated rig was driven outside the range its physics is solved in."""
+
+
+class CommandRefused(BenchError):
+    """The bench refused a command it cannot carry out in its present state (the same command may
+    succeed later).  ``reply`` is the daemon's ``{"ok": false, "error": ...}`` when the refusal
+    came over zenoh, else empty."""
+
+    def __init__(self, message: str, reply: Mapping[str, Any] | None = None) -> None:
+        super().__init__(message)
+        self.reply = dict(reply or {})
+
+
+class NetworkError(BenchError):
+    """The zenoh network would not carry a request: an endpoint cannot be bound, nobody answers."""
+
+
+class NoReply(NetworkError, TimeoutError):
+    """Nobody answered a command or query within its timeout."""
 
 
 class InstrumentError(BenchError):
@@ -58,6 +115,9 @@ __all__ = [
     "RecordingError",
     "EstimationError",
     "SimulationError",
+    "CommandRefused",
+    "NetworkError",
+    "NoReply",
     "InstrumentError",
     "ConnectionLost",
     "ProtocolError",

@@ -1,9 +1,10 @@
 """Driving a running bench over zenoh: its commands (``cmd/<verb>``) and queries (``health``,
 ``config``), as ``hystbench ctl`` and the demo send them, so nobody needs Python to drive a bench.
 
-A refusal (the daemon answered ``ok: false``) is :class:`Refused`, with the daemon's reason; no
-answer within the timeout is :class:`NoReply`, naming the key expression and the endpoint (no
-daemon there, a different bench name, or access control dropping the query).
+A refusal (the daemon answered ``ok: false``) is :class:`~hystbench.errors.CommandRefused`, with
+the daemon's reason and reply; no answer within the timeout is :class:`~hystbench.errors.NoReply`,
+naming the key expression and the endpoint (no daemon there, a different bench name, or access
+control dropping the query).
 """
 
 from __future__ import annotations
@@ -12,27 +13,17 @@ import threading
 from typing import Any, Mapping, Sequence
 
 from ..deadline import Deadline
-from ..errors import BenchError
+from ..errors import CommandRefused, ConfigError, NoReply
 from .zenoh_bus import COMMANDS, key, load_zenoh_config, open_session, query_json
 
-__all__ = ["DEFAULT_CONNECT", "QUERIES", "NoReply", "Refused", "BenchControl", "open_client", "describe_endpoint"]
+__all__ = ["DEFAULT_CONNECT", "QUERIES", "MAX_TIMEOUT_S", "BenchControl", "open_client", "describe_endpoint"]
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 #: queryables that take no arguments and change nothing
 QUERIES = ("health", "config")
+#: the longest a request may wait (a day): a bound, so that no timeout overflows zenoh's clock
+MAX_TIMEOUT_S = 86_400.0
 _RETRY_S = 0.05  # a session still connecting answers "nobody" at once: ask again after this
-
-
-class NoReply(BenchError):
-    """Nobody answered a command or query within its timeout."""
-
-
-class Refused(BenchError):
-    """The daemon answered and refused (``reply`` is its ``{"ok": false, "error": ...}``)."""
-
-    def __init__(self, message: str, reply: Mapping[str, Any]) -> None:
-        super().__init__(message)
-        self.reply = dict(reply)
 
 
 def describe_endpoint(connect: Sequence[str] | None, zenoh_config: str | None) -> str:
@@ -59,8 +50,8 @@ class BenchControl:
     def __init__(self, bench: str = "bench1", *, connect: Sequence[str] | None = None,
                  zenoh_config: str | None = None, timeout_s: float = 2.0, session=None) -> None:
         key(bench)  # a bad name is refused before anything is opened
-        if not timeout_s > 0:
-            raise BenchError(f"timeout must be > 0 s, got {timeout_s!r}")
+        if not 0 < timeout_s <= MAX_TIMEOUT_S:
+            raise ConfigError(f"timeout must be in (0, {MAX_TIMEOUT_S:g}] s, got {timeout_s!r}")
         self.bench, self.timeout_s = bench, float(timeout_s)
         self.endpoint = describe_endpoint(connect, zenoh_config)
         self._own = session is None
@@ -87,7 +78,7 @@ class BenchControl:
         Asked again while the answer is "nobody" and time is left (a fresh session may not yet
         know the daemon's queryables; such a query reached no one, so nothing runs twice)."""
         if verb not in COMMANDS and verb not in QUERIES:
-            raise BenchError(f"unknown verb {verb!r}; known: {', '.join((*COMMANDS, *QUERIES))}")
+            raise ConfigError(f"unknown verb {verb!r}; known: {', '.join((*COMMANDS, *QUERIES))}")
         k = self.keyexpr(verb)
         payload = dict(args or {}) if verb in COMMANDS else None
         deadline = Deadline(self.timeout_s)
@@ -103,7 +94,7 @@ class BenchControl:
             pause.wait(_RETRY_S)
         reply = replies[0]
         if not reply.get("ok", True):
-            raise Refused(f"bench {self.bench!r} refused {verb}: {reply.get('error')}", reply)
+            raise CommandRefused(f"bench {self.bench!r} refused {verb}: {reply.get('error')}", reply)
         return reply
 
     def health(self) -> dict:

@@ -18,7 +18,7 @@ from collections import deque
 from pathlib import Path
 
 from .. import __version__
-from ..errors import BenchError, ConfigError
+from ..errors import BenchError, CommandRefused, ConfigError
 from .bench_commands import MIN_FREQUENCY_HZ, Limits, Point, check_command
 from .source_config import build_source
 
@@ -257,7 +257,7 @@ class BenchService:
         from .sources import Controllable
 
         if not isinstance(self.source, Controllable):
-            raise ConfigError(f"source {self.source.name!r} takes no commands")
+            raise CommandRefused(f"source {self.source.name!r} takes no commands")
         return self.source
 
     def _tripped(self) -> str:
@@ -265,15 +265,16 @@ class BenchService:
         return str(getattr(getattr(self.pipeline, "compensator", None), "tripped", "") or "")
 
     def command(self, verb: str, args: dict) -> dict:
-        """Run a command; a ConfigError (answered ``ok: false``) says why one is refused.  Every
-        argument is checked before anything is applied."""
+        """Run a command; a refusal (answered ``ok: false``) says why: a ConfigError for what the
+        command asks (checked before anything is applied), a CommandRefused for what the bench
+        cannot do now (not running, a sweep running, the output switched off by the compensator)."""
         if self.pipeline is None or self.state not in ("running", "sweeping"):
-            raise ConfigError(f"bench is {self.state}; try again when it is running")
+            raise CommandRefused(f"bench is {self.state}; try again when it is running")
         src = self._controllable()
         with self._lock:
             ok, point = check_command(verb, args, self.limits, self.point, self.cfg["sweep"])
             if (verb == "start_sweep" or verb == "output" and ok["on"]) and self._tripped():
-                raise ConfigError(f"{verb}: refused, the compensator switched the output off ({self._tripped()}); "
+                raise CommandRefused(f"{verb}: refused, the compensator switched the output off ({self._tripped()}); "
                                   "reload the configuration (SIGHUP) to start again")
             if verb == "set_excitation":
                 src.set_excitation(point.frequency_hz, point.current_pp_a, point.offset_a)
@@ -286,7 +287,7 @@ class BenchService:
                 self._sweep_stop.set()
                 sweep = self._sweep
             elif self._sweep is not None and self._sweep.is_alive():
-                raise ConfigError("start_sweep: a sweep is running; stop_sweep first")
+                raise CommandRefused("start_sweep: a sweep is running; stop_sweep first")
             else:
                 self._sweep_stop = threading.Event()
                 self._sweep = threading.Thread(target=self._run_sweep, args=(ok, self._sweep_stop), name="sweep",

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
 from ..blocks import SampleBlock
-from ..errors import BenchError, ConfigError
+from ..errors import BenchError, CommandRefused, ConfigError, NetworkError, NoReply
 from .bench_commands import COMMANDS as _COMMAND_ARGS
 from ..formats.mcaplog.schemas import json_bytes
 from ..formats.raw_block import BINARY_ENCODING, encode_binary
@@ -111,7 +111,7 @@ def load_zenoh_config(source: str | Path | Mapping | None, *, listen: list[str] 
         raise ConfigError(f"zenoh config {source if source is not None else '(built-in)'}: {err}") from err
 
 
-class ListenError(ConfigError):
+class ListenError(NetworkError):
     """An endpoint to listen on is taken (another daemon, a zenoh router) or cannot be bound."""
 
 
@@ -249,7 +249,7 @@ class ZenohBus:
                 if verb not in COMMANDS:
                     raise ConfigError(f"unknown command {verb!r}; known: {', '.join(COMMANDS)}")
                 if self.on_command is None:
-                    raise ConfigError("this bench takes no commands")
+                    raise CommandRefused("this bench takes no commands")
                 result = self.on_command(verb, args)
                 self.commands += 1
                 query.reply(query.key_expr, json_bytes({"ok": True, **(result or {})}), encoding="application/json")
@@ -330,13 +330,13 @@ def query_json(session, keyexpr: str, payload: Mapping[str, Any] | None = None, 
 
 def send_command(session, bench: str, verb: str, args: Mapping[str, Any] | None = None, *,
                  timeout_s: float = 2.0) -> dict:
-    """Run ``cmd/<verb>`` on a bench; raises BenchError if refused or unanswered (timeout, or
+    """Run ``cmd/<verb>`` on a bench; raises CommandRefused if refused, NoReply if unanswered (timeout, or
     denied by access control: a denied query is dropped, not answered)."""
     replies = query_json(session, key(bench, "cmd", verb), args or {}, timeout_s=timeout_s)
     if not replies:
-        raise BenchError(f"bench {bench!r}: no reply to cmd/{verb} within {timeout_s:g} s "
+        raise NoReply(f"bench {bench!r}: no reply to cmd/{verb} within {timeout_s:g} s "
                          "(daemon not reachable, or access control denies this subject)")
     r = replies[0]
     if not r.get("ok"):
-        raise BenchError(f"bench {bench!r}: cmd/{verb} refused: {r.get('error')}")
+        raise CommandRefused(f"bench {bench!r}: cmd/{verb} refused: {r.get('error')}", r)
     return r

@@ -156,14 +156,15 @@ def _format_reply(bench: str, verb: str, reply: dict) -> str:
 def cmd_ctl(args) -> int:
     """One command or query to a running daemon; exit 1 if it refuses (its reason on stderr),
     2 if nobody answers within ``--timeout``."""
-    from ..acquisition.control import BenchControl, Refused
+    from ..acquisition.control import BenchControl
+    from ..errors import CommandRefused
 
     payload = _ctl_payload(args)
     with BenchControl(args.bench, connect=args.connect, zenoh_config=args.zenoh_config,
                       timeout_s=args.timeout) as ctl:
         try:
             reply = ctl.request("health" if args.verb == "status" else args.verb, payload)
-        except Refused as err:
+        except CommandRefused as err:
             if args.json:
                 print(json.dumps(err.reply), flush=True)
             print(f"hystbench ctl: {err}", file=sys.stderr)

@@ -1,10 +1,5 @@
-"""The compensator's errors, on the service's one tree (all are :class:`BenchError`, so the
-command line turns them into exit status 2 with the message).
-
-    BenchError
-     └── CompensatorError          a model or loop cannot do what was asked (names model and why)
-          ├── UnreachableReference  the actuator cannot produce this force (says why, and what it can)
-          └── LearningStopped       the learning loop stopped itself (output is off; says why)
+"""The compensator's errors, a branch of the service's one tree (drawn in :mod:`hystbench.errors`):
+all are :class:`BenchError`, so the command line turns them into exit status 2 with the message.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from hystbench.acquisition import sd_notify
 from hystbench.acquisition.daemon import load_daemon_config
 from hystbench.formats.mcaplog import RAW, STATUS, iter_blocks, iter_log, log_metadata, recover
 from hystbench.acquisition.zenoh_bus import free_port, load_zenoh_config, open_session, peer_config, query_json
-from hystbench.errors import ConfigError, RecordingError
+from hystbench.errors import CommandRefused, ConfigError, RecordingError
 from hystbench.messages import Estimate
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -280,8 +280,8 @@ def test_after_the_compensator_switched_the_output_off_it_stays_off(tmp_path: Pa
         assert not svc.source.rig.output_enabled  # applied by the source at its next block
         svc.pipeline.compensator = hook
         for verb, args in (("output", {"on": True}), ("start_sweep", {})):
-            with pytest.raises(ConfigError, match=rf"{verb}: refused, the compensator switched the output off "
-                                                  r"\(stopped: diverging\)"):
+            with pytest.raises(CommandRefused, match=rf"{verb}: refused, the compensator switched the output off "
+                                                     r"\(stopped: diverging\)"):
                 svc.command(verb, args)
         assert svc.command("output", {"on": False}) == {"output_on": False}  # off is always allowed
     finally:

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...errors import ProtocolError
+
 __all__ = [
     "MAGIC", "VERSION", "HEADER_SIZE", "OVERHEAD", "MAX_FRAME_SIZE", "FrameError", "Frame",
     "encode_frame", "decode_frame", "frames_from_block", "samples_per_frame_for",
@@ -46,7 +48,7 @@ MAX_FRAME_SIZE = 65536  # a receiver never waits for a frame longer than this
 _SEQ_MOD = 1 << 32
 
 
-class FrameError(ValueError):
+class FrameError(ProtocolError, ValueError):
     """Bytes that are not a valid frame (bad magic, version, length or CRC)."""
 
 

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Callable, Mapping
 
+from ...errors import InstrumentError
+
 __all__ = ["Register", "REGISTERS", "CONTROL", "STATUS", "FAULTS", "MODEL_ID", "EXCEPTIONS",
            "ModbusException", "crc16", "rtu_request_length", "server_response", "mbap", "MBAP"]
 
@@ -74,7 +76,7 @@ EXCEPTIONS = MappingProxyType({1: "ILLEGAL FUNCTION", 2: "ILLEGAL DATA ADDRESS",
                                4: "SERVER DEVICE FAILURE", 6: "SERVER DEVICE BUSY"})
 
 
-class ModbusException(Exception):
+class ModbusException(InstrumentError):
     """Raised by a server's register callbacks: becomes an exception response with ``code``."""
 
     def __init__(self, code: int) -> None:
