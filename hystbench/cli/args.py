@@ -13,7 +13,12 @@ import math
 from typing import Callable
 
 __all__ = ["positive_float", "nonnegative_float", "finite_float", "positive_int", "nonnegative_int",
-           "positive_floats", "float_in"]
+           "positive_floats", "float_in", "float_list_in", "path_arg", "SIM_MAX_IPP_A"]
+
+#: The largest ``--ipp`` the simulated rig takes, A-pp: twice its peak current limit
+#: ``sim_backend.rig.MAX_CURRENT_A`` (not imported: parsing must not load numpy; a test checks
+#: that the two agree).
+SIM_MAX_IPP_A = 2e4
 
 
 def _number(text: str, what: str) -> float:
@@ -63,6 +68,17 @@ def float_in(lo: float, hi: float, *, lo_open: bool = True, hi_open: bool = Fals
     return parse
 
 
+def float_list_in(lo: float, hi: float) -> Callable[[str], list[float]]:
+    """A comma-separated, non-empty list of finite numbers in (lo, hi]."""
+    item = float_in(lo, hi)
+
+    def parse(text: str) -> list[float]:
+        return _items(text, item, f"a number in ({lo:g}, {hi:g}]")
+
+    parse.__name__ = f"numbers in ({lo:g}, {hi:g}]"
+    return parse
+
+
 def _integer(text: str, what: str) -> int:
     try:
         return int(text)
@@ -88,14 +104,26 @@ def nonnegative_int(text: str) -> int:
 
 def positive_floats(text: str) -> list[float]:
     """A comma-separated, non-empty list of finite numbers > 0 (frequencies, amplitudes)."""
+    return _items(text, positive_float, "a finite number > 0")
+
+
+def _items(text: str, item: Callable[[str], float], what: str) -> list[float]:
+    """``text`` split at commas, each part through ``item`` (``what`` it must be, for the message)."""
     parts = [p.strip() for p in text.split(",") if p.strip()]
     if not parts:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers > 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, each {what}, got {text!r}")
     out = []
     for part in parts:
         try:
-            out.append(positive_float(part))
+            out.append(item(part))
         except argparse.ArgumentTypeError:
-            raise argparse.ArgumentTypeError(f"every item must be a finite number > 0, got {part!r} in {text!r}") \
-                from None
+            raise argparse.ArgumentTypeError(f"every item must be {what}, got {part!r} in {text!r}") from None
     return out
+
+
+def path_arg(text: str) -> str:
+    """A file or folder name.  An empty one is refused: to ``pathlib`` it is the current folder,
+    so ``--out ""`` would write into it and ``--model ""`` would quietly mean "none"."""
+    if not text:
+        raise argparse.ArgumentTypeError(f"must be a file or folder name, got {text!r}")
+    return text

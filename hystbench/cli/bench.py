@@ -11,6 +11,7 @@ import signal
 import sys
 import threading
 
+from .args import path_arg
 
 __all__ = ["register", "cmd_emulate"]
 
@@ -19,7 +20,7 @@ def register(subparsers) -> None:
     """Add the bench commands to the CLI's subparsers."""
     p = subparsers.add_parser("emulate", help="run the emulated bench instruments until SIGINT/SIGTERM",
                               description=__doc__.split("\n\n")[1])
-    p.add_argument("--config", default=None, help="bench file (default: the shipped config/bench.toml)")
+    p.add_argument("--config", type=path_arg, default=None, help="bench file (default: the shipped config/bench.toml)")
     p.set_defaults(func=cmd_emulate)
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from .args import float_in, nonnegative_int, positive_float
+from .args import float_in, nonnegative_int, path_arg, positive_float
 
 __all__ = ["register"]
 
@@ -234,8 +234,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("model", help="force models: fit from a sweep, predict a recording's force")
     sub = p.add_subparsers(dest="model_command", required=True)
     q = sub.add_parser("fit", help="fit every force model (Eq. 1, Eq. 6, ours) from a sweep folder")
-    q.add_argument("sweep", help="sweep folder of one E-core rig (NAME.csv + NAME.json per recording)")
-    q.add_argument("--out", required=True, help="model file to write (JSON)")
+    q.add_argument("sweep", type=path_arg, help="sweep folder of one E-core rig (NAME.csv + NAME.json per recording)")
+    q.add_argument("--out", type=path_arg, required=True, help="model file to write (JSON)")
     q.add_argument("--kinds", type=lambda s: [k.strip() for k in s.split(",") if k.strip()],
                    default=list(MODEL_KINDS), help="comma-separated subset of " + ",".join(MODEL_KINDS))
     q.add_argument("--overwrite", action="store_true")
@@ -243,20 +243,20 @@ def register(subparsers) -> None:
     q.set_defaults(func=cmd_model_fit)
     q = sub.add_parser("predict", help="the force a model predicts for a recording's current (as the load cell "
                                        "reports it)")
-    q.add_argument("model", help="model file from `hystbench model fit`")
-    q.add_argument("recording", help="recording (NAME.csv with NAME.json)")
+    q.add_argument("model", type=path_arg, help="model file from `hystbench model fit`")
+    q.add_argument("recording", type=path_arg, help="recording (NAME.csv with NAME.json)")
     q.add_argument("--kind", choices=MODEL_KINDS, default="best")
-    q.add_argument("--out", required=True, help="CSV to write: time_s,force_N")
+    q.add_argument("--out", type=path_arg, required=True, help="CSV to write: time_s,force_N")
     q.add_argument("--overwrite", action="store_true")
     q.set_defaults(func=cmd_model_predict)
 
     p = subparsers.add_parser("compensate", help="feed-forward force control (and learning) on the simulated rig")
     p.add_argument("--rig", default="ecore_pm", help="E-core rig preset (default ecore_pm)")
     p.add_argument("--force", help='periodic force reference, e.g. "offset=170,amp=40,freq=320[,phase=0][,h2=5@90]"')
-    p.add_argument("--force-file", help="one period of force (CSV column force_N), with --freq")
+    p.add_argument("--force-file", type=path_arg, help="one period of force (CSV column force_N), with --freq")
     p.add_argument("--freq", type=positive_float, help="frequency of --force-file's period, Hz")
     p.add_argument("--learn", action="store_true", help="iterative learning on the measured force error")
-    p.add_argument("--model", help="model file (default: identify on the simulated rig first, ~5 s)")
+    p.add_argument("--model", type=path_arg, help="model file (default: identify on the simulated rig first, ~5 s)")
     p.add_argument("--kind", choices=MODEL_KINDS, default="best", help="feed-forward model (default best)")
     p.add_argument("--iterations", type=nonnegative_int, default=10, help="learning iterations (default 10)")
     p.add_argument("--gain", type=float_in(0.0, 1.5), default=0.8,

@@ -14,7 +14,7 @@ from typing import Iterator
 
 from .. import __version__
 from ..errors import BenchError, ConfigError
-from .args import nonnegative_int, positive_float, positive_floats
+from .args import SIM_MAX_IPP_A, float_in, float_list_in, nonnegative_int, path_arg, positive_float, positive_floats
 
 __all__ = ["main"]
 
@@ -150,9 +150,13 @@ def cmd_force_map(args) -> int:
     from ..reports.figures import check_ecore, force_map_figure
     from ..formats.outputs import output_file
 
+    from matplotlib.backend_bases import FigureCanvasBase
+
     out = Path(args.out)
-    if not out.suffix:
-        raise ConfigError(f"--out {out}: give a file name with its format, e.g. {out.name}.png")
+    formats = FigureCanvasBase.get_supported_filetypes()  # what savefig writes, by suffix
+    if out.suffix[1:].lower() not in formats:
+        raise ConfigError(f"--out {out}: give a file name with its format ({', '.join(sorted(formats))}), "
+                          f"e.g. {out.stem if out.suffix else out.name}.png")
     check_ecore(args.rig)  # before a file is touched
     with output_file(out, overwrite=args.overwrite) as tmp:
         force_map_figure(args.rig, tmp)
@@ -234,15 +238,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="write one recording from the simulated rig")
     _add_rig_args(p)
     p.add_argument("--freq", type=positive_float, required=True, help="excitation frequency, Hz")
-    p.add_argument("--ipp", type=positive_float, required=True, help="peak-to-peak current, A")
-    p.add_argument("--out", required=True, help="output stem (writes STEM.csv and STEM.json)")
+    p.add_argument("--ipp", type=float_in(0.0, SIM_MAX_IPP_A), required=True,
+                   help=f"peak-to-peak current, A (at most {SIM_MAX_IPP_A:g})")
+    p.add_argument("--out", type=path_arg, required=True, help="output stem (writes STEM.csv and STEM.json)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("simulate-sweep", help="write a sweep folder from the simulated rig")
     _add_rig_args(p)
     p.add_argument("--freqs", type=positive_floats, default=[40, 80, 160, 320, 480], help="Hz, comma-separated")
-    p.add_argument("--ipp", type=positive_floats, default=[1.4], help="A-pp, comma-separated")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--ipp", type=float_list_in(0.0, SIM_MAX_IPP_A), default=[1.4],
+                   help=f"A-pp, comma-separated (each at most {SIM_MAX_IPP_A:g})")
+    p.add_argument("--out", type=path_arg, required=True, help="output folder")
     p.set_defaults(func=cmd_simulate_sweep)
 
     p = sub.add_parser("effects", help="list the simulated rig's physical effects")
@@ -254,12 +260,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("force-map", help="static force map F(i, z) of an E-core (paper Fig. 3) as PNG")
     p.add_argument("--rig", default="ecore_pm", help="E-core preset (ecore, ecore_pm) or TOML path")
-    p.add_argument("--out", default="force_map.png")
+    p.add_argument("--out", type=path_arg, default="force_map.png")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     p.set_defaults(func=cmd_force_map)
 
     p = sub.add_parser("fit-material", help="hysteresis model vs the real measured B-H loops (PNG + table)")
-    p.add_argument("--out", default="material-fit", help="output folder (with --refit also the fitted TOML files)")
+    p.add_argument("--out", type=path_arg, default="material-fit", help="output folder (with --refit also the fitted TOML files)")
     p.add_argument("--refit", action="store_true",
                    help="fit again instead of using the shipped parameters; the material files go to --out "
                         "(the shipped ones are never rewritten)")
@@ -280,7 +286,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands_compensator.register(sub)  # model fit|predict, compensate
 
     p = sub.add_parser("demo", help="the main job on the embedded simulated rig")
-    p.add_argument("--out", default="demo-output")
+    p.add_argument("--out", type=path_arg, default="demo-output")
     p.set_defaults(func=cmd_demo)
     return parser
 

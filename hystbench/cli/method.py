@@ -12,7 +12,7 @@ import json
 import sys
 from pathlib import Path
 
-from .args import nonnegative_int
+from .args import nonnegative_int, path_arg
 
 __all__ = ["register"]
 
@@ -163,7 +163,7 @@ def cmd_paper(args) -> int:
 def register(subparsers) -> None:
     """Add ``estimate``, ``identify`` and ``paper`` to the ``hystbench`` subcommands."""
     p = subparsers.add_parser("estimate", help="the method's three delays from one recording (paper Sec. III)")
-    p.add_argument("path", help="recording: STEM, STEM.csv or STEM.json, or an MCAP log (LOG.mcap)")
+    p.add_argument("path", type=path_arg, help="recording: STEM, STEM.csv or STEM.json, or an MCAP log (LOG.mcap)")
     p.add_argument("--segment", type=nonnegative_int,
                    help="which operating point of an MCAP log (default: its only one)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -171,12 +171,12 @@ def register(subparsers) -> None:
 
     p = subparsers.add_parser("identify", help="instrument model from voice-coil sweeps, theta_hyst from E-core "
                                                "sweeps (a sweep folder or a folder of sweeps)")
-    p.add_argument("sweep_dir", help="sweep folder (one recording per frequency), or a folder of them")
+    p.add_argument("sweep_dir", type=path_arg, help="sweep folder (one recording per frequency), or a folder of them")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     p.set_defaults(func=cmd_identify)
 
     p = subparsers.add_parser("paper", help="the whole method on the simulated rig, beside the paper's numbers")
-    p.add_argument("--out", default="paper-output", help="folder for figures and paper.json (default paper-output)")
+    p.add_argument("--out", type=path_arg, default="paper-output", help="folder for figures and paper.json (default paper-output)")
     p.add_argument("--quick", action="store_true", help="a reduced grid (a few seconds; for a first look and tests)")
     p.add_argument("--save-recordings", action="store_true",
                    help="also write every simulated sweep under OUT/sweeps/ (about 200 MB)")

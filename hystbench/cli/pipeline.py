@@ -173,30 +173,35 @@ def cmd_ctl(args) -> int:
     return 0
 
 
-def _float_list(text: str) -> list[float]:
+def _keyexpr(text: str) -> str:
+    """A zenoh key expression (``hystbench/*/estimate``), checked by zenoh itself while parsing."""
     import argparse
 
+    import zenoh
+
     try:
-        values = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be numbers separated by commas, got {text!r}") from None
-    if not values:
-        raise argparse.ArgumentTypeError(f"must be at least one number, got {text!r}")
-    return values
+        zenoh.KeyExpr(text)
+    except zenoh.ZError:
+        raise argparse.ArgumentTypeError(f"must be a zenoh key expression such as hystbench/*/estimate (chunks "
+                                         f"separated by single /, none empty), got {text!r}") from None
+    return text
 
 
 def _register_ctl(subparsers) -> None:
     import argparse
+
+    from .args import finite_float, float_in, nonnegative_float, path_arg, positive_float, positive_floats
 
     def client_options(p, top: bool) -> None:
         keep = (lambda v: v) if top else (lambda v: argparse.SUPPRESS)  # given after the verb: still taken
         p.add_argument("--bench", default=keep("bench1"), help="the daemon's [daemon] bench (default bench1)")
         p.add_argument("--connect", action="append", metavar="ENDPOINT", default=keep(None),
                        help=f"endpoint of the daemon (default {DEFAULT_CONNECT}; repeatable)")
-        p.add_argument("--zenoh-config", metavar="FILE", default=keep(None),
+        p.add_argument("--zenoh-config", metavar="FILE", type=path_arg, default=keep(None),
                        help="zenoh json5 config (e.g. with user/password or TLS)")
-        p.add_argument("--timeout", type=float, default=keep(2.0), metavar="S",
-                       help="give up when no daemon answered within S seconds (exit 2; default 2)")
+        p.add_argument("--timeout", type=float_in(0.0, _MAX_TIMEOUT_S), default=keep(2.0), metavar="S",
+                       help=f"give up when no daemon answered within S seconds, at most {_MAX_TIMEOUT_S:g} "
+                            "(exit 2; default 2)")
         p.add_argument("--json", action="store_true", default=keep(False), help="print the reply as JSON")
 
     p = subparsers.add_parser("ctl", help="drive a running daemon: output, sweeps, excitation, status, health, config",
@@ -210,14 +215,14 @@ def _register_ctl(subparsers) -> None:
     v = verbs.add_parser("output", parents=[shared], help="generator output on or off")
     v.add_argument("state", choices=("on", "off"))
     v = verbs.add_parser("start_sweep", parents=[shared], help="run a sweep (defaults: the daemon's [sweep])")
-    v.add_argument("--freqs", type=_float_list, metavar="F1,F2,...", help="frequencies, Hz, comma-separated")
-    v.add_argument("--ipp", type=float, help="peak-to-peak current, A")
-    v.add_argument("--dwell", type=float, metavar="S", help="seconds at each frequency")
+    v.add_argument("--freqs", type=positive_floats, metavar="F1,F2,...", help="frequencies, Hz, comma-separated")
+    v.add_argument("--ipp", type=nonnegative_float, help="peak-to-peak current, A")
+    v.add_argument("--dwell", type=positive_float, metavar="S", help="seconds at each frequency")
     verbs.add_parser("stop_sweep", parents=[shared], help="stop the sweep, output off")
     v = verbs.add_parser("set_excitation", parents=[shared], help="change the excitation (any of its parts)")
-    v.add_argument("--freq", type=float, help="frequency, Hz")
-    v.add_argument("--ipp", type=float, help="peak-to-peak current, A")
-    v.add_argument("--offset", type=float, help="DC offset, A")
+    v.add_argument("--freq", type=positive_float, help="frequency, Hz")
+    v.add_argument("--ipp", type=nonnegative_float, help="peak-to-peak current, A")
+    v.add_argument("--offset", type=finite_float, help="DC offset, A")
     verbs.add_parser("status", parents=[shared], help="one line: state, source, samples, estimates, log")
     verbs.add_parser("health", parents=[shared], help="the health queryable, every field")
     verbs.add_parser("config", parents=[shared], help="the running configuration (JSON)")
@@ -347,16 +352,20 @@ def cmd_daemon(args) -> int:
 
 def register(subparsers) -> None:
     """Add watch, record, replay, export, recover and daemon to the ``hystbench`` parser."""
+    from .args import (SIM_MAX_IPP_A, float_in, nonnegative_float, nonnegative_int, path_arg, positive_float,
+                       positive_int)
+
     p = subparsers.add_parser("watch", help="print live messages of a bench from zenoh (estimates by default)")
-    p.add_argument("keyexpr", nargs="?", default="hystbench/*/estimate",
+    p.add_argument("keyexpr", nargs="?", type=_keyexpr, default="hystbench/*/estimate",
                    help="zenoh key expression (default hystbench/*/estimate; e.g. hystbench/bench1/**)")
     p.add_argument("--connect", action="append", metavar="ENDPOINT",
                    help=f"endpoint of the daemon (default {DEFAULT_CONNECT}; repeatable)")
-    p.add_argument("--zenoh-config", metavar="FILE", help="zenoh json5 config (e.g. with user/password or TLS)")
-    p.add_argument("--count", type=int, help="stop after N messages (exit 1 if fewer came in --seconds)")
-    p.add_argument("--seconds", type=float, help="stop after S seconds")
+    p.add_argument("--zenoh-config", metavar="FILE", type=path_arg,
+                   help="zenoh json5 config (e.g. with user/password or TLS)")
+    p.add_argument("--count", type=positive_int, help="stop after N messages (exit 1 if fewer came in --seconds)")
+    p.add_argument("--seconds", type=positive_float, help="stop after S seconds")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
-    p.add_argument("--quiet-after", type=float, default=5.0, metavar="S",
+    p.add_argument("--quiet-after", type=nonnegative_float, default=5.0, metavar="S",
                    help="say on stderr when nothing arrived for S seconds (default 5; 0: never)")
     p.set_defaults(func=cmd_watch)
     _register_ctl(subparsers)
@@ -364,16 +373,18 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("record", help="record the configured source to an MCAP log (no daemon)")
     from .args import nonnegative_int, positive_float, positive_int
 
-    p.add_argument("--out", required=True, help="the log, e.g. run.mcap")
-    p.add_argument("--seconds", type=positive_float, default=2.0, help="how long (default 2)")
+    p.add_argument("--out", type=path_arg, required=True, help="the log, e.g. run.mcap")
+    p.add_argument("--seconds", type=float_in(0.0, MAX_RECORD_S), default=2.0,
+                   help=f"how long (default 2, at most {MAX_RECORD_S:g})")
     p.add_argument("--source", choices=("bench", "sim", "synthetic"), default="bench",
                    help="bench (default): the instruments of --bench-file through the drivers, emulated when the "
                         "file says backend = \"sim\" (the shipped one does); sim: the simulated rig directly; "
                         "synthetic: precomputed sines")
-    p.add_argument("--bench-file", help="bench file for --source bench (default: hystbench/config/bench.toml)")
+    p.add_argument("--bench-file", type=path_arg, help="bench file for --source bench (default: hystbench/config/bench.toml)")
     p.add_argument("--rig", default="ecore_pm")
     p.add_argument("--freq", type=positive_float, default=320.0, help="excitation frequency, Hz (default 320)")
-    p.add_argument("--ipp", type=positive_float, default=1.4, help="peak-to-peak current, A (default 1.4)")
+    p.add_argument("--ipp", type=float_in(0.0, SIM_MAX_IPP_A), default=1.4,
+                   help=f"peak-to-peak current, A (default 1.4, at most {SIM_MAX_IPP_A:g})")
     p.add_argument("--fs", type=positive_float, default=100_000.0, help="sample rate, Hz (default 100000)")
     p.add_argument("--block", type=positive_int, default=1000, help="samples per source block (default 1000)")
     p.add_argument("--pace", choices=("realtime", "max"), default="realtime")
@@ -385,28 +396,28 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_record)
 
     p = subparsers.add_parser("replay", help="feed an MCAP log through the pipeline again")
-    p.add_argument("log")
+    p.add_argument("log", type=path_arg)
     p.add_argument("--speed", choices=("realtime", "max"), default="max")
-    p.add_argument("--out", help="record the replay (with its estimates) to this log")
+    p.add_argument("--out", type=path_arg, help="record the replay (with its estimates) to this log")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--json", action="store_true", help="print the estimates as JSON")
     p.set_defaults(func=cmd_replay)
 
     p = subparsers.add_parser("export", help="write an MCAP log's segments as interchange-format recordings")
-    p.add_argument("log")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("log", type=path_arg)
+    p.add_argument("--out", type=path_arg, required=True, help="output folder")
     p.add_argument("--include-idle", action="store_true",
                    help="also segments with the output off (STEM_off) and the settling after each change (STEM_settling)")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_export)
 
     p = subparsers.add_parser("recover", help="salvage the complete chunks of a log whose writer was killed")
-    p.add_argument("log")
-    p.add_argument("--out", help="the salvaged log (default LOG-recovered.mcap)")
+    p.add_argument("log", type=path_arg)
+    p.add_argument("--out", type=path_arg, help="the salvaged log (default LOG-recovered.mcap)")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_recover)
 
     p = subparsers.add_parser("daemon", help="run the bench daemon (systemd-ready; SIGHUP reloads)")
-    p.add_argument("--config", help="daemon TOML (default: built-in defaults, the simulated rig)")
+    p.add_argument("--config", type=path_arg, help="daemon TOML (default: built-in defaults, the simulated rig)")
     p.set_defaults(func=cmd_daemon)

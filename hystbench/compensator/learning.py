@@ -30,6 +30,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ..errors import ConfigError
 from ..physics.instrument import InstrumentModel
 from .errors import LearningStopped, UnreachableReference
 from .models import ForceModel
@@ -50,10 +51,11 @@ class LearningConfig:
 
     def __post_init__(self) -> None:
         if not 0.0 < self.gain <= 1.5:
-            raise ValueError(f"learning gain must be in (0, 1.5], got {self.gain}")
-        if self.iterations < 0 or self.max_harmonic < 1 or (self.band_hz is not None and self.band_hz <= 0) \
-                or self.diverge_ratio <= 1:
-            raise ValueError("iterations >= 0, max_harmonic >= 1, band_hz > 0 and diverge_ratio > 1 are required")
+            raise ConfigError(f"learning gain must be in (0, 1.5], got {self.gain}")
+        if self.iterations < 0 or self.max_harmonic < 1 or (self.band_hz is not None and not self.band_hz > 0) \
+                or not self.diverge_ratio > 1:
+            raise ConfigError("iterations >= 0, max_harmonic >= 1, band_hz > 0 and diverge_ratio > 1 are required, "
+                              f"got {self.iterations}, {self.max_harmonic}, {self.band_hz}, {self.diverge_ratio}")
 
 
 @dataclass(frozen=True)

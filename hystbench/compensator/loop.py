@@ -16,17 +16,21 @@ from typing import Callable
 import numpy as np
 
 from ..analysis.periodic import estimate_frequency
+from ..errors import ConfigError
 from ..physics.instrument import InstrumentModel
 from .actuation import Actuation
-from .errors import LearningStopped
+from .errors import CompensatorError, LearningStopped
 from .learning import IterationReport, LearningConfig, LearningController
 from .models import ForceModel
 from .periodic import measure_period
 from .reference import ForceReference
 
-__all__ = ["LoopResult", "run_closed_loop", "MEASURE_CHANNELS"]
+__all__ = ["LoopResult", "run_closed_loop", "MEASURE_CHANNELS", "MAX_MEASURE_S"]
 
 MEASURE_CHANNELS = ("force_N", "current_A", "command_V")
+#: The longest one measurement may take: each averages at least 4 periods, so a reference slower
+#: than 4 / MAX_MEASURE_S Hz cannot be measured (and its sample counts would overflow).
+MAX_MEASURE_S = 60.0
 
 
 @dataclass
@@ -50,6 +54,11 @@ def run_closed_loop(actuation: Actuation, model: ForceModel, reference: ForceRef
                     on_iteration: Callable[[IterationReport], None] | None = None) -> LoopResult:
     """Run the loop (see the module docstring); the output is left on unless learning stopped."""
     f = reference.frequency_hz
+    if not 0 < measure_s <= MAX_MEASURE_S:
+        raise ConfigError(f"measure_s must be in (0, {MAX_MEASURE_S:g}] s, got {measure_s!r}")
+    if 4.0 / f > MAX_MEASURE_S:
+        raise CompensatorError(f"a reference at {f:g} Hz needs {4.0 / f:.4g} s per measurement (4 periods), more "
+                               f"than {MAX_MEASURE_S:g} s; its frequency must be at least {4.0 / MAX_MEASURE_S:g} Hz")
     ctrl = LearningController(model, reference, instrument, actuation.current_limit_a, config)
     settle = int(round((settle_s if settle_s is not None else max(0.05, 4.0 / f)) * actuation.fs_hz))
     n_meas = int(round(max(measure_s, 4.0 / f) * actuation.fs_hz))

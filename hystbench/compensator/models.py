@@ -188,6 +188,8 @@ class ModelSet:
             raise ConfigError(f"{path}: cannot read the model file: {err}") from err
         except json.JSONDecodeError as err:
             raise ConfigError(f"{path}: not JSON: {err}") from err
+        except UnicodeDecodeError as err:  # a binary file given as the model
+            raise ConfigError(f"{path}: not a model file (not UTF-8 text: {err.reason} at byte {err.start})") from err
         if not isinstance(d, dict) or d.get("format") != FORMAT:
             raise ConfigError(f"{path}: not a hystbench model file (format {FORMAT!r} expected)")
         try:

@@ -10,6 +10,7 @@ piezoelectric load cell cannot see a static force, so nothing could be learned o
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,9 +102,14 @@ class ForceReference:
         """One period from a CSV file with a header naming ``column`` (other columns ignored)."""
         path = Path(path)
         try:
-            data = np.genfromtxt(path, delimiter=",", names=True)
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", UserWarning)  # numpy only warns about an empty file
+                data = np.genfromtxt(path, delimiter=",", names=True)
         except (OSError, ValueError) as err:
             raise ConfigError(f"{path}: cannot read a force table: {err}") from err
+        except UserWarning as err:
+            raise ConfigError(f"{path}: cannot read a force table: the file is empty (it needs a header "
+                              f"naming {column!r}, then one period of values)") from err
         if data.dtype.names is None or column not in data.dtype.names:
             raise ConfigError(f"{path}: no column {column!r}; it has {list(data.dtype.names or [])}")
         values = np.atleast_1d(data[column]).astype(float)

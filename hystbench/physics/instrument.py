@@ -32,9 +32,13 @@ def resonance_pair(f_hz: float, zeta_pole: float, zeta_zero: float) -> tuple[np.
 
 
 def bilinear_sos(b: np.ndarray, a: np.ndarray, fs_hz: float, prewarp_hz: float | None = None) -> np.ndarray:
-    """Bilinear transform of one section to an SOS row, optionally pre-warped at ``prewarp_hz``."""
+    """Bilinear transform of one section to an SOS row, optionally pre-warped at ``prewarp_hz``.
+
+    A pre-warp frequency at or above fs/2 has no digital frequency to match (tan diverges there):
+    the section is then transformed without pre-warping, which keeps the low-frequency response
+    (a load cell's resonance above the Nyquist frequency of a slow recording is still a lag)."""
     fs_eff = fs_hz
-    if prewarp_hz is not None:
+    if prewarp_hz is not None and prewarp_hz < fs_hz / 2:
         wp = 2 * np.pi * prewarp_hz
         fs_eff = wp / (2 * np.tan(wp / (2 * fs_hz)))
     bz, az = signal.bilinear(b, a, fs=fs_eff)

@@ -27,6 +27,12 @@ DEFAULT_FS_HZ = 100_000.0
 #: The generator's clock against the ADC's: they are independent, so the true excitation
 #: frequency is off by this much (a typical crystal tolerance).  Estimators must not assume it.
 DEFAULT_GENERATOR_CLOCK_PPM = 25.0
+#: The largest peak coil current the rig simulates, A: beyond any bench amplifier, still far inside
+#: the range where the iron model's numbers stay finite (they overflow somewhere above 1e12 A).
+MAX_CURRENT_A = 1e4
+#: The most samples the rig computes to settle before sample 0 (5 periods, at least 50 ms): a lower
+#: frequency or a higher rate would take hours, or overflow the sample index.
+MAX_WARMUP_SAMPLES = 10_000_000
 
 
 class SimulatedRig:
@@ -67,6 +73,10 @@ class SimulatedRig:
         if warmup_s is not None and not (math.isfinite(warmup_s) and warmup_s >= 0):
             raise ConfigError(f"{self.name}: warmup_s must be a finite number of seconds >= 0, got {warmup_s}")
         warm = warmup_s if warmup_s is not None else max(0.05, 5.0 / self.frequency_hz)
+        if warm * self.fs_hz > MAX_WARMUP_SAMPLES:
+            raise ConfigError(f"{self.name}: settling {warm:.4g} s (5 periods of {self.frequency_hz:g} Hz, at least "
+                              f"50 ms) before sample 0 at fs {self.fs_hz:g} Hz is {warm * self.fs_hz:.3g} samples, "
+                              f"more than {MAX_WARMUP_SAMPLES:.0e}: raise the frequency or lower the sample rate")
         self._next_index = -int(math.ceil(warm * self.fs_hz))
         while self._next_index < 0:  # settle hysteresis memory and filters before sample 0
             self._generate(min(-self._next_index, 50_000))
@@ -75,19 +85,21 @@ class SimulatedRig:
     def set_excitation(self, frequency_hz: float | None = None, current_pp_a: float | None = None,
                        offset_a: float | None = None) -> None:
         """Sine current command; the phase runs on continuously across changes, as a generator's does."""
-        if frequency_hz is not None:
-            if not 0 < frequency_hz < self.fs_hz / 2:  # also refuses NaN and inf
-                raise ConfigError(f"{self.name}: excitation frequency {frequency_hz} Hz must be in "
-                                  f"(0, fs/2 = {self.fs_hz / 2} Hz)")
+        if frequency_hz is not None and not 0 < frequency_hz < self.fs_hz / 2:  # also refuses NaN and inf
+            raise ConfigError(f"{self.name}: excitation frequency {frequency_hz} Hz must be in "
+                              f"(0, fs/2 = {self.fs_hz / 2} Hz)")
+        if current_pp_a is not None and not (math.isfinite(current_pp_a) and current_pp_a >= 0):
+            raise ConfigError(f"{self.name}: current_pp_a must be a finite number of A >= 0, got {current_pp_a}")
+        if offset_a is not None and not math.isfinite(offset_a):
+            raise ConfigError(f"{self.name}: offset_a must be a finite number of A, got {offset_a}")
+        ipp = float(self.current_pp_a if current_pp_a is None else current_pp_a)
+        offset = float(self.offset_a if offset_a is None else offset_a)
+        if abs(offset) + ipp / 2 > MAX_CURRENT_A:
+            raise ConfigError(f"{self.name}: peak current |offset_a| + current_pp_a/2 = {abs(offset) + ipp / 2:.4g} A "
+                              f"is above the {MAX_CURRENT_A:g} A the simulated rig drives")
+        if frequency_hz is not None:  # all checked: nothing changes on a refusal
             self.frequency_hz = float(frequency_hz)
-        if current_pp_a is not None:
-            if not (math.isfinite(current_pp_a) and current_pp_a >= 0):
-                raise ConfigError(f"{self.name}: current_pp_a must be a finite number of A >= 0, got {current_pp_a}")
-            self.current_pp_a = float(current_pp_a)
-        if offset_a is not None:
-            if not math.isfinite(offset_a):
-                raise ConfigError(f"{self.name}: offset_a must be a finite number of A, got {offset_a}")
-            self.offset_a = float(offset_a)
+        self.current_pp_a, self.offset_a = ipp, offset
         self._waveform = None
         self._dc_flux = self.actuator.dc_flux_wb(self.offset_a)
         self._tell_period()
@@ -98,6 +110,9 @@ class SimulatedRig:
         table = np.asarray(current_a, dtype=float)
         if table.ndim != 1 or table.size < 4 or not np.all(np.isfinite(table)):
             raise ConfigError("waveform must be a finite 1-D table of at least 4 samples")
+        if np.max(np.abs(table)) > MAX_CURRENT_A:
+            raise ConfigError(f"{self.name}: waveform peak {np.max(np.abs(table)):.4g} A is above the {MAX_CURRENT_A:g} A "
+                              "the simulated rig drives")
         self.set_excitation(frequency_hz=frequency_hz)
         self._waveform = table
         self._dc_flux = self.actuator.dc_flux_wb(float(table.mean()))
