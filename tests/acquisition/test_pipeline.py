@@ -384,3 +384,27 @@ def test_a_learning_hook_gets_the_windows_and_the_published_estimates_do_not() -
     whole = concatenate(list(rig_source(0.6).blocks()))
     i = w.first_index - whole.first_index
     np.testing.assert_array_equal(w.channels["force_N"], whole.channels["force_N"][i:i + w.n].astype(np.float32))
+
+
+def test_the_estimator_reads_the_rig_preset_when_made_not_for_each_window(monkeypatch) -> None:
+    """Each window used to be wrapped in a Recording, which checked the sidecar against the rig
+    presets, and the method then read the rig's TOML again: for every window.  What the estimator
+    needs of the preset (an E-core? a magnet?) is read when it is made; windows read none."""
+    import hystbench.acquisition.stages as stages
+    import hystbench.analysis.method as method
+    import hystbench.analysis.settling as settling
+    import hystbench.config as config
+    import hystbench.formats.recording as recording
+
+    reads: list[str] = []
+    for mod, name in ((config, "load_rig"), (stages, "load_rig"), (method, "load_rig"), (settling, "load_rig"),
+                      (recording, "rig_names")):
+        real = getattr(mod, name)  # the real reader runs; the spy only counts
+        monkeypatch.setattr(mod, name, lambda *a, _real=real, _name=name, **kw: (reads.append(_name), _real(*a, **kw))[1])
+    est = WindowEstimator(_STREAM.fs_hz, _src.metadata(), periods=4, min_hop_s=0)
+    assert reads  # made: the preset is read
+    reads.clear()
+    out = est.push(_STREAM)
+    assert len(out) >= 10 and not any(e.error for e in out)
+    assert reads == []
+    assert out == WindowEstimator(_STREAM.fs_hz, _src.metadata(), periods=4, min_hop_s=0).push(_STREAM)

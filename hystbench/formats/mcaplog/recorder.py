@@ -24,6 +24,7 @@ from typing import Any, Mapping
 from ... import __version__
 from ...blocks import BlockFlags, SampleBlock
 from ...errors import RecordingError
+from ...messages import OperatingPoint
 from ..raw_block import encode_json
 from .schemas import RAW, SCHEMAS, TOPICS, json_bytes, schema_bytes
 
@@ -166,7 +167,7 @@ class McapRecorder:
     # --- messages --------------------------------------------------------------------------------
     def add_block(self, block: SampleBlock) -> None:
         """One raw block (every channel); with the output off, what ``idle_raw`` keeps of it."""
-        if self.idle_raw != "full" and not block.meta.get("output_on", 1.0):
+        if self.idle_raw != "full" and not OperatingPoint.from_meta(block.meta).output_on:
             for piece in self._idle_pieces(block):
                 self._add(RAW, encode_json(piece, self.units), self.epoch_ns + piece.t0_ns)
             return
