@@ -140,7 +140,8 @@ def json_schema(cls: type, title: str, description: str = "") -> dict[str, Any]:
     hints = _hints(cls)
     props = {}
     for f in fields(cls):
-        props[f.name] = {**_schema_of(hints[f.name]), **({"description": f.metadata["doc"]} if "doc" in f.metadata else {})}
+        doc = {"description": f.metadata["doc"]} if "doc" in f.metadata else {}
+        props[f.name] = {**_schema_of(hints[f.name]), **doc}
     required = [f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING]
     schema = {"title": title, "type": "object", "properties": props, "required": required}
     if description:

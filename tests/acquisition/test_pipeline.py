@@ -400,7 +400,8 @@ def test_the_estimator_reads_the_rig_preset_when_made_not_for_each_window(monkey
     for mod, name in ((config, "load_rig"), (stages, "load_rig"), (method, "load_rig"), (settling, "load_rig"),
                       (recording, "rig_names")):
         real = getattr(mod, name)  # the real reader runs; the spy only counts
-        monkeypatch.setattr(mod, name, lambda *a, _real=real, _name=name, **kw: (reads.append(_name), _real(*a, **kw))[1])
+        monkeypatch.setattr(mod, name,
+                            lambda *a, _real=real, _name=name, **kw: (reads.append(_name), _real(*a, **kw))[1])
     est = WindowEstimator(_STREAM.fs_hz, _src.metadata(), periods=4, min_hop_s=0)
     assert reads  # made: the preset is read
     reads.clear()

@@ -15,4 +15,5 @@ from .recover import RecoverReport, recover
 from .schemas import COMPENSATOR, ESTIMATE, RAW, STATS, STATUS, TOPICS
 
 __all__ = ["McapRecorder", "COMPRESSIONS", "segments", "Segment", "iter_blocks", "iter_log", "log_metadata",
-           "LogMessage", "McapSource", "recover", "RecoverReport", "RAW", "ESTIMATE", "COMPENSATOR", "STATUS", "STATS", "TOPICS"]
+           "LogMessage", "McapSource", "recover", "RecoverReport",
+           "RAW", "ESTIMATE", "COMPENSATOR", "STATUS", "STATS", "TOPICS"]
