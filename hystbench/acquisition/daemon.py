@@ -32,6 +32,7 @@ from ..config import read_toml
 from ..config.schema import NUM, Key, check_table
 from ..errors import BenchError, ConfigError, InstrumentError
 from ..formats.mcaplog.recorder import COMPRESSIONS, IDLE_RAW
+from .bench_commands import MAX_DWELL_S
 from .sd_notify import Notifier
 from .service import BenchService
 from .source_config import build_source, check_source
@@ -55,7 +56,8 @@ DEFAULTS: dict[str, dict[str, Key]] = {
         "log_dir": Key(str, "", "folder of the MCAP logs, one per session: <bench>-<start time>-NNNN.mcap; \"\": "
                        "the state directory's logs folder ($STATE_DIRECTORY under systemd, else "
                        "$XDG_STATE_HOME/hystbench or ~/.local/state/hystbench)"),
-        "stats_interval_s": Key(_NUM, 1.0, "period of the pipeline counters on hystbench/<bench>/stats", "s", gt=0),
+        "stats_interval_s": Key(_NUM, 1.0, "period of the pipeline counters on hystbench/<bench>/stats", "s", gt=0,
+                                le=3600),
     },
     "source": {
         "kind": Key(str, "bench", "bench: the instruments of bench_file through the drivers; sim: the simulated "
@@ -73,17 +75,21 @@ DEFAULTS: dict[str, dict[str, Key]] = {
                     choices=("realtime", "max")),
         "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false } (kind = bench: "
                        "emulated only, replacing the bench file's [sim] effects)"),
-        "ring_seconds": Key(_NUM, 2.0, "how far a stage may fall behind before it loses samples", "s", gt=0),
+        "ring_seconds": Key(_NUM, 2.0, "how far a stage may fall behind before it loses samples", "s", gt=0,
+                            le=60),
         "bench_file": Key(str, "", "kind = bench only: the bench file (\"\": hystbench/config/bench.toml, every "
                           "instrument emulated)"),
     },
     "estimation": {
         "enabled": Key(bool, True, "estimate the delays live (hystbench/<bench>/estimate)"),
-        "periods": Key(_NUM, 10.0, "window length in whole periods of the excitation", "periods", gt=0),
-        "hop_periods": Key(_NUM, 10.0, "one estimate per this many periods ...", "periods", gt=0),
-        "min_hop_s": Key(_NUM, 0.1, "... but at most one per this time", "s", ge=0),
-        "settle_periods": Key(_NUM, 2.0, "skipped after each change of operating point", "periods", ge=0),
-        "max_fs_hz": Key(_NUM, 100_000.0, "above this rate channels are averaged down before fitting", "Hz", gt=0),
+        "periods": Key(_NUM, 10.0, "window length in whole periods of the excitation", "periods", ge=2,
+                       le=1000),
+        "hop_periods": Key(_NUM, 10.0, "one estimate per this many periods ...", "periods", gt=0, le=1000),
+        "min_hop_s": Key(_NUM, 0.1, "... but at most one per this time", "s", ge=0, le=3600),
+        "settle_periods": Key(_NUM, 2.0, "skipped after each change of operating point", "periods", ge=0,
+                              le=1000),
+        "max_fs_hz": Key(_NUM, 100_000.0, "above this rate channels are averaged down before fitting", "Hz",
+                         ge=1000),
     },
     "recording": {
         "enabled": Key(bool, True, "write the MCAP log"),
@@ -113,7 +119,7 @@ DEFAULTS: dict[str, dict[str, Key]] = {
         "frequencies_hz": Key(list, [40.0, 80.0, 160.0, 320.0, 480.0], "what cmd/start_sweep runs when not told "
                               "otherwise", "Hz", items=Key(_NUM, None, "frequencies", "Hz", gt=0), nonempty=True),
         "current_pp_a": Key(_NUM, 1.4, "sweep current, peak to peak", "A", ge=0),
-        "dwell_s": Key(_NUM, 1.0, "time at each frequency", "s", gt=0),
+        "dwell_s": Key(_NUM, 1.0, "time at each frequency", "s", gt=0, le=MAX_DWELL_S),
         "autostart": Key(bool, False, "start one sweep when the daemon starts"),
     },
     "compensator": {

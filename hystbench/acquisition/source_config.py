@@ -72,6 +72,11 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
             refuse("effects", 'synthetic sines have no physical effects; use kind = "sim" or "bench"')
         if kind == "sim":
             _validate_effects(s["effects"], where, s["fs_hz"])
+        from .sources import MAX_BLOCK_SAMPLES
+
+        if s["block_samples"] > MAX_BLOCK_SAMPLES:
+            refuse("block_samples", f"must be at most {MAX_BLOCK_SAMPLES:.0e} (a block is computed and held whole), "
+                                    f"got {s['block_samples']}")
         limits = Limits(s["fs_hz"], bench_file_limits().max_current_a)
     check_frequency(f"{where} [source] frequency_hz", s["frequency_hz"], limits)
     check_current(f"{where} [source]", Point(s["frequency_hz"], s["current_pp_a"]), limits)

@@ -92,6 +92,11 @@ def _paced(blocks: Iterator[SampleBlock], fs_hz: float, pace: str, stop: threadi
         yield b
 
 
+#: The largest block a simulated source makes at once (10 s at 100 kS/s): a block is computed and
+#: held whole, so a billion samples would never come (nor fit in memory).
+MAX_BLOCK_SAMPLES = 1_000_000
+
+
 class RigSource:
     """The simulated rig as a source; commands are queued and applied between blocks."""
 
@@ -100,8 +105,8 @@ class RigSource:
                  max_current_a: float | None = None) -> None:
         if pace not in ("max", "realtime"):
             raise ConfigError(f"pace must be 'max' or 'realtime', got {pace!r}")
-        if block_samples < 1:
-            raise ConfigError(f"block_samples must be >= 1, got {block_samples}")
+        if not 1 <= block_samples <= MAX_BLOCK_SAMPLES:
+            raise ConfigError(f"block_samples must be in [1, {MAX_BLOCK_SAMPLES:.0e}], got {block_samples}")
         self.rig = rig
         self.name = f"simulated rig {rig.name}"
         self.channels = list(rig.channels)

@@ -13,7 +13,7 @@ import math
 from typing import Callable
 
 __all__ = ["positive_float", "nonnegative_float", "finite_float", "positive_int", "nonnegative_int",
-           "positive_floats", "float_in", "float_list_in", "path_arg", "SIM_MAX_IPP_A"]
+           "positive_floats", "float_in", "float_list_in", "int_in", "path_arg", "SIM_MAX_IPP_A"]
 
 #: The largest ``--ipp`` the simulated rig takes, A-pp: twice its peak current limit
 #: ``sim_backend.rig.MAX_CURRENT_A`` (not imported: parsing must not load numpy; a test checks
@@ -92,6 +92,19 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
     return value
+
+
+def int_in(lo: int, hi: int) -> Callable[[str], int]:
+    """A whole number in [lo, hi], e.g. ``int_in(1, 1_000_000)`` for a block size."""
+
+    def parse(text: str) -> int:
+        value = _integer(text, f"a whole number in [{lo:g}, {hi:g}]")
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be a whole number in [{lo:g}, {hi:g}], got {text!r}")
+        return value
+
+    parse.__name__ = f"whole number in [{lo:g}, {hi:g}]"
+    return parse
 
 
 def nonnegative_int(text: str) -> int:

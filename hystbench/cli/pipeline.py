@@ -24,6 +24,7 @@ _MAX_TIMEOUT_S = 86_400.0  # acquisition.control.MAX_TIMEOUT_S (not imported her
 #: the longest ``record`` runs, s (about 30 years): a bound, so that seconds x rate stays a count of
 #: samples (1e308 s was "cannot convert float infinity to integer"); the daemon is for open-ended runs
 MAX_RECORD_S = 1e9
+MAX_BLOCK_SAMPLES = 1_000_000  # acquisition.sources.MAX_BLOCK_SAMPLES (not imported here: it loads numpy)
 
 
 # --- printing ------------------------------------------------------------------------------------------
@@ -352,8 +353,8 @@ def cmd_daemon(args) -> int:
 
 def register(subparsers) -> None:
     """Add watch, record, replay, export, recover and daemon to the ``hystbench`` parser."""
-    from .args import (SIM_MAX_IPP_A, float_in, nonnegative_float, nonnegative_int, path_arg, positive_float,
-                       positive_int)
+    from .args import (SIM_MAX_IPP_A, float_in, int_in, nonnegative_float, nonnegative_int, path_arg,
+                       positive_float, positive_int)
 
     p = subparsers.add_parser("watch", help="print live messages of a bench from zenoh (estimates by default)")
     p.add_argument("keyexpr", nargs="?", type=_keyexpr, default="hystbench/*/estimate",
@@ -386,7 +387,8 @@ def register(subparsers) -> None:
     p.add_argument("--ipp", type=float_in(0.0, SIM_MAX_IPP_A), default=1.4,
                    help=f"peak-to-peak current, A (default 1.4, at most {SIM_MAX_IPP_A:g})")
     p.add_argument("--fs", type=positive_float, default=100_000.0, help="sample rate, Hz (default 100000)")
-    p.add_argument("--block", type=positive_int, default=1000, help="samples per source block (default 1000)")
+    p.add_argument("--block", type=int_in(1, MAX_BLOCK_SAMPLES), default=1000,
+                   help=f"samples per source block (default 1000, at most {MAX_BLOCK_SAMPLES:g})")
     p.add_argument("--pace", choices=("realtime", "max"), default="realtime")
     p.add_argument("--seed", type=nonnegative_int, default=0)
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE")

@@ -49,6 +49,8 @@ CASES = [
     ("record --fs 100 (load cell above fs/2)", ["record", "--source", "sim", "--rig", "ecore", "--fs", "100",
                                                 "--pace", "max", "--seconds", "0.1", "--out", "TMP/out/r.mcap"],
      ["excitation frequency 320", "fs/2 = 50"]),
+    ("record --block 1e9", ["record", "--source", "sim", "--block", "1000000000", "--out", "TMP/out/r.mcap"],
+     ["argument --block", "'1000000000'"]),
     ("record --seconds 1e308", ["record", "--source", "synthetic", "--pace", "max", "--seconds", "1e308", "--out",
                                 "TMP/out/r.mcap"], ["argument --seconds", "'1e308'"]),
     ("record synthetic --fs 1e308", ["record", "--source", "synthetic", "--fs", "1e308", "--out", "TMP/out/r.mcap"],
@@ -89,6 +91,22 @@ CASES = [
     ("daemon [compensator] model = GARBAGE", ["daemon", "--config", "DAEMON_TOML"], ["garbage.bin", "not a model file"]),
 ]
 
+#: Daemon files with one value out of what the daemon can run (section, key = value, words): each
+#: was accepted, then an OverflowError or MemoryError traceback while building the ring, or six
+#: faults of the running pipeline and exit 1, or blocks too large to ever be generated.
+DAEMON_VALUES = [
+    ("source", "ring_seconds = 1e308", "must be in (0, 60]"),
+    ("source", "ring_seconds = 1e6", "must be in (0, 60]"),
+    ("source", "block_samples = 1000000000", "must be at most 1e+06"),
+    ("daemon", "stats_interval_s = 1e308", "must be in (0, 3600]"),
+    ("estimation", "periods = 1e308", "must be in [2, 1000]"),
+    ("estimation", "hop_periods = 1e308", "must be in (0, 1000]"),
+    ("estimation", "settle_periods = 1e308", "must be in [0, 1000]"),
+    ("estimation", "min_hop_s = 1e308", "must be in [0, 3600]"),
+    ("estimation", "max_fs_hz = 1e-300", "must be >= 1000"),
+    ("sweep", "dwell_s = 1e308", "must be in (0, 86400]"),
+]
+
 
 def _files(tmp_path: Path, model_file: Path) -> dict[str, str]:
     garbage = tmp_path / "garbage.bin"
@@ -120,12 +138,35 @@ def test_edge_values_are_refused_with_one_line_naming_the_option(tmp_path, monke
     assert sorted(tmp_path.rglob("*")) == before  # nothing written, not even a folder
 
 
+@pytest.mark.parametrize("section, setting, words", DAEMON_VALUES, ids=[f"[{s}] {k}" for s, k, _ in DAEMON_VALUES])
+def test_a_daemon_file_value_the_daemon_cannot_run_is_refused_at_load(tmp_path, capsys, section, setting, words):
+    toml = tmp_path / "daemon.toml"
+    tables = {"daemon": f'bench = "errs"\nlog_dir = "{(tmp_path / "logs").as_posix()}"', "source": 'kind = "sim"',
+              "recording": "enabled = false", "zenoh": "enabled = false"}
+    tables[section] = "\n".join(filter(None, [tables.get(section), setting]))
+    toml.write_text("".join(f"[{name}]\n{body}\n" for name, body in tables.items()), encoding="utf-8")
+    code = main(["daemon", "--config", str(toml)])
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ": error: " in ln]
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    key = setting.split(" = ")[0]
+    assert f"{toml} [{section}] {key}: {words}" in lines[0]
+    assert not (tmp_path / "logs").exists()  # refused before anything was opened
+
+
 def test_the_parsers_current_bound_is_the_rigs():
     """``--ipp`` is bounded while parsing (no numpy there) by the rig's own limit."""
     from hystbench.cli.args import SIM_MAX_IPP_A
     from hystbench.sim_backend.rig import MAX_CURRENT_A
 
     assert SIM_MAX_IPP_A == 2 * MAX_CURRENT_A
+
+
+def test_records_block_bound_is_the_sources():
+    from hystbench.acquisition.sources import MAX_BLOCK_SAMPLES
+    from hystbench.cli import pipeline
+
+    assert pipeline.MAX_BLOCK_SAMPLES == MAX_BLOCK_SAMPLES
 
 
 def test_ctls_timeout_bound_is_the_clients():
