@@ -98,14 +98,17 @@ CATALOGUE: Mapping[str, Effect] = MappingProxyType({e.name: e for e in [
        frequencies_hz=Key(list, [850.0, 1175.0], "the modes' frequencies, each below fs/2", "Hz",
                           items=Key(NUM, None, "frequencies", "Hz", gt=0.0)),
        zeta=_num(0.02, "damping ratio of each mode", gt=0.0, le=1.0),
-       depth=_num(0.2, "gain 1 + depth at each mode: > 0 a peak, < 0 a dip (-1 would be a perfect notch)",
-                  gt=-1.0)),
+       depth=_num(0.2, "gain 1 + depth at each mode: > 0 a peak, < 0 a dip (-1 would be a perfect notch); "
+                  "at most 100 (40 dB: a frame mode, not a second load cell)", gt=-1.0, le=100.0)),
     _e("charge_amp_highpass",
        "piezo charge leaks through the charge amplifier's time constant: force high-passed",
-       "time_constant_s", time_constant_s=_num(1.0, "the charge amplifier's time constant", "s", gt=0.0)),
+       "time_constant_s", time_constant_s=_num(1.0, "the charge amplifier's time constant (a long one: "
+                                                 "1e5 s; beyond 1e6 s no high-pass is left to simulate)", "s",
+                                                 gt=0.0, le=1e6)),
     _e("integrator_leak",
        "the flux integrator is lossy (1/(s + 1/tau)): flux high-passed, a phase lead at low f",
-       "time_constant_s", time_constant_s=_num(1.0, "the integrator's leak time constant", "s", gt=0.0)),
+       "time_constant_s", time_constant_s=_num(1.0, "the integrator's leak time constant (beyond 1e6 s: no "
+                                                 "leak left to simulate)", "s", gt=0.0, le=1e6)),
     _e("channel_skew",
        "the ADC channels are not sampled at the same instant: per-channel delays in seconds",
        **{ch: _skew(d, ch) for (ch, _, _), d in zip(_CHANNELS, (0.0, 2e-6, 1e-6, 0.0, 0.0))}),
@@ -115,7 +118,8 @@ CATALOGUE: Mapping[str, Effect] = MappingProxyType({e.name: e for e in [
        drift_n_per_s=_num(0.01, "drift of the offset", "N/s")),
     _e("magnet_thermal_drift",
        "magnet remanence falls as the magnet warms: bias force drifts", "kelvin_per_s",
-       kelvin_per_s=_num(0.01, "the magnet's warming rate", "K/s"),
+       kelvin_per_s=_num(0.01, "the magnet's warming rate (a few K per minute; 10 K/s is already a fault)",
+                         "K/s", ge=-10.0, le=10.0),
        # reversible Br coefficient: -0.03 (SmCo) to -0.2 %/K (ferrite); magnets lose remanence when warmed
        remanence_tc_per_k=_num(-0.0012, "relative change of remanence per kelvin", "1/K", ge=-0.01, le=0.0)),
     _e("load_cell_compliance",

@@ -55,6 +55,13 @@ CASES = [
                                 "TMP/out/r.mcap"], ["argument --seconds", "'1e308'"]),
     ("record synthetic --fs 1e308", ["record", "--source", "synthetic", "--fs", "1e308", "--out", "TMP/out/r.mcap"],
      ["1e+308 S/s", "lower fs_hz"]),
+    # effect parameters whose range had no upper end: the filters' numbers overflowed (LinAlgError),
+    # the magnet's flux ran out of the iron model's range (IndexError)
+    *[(f"simulate --effect {e}", SIM[:2] + ["ecore_pm"] + SIM[3:] + ["--effect", e], [f"--effect {p}: must be in"])
+      for e, p in (("frame_resonance=1e308", "frame_resonance.depth"),
+                   ("charge_amp_highpass=1e30", "charge_amp_highpass.time_constant_s"),
+                   ("integrator_leak=1e30", "integrator_leak.time_constant_s"),
+                   ("magnet_thermal_drift=1e30", "magnet_thermal_drift.kelvin_per_s"))],
     # an empty name: pathlib's "." (a ValueError, or the current folder written into)
     ("simulate --out ''", SIM[:-1] + [""], ["argument --out", "''"]),
     ("simulate-sweep --out ''", ["simulate-sweep", "--out", ""], ["argument --out", "''"]),
