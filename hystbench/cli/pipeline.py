@@ -372,8 +372,6 @@ def register(subparsers) -> None:
     _register_ctl(subparsers)
 
     p = subparsers.add_parser("record", help="record the configured source to an MCAP log (no daemon)")
-    from .args import nonnegative_int, positive_float, positive_int
-
     p.add_argument("--out", type=path_arg, required=True, help="the log, e.g. run.mcap")
     p.add_argument("--seconds", type=float_in(0.0, MAX_RECORD_S), default=2.0,
                    help=f"how long (default 2, at most {MAX_RECORD_S:g})")
