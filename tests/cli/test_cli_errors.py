@@ -129,10 +129,11 @@ def _files(tmp_path: Path, model_file: Path) -> dict[str, str]:
 
 
 @pytest.mark.parametrize("argv, words", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
-def test_edge_values_are_refused_with_one_line_naming_the_option(tmp_path, monkeypatch, capsys, model_file,
-                                                                 argv, words):
+def test_edge_values_are_refused_with_one_line_naming_the_option(tmp_path, tmp_path_factory, monkeypatch, capsys,
+                                                                 model_file, argv, words):
     files = _files(tmp_path, model_file)
     monkeypatch.chdir(tmp_path)  # an empty name must not become this folder, written into
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path_factory.mktemp("state")))  # the daemon's lock, not ~'s
     before = sorted(tmp_path.rglob("*"))
     args = [files.get(a, a.replace("TMP/", f"{tmp_path}/")) for a in argv]
     code = main(args)
@@ -146,7 +147,9 @@ def test_edge_values_are_refused_with_one_line_naming_the_option(tmp_path, monke
 
 
 @pytest.mark.parametrize("section, setting, words", DAEMON_VALUES, ids=[f"[{s}] {k}" for s, k, _ in DAEMON_VALUES])
-def test_a_daemon_file_value_the_daemon_cannot_run_is_refused_at_load(tmp_path, capsys, section, setting, words):
+def test_a_daemon_file_value_the_daemon_cannot_run_is_refused_at_load(tmp_path, monkeypatch, capsys, section, setting,
+                                                                      words):
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path / "state"))  # the daemon's lock, not the user's
     toml = tmp_path / "daemon.toml"
     tables = {"daemon": f'bench = "errs"\nlog_dir = "{(tmp_path / "logs").as_posix()}"', "source": 'kind = "sim"',
               "recording": "enabled = false", "zenoh": "enabled = false"}
