@@ -265,7 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_force_map)
 
     p = sub.add_parser("fit-material", help="hysteresis model vs the real measured B-H loops (PNG + table)")
-    p.add_argument("--out", type=path_arg, default="material-fit", help="output folder (with --refit also the fitted TOML files)")
+    p.add_argument("--out", type=path_arg, default="material-fit",
+                   help="output folder (with --refit also the fitted TOML files)")
     p.add_argument("--refit", action="store_true",
                    help="fit again instead of using the shipped parameters; the material files go to --out "
                         "(the shipped ones are never rewritten)")

@@ -176,7 +176,8 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_identify)
 
     p = subparsers.add_parser("paper", help="the whole method on the simulated rig, beside the paper's numbers")
-    p.add_argument("--out", type=path_arg, default="paper-output", help="folder for figures and paper.json (default paper-output)")
+    p.add_argument("--out", type=path_arg, default="paper-output",
+                   help="folder for figures and paper.json (default paper-output)")
     p.add_argument("--quick", action="store_true", help="a reduced grid (a few seconds; for a first look and tests)")
     p.add_argument("--save-recordings", action="store_true",
                    help="also write every simulated sweep under OUT/sweeps/ (about 200 MB)")

@@ -379,7 +379,8 @@ def register(subparsers) -> None:
                    help="bench (default): the instruments of --bench-file through the drivers, emulated when the "
                         "file says backend = \"sim\" (the shipped one does); sim: the simulated rig directly; "
                         "synthetic: precomputed sines")
-    p.add_argument("--bench-file", type=path_arg, help="bench file for --source bench (default: hystbench/config/bench.toml)")
+    p.add_argument("--bench-file", type=path_arg,
+                   help="bench file for --source bench (default: hystbench/config/bench.toml)")
     p.add_argument("--rig", default="ecore_pm")
     p.add_argument("--freq", type=positive_float, default=320.0, help="excitation frequency, Hz (default 320)")
     p.add_argument("--ipp", type=float_in(0.0, SIM_MAX_IPP_A), default=1.4,

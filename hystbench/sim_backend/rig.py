@@ -111,8 +111,8 @@ class SimulatedRig:
         if table.ndim != 1 or table.size < 4 or not np.all(np.isfinite(table)):
             raise ConfigError("waveform must be a finite 1-D table of at least 4 samples")
         if np.max(np.abs(table)) > MAX_CURRENT_A:
-            raise ConfigError(f"{self.name}: waveform peak {np.max(np.abs(table)):.4g} A is above the {MAX_CURRENT_A:g} A "
-                              "the simulated rig drives")
+            raise ConfigError(f"{self.name}: waveform peak {np.max(np.abs(table)):.4g} A is above the "
+                              f"{MAX_CURRENT_A:g} A the simulated rig drives")
         self.set_excitation(frequency_hz=frequency_hz)
         self._waveform = table
         self._dc_flux = self.actuator.dc_flux_wb(float(table.mean()))

@@ -95,7 +95,8 @@ CASES = [
     ("ctl set_excitation --offset inf", ["ctl", "--connect", DEAD, "--timeout", "0.2", "set_excitation",
                                          "--offset", "inf"], ["argument --offset", "'inf'"]),
     # the daemon's compensator given a binary file as its model
-    ("daemon [compensator] model = GARBAGE", ["daemon", "--config", "DAEMON_TOML"], ["garbage.bin", "not a model file"]),
+    ("daemon [compensator] model = GARBAGE", ["daemon", "--config", "DAEMON_TOML"],
+     ["garbage.bin", "not a model file"]),
 ]
 
 #: Daemon files with one value out of what the daemon can run (section, key = value, words): each
