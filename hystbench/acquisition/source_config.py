@@ -9,7 +9,7 @@
 - ``kind = "sim"``: the simulated rig directly; ``bench_file`` is refused (nothing reads it).
 - ``kind = "synthetic"``: precomputed sines; ``bench_file`` and ``effects`` are refused.
 
-Effects are checked by the effect catalogue (:func:`~hystbench.sim_backend.effects.validate_effects`),
+Effects are checked by the effect catalogue (:func:`~hystbench.config.effects.validate_effects`),
 the excitation and the sweep against the bench's limits (:mod:`.bench_commands`): a value the
 daemon would refuse as a command is refused in its file already.
 """
@@ -36,7 +36,7 @@ def bench_file_limits(bench_file: str | None = None) -> Limits:
 
 
 def _validate_effects(effects: dict, where: str, fs_hz: float) -> None:
-    from ..sim_backend.effects import validate_effects
+    from ..config.effects import validate_effects
 
     validate_effects(effects, f"{where} [source] effects", fs_hz=fs_hz)
 

@@ -37,7 +37,7 @@ SETTLE_TIME_CONSTANTS = 10.0
 
 def _time_constants(metadata: Mapping[str, Any]) -> list[float]:
     """Every time constant (s) of the rig's force and flux measurement chains."""
-    from ..sim_backend.effects import resolve_effects
+    from ..config.effects import resolve_effects
     from ..sim_backend.measurement import instrument_from_preset
 
     try:

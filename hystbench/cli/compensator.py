@@ -133,7 +133,7 @@ def cmd_compensate(args) -> int:
     from ..compensator.sweeps import FIT_GRID, quick_models
     from ..drivers.protocols.bench_config import load_bench_config
     from ..reports.console import progress
-    from ..sim_backend.effects import parse_effect_args
+    from ..config.effects import parse_effect_args
 
     ref = _reference(args)
     effects = parse_effect_args(args.effect)

@@ -49,7 +49,7 @@ def _simulate_one(args, freq_hz: float, ipp_a: float, seed: int):
     """One recording of the simulated rig; a clipped one is refused before anything is written (a
     channel beyond its ADC full scale is not a measurement), naming the option to change."""
     from ..errors import SimulationError
-    from ..sim_backend.effects import parse_effect_args
+    from ..config.effects import parse_effect_args
     from ..sim_backend.recordings import clipped_channels, simulate_recording
 
     rec = simulate_recording(args.rig, freq_hz, ipp_a, args.duration, fs_hz=args.fs, seed=seed,
@@ -105,7 +105,7 @@ def cmd_effects(args) -> int:
 
     from ..reports.console import console
 
-    from ..sim_backend.effects import CATALOGUE
+    from ..config.effects import CATALOGUE
 
     table = Table(title="physical effects of the simulated rig (off unless a preset or --effect turns them on)")
     for col in ("name", "what it is", "parameters: default, range"):

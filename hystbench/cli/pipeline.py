@@ -243,7 +243,7 @@ def _source_from_args(args):
         src.set_excitation(frequency_hz=args.freq, current_pp_a=args.ipp)
         src.set_output(True)
         return src
-    from ..sim_backend.effects import parse_effect_args
+    from ..config.effects import parse_effect_args
     from ..sim_backend.rig import SimulatedRig
 
     rig = SimulatedRig(args.rig, fs_hz=args.fs, seed=args.seed, effects=parse_effect_args(args.effect),
