@@ -345,6 +345,15 @@ def _quiet_broken_pipe() -> None:
         pass
 
 
+def _os_error_line(err: OSError) -> str:
+    """``PATH: reason`` (the path first, as every other message names its file), not Python's
+    ``[Errno 36] File name too long: 'PATH'``; an error with no path keeps its own text."""
+    if err.filename is None:
+        return str(err)
+    paths = f"{err.filename}" + (f" -> {err.filename2}" if err.filename2 is not None else "")
+    return f"{paths}: {err.strerror or err}"
+
+
 def main(argv: list[str] | None = None) -> int:
     _line_buffered_stdout()
     try:
@@ -361,8 +370,8 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         _quiet_broken_pipe()
         return 1
-    except (ValueError, OSError) as err:  # last resort: no traceback for a case not turned into a BenchError
-        print(f"{where}: error: {err}", file=sys.stderr)
+    except OSError as err:  # the filesystem refused a path the user gave (too long, not a folder, full disk)
+        print(f"{where}: error: {_os_error_line(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
