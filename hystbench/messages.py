@@ -173,6 +173,12 @@ class OperatingPoint:
         """Output on and settled: samples an estimate may use."""
         return self.output_on and not self.settling
 
+    @property
+    def peak_a(self) -> float:
+        """The peak coil current the point drives with the output on, ``|offset| + I_pp / 2``: what
+        a bench's current limit bounds (acquisition.bench_commands checks every command by it)."""
+        return abs(self.offset_a) + self.current_pp_a / 2
+
     def to_meta(self) -> dict[str, float]:
         """The point as block meta: numbers only (``output_on`` 1.0/0.0; ``settling`` only when
         set), as the raw-block codec writes it and logs since the first have held it."""

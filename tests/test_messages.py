@@ -58,6 +58,13 @@ def test_the_meta_keys_are_the_fields_and_missing_ones_come_from_the_nominal_poi
     assert math.isnan(bare.frequency_hz) and math.isnan(bare.current_pp_a) and bare.table == 2 and bare.excited
 
 
+def test_the_peak_current_is_the_offset_plus_half_the_peak_to_peak() -> None:
+    """What a bench's current limit bounds: a sine of I_pp around the offset peaks at |offset| + I_pp/2
+    on either side of zero."""
+    assert OperatingPoint(320.0, 1.4, offset_a=0.2).peak_a == pytest.approx(0.9)
+    assert OperatingPoint(320.0, 1.0, offset_a=-0.5).peak_a == pytest.approx(1.0)  # the negative lobe
+
+
 def test_nan_is_written_as_null_and_read_back_as_nan() -> None:
     e = Estimate(0, 100, 5, 320.0, 1.4, delays_s={"hysteresis": math.nan})
     wire = json.loads(json_bytes(e.to_json()))

@@ -6,6 +6,11 @@ right type, its keys known, the excitation frequency inside ``[MIN_FREQUENCY_HZ,
 the generator's range) and the peak coil current ``|offset| + I_pp / 2`` within the bench's
 limit.  The limit is checked on the operating point the command leads to (the last one commanded,
 with this command's changes), so two commands that are each fine cannot add up to too much.
+
+That point is a :class:`hystbench.messages.OperatingPoint`, the type the blocks carry: the commands
+set its frequency, current and offset (what the generator plays once they are applied); its
+``output_on``, ``settling`` and ``table`` pass through unchanged (the sources say those on every
+block; the current limit holds whether the output is on or not, as it may be switched on later).
 """
 
 from __future__ import annotations
@@ -15,8 +20,9 @@ from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
 from ..errors import ConfigError
+from ..messages import OperatingPoint
 
-__all__ = ["Limits", "Point", "check_command", "check_frequency", "check_current", "COMMANDS",
+__all__ = ["Limits", "check_command", "check_frequency", "check_current", "COMMANDS",
            "MIN_FREQUENCY_HZ", "MIN_SAMPLES_PER_PERIOD", "MAX_SWEEP_POINTS", "MAX_DWELL_S"]
 
 #: The verbs, with the arguments each takes.
@@ -53,19 +59,6 @@ class Limits:
                 f"samples per period at {self.fs_hz:g} S/s)")
 
 
-@dataclass(frozen=True)
-class Point:
-    """The operating point last commanded (what the generator plays once the commands are applied)."""
-
-    frequency_hz: float
-    current_pp_a: float
-    offset_a: float = 0.0
-
-    @property
-    def peak_a(self) -> float:
-        return abs(self.offset_a) + self.current_pp_a / 2
-
-
 def _show(value: Any) -> str:
     """``repr(value)``, cut short (a refusal quotes what it refused, not a megabyte of it)."""
     text = repr(value)
@@ -92,7 +85,7 @@ def check_frequency(name: str, value: Any, limits: Limits) -> float:
     return f
 
 
-def check_current(what: str, point: Point, limits: Limits) -> None:
+def check_current(what: str, point: OperatingPoint, limits: Limits) -> None:
     if point.current_pp_a < 0:
         raise ConfigError(f"{what}: current_pp_a must be >= 0, got {point.current_pp_a:g}")
     if point.peak_a > limits.max_current_a * (1 + 1e-9):
@@ -100,8 +93,8 @@ def check_current(what: str, point: Point, limits: Limits) -> None:
                           f"limit of {limits.max_current_a:g} A (I_pp <= {2 * limits.max_current_a:g} A at offset 0)")
 
 
-def check_command(verb: Any, args: Any, limits: Limits, point: Point,
-                  sweep_defaults: Mapping[str, Any] | None = None) -> tuple[dict[str, Any], Point]:
+def check_command(verb: Any, args: Any, limits: Limits, point: OperatingPoint,
+                  sweep_defaults: Mapping[str, Any] | None = None) -> tuple[dict[str, Any], OperatingPoint]:
     """``(arguments, point)``: the checked arguments (floats, bools, defaults filled in for a sweep)
     and the operating point after the command; a ConfigError names what is refused and why."""
     if not isinstance(verb, str) or verb not in COMMANDS:

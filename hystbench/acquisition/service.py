@@ -15,11 +15,13 @@ import os
 import threading
 import time
 from collections import deque
+from dataclasses import replace
 from pathlib import Path
 
 from .. import __version__
 from ..errors import BenchError, CommandRefused, ConfigError
-from .bench_commands import MIN_FREQUENCY_HZ, Limits, Point, check_command
+from ..messages import OperatingPoint
+from .bench_commands import MIN_FREQUENCY_HZ, Limits, check_command
 from .source_config import build_source
 
 __all__ = ["BenchService", "MAX_FAULTS", "FAULT_WINDOW_S"]
@@ -109,7 +111,7 @@ class BenchService:
         """The operating point a (new) source starts at: the configured excitation, output off."""
         s = self.cfg["source"]
         self.limits = Limits(self.source.fs_hz, float(getattr(self.source, "max_current_a", 0.0) or 0.0))
-        self.point = Point(s["frequency_hz"], s["current_pp_a"], 0.0)
+        self.point = OperatingPoint(s["frequency_hz"], s["current_pp_a"], 0.0)
 
     # --- life cycle ------------------------------------------------------------------------------
     def start(self) -> "BenchService":
@@ -312,7 +314,7 @@ class BenchService:
                 with self._lock:
                     if stop.is_set():
                         break
-                    self.point = Point(f, ipp, self.point.offset_a)
+                    self.point = replace(self.point, frequency_hz=f, current_pp_a=ipp)
                     src.set_excitation(f, ipp, self.point.offset_a)
                     src.set_output(True)
                     reached = p.after_samples(round(dwell * src.fs_hz))  # from the command on

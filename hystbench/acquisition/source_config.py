@@ -20,7 +20,8 @@ from typing import Any
 
 from ..drivers.protocols.bench_config import load_bench_config
 from ..errors import ConfigError
-from .bench_commands import Limits, Point, check_current, check_frequency
+from ..messages import OperatingPoint
+from .bench_commands import Limits, check_current, check_frequency
 
 __all__ = ["check_source", "build_source", "bench_file_limits"]
 
@@ -79,12 +80,12 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
                                     f"got {s['block_samples']}")
         limits = Limits(s["fs_hz"], bench_file_limits().max_current_a)
     check_frequency(f"{where} [source] frequency_hz", s["frequency_hz"], limits)
-    check_current(f"{where} [source]", Point(s["frequency_hz"], s["current_pp_a"]), limits)
+    check_current(f"{where} [source]", OperatingPoint(s["frequency_hz"], s["current_pp_a"]), limits)
     if kind != "synthetic":  # a synthetic source takes no commands, so it runs no sweep
         sw = values["sweep"]
         for k, f in enumerate(sw["frequencies_hz"]):
             check_frequency(f"{where} [sweep] frequencies_hz[{k}]", f, limits)
-        check_current(f"{where} [sweep]", Point(sw["frequencies_hz"][0], sw["current_pp_a"]), limits)
+        check_current(f"{where} [sweep]", OperatingPoint(sw["frequencies_hz"][0], sw["current_pp_a"]), limits)
     elif values["sweep"]["autostart"]:
         raise ConfigError(f'{where} [sweep] autostart: kind = "synthetic" takes no commands, so it runs no sweep')
     c = values["compensator"]

@@ -19,14 +19,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hystbench.acquisition.bench_commands import COMMANDS, Limits, Point, check_command
+from hystbench.acquisition.bench_commands import COMMANDS, Limits, check_command
 from hystbench.acquisition.daemon import BenchService, load_daemon_config
 from hystbench.formats.mcaplog import iter_blocks
 from hystbench.acquisition.zenoh_bus import free_port, key, load_zenoh_config, open_session, peer_config
 from hystbench.errors import BenchError, ConfigError
+from hystbench.messages import OperatingPoint
 
 LIMITS = Limits(fs_hz=100_000.0, max_current_a=1.8)  # the shipped bench: amplifier current_limit_a 1.8 A
-HERE = Point(320.0, 1.4, 0.0)
+HERE = OperatingPoint(320.0, 1.4, 0.0)
 
 
 @pytest.mark.parametrize("verb, args, match", [
@@ -65,6 +66,18 @@ def test_two_commands_that_are_each_fine_cannot_add_up_to_too_much() -> None:
         check_command("set_excitation", {"offset_a": 0.4}, LIMITS, p)
     ok, q = check_command("set_excitation", {"offset_a": -0.3}, LIMITS, p)  # 1.8 A: the limit itself
     assert ok == {"offset_a": -0.3} and q.peak_a == pytest.approx(1.8)
+
+
+def test_the_commanded_point_is_the_operating_point_the_blocks_carry() -> None:
+    """One type for an operating point (issue 11): a command leads to a messages.OperatingPoint,
+    with the fields no command sets (output, table) carried through, and its peak current."""
+    start = OperatingPoint(320.0, 1.4, 0.0, output_on=False, table=3)
+    _, p = check_command("set_excitation", {"current_pp_a": 2.0, "offset_a": -0.6}, LIMITS, start)
+    assert type(p) is OperatingPoint and p == OperatingPoint(320.0, 2.0, -0.6, output_on=False, table=3)
+    assert p.peak_a == pytest.approx(0.6 + 2.0 / 2)
+    _, q = check_command("start_sweep", {"frequencies_hz": [40.0, 80.0], "current_pp_a": 1.0, "dwell_s": 1.0},
+                         LIMITS, p)
+    assert q == OperatingPoint(80.0, 1.0, -0.6, output_on=False, table=3)  # the last point; the offset stays
 
 
 def test_the_sweep_fills_in_its_defaults_and_checks_them() -> None:
