@@ -7,11 +7,14 @@ percent of it (see tests/sim_backend/test_operating_points.py).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
 from ..config import load_rig, rig_names
+from ..formats.recording import with_point
+from ..messages import OperatingPoint
 from ..physics import presets
 
 __all__ = ["PAPER_FORCE_RANGES_N", "operating_points", "static_force_range"]
@@ -36,14 +39,17 @@ def static_force_range(preset: dict[str, Any], current_pp_a: float, offset_a: fl
 
 
 def operating_points() -> list[dict[str, Any]]:
+    """One row per rig preset (``hystbench rigs``): rig, actuator, its operating point in the
+    recording sidecar's spelling (written by :func:`~hystbench.formats.recording.with_point`, read
+    back by ``sidecar_point``), the static force range and the paper's, where it gives one."""
     rows = []
     for name in rig_names():
         preset = load_rig(name)
-        exc = preset.get("excitation", {})
-        row: dict[str, Any] = {"rig": name, "actuator": preset["actuator"],
-                               "frequency_Hz": exc.get("frequency_hz"), "current_pp_A": exc.get("current_pp_a")}
+        exc = preset["excitation"]  # the preset schema fills it in
+        point = OperatingPoint(exc["frequency_hz"], exc["current_pp_a"], offset_a=math.nan)  # NaN: a preset has none
+        row = with_point({"rig": name, "actuator": preset["actuator"]}, point)
         if preset["actuator"] in ("ecore", "voicecoil"):
-            row["force_min_N"], row["force_max_N"] = static_force_range(preset, float(exc["current_pp_a"]))
+            row["force_min_N"], row["force_max_N"] = static_force_range(preset, point.current_pp_a)
         if name in PAPER_FORCE_RANGES_N:
             row["paper"] = PAPER_FORCE_RANGES_N[name][2]
         rows.append(row)

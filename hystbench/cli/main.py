@@ -123,6 +123,7 @@ def cmd_effects(args) -> int:
 
 def cmd_rigs(args) -> int:
     from ..analysis.operating_points import operating_points
+    from ..formats.recording import sidecar_point
 
     rows = operating_points()
     if args.json:
@@ -136,7 +137,8 @@ def cmd_rigs(args) -> int:
     for col in ("rig", "actuator", "f (Hz)", "I (A-pp)", "force min (N)", "force max (N)", "paper"):
         table.add_column(col, no_wrap=col != "paper")
     for r in rows:
-        table.add_row(r["rig"], r["actuator"], f"{r['frequency_Hz']:g}", f"{r['current_pp_A']:g}",
+        p = sidecar_point(r)
+        table.add_row(r["rig"], r["actuator"], f"{p.frequency_hz:g}", f"{p.current_pp_a:g}",
                       _fmt(r.get("force_min_N")), _fmt(r.get("force_max_N")), r.get("paper", ""))
     console().print(table)
     return 0
