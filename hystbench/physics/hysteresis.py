@@ -26,6 +26,7 @@ from functools import cached_property
 from typing import Any, Callable
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.constants import mu_0
 from scipy.special import erf
 
@@ -276,7 +277,7 @@ class PreisachHysteresis:
             out = out + j * 2 / np.pi * np.arctan(h / hr)
         return out
 
-    def b_rev(self, h) -> np.ndarray:
+    def b_rev(self, h: ArrayLike) -> np.ndarray:
         """Reversible part B_rev(H); straight beyond +-h_max (the relays are all switched there)."""
         h = np.asarray(h, float)
         hm = self.params.h_max_a_per_m
@@ -290,7 +291,7 @@ class PreisachHysteresis:
         i = np.minimum(xi.astype(np.intp), self._x.size - 2)
         return i, xi - i
 
-    def everett(self, alpha, beta) -> np.ndarray:
+    def everett(self, alpha: ArrayLike, beta: ArrayLike) -> np.ndarray:
         """E(alpha, beta) (T), weight of relays with beta <= down, up <= alpha; alpha >= beta.
 
         Factorised density: E = K(a) - K(b) - G(b) (F(a) - F(b)), from three 1-D tables."""
@@ -305,7 +306,7 @@ class PreisachHysteresis:
         return np.maximum(e, 0.0)
 
     # ---- H as the input (identification, tests) -------------------------------------------
-    def flux_density(self, h_t, state: HysteresisState) -> tuple[np.ndarray, HysteresisState]:
+    def flux_density(self, h_t: ArrayLike, state: HysteresisState) -> tuple[np.ndarray, HysteresisState]:
         """B (T) along the field trajectory h_t (A/m): the model as identified."""
 
         def branch(h_r, b_r, s, h, starts=None):
@@ -384,7 +385,7 @@ class PreisachHysteresis:
             out[i] = 2 * np.trapezoid(f * gi, hh) - self.params.j_irr_t
         return np.interp(h, coarse, out)
 
-    def field(self, b_t, state: HysteresisState, *, irreversible: bool = True, saturation: bool = True
+    def field(self, b_t: ArrayLike, state: HysteresisState, *, irreversible: bool = True, saturation: bool = True
               ) -> tuple[np.ndarray, HysteresisState]:
         """H (A/m) along the flux-density trajectory b_t (T), continuing from ``state``.
 
@@ -468,6 +469,6 @@ class PreisachHysteresis:
         step, t = self._inverse["anhyst"]
         return float((t[1] - t[0]) / step)
 
-    def anhysteretic_field(self, b) -> np.ndarray:
+    def anhysteretic_field(self, b: ArrayLike) -> np.ndarray:
         """H_an(B) (A/m): the single-valued curve with static hysteresis switched off."""
         return self._read_uniform(self._inverse["anhyst"], np.asarray(b, float))

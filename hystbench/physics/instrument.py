@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import signal
 
 __all__ = ["InstrumentModel", "second_order_lowpass", "resonance_pair", "bilinear_sos"]
@@ -69,7 +70,7 @@ class InstrumentModel:
             out.append((np.array([tau, 0.0]), np.array([tau, 1.0]), None))
         return out
 
-    def frequency_response(self, f_hz) -> np.ndarray:
+    def frequency_response(self, f_hz: ArrayLike) -> np.ndarray:
         """Complex H(j 2 pi f) of the continuous model."""
         f = np.asarray(f_hz, dtype=float)
         w = 2 * np.pi * np.atleast_1d(f)
@@ -78,13 +79,13 @@ class InstrumentModel:
             h *= signal.freqs(b, a, worN=w)[1]
         return h.reshape(f.shape)
 
-    def phase_deg(self, f_hz) -> np.ndarray:
+    def phase_deg(self, f_hz: ArrayLike) -> np.ndarray:
         """Phase of H in degrees (negative: the measured force lags the actuator's force)."""
         f = np.asarray(f_hz, dtype=float)
         h = np.atleast_1d(self.frequency_response(f))
         return np.degrees(np.unwrap(np.angle(h))).reshape(f.shape)
 
-    def delay_s(self, f_hz) -> np.ndarray:
+    def delay_s(self, f_hz: ArrayLike) -> np.ndarray:
         """Equivalent time delay -phase/omega (positive: the measured force is late)."""
         f = np.asarray(f_hz, dtype=float)
         return -np.radians(self.phase_deg(f)) / (2 * np.pi * f)

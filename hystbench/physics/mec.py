@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .permeance import gap_permeance, mu_0, slot_leakage_permeance
 
@@ -103,6 +104,8 @@ class ECoreMEC:
         return 0.0 if m is None else m.coercivity_a_per_m * m.length_m
 
     def ideal_iron(self) -> "ECoreMEC":
+        """The same circuit with infinitely permeable iron: the simulator adds the iron's MMF drop
+        from its own material model, and the operating-point linearisation starts from it."""
         return ECoreMEC(self.geometry, self.magnet, math.inf, self.tip_leakage)
 
     def _operating_point_coefficients(self, z):
@@ -176,13 +179,16 @@ class ECoreMEC:
         phi_outer = p_out * u_x
         return phi_coil, phi_mag, phi_outer, 2.0 * phi_outer
 
-    def port_permeances(self, z):
+    def port_permeances(self, z: ArrayLike) -> tuple[complex | np.ndarray, complex | np.ndarray,
+                                                      complex | np.ndarray]:
         """(Lambda11, Lambda12, Lambda22): coil-port and magnet-port fluxes per unit MMF."""
         c1, m1, _, _ = self._branch_fluxes(z, 1.0, 0.0)
         c2, m2, _, _ = self._branch_fluxes(z, 0.0, 1.0)
         return c1, 0.5 * (c2 + m1), m2  # reciprocity: c2 == m1 up to rounding
 
     def flux_coefficients(self, z: float) -> FluxCoefficients:
+        """Every branch flux per unit coil and magnet MMF at ``z``: what the simulator superposes
+        each sample (the circuit is linear), so it solves the network once, not per sample."""
         c1, m1, o1, g1 = self._branch_fluxes(z, 1.0, 0.0)
         c2, m2, o2, g2 = self._branch_fluxes(z, 0.0, 1.0)
         pair = lambda a, b: (float(np.real(a)), float(np.real(b)))  # noqa: E731
@@ -200,28 +206,32 @@ class ECoreMEC:
         z = np.asarray(z, dtype=float)
         return np.imag(fun(z + 1j * _STEP)) / _STEP
 
-    def phi_coil(self, z):
+    def phi_coil(self, z: ArrayLike) -> float | np.ndarray:
         """phi_coil(z) = N1 * Lambda11: coil flux per ampere (Wb/A)."""
         return self.geometry.coil_turns * np.real(self.port_permeances(z)[0])
 
-    def phi_pm(self, z):
+    def phi_pm(self, z: ArrayLike) -> float | np.ndarray:
         """Magnet flux through the coil leg (Wb), Hc lpm * Lambda12."""
         return self.magnet_mmf_a * np.real(self.port_permeances(z)[1])
 
-    def phi_pm_self(self, z):
+    def phi_pm_self(self, z: ArrayLike) -> float | np.ndarray:
         """Magnet flux through the magnet itself (Wb), Hc lpm * Lambda22."""
         return self.magnet_mmf_a * np.real(self.port_permeances(z)[2])
 
-    def dphi_coil_dz(self, z):
+    def dphi_coil_dz(self, z: ArrayLike) -> float | np.ndarray:
+        """d phi_coil / dz (Wb/(A m)): with N1, the coil's i^2 term of the force (Eq. 1)."""
         return self._dz(lambda zz: self.geometry.coil_turns * self.port_permeances(zz)[0], z)
 
-    def dphi_pm_dz(self, z):
+    def dphi_pm_dz(self, z: ArrayLike) -> float | np.ndarray:
+        """d phi_pm / dz (Wb/m): with N1, the linear term of the force, coil and magnet together."""
         return self._dz(lambda zz: self.magnet_mmf_a * self.port_permeances(zz)[1], z)
 
-    def dphi_pm_self_dz(self, z):
+    def dphi_pm_self_dz(self, z: ArrayLike) -> float | np.ndarray:
+        """d phi_pm_self / dz (Wb/m): with Hc lpm, the magnet's own pull, the force at zero current."""
         return self._dz(lambda zz: self.magnet_mmf_a * self.port_permeances(zz)[2], z)
 
-    def force_coefficients(self, z):
+    def force_coefficients(self, z: ArrayLike) -> tuple[float | np.ndarray, float | np.ndarray,
+                                                         float | np.ndarray]:
         """(k0, k1, k2) with F(i) = k0 + k1 i + k2 i^2 at airgap z: the paper's Eq. (1)."""
         if self.iron_incremental_mu_r is not None:
             return self._operating_point_coefficients(z)
@@ -232,14 +242,14 @@ class ECoreMEC:
         k0 = -0.5 * fm * self.dphi_pm_self_dz(z)
         return k0, k1, k2
 
-    def force(self, current_a, z=None):
+    def force(self, current_a: ArrayLike, z: ArrayLike | None = None) -> float | np.ndarray:
         """Attractive force (N) for coil current ``current_a`` at airgap ``z`` (default: nominal)."""
         z = self.geometry.airgap_m if z is None else z
         k0, k1, k2 = self.force_coefficients(z)
         i = np.asarray(current_a, dtype=float)
         return k0 + k1 * i + k2 * i * i
 
-    def force_map(self, current_a, z_m):
+    def force_map(self, current_a: ArrayLike, z_m: ArrayLike) -> np.ndarray:
         """F on the grid current x airgap (the paper's Fig. 3)."""
         i, z = np.meshgrid(np.asarray(current_a, float), np.asarray(z_m, float), indexing="ij")
         k0, k1, k2 = self.force_coefficients(z)

@@ -12,7 +12,8 @@ from scipy.constants import mu_0
 __all__ = ["gap_permeance", "edge_fringing_permeance", "slot_leakage_permeance", "mu_0"]
 
 
-def edge_fringing_permeance(z, edge_length_m: float, fringe_height_m: float):
+def edge_fringing_permeance(z: complex | np.ndarray, edge_length_m: float, fringe_height_m: float
+                            ) -> complex | np.ndarray:
     """Fringing permeance of one pole edge facing a flat mover across an airgap ``z``.
 
     Flux leaves the side of the tooth at height r (0..h) above the pole face and reaches the mover
@@ -22,7 +23,8 @@ def edge_fringing_permeance(z, edge_length_m: float, fringe_height_m: float):
     return 2.0 * mu_0 * edge_length_m / np.pi * np.log(1.0 + np.pi * fringe_height_m / (2.0 * z))
 
 
-def gap_permeance(z, width_m: float, depth_m: float, fringe_height_m: float = 0.0):
+def gap_permeance(z: complex | np.ndarray, width_m: float, depth_m: float, fringe_height_m: float = 0.0
+                  ) -> complex | np.ndarray:
     """Permeance of a rectangular pole face ``width x depth`` across ``z``, with fringing on all
     four edges when ``fringe_height_m > 0`` (0 gives the closed form mu0 A / z)."""
     p = mu_0 * width_m * depth_m / z

@@ -24,10 +24,16 @@ True
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, SupportsFloat
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.interpolate import CubicSpline
+
+if TYPE_CHECKING:
+    from .mec import ECoreMEC
 
 __all__ = ["PhaseDelayModel", "delay_periodic", "delay_record"]
 
@@ -41,7 +47,7 @@ def _as_1d(x, name: str) -> np.ndarray:
     return arr
 
 
-def delay_periodic(x: np.ndarray, delay_periods: float) -> np.ndarray:
+def delay_periodic(x: ArrayLike, delay_periods: float) -> np.ndarray:
     """One period of a periodic signal, uniformly sampled, delayed by ``delay_periods`` of a period
     (a fraction; positive = later).  Exact for a band-limited signal (phase shift of every DFT bin).
 
@@ -59,7 +65,7 @@ def delay_periodic(x: np.ndarray, delay_periods: float) -> np.ndarray:
     return np.fft.irfft(shifted, n)
 
 
-def delay_record(x: np.ndarray, fs_hz: float, delay_s: float, freq_hz: float) -> np.ndarray:
+def delay_record(x: ArrayLike, fs_hz: float, delay_s: float, freq_hz: float) -> np.ndarray:
     """A sampled steady-state periodic record (fundamental ``freq_hz``) delayed by ``delay_s``
     (cubic interpolation).  The first samples, which would need times before the record, take the
     value one period later (the signal is periodic), so the record must span one period + delay."""
@@ -99,13 +105,14 @@ class PhaseDelayModel:
 
     # --- construction --------------------------------------------------------------------------
     @classmethod
-    def non_hysteretic(cls, coefficients) -> PhaseDelayModel:
+    def non_hysteretic(cls, coefficients: Sequence[SupportsFloat]) -> PhaseDelayModel:
         """theta = 0 at every frequency: the paper's Eq. 1."""
         k0, k1, k2 = (float(c) for c in coefficients)
         return cls(k0, k1, k2, np.array([1.0]), np.array([0.0]), np.array([0.0]))
 
     @classmethod
-    def from_phases(cls, coefficients, freq_hz, theta_rad, theta_se_rad=None) -> PhaseDelayModel:
+    def from_phases(cls, coefficients: Sequence[SupportsFloat], freq_hz: ArrayLike, theta_rad: ArrayLike,
+                    theta_se_rad: ArrayLike | None = None) -> PhaseDelayModel:
         """From per-point phase delays theta_hyst (rad, positive: the force lags) at ``freq_hz``."""
         f = _as_1d(freq_hz, "freq_hz")
         th = _as_1d(theta_rad, "theta_rad")
@@ -130,7 +137,8 @@ class PhaseDelayModel:
         return cls(k0, k1, k2, grid, th_g, None if se is None else se_g)
 
     @classmethod
-    def from_delays(cls, coefficients, freq_hz, delay_s, delay_se_s=None) -> PhaseDelayModel:
+    def from_delays(cls, coefficients: Sequence[SupportsFloat], freq_hz: ArrayLike, delay_s: ArrayLike,
+                    delay_se_s: ArrayLike | None = None) -> PhaseDelayModel:
         """From per-point time delays of the flux behind the current (s) at ``freq_hz``."""
         f = _as_1d(freq_hz, "freq_hz")
         w = 2 * np.pi * f
@@ -138,7 +146,8 @@ class PhaseDelayModel:
         return cls.from_phases(coefficients, f, w * _as_1d(delay_s, "delay_s"), se)
 
     @classmethod
-    def from_mec(cls, mec, freq_hz, theta_rad, theta_se_rad=None, airgap_m: float | None = None):
+    def from_mec(cls, mec: ECoreMEC, freq_hz: ArrayLike, theta_rad: ArrayLike,
+                 theta_se_rad: ArrayLike | None = None, airgap_m: float | None = None) -> PhaseDelayModel:
         """Coefficients from an :class:`~hystbench.physics.mec.ECoreMEC` at ``airgap_m`` (default:
         its nominal airgap), theta as in :meth:`from_phases`."""
         z = mec.geometry.airgap_m if airgap_m is None else airgap_m
@@ -149,7 +158,7 @@ class PhaseDelayModel:
     def coefficients(self) -> tuple[float, float, float]:
         return self.k0_n, self.k1_n_per_a, self.k2_n_per_a2
 
-    def theta(self, freq_hz) -> np.ndarray:
+    def theta(self, freq_hz: ArrayLike) -> float | np.ndarray:
         """theta_hyst (rad) at ``freq_hz`` (array or scalar)."""
         f = np.asarray(freq_hz, dtype=float)
         grid, th = self.freq_hz, self.theta_rad
@@ -159,28 +168,28 @@ class PhaseDelayModel:
         slope = (th[-1] - th[-2]) / (grid[-1] - grid[-2])
         return np.where(f > grid[-1], th[-1] + slope * (f - grid[-1]), out)[()]
 
-    def delay_s(self, freq_hz) -> np.ndarray:
+    def delay_s(self, freq_hz: ArrayLike) -> float | np.ndarray:
         """theta_hyst as the equivalent time delay of the current (s)."""
         f = np.asarray(freq_hz, dtype=float)
         return self.theta(f) / (2 * np.pi * f)
 
-    def static_force(self, current_a) -> np.ndarray:
+    def static_force(self, current_a: ArrayLike) -> np.ndarray:
         """Eq. 1: k0 + k1 i + k2 i^2 (N)."""
         i = np.asarray(current_a, dtype=float)
         return self.k0_n + self.k1_n_per_a * i + self.k2_n_per_a2 * i * i
 
-    def force_period(self, current_a, freq_hz: float) -> np.ndarray:
+    def force_period(self, current_a: ArrayLike, freq_hz: float) -> np.ndarray:
         """Eq. 6 for one period of a periodic current (uniformly sampled, the compensator's table):
         the table is delayed by theta(f) / 2 pi of a period, then put through Eq. 1."""
         th = float(self.theta(float(freq_hz)))
         return self.static_force(delay_periodic(current_a, th / (2 * np.pi)))
 
-    def force(self, current_a, fs_hz: float, freq_hz: float) -> np.ndarray:
+    def force(self, current_a: ArrayLike, fs_hz: float, freq_hz: float) -> np.ndarray:
         """Eq. 6 for a sampled steady-state record of a periodic current at ``freq_hz``."""
         d = float(self.delay_s(float(freq_hz)))
         return self.static_force(delay_record(current_a, fs_hz, d, freq_hz))
 
-    def force_sine(self, t_s, amplitude_a: float, freq_hz: float, offset_a: float = 0.0,
+    def force_sine(self, t_s: ArrayLike, amplitude_a: float, freq_hz: float, offset_a: float = 0.0,
                    phase_rad: float = 0.0) -> np.ndarray:
         """Eq. 6 for i(t) = offset + amplitude sin(2 pi f t + phase), in closed form."""
         t = np.asarray(t_s, dtype=float)

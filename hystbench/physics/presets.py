@@ -47,6 +47,7 @@ def ecore_mec(preset: Mapping[str, Any], *, linear_iron: bool = False) -> ECoreM
 
 
 def voice_coil(preset: Mapping[str, Any]) -> VoiceCoil:
+    """The voice coil of a rig preset: the actuator that identifies the force instrument (paper Sec. IV)."""
     vc = _table(preset, "voicecoil")
     return VoiceCoil(vc["force_constant_n_per_a"], vc["magnet_conductivity_s_per_m"], vc["magnet_eddy_depth_m"])
 

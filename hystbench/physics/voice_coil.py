@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .eddy import slab_time_constant
 
@@ -25,13 +26,14 @@ class VoiceCoil:
 
     @property
     def eddy_time_constant_s(self) -> float:
+        """tau of the magnet's eddy lag (s); 0 for a ferrite (non-conducting) magnet."""
         return slab_time_constant(self.magnet_conductivity_s_per_m, self.magnet_eddy_depth_m)
 
-    def force(self, current_a):
+    def force(self, current_a: ArrayLike) -> float | np.ndarray:
         """Static force (N): no eddy lag."""
         return self.force_constant_n_per_a * np.asarray(current_a, dtype=float)
 
-    def frequency_response(self, f_hz, *, eddy: bool = True) -> np.ndarray:
+    def frequency_response(self, f_hz: ArrayLike, *, eddy: bool = True) -> complex | np.ndarray:
         """Complex force per ampere; ``eddy`` switches the magnet's eddy lag."""
         w = 2 * np.pi * np.asarray(f_hz, dtype=float)
         tau = self.eddy_time_constant_s if eddy else 0.0
