@@ -12,6 +12,7 @@ from typing import Any, Callable, Mapping
 
 from ..errors import BenchError
 from ..formats.mcaplog import McapRecorder, McapSource, iter_blocks
+from ..messages import OperatingPoint
 from .pipeline import Pipeline
 from .stages import WindowEstimator
 
@@ -65,7 +66,7 @@ def has_measurement(log: str | Path) -> bool:
     first command are no measurement); an unreadable log counts as holding one, so that nothing
     that may hold data is ever deleted on its strength (``hystbench recover`` salvages it)."""
     try:
-        return any(b.meta.get("output_on", 1.0) for b in iter_blocks(log))
+        return any(OperatingPoint.from_meta(b.meta).output_on for b in iter_blocks(log))  # no meta: on
     except BenchError:
         return True
 
