@@ -4,8 +4,8 @@ of one window.
 Both are frozen dataclasses in SI units with the unit in each name (``frequency_hz``,
 ``current_pp_a``, ``delays_s``), and both read and write JSON symmetrically, as mcap's records do:
 ``X.from_json(x.to_json()) == x``.  ``to_json`` gives plain Python values named as the fields;
-NaN stays NaN there (the writers turn it into ``null``, which is not a number in JSON) and
-``from_json`` reads ``null`` back as NaN.  :func:`json_schema` derives the JSON schema the MCAP
+NaN stays NaN there, :func:`json_bytes` (the bytes of every small message, in the MCAP log and on
+zenoh alike) writes it as ``null`` (NaN is not JSON) and ``from_json`` reads ``null`` back as NaN.  :func:`json_schema` derives the JSON schema the MCAP
 log registers from the fields, so the schema cannot drift from the class.
 
 A block keeps its operating point in ``SampleBlock.meta`` as a flat mapping of numbers (what the
@@ -20,15 +20,18 @@ from __future__ import annotations
 
 import collections.abc
 import functools
+import json
 import math
 import types
 import typing
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, ClassVar, Mapping
 
+import numpy as np
+
 from .errors import RecordingError
 
-__all__ = ["OperatingPoint", "Estimate", "OPERATING_KEYS", "json_schema"]
+__all__ = ["OperatingPoint", "Estimate", "OPERATING_KEYS", "json_schema", "json_bytes"]
 
 #: Block meta keys that name the operating point (the fields of :class:`OperatingPoint`, in order):
 #: a change of any of them starts a new run of the estimator and a new segment of a log.
@@ -95,6 +98,24 @@ def _read(hint: Any, value: Any, where: str) -> Any:
             raise ValueError(f"{where} must be an array, got {value!r}")
         return tuple(_read(vt, v, f"{where}[{i}]") for i, v in enumerate(value))
     raise TypeError(f"no JSON reading for {hint!r}")  # a field type this module does not know: a bug
+
+
+def json_bytes(obj: Any) -> bytes:
+    """A small message (``to_json()``, a status, a reply) as compact JSON bytes: NaN and inf, which
+    JSON has no numbers for, become ``null``; numpy scalars become Python numbers."""
+    return json.dumps(_finite(obj), separators=(",", ":"), allow_nan=False).encode()
+
+
+def _finite(obj: Any) -> Any:
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {str(k): _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return _finite(obj.item())
+    return obj
 
 
 def _from_json(cls: type, obj: Any, what: str) -> Any:

@@ -13,8 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hystbench.errors import RecordingError
-from hystbench.formats.mcaplog.schemas import json_bytes
-from hystbench.messages import OPERATING_KEYS, Estimate, OperatingPoint
+from hystbench.messages import OPERATING_KEYS, Estimate, OperatingPoint, json_bytes
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 names = st.sampled_from(["hysteresis", "instrument", "total"])
@@ -71,6 +70,20 @@ def test_nan_is_written_as_null_and_read_back_as_nan() -> None:
     assert wire["frequency_hz"] is None and wire["delays_s"] == {"hysteresis": None}
     back = Estimate.from_json(wire)
     assert math.isnan(back.frequency_hz) and math.isnan(back.delays_s["hysteresis"])
+
+
+def test_one_json_bytes_for_the_log_and_the_bus() -> None:
+    """The MCAP recorder and zenoh write small messages with the one json_bytes of the vocabulary
+    (issue 11): the schemas module of the log no longer holds it, and both writers use the same
+    function object."""
+    import numpy as np
+
+    from hystbench.acquisition import zenoh_bus
+    from hystbench.formats.mcaplog import recorder, schemas
+
+    assert not hasattr(schemas, "json_bytes")
+    assert recorder.json_bytes is json_bytes and zenoh_bus.json_bytes is json_bytes
+    assert json.loads(json_bytes({"x": np.float32(0.5), "y": (math.inf, 2)})) == {"x": 0.5, "y": [None, 2]}
 
 
 @pytest.mark.parametrize("obj, key", [

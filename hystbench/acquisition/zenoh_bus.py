@@ -36,7 +36,7 @@ from typing import Any, Callable, Iterator, Mapping
 from ..blocks import SampleBlock
 from ..errors import BenchError, CommandRefused, ConfigError, NetworkError, NoReply
 from .bench_commands import COMMANDS as _COMMAND_ARGS
-from ..formats.mcaplog.schemas import json_bytes
+from ..messages import json_bytes
 from ..formats.raw_block import BINARY_ENCODING, encode_binary
 
 __all__ = ["PREFIX", "key", "peer_config", "load_zenoh_config", "ZenohBus",

@@ -24,9 +24,9 @@ from typing import Any, Mapping
 from ... import __version__
 from ...blocks import BlockFlags, SampleBlock
 from ...errors import RecordingError
-from ...messages import OperatingPoint
+from ...messages import OperatingPoint, json_bytes
 from ..raw_block import encode_json
-from .schemas import RAW, SCHEMAS, TOPICS, json_bytes, schema_bytes
+from .schemas import RAW, SCHEMAS, TOPICS, schema_bytes
 
 __all__ = ["McapRecorder", "COMPRESSIONS", "IDLE_RAW", "IDLE_EVERY_S", "IDLE_SNAPSHOT_S"]
 

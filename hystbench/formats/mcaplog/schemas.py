@@ -4,20 +4,18 @@ Every message is JSON (message encoding ``json``) with a ``jsonschema`` schema, 
 the reference readers decode without plug-ins.  A raw sample block is the JSON framing of the one
 raw-block codec (:mod:`hystbench.formats.raw_block`: samples as base64, exactly the bytes the
 pipeline held); an estimate is :class:`hystbench.messages.Estimate`, its schema derived from the
-class's fields.
+class's fields.  The small messages' bytes are :func:`hystbench.messages.json_bytes` (zenoh sends
+the same bytes).
 """
 
 from __future__ import annotations
 
 import json
-from typing import Any
-
-import numpy as np
 
 from ...messages import Estimate
 from ..raw_block import DTYPES
 
-__all__ = ["RAW", "ESTIMATE", "COMPENSATOR", "STATUS", "STATS", "TOPICS", "SCHEMAS", "schema_bytes", "json_bytes"]
+__all__ = ["RAW", "ESTIMATE", "COMPENSATOR", "STATUS", "STATS", "TOPICS", "SCHEMAS", "schema_bytes"]
 
 RAW, ESTIMATE, COMPENSATOR, STATUS, STATS = "/raw", "/estimate", "/compensator", "/status", "/stats"
 
@@ -78,20 +76,3 @@ TOPICS = tuple(SCHEMAS)
 def schema_bytes(topic: str) -> bytes:
     """The JSON schema registered for ``topic``."""
     return json.dumps(SCHEMAS[topic][1]).encode()
-
-
-def json_bytes(obj: Any) -> bytes:
-    """Small messages: JSON without NaN (not JSON); NaN and inf become null."""
-    return json.dumps(_finite(obj), separators=(",", ":"), allow_nan=False).encode()
-
-
-def _finite(obj: Any) -> Any:
-    if isinstance(obj, float):
-        return obj if np.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k): _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return _finite(obj.item())
-    return obj
