@@ -7,7 +7,8 @@
      │                                   presets, sim_backend/, acquisition/ (bench_commands, daemon,
      │                                   sources, stages), cli/   (also a ValueError)
      ├── RecordingError                  a recording or log cannot be read or written (names file/line/
-     │                                   column); formats/, analysis/identification, cli/   (also ValueError)
+     │                                   column); formats/, analysis/identification, acquisition/record (a
+     │                                   record or replay whose pipeline failed), cli/   (also ValueError)
      ├── EstimationError                 the data cannot give the asked-for estimate (names the recording);
      │                                   analysis/   (also a ValueError)
      ├── SimulationError                 the simulated rig cannot follow what it was asked (names rig and
@@ -17,6 +18,8 @@
      │                                   no commands (acquisition/service, zenoh_bus); on the client side
      │                                   (acquisition/control, zenoh_bus.send_command) any ``ok: false``
      │                                   reply, with the daemon's ``reply``
+     ├── TooManyFaults                   acquisition/service: faults in quick succession, the service stops
+     │                                   (the daemon exits 1; the last fault is the ``__cause__``)
      ├── NetworkError                    the zenoh network: an endpoint, a reply
      │    ├── ListenError                acquisition/zenoh_bus.open_session: a listen endpoint is taken
      │    └── NoReply                    nobody answered a command or query in time; acquisition/control,

@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from ..errors import BenchError
+from ..errors import BenchError, RecordingError
 from ..formats.mcaplog import McapRecorder, McapSource, iter_blocks
 from ..messages import OperatingPoint
 from .pipeline import Pipeline
@@ -33,7 +33,8 @@ def record_log(source, out: str | Path, *, estimation: Mapping[str, float] | Non
                timeout_s: float | None = None) -> dict[str, Any]:
     """Run ``source`` through the pipeline (no zenoh) into one MCAP log; a summary: ``log`` (the
     paths), ``samples``, ``estimates`` (in order), ``bytes``, ``stats``.  Ctrl-C or ``timeout_s``
-    stop it; a pipeline failure is a ``BenchError`` naming ``out``."""
+    stop it; a pipeline failure is a :class:`RecordingError` naming ``out`` (the log could not be
+    written to its end), the stage's error its ``__cause__``."""
     settings = {"periods": 10.0, "settle_periods": 2.0, **(estimation or {})}
     est = WindowEstimator(source.fs_hz, source.metadata(), **settings)
     settings["settle_s"] = est.settle_s  # what the live run skipped after each change: replays skip the same
@@ -51,7 +52,8 @@ def record_log(source, out: str | Path, *, estimation: Mapping[str, float] | Non
 def replay_log(path: str | Path, *, speed: str = "max", out: str | Path | None = None,
                on_message: Listener | None = None, overwrite: bool = False) -> list[dict]:
     """Feed a log through the same pipeline (estimation settings from the log); the estimates.
-    With ``out``, the replay is itself recorded."""
+    With ``out``, the replay is itself recorded.  A failure is a :class:`RecordingError` naming
+    ``path`` (or ``out``)."""
     src = McapSource(path, pace="realtime" if speed == "realtime" else "max")
     if out is not None:
         return record_log(src, out, estimation=estimation_settings(src.config), overwrite=overwrite,
@@ -84,5 +86,5 @@ def _run_collecting(pipe: Pipeline, on_message: Listener | None, timeout_s: floa
     except KeyboardInterrupt:
         pipe.stop()
     if pipe.error is not None:
-        raise BenchError(f"{failure}: {pipe.error}") from pipe.error
+        raise RecordingError(f"{failure}: {pipe.error}") from pipe.error
     return estimates

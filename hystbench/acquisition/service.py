@@ -24,7 +24,7 @@ from ..messages import OperatingPoint
 from .bench_commands import MIN_FREQUENCY_HZ, Limits, check_command
 from .source_config import build_source
 
-__all__ = ["BenchService", "MAX_FAULTS", "FAULT_WINDOW_S"]
+__all__ = ["BenchService", "TooManyFaults", "MAX_FAULTS", "FAULT_WINDOW_S"]
 
 log = logging.getLogger("hystbench.daemon")
 
@@ -36,6 +36,13 @@ FAULT_WINDOW_S = 60.0
 DWELL_STALL_S = 30.0
 #: How often a dwell looks at the stop request and the source's progress.
 DWELL_POLL_S = 0.05
+
+
+class TooManyFaults(BenchError):
+    """More than ``MAX_FAULTS`` faults within ``FAULT_WINDOW_S``: restarting the source again would
+    only meet the same fault, so the service stops (the daemon exits 1, systemd restarts it).  Not
+    the class of the last fault (that may be an instrument's, the log's, the simulation's): the
+    service's own verdict on all of them; the last one is its ``__cause__``."""
 
 
 def _log_path(folder: Path, bench: str) -> Path:
@@ -201,7 +208,8 @@ class BenchService:
     def recover(self, timeout_s: float = 10.0) -> bool:
         """If a pipeline stage failed: output off, the fault published and logged, the source and
         the pipeline started again (output off) in a new log part.  Returns whether it did; raises
-        BenchError when faults come too quickly or the source cannot be opened again."""
+        :class:`TooManyFaults` when faults come too quickly, or what opening the source raises
+        when it cannot be opened again."""
         from ..formats.mcaplog.schemas import STATUS
 
         p = self.pipeline
@@ -229,7 +237,7 @@ class BenchService:
             self.recorder.add_message(STATUS, fault, fault["t_ns"])
             self.recorder.rotate()
         if recent > MAX_FAULTS:
-            raise BenchError(f"{recent} faults within {FAULT_WINDOW_S:g} s, giving up; the last: {message}")
+            raise TooManyFaults(f"{recent} faults within {FAULT_WINDOW_S:g} s, giving up; the last: {message}") from err
         self.source = build_source(self.cfg, clear_faults=True)
         self._reset_point()
         self._start_pipeline(tripped)

@@ -198,12 +198,12 @@ def cmd_bench(args) -> int:
     except ImportError:
         benchmarks = None
     if not getattr(benchmarks, "HYSTBENCH_BENCHMARKS", False):
-        raise BenchError("the benchmarks are not installed: they live in the source checkout (`make test` "
+        raise ConfigError("the benchmarks are not installed: they live in the source checkout (`make test` "
                          "or `pip install -e .` there installs them)")
     try:
         module = benchmarks.load(args.name)
     except LookupError as err:
-        raise BenchError(str(err.args[0])) from None
+        raise ConfigError(str(err.args[0])) from None  # NAME is a command-line value
     return int(module.main(args.rest) or 0)
 
 

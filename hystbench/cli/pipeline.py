@@ -283,7 +283,7 @@ def cmd_record(args) -> int:
     except BenchError as err:  # a log with no measurement in it would only block the retry: remove it
         if ours and out.is_file() and not has_measurement(out):
             out.unlink()
-            raise BenchError(f"{err} (nothing was recorded with the output on; {out} removed)") from err
+            raise RecordingError(f"{err} (nothing was recorded with the output on; {out} removed)") from err
         raise
     finally:
         src.close()

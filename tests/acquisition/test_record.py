@@ -1,4 +1,4 @@
-"""``acquisition.record``: what ``hystbench record`` keeps when a recording fails.
+"""``acquisition.record``: what ``hystbench record`` keeps when a recording fails, and how it says so.
 
 A log whose blocks were all sampled with the output off holds no measurement (the bench's idle
 samples before the first command); ``has_measurement`` reads each block's output state through
@@ -9,10 +9,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
-from hystbench.acquisition.record import has_measurement
+from hystbench.acquisition.record import has_measurement, record_log, replay_log
 from hystbench.blocks import SampleBlock
-from hystbench.formats.mcaplog import McapRecorder
+from hystbench.errors import RecordingError
+from hystbench.formats.mcaplog import McapRecorder, McapSource
 from hystbench.messages import OperatingPoint
 
 FS = 10_000.0
@@ -42,3 +44,47 @@ def test_an_unreadable_log_counts_as_a_measurement(tmp_path: Path) -> None:
     good = _log(tmp_path / "whole.mcap", [OperatingPoint(320.0, 1.4, output_on=False).to_meta()])
     bad.write_bytes(good.read_bytes()[:40])
     assert has_measurement(bad)
+
+
+# --- a pipeline that fails: the error names the log, as a RecordingError ----------------------------
+def cut_log(tmp_path: Path) -> Path:
+    """A log of 20 blocks whose 15th raw message has a character base64 does not allow: the reader
+    gives the first blocks, then fails in the pipeline's source thread (what a damaged disk does)."""
+    path = tmp_path / "damaged.mcap"
+    meta = OperatingPoint(320.0, 1.4).to_meta()
+    rng = np.random.default_rng(1)
+    with McapRecorder(path, compression="none", idle_raw="full",
+                      metadata={"recording": {"rig": "ecore_pm", "frequency_Hz": 320.0, "sample_rate_Hz": FS,
+                                              "current_pp_A": 1.4}}) as rec:
+        for k in range(20):
+            rec.add_block(SampleBlock(1000 * k, FS, {"current_A": rng.standard_normal(1000)}, meta=meta))
+    data = path.read_bytes()
+    at = -1
+    for _ in range(15):  # the 15th block's data
+        at = data.index(b'"data":"', at + 1)
+    path.write_bytes(data[:at + 20] + b"!" + data[at + 21:])
+    return path
+
+
+def test_a_replay_whose_source_fails_is_a_recording_error_naming_the_log(tmp_path: Path) -> None:
+    log = cut_log(tmp_path)
+    with pytest.raises(RecordingError, match=r"damaged\.mcap: replay failed: .*damaged\.mcap: raw message") as info:
+        replay_log(log)
+    assert isinstance(info.value.__cause__, RecordingError)  # the reader's own error, kept as the cause
+
+
+def test_a_recording_whose_source_fails_is_a_recording_error_naming_the_output(tmp_path: Path) -> None:
+    out = tmp_path / "out.mcap"
+    with pytest.raises(RecordingError, match=r"out\.mcap: recording failed: .*damaged\.mcap"):
+        record_log(McapSource(cut_log(tmp_path)), out)
+    assert out.is_file() and has_measurement(out)  # what came before the damage is kept
+
+
+def test_the_command_line_says_a_failed_replay_in_one_line_exit_2(tmp_path: Path, capsys) -> None:
+    from hystbench.cli.main import main
+
+    log = cut_log(tmp_path)
+    assert main(["replay", str(log)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"hystbench replay: error: {log}: replay failed: ") and "raw message" in err
+    assert "\n" not in err and "Traceback" not in err

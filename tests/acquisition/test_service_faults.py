@@ -9,9 +9,14 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from pathlib import Path
 
+import pytest
+
 from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.acquisition.service import MAX_FAULTS, TooManyFaults
+from hystbench.errors import BenchError
 from hystbench.formats.mcaplog import STATUS, iter_log
 from hystbench.acquisition.zenoh_bus import (Subscription, free_port, load_zenoh_config, open_session, peer_config,
                                              send_command)
@@ -62,3 +67,30 @@ def test_a_fault_restarts_the_source_output_off_in_a_new_log_part(tmp_path: Path
     assert old[-1]["event"] == "fault" and "INTERLOCK" in old[-1]["message"]  # the fault closes the old part
     new = [m.json()["event"] for m in iter_log(paths[1], [STATUS])]
     assert "restarted" in new and new[-1] == "stopping"
+
+
+def test_faults_in_quick_succession_stop_the_service_with_too_many_faults(tmp_path: Path) -> None:
+    """The sixth fault within FAULT_WINDOW_S is not restarted from: recover raises TooManyFaults
+    (the service's verdict, not a bare BenchError), the amplifier's fault its cause, the output off.
+    The five earlier faults are entered as the service counted them (a real sixth one follows)."""
+    toml = tmp_path / "daemon.toml"
+    toml.write_text(f'[daemon]\nbench = "g"\nlog_dir = "{tmp_path.as_posix()}"\n[source]\nkind = "bench"\n'
+                    f'[zenoh]\nenabled = false\n', encoding="utf-8")
+    svc = BenchService(load_daemon_config(toml)).start()
+    try:
+        on = threading.Event()
+        svc.pipeline.listeners.append(lambda t, o: on.set() if t == "/estimate" else None)
+        svc.command("output", {"on": True})
+        assert on.wait(30.0)
+        now = time.monotonic()
+        svc.faults.extend((now, f"earlier fault {k}") for k in range(MAX_FAULTS))
+        source = svc.source
+        source.emu.amplifier.trip("INTERLOCK")
+        assert svc.pipeline.join(30.0)
+        with pytest.raises(TooManyFaults, match=rf"{MAX_FAULTS + 1} faults within .* giving up; the last: .*INTERLOCK") \
+                as info:
+            svc.recover()
+        assert info.value.__cause__ is svc.pipeline.error and isinstance(info.value, BenchError)
+        assert not source.emu.rig.output_enabled and svc.source is source  # output off; no restart
+    finally:
+        svc.stop()
