@@ -88,7 +88,7 @@ class Key:
     def type_problem(self, value: Any) -> str | None:
         """'must be int > 0' and the like (the type, with the range), or None for the right type."""
         bad = (isinstance(value, bool) and self.kind is not bool) or not isinstance(value, self.kind)
-        if not bad and self.whole and not (math.isfinite(float(value)) and float(value) == int(value)):
+        if not bad and self.whole and not (math.isfinite(_float(value)) and float(value) == int(value)):
             bad = True
         if not bad:
             return None
@@ -107,7 +107,7 @@ class Key:
         if self.choices is not None and value not in self.choices:
             return f"must be one of {', '.join(map(str, self.choices))}"
         if self.numeric:
-            x = float(value)
+            x = _float(value)
             if not math.isfinite(x):
                 return f"must be {self.range_text() or 'a finite number'}"
             if (self.gt is not None and not x > self.gt) or (self.ge is not None and not x >= self.ge) or (
@@ -146,6 +146,15 @@ class Key:
 
 
 Schema = Mapping[str, Key]
+
+
+def _float(value: Any) -> float:
+    """``float(value)``, an integer too large for a float being infinite (TOML's reader and JSON's
+    give integers of any length, and ``float(10**400)`` raises OverflowError)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
 
 
 def _place(where: str, table: str) -> str:
