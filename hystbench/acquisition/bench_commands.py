@@ -1,10 +1,12 @@
 """What a bench command may ask: every ``cmd/<verb>`` is checked here BEFORE it is answered.
 
 A command that passes cannot fail later for what it asked (the sources apply it between blocks,
-in the source thread, where a refusal would stop the pipeline): its numbers are finite, of the
-right type, its keys known, the excitation frequency inside ``[MIN_FREQUENCY_HZ, fs / 10]`` (and
-the generator's range) and the peak coil current ``|offset| + I_pp / 2`` within the bench's
-limit.  The limit is checked on the operating point the command leads to (the last one commanded,
+in the source thread, where a refusal would stop the pipeline): its keys known, each argument of
+the type and in the range its :class:`~hystbench.config.schema.Key` in :data:`ARGUMENTS` says (the
+one validator of every TOML file; a number is first a finite one, as JSON may carry ``1e999``), and
+the rules no single argument can say: the excitation frequency inside ``[MIN_FREQUENCY_HZ, fs / 10]``
+(and the generator's range), at most ``MAX_SWEEP_POINTS`` frequencies in a sweep, and the peak coil
+current ``|offset| + I_pp / 2`` within the bench's limit.  The limit is checked on the operating point the command leads to (the last one commanded,
 with this command's changes), so two commands that are each fine cannot add up to too much.
 
 That point is a :class:`hystbench.messages.OperatingPoint`, the type the blocks carry: the commands
@@ -15,23 +17,16 @@ block; the current limit holds whether the output is on or not, as it may be swi
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
+from ..config.schema import NUM, OPTIONAL, Key
 from ..errors import ConfigError
 from ..messages import OperatingPoint
 
-__all__ = ["Limits", "check_command", "check_frequency", "check_current", "COMMANDS",
+__all__ = ["Limits", "check_command", "check_frequency", "check_current", "ARGUMENTS", "COMMANDS",
            "MIN_FREQUENCY_HZ", "MIN_SAMPLES_PER_PERIOD", "MAX_SWEEP_POINTS", "MAX_DWELL_S"]
 
-#: The verbs, with the arguments each takes.
-COMMANDS: Mapping[str, tuple[str, ...]] = {
-    "start_sweep": ("frequencies_hz", "current_pp_a", "dwell_s"),
-    "stop_sweep": (),
-    "set_excitation": ("frequency_hz", "current_pp_a", "offset_a"),
-    "output": ("on",),
-}
 #: Below this the estimator's window of whole periods (10 by default) grows past what a ring and
 #: a live display are for; quasi-static loops are measured from 1 Hz.
 MIN_FREQUENCY_HZ = 1.0
@@ -41,6 +36,30 @@ MAX_SWEEP_POINTS = 1000
 MAX_DWELL_S = 86_400.0
 #: The signal generator's frequency range (drivers.protocols.scpi.GENERATOR["frequency_hz"]).
 GENERATOR_MAX_HZ = 1e5
+
+#: Any finite number: what every numeric argument is checked as first.
+_FINITE = Key(NUM, None, "a finite number")
+#: A frequency; its range is the bench's (:meth:`Limits.max_frequency_hz`), a rule: :func:`check_frequency`.
+_FREQUENCY = Key(NUM, None, "frequencies", "Hz")
+#: The verbs, and what each argument may hold.  ``start_sweep`` fills what it is not given from
+#: the daemon file's [sweep]; ``set_excitation`` changes what it is given.
+ARGUMENTS: Mapping[str, Mapping[str, Key]] = {
+    "start_sweep": {
+        "frequencies_hz": Key(list, OPTIONAL, "the sweep's frequencies, in order", "Hz", items=_FREQUENCY,
+                              nonempty=True),
+        "current_pp_a": Key(NUM, OPTIONAL, "excitation current, peak to peak", "A", ge=0.0),
+        "dwell_s": Key(NUM, OPTIONAL, "time at each frequency", "s", gt=0.0, le=MAX_DWELL_S),
+    },
+    "stop_sweep": {},
+    "set_excitation": {
+        "frequency_hz": Key(NUM, OPTIONAL, "excitation frequency", "Hz"),
+        "current_pp_a": Key(NUM, OPTIONAL, "excitation current, peak to peak", "A", ge=0.0),
+        "offset_a": Key(NUM, OPTIONAL, "DC offset of the current", "A"),
+    },
+    "output": {"on": Key(bool, None, "the amplifier's output on")},
+}
+#: The verbs, with the arguments each takes.
+COMMANDS: Mapping[str, tuple[str, ...]] = {verb: tuple(args) for verb, args in ARGUMENTS.items()}
 
 
 @dataclass(frozen=True)
@@ -65,17 +84,14 @@ def _show(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _number(name: str, value: Any) -> float:
-    """A finite number (not a bool, not a string), as float."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{name} must be a number, got {_show(value)}")
-    try:
-        x = float(value)
-    except OverflowError:
-        x = math.inf
-    if not math.isfinite(x):
-        raise ConfigError(f"{name} must be a finite number, got {_show(value)}")
-    return x
+def _number(name: str, value: Any, spec: Key = _FINITE) -> float:
+    """``value`` as float if it is a finite number (not a bool, not a string) that ``spec`` allows;
+    the ConfigError names ``name`` ('verb: argument') and says the range, with its unit."""
+    bad = _FINITE.problem(value) or spec.problem(value)
+    if bad:
+        unit = f" {spec.unit}" if spec.unit and bad == f"must be {spec.range_text()}" else ""
+        raise ConfigError(f"{name} {bad}{unit}, got {_show(value)}")
+    return float(value)
 
 
 def check_frequency(name: str, value: Any, limits: Limits) -> float:
@@ -86,8 +102,6 @@ def check_frequency(name: str, value: Any, limits: Limits) -> float:
 
 
 def check_current(what: str, point: OperatingPoint, limits: Limits) -> None:
-    if point.current_pp_a < 0:
-        raise ConfigError(f"{what}: current_pp_a must be >= 0, got {point.current_pp_a:g}")
     if point.peak_a > limits.max_current_a * (1 + 1e-9):
         raise ConfigError(f"{what}: peak current |offset| + I_pp/2 = {point.peak_a:.4g} A exceeds the bench's "
                           f"limit of {limits.max_current_a:g} A (I_pp <= {2 * limits.max_current_a:g} A at offset 0)")
@@ -107,32 +121,28 @@ def check_command(verb: Any, args: Any, limits: Limits, point: OperatingPoint,
         raise ConfigError(f"{verb}: unknown argument(s) {_show(unknown)}; it takes: {known}")
     if verb == "stop_sweep":
         return {}, point
+    keys = ARGUMENTS[verb]
     if verb == "output":
-        if not isinstance(args.get("on"), bool):
+        if keys["on"].problem(args.get("on")):  # "'on'": the word alone would read as part of the sentence
             raise ConfigError(f"output: 'on' must be true or false, got {_show(args.get('on'))}")
         return {"on": args["on"]}, point
     if verb == "set_excitation":
         if not args:
             raise ConfigError(f"set_excitation: give at least one of {', '.join(COMMANDS[verb])}")
-        out: dict[str, Any] = {}
-        if "frequency_hz" in args:
-            out["frequency_hz"] = check_frequency("set_excitation: frequency_hz", args["frequency_hz"], limits)
-        for k in ("current_pp_a", "offset_a"):
-            if k in args:
-                out[k] = _number(f"set_excitation: {k}", args[k])
+        out = {k: _number(f"set_excitation: {k}", args[k], spec) for k, spec in keys.items() if k in args}
+        if "frequency_hz" in out:
+            check_frequency("set_excitation: frequency_hz", out["frequency_hz"], limits)
         new = replace(point, **out)
         check_current("set_excitation", new, limits)
         return out, new
-    sw = dict(sweep_defaults or {})
-    freqs = args.get("frequencies_hz", sw.get("frequencies_hz"))
+    given = {k: args.get(k, (sweep_defaults or {}).get(k)) for k in keys}  # start_sweep
+    freqs = given["frequencies_hz"]
     if not isinstance(freqs, (list, tuple)) or not 1 <= len(freqs) <= MAX_SWEEP_POINTS:
         raise ConfigError(f"start_sweep: frequencies_hz must be a list of 1 to {MAX_SWEEP_POINTS} frequencies, "
                           f"got {_show(freqs)}")
     fs = [check_frequency(f"start_sweep: frequencies_hz[{k}]", f, limits) for k, f in enumerate(freqs)]
-    ipp = _number("start_sweep: current_pp_a", args.get("current_pp_a", sw.get("current_pp_a")))
-    dwell = _number("start_sweep: dwell_s", args.get("dwell_s", sw.get("dwell_s")))
-    if not 0 < dwell <= MAX_DWELL_S:
-        raise ConfigError(f"start_sweep: dwell_s must be in (0, {MAX_DWELL_S:g}] s, got {dwell:g}")
+    ipp = _number("start_sweep: current_pp_a", given["current_pp_a"], keys["current_pp_a"])
+    dwell = _number("start_sweep: dwell_s", given["dwell_s"], keys["dwell_s"])
     new = replace(point, frequency_hz=fs[-1], current_pp_a=ipp)
     check_current("start_sweep", new, limits)
     return {"frequencies_hz": fs, "current_pp_a": ipp, "dwell_s": dwell}, new

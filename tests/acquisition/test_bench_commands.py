@@ -19,7 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hystbench.acquisition.bench_commands import COMMANDS, Limits, check_command
+from hystbench.acquisition.bench_commands import ARGUMENTS, COMMANDS, Limits, check_command
 from hystbench.acquisition.daemon import BenchService, load_daemon_config
 from hystbench.formats.mcaplog import iter_blocks
 from hystbench.acquisition.zenoh_bus import free_port, key, load_zenoh_config, open_session, peer_config
@@ -78,6 +78,27 @@ def test_the_commanded_point_is_the_operating_point_the_blocks_carry() -> None:
     _, q = check_command("start_sweep", {"frequencies_hz": [40.0, 80.0], "current_pp_a": 1.0, "dwell_s": 1.0},
                          LIMITS, p)
     assert q == OperatingPoint(80.0, 1.0, -0.6, output_on=False, table=3)  # the last point; the offset stays
+
+
+def test_each_argument_is_checked_by_its_key_of_the_one_validator() -> None:
+    """The per-argument rules are the Keys of ARGUMENTS (hystbench.config.schema, which checks every
+    TOML file): type, finiteness, range and unit come from there; the verbs take what they list."""
+    assert {verb: set(keys) for verb, keys in ARGUMENTS.items()} == {
+        "start_sweep": {"frequencies_hz", "current_pp_a", "dwell_s"}, "stop_sweep": set(),
+        "set_excitation": {"frequency_hz", "current_pp_a", "offset_a"}, "output": {"on"}}
+    assert COMMANDS == {verb: tuple(keys) for verb, keys in ARGUMENTS.items()}
+    sweep = {"frequencies_hz": [40.0], "current_pp_a": 1.4, "dwell_s": 1.0}
+    ok, _ = check_command("start_sweep", {"dwell_s": 86_400}, LIMITS, HERE, sweep)  # a day at one point: the most
+    assert ok["dwell_s"] == 86_400.0 and type(ok["dwell_s"]) is float
+    with pytest.raises(ConfigError, match=r"^start_sweep: dwell_s must be in \(0, 86400\] s, got 86400\.5$"):
+        check_command("start_sweep", {"dwell_s": 86_400.5}, LIMITS, HERE, sweep)
+    for verb in ("set_excitation", "start_sweep"):
+        with pytest.raises(ConfigError, match=rf"^{verb}: current_pp_a must be >= 0 A, got -0\.001$"):
+            check_command(verb, {"current_pp_a": -0.001}, LIMITS, HERE, sweep)
+    with pytest.raises(ConfigError, match=r"^start_sweep: dwell_s must be a finite number, got 1000"):
+        check_command("start_sweep", {"dwell_s": 10**400}, LIMITS, HERE, sweep)  # JSON integers have no bound
+    with pytest.raises(ConfigError, match=r"^set_excitation: offset_a must be a finite number, got -inf$"):
+        check_command("set_excitation", {"offset_a": -math.inf}, LIMITS, HERE)
 
 
 def test_the_sweep_fills_in_its_defaults_and_checks_them() -> None:
