@@ -95,6 +95,8 @@ def _number(name: str, value: Any, spec: Key = _FINITE) -> float:
 
 
 def check_frequency(name: str, value: Any, limits: Limits) -> float:
+    """``value`` as a frequency the bench can play and sample (Hz); one check for a command and a
+    daemon file, so a value the daemon would refuse as a command is refused in its file already."""
     f = _number(name, value)
     if not MIN_FREQUENCY_HZ <= f <= limits.max_frequency_hz:
         raise ConfigError(f"{name} = {f:g} Hz is outside {limits.frequency_text()}")
@@ -102,6 +104,8 @@ def check_frequency(name: str, value: Any, limits: Limits) -> float:
 
 
 def check_current(what: str, point: OperatingPoint, limits: Limits) -> None:
+    """Refuse an operating point whose peak coil current exceeds the bench's limit, before the
+    amplifier is asked to drive it."""
     if point.peak_a > limits.max_current_a * (1 + 1e-9):
         raise ConfigError(f"{what}: peak current |offset| + I_pp/2 = {point.peak_a:.4g} A exceeds the bench's "
                           f"limit of {limits.max_current_a:g} A (I_pp <= {2 * limits.max_current_a:g} A at offset 0)")

@@ -10,11 +10,14 @@ control dropping the query).
 from __future__ import annotations
 
 import threading
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..deadline import Deadline
 from ..errors import CommandRefused, ConfigError, NoReply
 from .zenoh_bus import COMMANDS, key, load_zenoh_config, open_session, query_json
+
+if TYPE_CHECKING:
+    import zenoh
 
 __all__ = ["DEFAULT_CONNECT", "QUERIES", "MAX_TIMEOUT_S", "BenchControl", "open_client", "describe_endpoint"]
 
@@ -33,7 +36,7 @@ def describe_endpoint(connect: Sequence[str] | None, zenoh_config: str | None) -
     return f"the endpoints of zenoh config {zenoh_config}" if zenoh_config else DEFAULT_CONNECT
 
 
-def open_client(connect: Sequence[str] | None = None, zenoh_config: str | None = None):
+def open_client(connect: Sequence[str] | None = None, zenoh_config: str | None = None) -> zenoh.Session:
     """A client session: a peer that listens nowhere and connects to ``connect`` (default
     :data:`DEFAULT_CONNECT`, or the endpoints of ``zenoh_config`` when one is given)."""
     endpoints = list(connect or ([] if zenoh_config else [DEFAULT_CONNECT]))
@@ -48,7 +51,8 @@ class BenchControl:
     ``connect`` / ``zenoh_config``.  ``timeout_s`` bounds each request."""
 
     def __init__(self, bench: str = "bench1", *, connect: Sequence[str] | None = None,
-                 zenoh_config: str | None = None, timeout_s: float = 2.0, session=None) -> None:
+                 zenoh_config: str | None = None, timeout_s: float = 2.0,
+                 session: zenoh.Session | None = None) -> None:
         key(bench)  # a bad name is refused before anything is opened
         if not 0 < timeout_s <= MAX_TIMEOUT_S:
             raise ConfigError(f"timeout must be in (0, {MAX_TIMEOUT_S:g}] s, got {timeout_s!r}")

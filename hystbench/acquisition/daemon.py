@@ -26,7 +26,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..config import read_toml
 from ..config.schema import NUM, Key, check_table
@@ -36,6 +36,9 @@ from .bench_commands import MAX_DWELL_S
 from .sd_notify import Notifier
 from .service import BenchService
 from .source_config import build_source, check_source
+
+if TYPE_CHECKING:
+    import zenoh
 
 __all__ = ["load_daemon_config", "DaemonConfig", "BenchService", "run_daemon", "DEFAULTS", "build_source"]
 
@@ -204,7 +207,9 @@ def _bench_file_as_daemon_config(data: dict[str, Any], path, where: str) -> dict
     return {"source": {"kind": "bench", "bench_file": str(path)}}
 
 
-def zenoh_config(cfg: DaemonConfig):
+def zenoh_config(cfg: DaemonConfig) -> zenoh.Config:
+    """The session's config: the [zenoh] config file (or a bare peer) with the daemon file's
+    ``listen``/``connect`` on top only where the file names them, so a zenoh file keeps its own."""
     from .zenoh_bus import load_zenoh_config
 
     z = cfg["zenoh"]

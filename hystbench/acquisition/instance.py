@@ -21,9 +21,12 @@ import json
 import os
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError
+
+if TYPE_CHECKING:
+    import zenoh
 
 __all__ = ["state_dir", "default_log_dir", "BenchLock", "claim_on_zenoh", "ALIVE"]
 
@@ -42,6 +45,8 @@ def state_dir() -> tuple[Path, str]:
 
 
 def default_log_dir() -> tuple[Path, str]:
+    """(folder, how to say it) for a daemon's logs when its file names none: beside the bench lock
+    in the state directory, never the working directory a service happens to start in."""
     folder, why = state_dir()
     return folder / "logs", f"{why}/logs"
 
@@ -109,7 +114,7 @@ def _describe(info: dict[str, Any]) -> str:
     return f"PID {pid} (zenoh {ends}; config {cfg})"
 
 
-def claim_on_zenoh(session, bench: str, *, timeout_s: float = 1.0):
+def claim_on_zenoh(session: zenoh.Session, bench: str, *, timeout_s: float = 1.0) -> zenoh.LivelinessToken:
     """Refuse if a daemon of ``bench`` is alive on the zenoh network ``session`` reaches; else
     declare this daemon's liveliness token (returned: keep it, undeclare it at stop)."""
     from .zenoh_bus import key, query_json

@@ -31,9 +31,10 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Mapping, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from ..blocks import BlockFlags, SampleBlock
 from ..errors import ConfigError
@@ -42,6 +43,11 @@ from ..messages import Estimate
 from .ring import RingBuffer, RingRead, RingReader
 from .sources import Controllable
 from .stages import WindowEstimator
+
+if TYPE_CHECKING:
+    from ..formats.mcaplog.recorder import McapRecorder
+    from .sources import Source
+    from .zenoh_bus import ZenohBus
 
 __all__ = ["Pipeline", "StageStats", "CompensatorHook", "Compensator", "Message"]
 
@@ -104,9 +110,10 @@ class Pipeline:
     wait for the slowest stage instead of overrunning it; ``backpressure`` is set while it waits.
     """
 
-    def __init__(self, source, *, estimator: WindowEstimator | None = None, recorder=None, bus=None,
+    def __init__(self, source: Source, *, estimator: WindowEstimator | None = None,
+                 recorder: McapRecorder | None = None, bus: ZenohBus | None = None,
                  compensator: Callable[[Estimate, SampleBlock | None], dict | None] | None = None,
-                 ring_seconds: float = 2.0, dtype: Any = np.float32, queue_size: int = 1024,
+                 ring_seconds: float = 2.0, dtype: DTypeLike = np.float32, queue_size: int = 1024,
                  stats_interval_s: float = 1.0, publish_raw: bool = True,
                  gil_switch_s: float | None = 0.0005, background_nice: int = 10,
                  lossless: bool | None = None) -> None:

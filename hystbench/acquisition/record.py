@@ -8,13 +8,16 @@ demo record with.  A replay estimates with the settings the log was recorded wit
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 from ..errors import BenchError, RecordingError
 from ..formats.mcaplog import McapRecorder, McapSource, iter_blocks
 from ..messages import OperatingPoint
 from .pipeline import Pipeline
 from .stages import WindowEstimator
+
+if TYPE_CHECKING:
+    from .sources import Source
 
 __all__ = ["record_log", "replay_log", "has_measurement", "estimation_settings"]
 
@@ -28,7 +31,7 @@ def estimation_settings(cfg: Mapping[str, Any] | None) -> dict[str, float]:
     return {k: float(e[k]) for k in keys if k in e}
 
 
-def record_log(source, out: str | Path, *, estimation: Mapping[str, float] | None = None,
+def record_log(source: Source, out: str | Path, *, estimation: Mapping[str, float] | None = None,
                compression: str = "zstd", overwrite: bool = False, on_message: Listener | None = None,
                timeout_s: float | None = None) -> dict[str, Any]:
     """Run ``source`` through the pipeline (no zenoh) into one MCAP log; a summary: ``log`` (the

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from ..blocks import BlockFlags, SampleBlock
 from ..deadline import Deadline
@@ -66,7 +67,7 @@ class RingBuffer:
     """
 
     def __init__(self, channels: Sequence[str], capacity: int, *, fs_hz: float,
-                 dtype: np.dtype | type = np.float32, max_records: int = 4096) -> None:
+                 dtype: DTypeLike = np.float32, max_records: int = 4096) -> None:
         if not channels:
             raise ValueError("channels must name at least one channel")
         if len(set(channels)) != len(channels):

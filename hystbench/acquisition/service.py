@@ -17,12 +17,18 @@ import time
 from collections import deque
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .. import __version__
 from ..errors import BenchError, CommandRefused, ConfigError
 from ..messages import OperatingPoint
 from .bench_commands import MIN_FREQUENCY_HZ, Limits, check_command
 from .source_config import build_source
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from .daemon import DaemonConfig
 
 __all__ = ["BenchService", "TooManyFaults", "MAX_FAULTS", "FAULT_WINDOW_S"]
 
@@ -94,7 +100,7 @@ class BenchService:
     keeps it across reloads whose [zenoh] section did not change); otherwise one is opened from
     the config and owned here."""
 
-    def __init__(self, cfg, *, session=None) -> None:
+    def __init__(self, cfg: DaemonConfig, *, session: zenoh.Session | None = None) -> None:
         self.cfg = cfg
         self.source = build_source(cfg)
         self.session = session

@@ -16,12 +16,16 @@ daemon would refuse as a command is refused in its file already.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ..drivers.protocols.bench_config import load_bench_config
 from ..errors import ConfigError
 from ..messages import OperatingPoint
 from .bench_commands import Limits, check_current, check_frequency
+
+if TYPE_CHECKING:
+    from .daemon import DaemonConfig
+    from .sources import BenchSource, RigSource, SyntheticSource
 
 __all__ = ["check_source", "build_source", "bench_file_limits"]
 
@@ -95,7 +99,7 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
     return limits
 
 
-def build_source(cfg, *, clear_faults: bool = False):
+def build_source(cfg: DaemonConfig, *, clear_faults: bool = False) -> RigSource | SyntheticSource | BenchSource:
     """The configured source (``cfg``: a checked :class:`~.daemon.DaemonConfig`); the output is off.
     ``clear_faults``: a restart after a fault (latched amplifier faults are cleared, output off)."""
     from .sources import RigSource, SyntheticSource, bench_source

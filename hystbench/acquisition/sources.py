@@ -17,13 +17,17 @@ import math
 import queue
 import threading
 import time
-from typing import Any, Callable, Iterator, Mapping, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from ..blocks import SampleBlock
 from ..errors import ConfigError
 from ..messages import OPERATING_KEYS, OperatingPoint
+
+if TYPE_CHECKING:
+    from ..sim_backend.rig import SimulatedRig
 
 __all__ = ["Source", "Controllable", "RigSource", "SyntheticSource", "BenchSource", "bench_source", "operating_meta",
            "OPERATING_KEYS"]
@@ -100,8 +104,8 @@ MAX_BLOCK_SAMPLES = 1_000_000
 class RigSource:
     """The simulated rig as a source; commands are queued and applied between blocks."""
 
-    def __init__(self, rig, *, block_samples: int = 1000, pace: str = "realtime",
-                 duration_s: float | None = None, dtype: Any = np.float32,
+    def __init__(self, rig: SimulatedRig, *, block_samples: int = 1000, pace: str = "realtime",
+                 duration_s: float | None = None, dtype: DTypeLike = np.float32,
                  max_current_a: float | None = None) -> None:
         if pace not in ("max", "realtime"):
             raise ConfigError(f"pace must be 'max' or 'realtime', got {pace!r}")
@@ -126,7 +130,8 @@ class RigSource:
             raise ConfigError(f"{self.name}: refused {what}: peak {peak_a:.4g} A exceeds the bench's "
                               f"max_current_a = {self.max_current_a:g} A")
 
-    def set_excitation(self, frequency_hz=None, current_pp_a=None, offset_a=None) -> None:
+    def set_excitation(self, frequency_hz: float | None = None, current_pp_a: float | None = None,
+                       offset_a: float | None = None) -> None:
         if frequency_hz is not None and not 0 < frequency_hz < self.fs_hz / 2:  # refuse now, not later
             raise ConfigError(f"frequency_hz {frequency_hz} must be in (0, {self.fs_hz / 2:g}) Hz")
         if current_pp_a is not None and not current_pp_a >= 0:
@@ -188,7 +193,7 @@ class SyntheticSource:
 
     def __init__(self, *, fs_hz: float = 1e6, frequency_hz: float = 320.0, block_samples: int = 10_000,
                  channels: tuple[str, ...] = ("current_A", "force_N", "flux_Wb", "command_V"),
-                 pace: str = "realtime", duration_s: float | None = None, dtype: Any = np.float32,
+                 pace: str = "realtime", duration_s: float | None = None, dtype: DTypeLike = np.float32,
                  flux_lag_s: float = 10e-6, force_lag_s: float = 12e-6, noise: float = 1e-3, seed: int = 0,
                  rig: str = "ecore_pm", current_pp_a: float = 1.4) -> None:
         period = max(4, int(round(fs_hz / frequency_hz)))
@@ -297,7 +302,8 @@ class BenchSource:
         return {**base, "rig": self.rig, "frequency_Hz": float(g["frequency_hz"]), "sample_rate_Hz": self.fs_hz,
                 "current_pp_A": float(g["amplitude_vpp"]) * self.gain, "source": self.name}
 
-    def set_excitation(self, frequency_hz=None, current_pp_a=None, offset_a=None) -> None:
+    def set_excitation(self, frequency_hz: float | None = None, current_pp_a: float | None = None,
+                       offset_a: float | None = None) -> None:
         g = self.bench.generator
         self._commands.put(_counted(self, lambda: g.set_sine(
             g.state["frequency_hz"] if frequency_hz is None else frequency_hz,
