@@ -5,28 +5,34 @@ back sample blocks with at least ``force_N``, ``current_A`` and ``command_V`` (t
 output monitor: the meter finds the table's phase in it).  ``current_limit_a`` is the most it
 may be asked for; an implementation refuses a table above it before anything is sent.
 
-:class:`RigActuation` drives a :class:`~hystbench.sim_backend.rig.SimulatedRig` directly (duck
-typed, so this package does not import the simulator).
+:class:`RigActuation` drives a :class:`~hystbench.sim_backend.rig.SimulatedRig` directly (imported
+for type checking only, so this package does not load the simulator).
 
-:class:`BenchActuation` drives a ``drivers.bench.Bench`` (duck typed likewise): the table goes to
+:class:`BenchActuation` drives a ``drivers.bench.Bench`` (likewise): the table goes to
 the signal generator as an arbitrary waveform over SCPI, the samples come back through the four
 instruments' streams -- real hardware, or the emulated instruments in front of a simulated rig.
 """
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
 from ..blocks import SampleBlock
 from .errors import CompensatorError
 
+if TYPE_CHECKING:
+    from ..drivers.bench import Bench
+    from ..sim_backend.rig import SimulatedRig
+
 __all__ = ["Actuation", "RigActuation", "BenchActuation"]
 
 
 @runtime_checkable
 class Actuation(Protocol):
+    """What the learning loop drives, so it runs alike on the simulated rig and on a bench (see above)."""
+
     name: str
     fs_hz: float
     current_limit_a: float
@@ -44,7 +50,7 @@ class RigActuation:
     """:class:`Actuation` on a simulated rig: its ``set_waveform``, ``set_excitation``,
     ``output_enabled`` and ``read``."""
 
-    def __init__(self, rig: Any, current_limit_a: float) -> None:
+    def __init__(self, rig: SimulatedRig, current_limit_a: float) -> None:
         if not current_limit_a > 0:
             raise CompensatorError(f"current_limit_a must be > 0, got {current_limit_a!r}")
         self.rig = rig
@@ -89,7 +95,7 @@ class BenchActuation:
     caller computed), so that, as on the rig directly, the next read starts at the change (within
     the transports' latency, which the loop's settling read covers)."""
 
-    def __init__(self, bench: Any, current_limit_a: float) -> None:
+    def __init__(self, bench: Bench, current_limit_a: float) -> None:
         if not current_limit_a > 0:
             raise CompensatorError(f"current_limit_a must be > 0, got {current_limit_a!r}")
         self.bench = bench

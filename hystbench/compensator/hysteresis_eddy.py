@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING, Iterable
 
 import numpy as np
 
@@ -35,6 +36,9 @@ from ..physics.hysteresis import PreisachHysteresis, PreisachParams
 from .errors import CompensatorError
 from .periodic import derivative, harmonics
 from .static import StaticLaw
+
+if TYPE_CHECKING:
+    from ..physics.mec import ECoreMEC
 
 __all__ = ["IronScaling", "HysteresisEddyModel", "FULL_TABLES", "FIT_TABLES", "PERIODS_TO_STEADY"]
 
@@ -61,7 +65,9 @@ class IronScaling:
     d_per_h: float
 
     @classmethod
-    def from_mec(cls, mec) -> "IronScaling":
+    def from_mec(cls, mec: ECoreMEC) -> "IronScaling":
+        """The scaling of the actuator's magnetic circuit at its nominal airgap: the model then
+        runs the iron at the flux densities the coil and the magnet really give it."""
         g = mec.geometry
         co = mec.flux_coefficients(g.airgap_m)
         area = g.middle_area_m2
@@ -174,7 +180,10 @@ def iron_drop(iron: PreisachHysteresis, scaling: IronScaling, j_a: np.ndarray) -
     return out
 
 
-def material_dict(j_irr: float, components, reversible, h_scale: float) -> dict:
+def material_dict(j_irr: float, components: Iterable[tuple[str, float, float, float]],
+                  reversible: Iterable[tuple[float, float]], h_scale: float) -> dict:
+    """The model file's ``material`` table (the inverse of :func:`preisach_params`): an identified
+    iron is saved with the model as plain JSON numbers."""
     return {"j_irr_T": float(j_irr), "h_scale_A_per_m": float(h_scale),
             "components": [[str(k), float(w), float(c), float(s)] for k, w, c, s in components],
             "reversible": [[float(j), float(h)] for j, h in reversible]}

@@ -42,6 +42,9 @@ __all__ = ["LearningConfig", "IterationReport", "LearningController"]
 
 @dataclass(frozen=True)
 class LearningConfig:
+    """The learning loop's settings, checked here once, so a bad value is refused before anything
+    is driven."""
+
     gain: float = 0.8
     iterations: int = 10
     band_hz: float | None = None  # the instrument is divided out up to here; None: 1.5 x its fn
@@ -60,6 +63,9 @@ class LearningConfig:
 
 @dataclass(frozen=True)
 class IterationReport:
+    """How one iteration went against the noise floor: its line in the report, and what decides
+    whether the loop goes on."""
+
     iteration: int  # 0: feed-forward only
     max_error_n: float  # max |e| over the averaged period
     rms_error_n: float

@@ -35,6 +35,8 @@ MAX_MEASURE_S = 60.0
 
 @dataclass
 class LoopResult:
+    """What the offline learning loop leaves: each iteration's report and the last table played."""
+
     history: list[IterationReport]
     current_a: np.ndarray  # the last table played
     command_force_n: np.ndarray  # the force the model was last asked for

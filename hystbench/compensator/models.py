@@ -44,6 +44,9 @@ MODEL_KINDS = ("nonhysteretic", "paper", "best")
 
 @runtime_checkable
 class ForceModel(Protocol):
+    """One period of current in, one period of force out, and back: all that fitting, prediction and
+    the compensator ask of a model, whichever it is."""
+
     kind: str
     name: str
     law: StaticLaw
@@ -64,10 +67,13 @@ class NonHysteretic:
     kind: str = "nonhysteretic"
     name: str = "eq1_mec"
 
-    def force_period(self, current_a, frequency_hz):
+    def force_period(self, current_a: np.ndarray, frequency_hz: float) -> np.ndarray:
+        """The static law sample by sample: the frequency does not matter to Eq. 1."""
         return self.law.force(current_a)
 
-    def current_period(self, force_n, frequency_hz, current_limit_a=None):
+    def current_period(self, force_n: np.ndarray, frequency_hz: float,
+                       current_limit_a: float | None = None) -> np.ndarray:
+        """The static inverse: the feed-forward that ignores hysteresis (the paper's baseline)."""
         return self.law.invert(force_n, current_limit_a=current_limit_a)
 
     def to_dict(self) -> dict:
@@ -92,10 +98,13 @@ class PaperModel:
     def theta(self, frequency_hz: float) -> float:
         return float(self.phase.theta(float(frequency_hz)))
 
-    def force_period(self, current_a, frequency_hz):
+    def force_period(self, current_a: np.ndarray, frequency_hz: float) -> np.ndarray:
+        """Eq. 6: the period delayed by theta(f) as a whole, then the static law."""
         return self.law.force(shift(current_a, self.theta(frequency_hz) / (2 * np.pi)))
 
-    def current_period(self, force_n, frequency_hz, current_limit_a=None):
+    def current_period(self, force_n: np.ndarray, frequency_hz: float,
+                       current_limit_a: float | None = None) -> np.ndarray:
+        """The static inverse advanced by theta(f): the phase lead that cancels the delay of Eq. 6."""
         j = self.law.invert(force_n, current_limit_a=current_limit_a)
         return shift(j, -self.theta(frequency_hz) / (2 * np.pi))
 
@@ -117,6 +126,7 @@ class PaperModel:
 
 
 def model_from_dict(d: Mapping[str, Any]) -> ForceModel:
+    """The model that a model file's entry describes, by its ``kind`` (the inverse of ``to_dict``)."""
     kind = d.get("kind")
     if kind == "nonhysteretic":
         return NonHysteretic(StaticLaw.from_dict(d["law"]))
@@ -154,6 +164,8 @@ def force_error(model: ForceModel, point: PeriodData, instrument: InstrumentMode
 # --- a set of models for one rig -----------------------------------------------------------------
 @dataclass
 class ModelSet:
+    """What ``hystbench model fit`` writes and ``compensate`` reads (see the module docstring)."""
+
     rig: str
     instrument: InstrumentModel
     models: dict[str, ForceModel]

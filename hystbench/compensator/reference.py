@@ -13,6 +13,7 @@ import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -52,8 +53,8 @@ class ForceReference:
         return float(self.force_n.min()), float(self.force_n.max())
 
     @classmethod
-    def multisine(cls, offset_n: float, frequency_hz: float, components, *, n_points: int = DEFAULT_POINTS,
-                  description: str | None = None) -> "ForceReference":
+    def multisine(cls, offset_n: float, frequency_hz: float, components: Sequence[tuple[float, float, float]], *,
+                  n_points: int = DEFAULT_POINTS, description: str | None = None) -> "ForceReference":
         """offset + sum amp_k sin(2 pi k f t + phase_k) for ``components`` [(k, amp_n, phase_deg)]."""
         ph = np.arange(n_points) / n_points
         f = np.full(n_points, float(offset_n))

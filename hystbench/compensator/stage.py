@@ -49,6 +49,8 @@ __all__ = ["CompensatorStage"]
 
 
 class CompensatorStage:
+    """The online compensator of the module docstring: the pipeline calls its :meth:`update`."""
+
     def __init__(self, model: ForceModel, reference: ForceReference, *, current_limit_a: float,
                  smoothing: float = 0.3, retune_deg: float = 0.02, learning: LearningConfig | None = None,
                  instrument: InstrumentModel | None = None) -> None:

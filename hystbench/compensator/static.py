@@ -10,9 +10,12 @@ and the inverse takes the root on that side.  The reachable force for a current 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import SupportsFloat
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .errors import UnreachableReference
 
@@ -34,7 +37,9 @@ class StaticLaw:
     magnet: bool
 
     @classmethod
-    def from_coefficients(cls, coefficients, magnet: bool) -> "StaticLaw":
+    def from_coefficients(cls, coefficients: Sequence[SupportsFloat], magnet: bool) -> "StaticLaw":
+        """From (k0, k1, k2) as the MEC gives them (:meth:`~hystbench.physics.mec.ECoreMEC.force_coefficients`,
+        numpy scalars included), so the law holds plain floats that JSON can write."""
         k0, k1, k2 = (float(c) for c in coefficients)
         return cls(k0, k1, k2, bool(magnet))
 
@@ -42,11 +47,12 @@ class StaticLaw:
     def coefficients(self) -> tuple[float, float, float]:
         return self.k0_n, self.k1_n_per_a, self.k2_n_per_a2
 
-    def force(self, j_a) -> np.ndarray:
+    def force(self, j_a: ArrayLike) -> np.ndarray:
+        """F(j) (N): what the actuator pulls at current ``j_a``, with no delay (the static law)."""
         j = np.asarray(j_a, dtype=float)
         return self.k0_n + self.k1_n_per_a * j + self.k2_n_per_a2 * j * j
 
-    def slope(self, j_a) -> np.ndarray:
+    def slope(self, j_a: ArrayLike) -> np.ndarray:
         """dF/dj (N/A)."""
         return self.k1_n_per_a + 2.0 * self.k2_n_per_a2 * np.asarray(j_a, dtype=float)
 
@@ -63,7 +69,7 @@ class StaticLaw:
         lo = max(-i, self.flux_zero_a)
         return float(self.force(lo)), float(self.force(i))
 
-    def invert(self, force_n, *, current_limit_a: float | None = None) -> np.ndarray:
+    def invert(self, force_n: ArrayLike, *, current_limit_a: float | None = None) -> np.ndarray:
         """The current j that gives ``force_n`` (see the module docstring for the root taken).
 
         Raises :class:`UnreachableReference` for a force no current gives (below the law's minimum)
