@@ -6,6 +6,7 @@ until SIGINT or SIGTERM.  ``python -m hystbench emulate`` is the same command.
 
 from __future__ import annotations
 
+import argparse
 import json
 import signal
 import sys
@@ -16,7 +17,7 @@ from .args import path_arg
 __all__ = ["register", "cmd_emulate"]
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the bench commands to the CLI's subparsers."""
     p = subparsers.add_parser("emulate", help="run the emulated bench instruments until SIGINT/SIGTERM",
                               description=__doc__.split("\n\n")[1])
@@ -24,7 +25,10 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_emulate)
 
 
-def cmd_emulate(args) -> int:
+def cmd_emulate(args: argparse.Namespace) -> int:
+    """`hystbench emulate`: the bench's instruments emulated on real transports, so the drivers,
+    the daemon and ``ctl`` can be tried with no hardware; prints their addresses (JSON), runs until
+    SIGINT/SIGTERM."""
     from ..drivers.protocols.bench_config import load_bench_config
     from ..sim_backend.emulators.bench import EmulatedBench
 

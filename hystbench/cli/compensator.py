@@ -12,6 +12,7 @@ command runs.
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -37,7 +38,9 @@ def _console():
 
 
 # --- hystbench model fit / predict ---------------------------------------------------------------
-def cmd_model_fit(args) -> int:
+def cmd_model_fit(args: argparse.Namespace) -> int:
+    """`hystbench model fit`: every force model fitted from one sweep into the one model file that
+    ``model predict`` and ``compensate`` read (``--out`` is checked before the minutes of fitting)."""
     from ..compensator import MODEL_KINDS as KINDS, fit_models
     from ..compensator.sweeps import sweep_data
     from ..config import load_rig
@@ -77,7 +80,9 @@ def cmd_model_fit(args) -> int:
     return 0
 
 
-def cmd_model_predict(args) -> int:
+def cmd_model_predict(args: argparse.Namespace) -> int:
+    """`hystbench model predict`: a model's force for a recording's current, as the load cell
+    would report it, to set beside what the load cell measured."""
     from ..compensator import ModelSet
     from ..compensator.sweeps import predict_recording
     from ..formats.outputs import output_file
@@ -126,7 +131,9 @@ def _precheck(rig: str, ref, limit_a: float) -> None:
     law.invert(ref.force_n, current_limit_a=limit_a)
 
 
-def cmd_compensate(args) -> int:
+def cmd_compensate(args: argparse.Namespace) -> int:
+    """`hystbench compensate`: feed-forward force control of the simulated rig through the emulated
+    instruments (``--direct``: the rig alone), with a model file or models identified on the rig first."""
     from contextlib import ExitStack
 
     from ..compensator import ModelSet
@@ -229,7 +236,7 @@ def _closed_loop(args, act, models, source, ref, limit, con) -> int:
 
 
 # --- wiring --------------------------------------------------------------------------------------
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``model`` (``fit``, ``predict``) and ``compensate`` to the CLI's subparsers."""
     p = subparsers.add_parser("model", help="force models: fit from a sweep, predict a recording's force")
     sub = p.add_subparsers(dest="model_command", required=True)

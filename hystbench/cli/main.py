@@ -63,7 +63,9 @@ def _simulate_one(args, freq_hz: float, ipp_a: float, seed: int):
     return rec
 
 
-def cmd_simulate(args) -> int:
+def cmd_simulate(args: argparse.Namespace) -> int:
+    """`hystbench simulate`: one recording (STEM.csv + STEM.json) of a simulated rig, to try the
+    method with no hardware; an existing output is refused before the simulation runs."""
     from ..formats.recording import write_recording
 
     _check_size(args)
@@ -94,13 +96,17 @@ def _sweep(args, out: Path) -> list:
     return recs
 
 
-def cmd_simulate_sweep(args) -> int:
+def cmd_simulate_sweep(args: argparse.Namespace) -> int:
+    """`hystbench simulate-sweep`: a sweep folder (one recording per frequency and current), as
+    ``identify`` and ``model fit`` read it."""
     recs = _sweep(args, Path(args.out))
     print(f"wrote {len(recs)} recordings to {args.out}")
     return 0
 
 
-def cmd_effects(args) -> int:
+def cmd_effects(args: argparse.Namespace) -> int:
+    """`hystbench effects`: the catalogue of physical effects with each parameter's default and
+    range, so ``--effect`` values can be chosen without reading the source."""
     from rich.table import Table
 
     from ..reports.console import console
@@ -121,7 +127,9 @@ def cmd_effects(args) -> int:
     return 0
 
 
-def cmd_rigs(args) -> int:
+def cmd_rigs(args: argparse.Namespace) -> int:
+    """`hystbench rigs`: each preset's force range at its operating point (static MEC, Eq. 1) beside
+    the paper's, to choose a rig and a current."""
     from ..analysis.operating_points import operating_points
     from ..formats.recording import sidecar_point
 
@@ -148,7 +156,9 @@ def _fmt(x) -> str:
     return "-" if x is None else f"{x:.2f}"
 
 
-def cmd_force_map(args) -> int:
+def cmd_force_map(args: argparse.Namespace) -> int:
+    """`hystbench force-map`: the E-core's static force map F(i, z) (paper Fig. 3) as an image in
+    the format of ``--out``'s suffix."""
     from ..reports.figures import check_ecore, force_map_figure
     from ..formats.outputs import output_file
 
@@ -166,7 +176,9 @@ def cmd_force_map(args) -> int:
     return 0
 
 
-def cmd_fit_material(args) -> int:
+def cmd_fit_material(args: argparse.Namespace) -> int:
+    """`hystbench fit-material`: the hysteresis model against the real measured B-H loops (figures
+    and a table; ``--refit`` writes fitted TOML files), to show how close the simulated iron is."""
     from ..reports.material_report import run_material_fit
     from ..formats.outputs import output_folder
 
@@ -190,7 +202,9 @@ def _moved(obj, stage):
     return obj
 
 
-def cmd_bench(args) -> int:
+def cmd_bench(args: argparse.Namespace) -> int:
+    """`hystbench bench NAME`: a benchmark of the ``benchmarks`` package with its own arguments (the
+    speed and memory targets are proven there, not by timed unit tests)."""
     import importlib
 
     try:
@@ -207,7 +221,7 @@ def cmd_bench(args) -> int:
     return int(module.main(args.rest) or 0)
 
 
-def cmd_demo(args) -> int:
+def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: the bench service live (a sweep through the emulated instruments, estimates
     over zenoh, an MCAP log), the paper's sweeps as recordings with their delays, the whole method."""
     from rich.markup import escape
@@ -233,6 +247,7 @@ def cmd_demo(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The whole command line in one parser; each command group registers its own subcommands."""
     parser = argparse.ArgumentParser(prog="hystbench", description=__doc__.split(".")[0])
     parser.add_argument("--version", action="version", version=f"hystbench {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -357,6 +372,9 @@ def _os_error_line(err: OSError) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``hystbench`` command; returns the exit status.  Anything a user can trigger (a
+    :class:`~hystbench.errors.BenchError`, a path the filesystem refuses) is one line on stderr and
+    status 2, never a traceback."""
     _line_buffered_stdout()
     try:
         args = build_parser().parse_args(argv)

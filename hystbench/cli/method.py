@@ -8,6 +8,7 @@ when a command runs.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -28,7 +29,9 @@ def _fmt(x: float, digits: int = 4) -> str:
 
 
 # --- estimate -----------------------------------------------------------------------------------
-def cmd_estimate(args) -> int:
+def cmd_estimate(args: argparse.Namespace) -> int:
+    """`hystbench estimate`: the method's three delays (paper Sec. III) from one recording or one
+    segment of an MCAP log."""
     from ..analysis.method import estimate
     from ..formats.recording import read_recording
 
@@ -105,7 +108,9 @@ def _print_identify(rep: dict, con) -> None:
     con.print(t)
 
 
-def cmd_identify(args) -> int:
+def cmd_identify(args: argparse.Namespace) -> int:
+    """`hystbench identify`: the instrument model from voice-coil sweeps and theta_hyst from E-core
+    sweeps, for one sweep folder or a folder of them."""
     from ..reports.console import progress
     from ..reports.identify import identify_folder
 
@@ -122,7 +127,9 @@ def cmd_identify(args) -> int:
 
 
 # --- paper --------------------------------------------------------------------------------------
-def cmd_paper(args) -> int:
+def cmd_paper(args: argparse.Namespace) -> int:
+    """`hystbench paper`: the whole method on the simulated rig, figures and paper.json, beside the
+    paper's numbers."""
     import time
 
     from rich.table import Table
@@ -160,7 +167,7 @@ def cmd_paper(args) -> int:
     return 0
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``estimate``, ``identify`` and ``paper`` to the ``hystbench`` subcommands."""
     p = subparsers.add_parser("estimate", help="the method's three delays from one recording (paper Sec. III)")
     p.add_argument("path", type=path_arg, help="recording: STEM, STEM.csv or STEM.json, or an MCAP log (LOG.mcap)")

@@ -9,6 +9,7 @@ when a command runs; :func:`format_message` is how a message is printed on the t
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
@@ -96,7 +97,9 @@ def _watch_items(sub, keyexpr: str, endpoint: str, *, count: int | None, seconds
             yield item[0], item[1]
 
 
-def cmd_watch(args) -> int:
+def cmd_watch(args: argparse.Namespace) -> int:
+    """`hystbench watch`: a bench's live messages from zenoh, one line each (estimates by default),
+    for a person or a pipe."""
     from ..acquisition.control import describe_endpoint, open_client
     from ..acquisition.zenoh_bus import Subscription
 
@@ -154,7 +157,7 @@ def _format_reply(bench: str, verb: str, reply: dict) -> str:
     return f"{bench}: {verb} ok" + (f" ({rest})" if rest else "")
 
 
-def cmd_ctl(args) -> int:
+def cmd_ctl(args: argparse.Namespace) -> int:
     """One command or query to a running daemon; exit 1 if it refuses (its reason on stderr),
     2 if nobody answers within ``--timeout``."""
     from ..acquisition.control import BenchControl
@@ -271,7 +274,9 @@ def _quiet_on_broken_pipe(show: Callable[[str, dict], None]) -> Callable[[str, d
     return listener
 
 
-def cmd_record(args) -> int:
+def cmd_record(args: argparse.Namespace) -> int:
+    """`hystbench record`: a source through the pipeline into one MCAP log, no daemon; a failed log
+    that holds no measurement is removed, so it does not block the retry."""
     from ..acquisition.record import has_measurement, record_log
 
     out = Path(args.out)
@@ -293,7 +298,9 @@ def cmd_record(args) -> int:
     return 0
 
 
-def cmd_replay(args) -> int:
+def cmd_replay(args: argparse.Namespace) -> int:
+    """`hystbench replay`: a log through the same pipeline again, with the settings it was recorded
+    with, so a replay gives what the live run gave."""
     from ..acquisition.record import replay_log
 
     ests = replay_log(args.log, speed=args.speed, out=args.out, overwrite=args.overwrite,
@@ -305,7 +312,9 @@ def cmd_replay(args) -> int:
     return 0
 
 
-def cmd_export(args) -> int:
+def cmd_export(args: argparse.Namespace) -> int:
+    """`hystbench export`: an MCAP log's segments as interchange-format recordings (CSV + JSON), for
+    the offline commands and other programs."""
     from ..analysis.log_recordings import read_mcap_segments
     from ..formats.recording import sweep_stem, write_recording
 
@@ -330,7 +339,9 @@ def cmd_export(args) -> int:
     return 0
 
 
-def cmd_recover(args) -> int:
+def cmd_recover(args: argparse.Namespace) -> int:
+    """`hystbench recover`: the complete chunks of a log whose writer was killed, salvaged into a new
+    log, with what was lost."""
     from ..formats.mcaplog import recover
 
     rep = recover(args.log, args.out, overwrite=args.overwrite)
@@ -345,13 +356,14 @@ def cmd_recover(args) -> int:
     return 0
 
 
-def cmd_daemon(args) -> int:
+def cmd_daemon(args: argparse.Namespace) -> int:
+    """`hystbench daemon`: the bench service (systemd-ready; SIGHUP reloads its file)."""
     from ..acquisition.daemon import run_daemon
 
     return run_daemon(args.config)
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     """Add watch, record, replay, export, recover and daemon to the ``hystbench`` parser."""
     from .args import (SIM_MAX_IPP_A, float_in, int_in, nonnegative_float, nonnegative_int, path_arg,
                        positive_float, positive_int)
