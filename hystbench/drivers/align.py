@@ -26,6 +26,9 @@ def _tail(block: SampleBlock, k: int) -> SampleBlock:
 
 
 class StreamAligner:
+    """The instruments' blocks in, blocks with every channel at the same indices out (see the module
+    docstring); one aligner for the bench, so every caller gets the same alignment."""
+
     def __init__(self, names: Iterable[str]) -> None:
         self.names = list(names)
         self._q: dict[str, collections.deque[SampleBlock]] = {n: collections.deque() for n in self.names}

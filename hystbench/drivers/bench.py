@@ -49,6 +49,8 @@ _STEP_S = 0.05  # the longest one turn of the acquisition loop waits for a strea
 
 @dataclass(frozen=True)
 class BenchFault:
+    """A fault the bench acted on, kept so it can be reported after the output went off first."""
+
     t_monotonic: float
     instrument: str
     message: str

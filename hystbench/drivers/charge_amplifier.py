@@ -26,12 +26,17 @@ _SETTINGS = ("sensitivity_pc_per_n", "scale_n_per_v", "time_constant", "lowpass_
 
 
 class ChargeAmpError(InstrumentError):
+    """The amplifier answered a command with an error code (``code``, its E-number), so a caller can
+    tell a refused setting from a lost link."""
+
     def __init__(self, message: str, code: int) -> None:
         super().__init__(message)
         self.code = code
 
 
 class ChargeAmplifier(Instrument):
+    """The force channel: settings over RS-232 ASCII, the force stream in newtons (module docstring)."""
+
     kind = "charge_amplifier"
 
     def __init__(self, url: str, *, name: str | None = None, timeout_s: float = 1.0,

@@ -40,6 +40,8 @@ def _bits(value: int, table) -> tuple[str, ...]:
 
 
 class ModbusCurrentAmplifier(Instrument):
+    """The coil current: its gate (enable), gain and limit over Modbus, within the shared budget."""
+
     kind = "current_amplifier"
     gate = True  # disabled, no coil current whatever the generator plays
 

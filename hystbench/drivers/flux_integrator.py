@@ -26,12 +26,17 @@ INTEGRATOR_STREAM_ID = 4
 
 
 class IntegratorError(InstrumentError):
+    """The integrator refused a request (``result``, its result code), so a caller can tell a refused
+    setting from a lost bus."""
+
     def __init__(self, message: str, result: int) -> None:
         super().__init__(message)
         self.result = result
 
 
 class CanFluxIntegrator(Instrument):
+    """The flux channel: requests on one CAN handle, the stream on another (module docstring)."""
+
     kind = "flux_integrator"
 
     def __init__(self, *, interface: str = "virtual", channel: str = "hystbench", node: int = 0x10,

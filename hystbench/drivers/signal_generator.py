@@ -38,6 +38,8 @@ class ScpiError(InstrumentError):
 
 
 class ScpiSignalGenerator(Instrument):
+    """The excitation: sines and arbitrary tables over SCPI, every change checked against the budget."""
+
     kind = "signal_generator"
 
     def __init__(self, url: str, *, budget: CurrentBudget, name: str | None = None, timeout_s: float = 1.0,

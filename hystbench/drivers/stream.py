@@ -15,7 +15,7 @@ import collections
 import socket
 import threading
 from dataclasses import dataclass, field
-from typing import Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -24,6 +24,9 @@ from ..deadline import Deadline
 from ..errors import ConnectionLost, InstrumentError
 from .base import Backoff, log
 from .protocols.framing import CobsDeframer, DeframerStats, Frame, FrameError, LengthPrefixDeframer, decode_frame
+
+if TYPE_CHECKING:
+    import can
 
 __all__ = ["FrameSource", "TcpFrameSource", "SerialFrameSource", "CanFrameSource", "StreamStats",
            "SampleStream", "parse_stream_url"]
@@ -63,6 +66,8 @@ class FrameSource(abc.ABC):
 
 
 class TcpFrameSource(FrameSource):
+    """Length-prefixed frames from a TCP port (``host:port``), the instruments' LAN stream ports."""
+
     def __init__(self, address: str, *, stream_id: int | None = None, channels: int | None = None,
                  connect_timeout_s: float = 1.0) -> None:
         host, _, port = address.rpartition(":")
@@ -100,6 +105,8 @@ class TcpFrameSource(FrameSource):
 
 
 class SerialFrameSource(FrameSource):
+    """COBS frames from a serial port (or any pyserial URL): a stream with no framing of its own."""
+
     def __init__(self, url: str, *, stream_id: int | None = None, channels: int | None = None,
                  baudrate: int = 115200) -> None:
         self.url, self.baudrate = url, baudrate
@@ -137,7 +144,7 @@ class SerialFrameSource(FrameSource):
 class CanFrameSource(FrameSource):
     """CAN FD: one frame per CAN message with the stream's arbitration id; others are ignored."""
 
-    def __init__(self, bus, can_id: int, *, stream_id: int | None = None, channels: int | None = None,
+    def __init__(self, bus: can.BusABC, can_id: int, *, stream_id: int | None = None, channels: int | None = None,
                  open_timeout_s: float = 0.2) -> None:
         self.bus, self.can_id = bus, can_id
         self._ids = (stream_id, channels)
@@ -185,6 +192,8 @@ class CanFrameSource(FrameSource):
 
 @dataclass
 class StreamStats:
+    """What one stream lost and why, counted, so a gap in the data can be traced to its cause."""
+
     frames: int = 0  #: frames kept
     frames_lost: int = 0  #: frames never seen, from the sequence numbers
     gap_samples: int = 0  #: sample indices never delivered (sum of every block's gap_samples)

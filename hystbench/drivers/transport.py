@@ -18,6 +18,9 @@ __all__ = ["SerialLink"]
 
 
 class SerialLink:
+    """One line-oriented link (serial, ``socket://``, a pty) with a deadline on every read (module
+    docstring)."""
+
     def __init__(self, url: str, *, baudrate: int = 115200, timeout_s: float = 1.0, eol: bytes = b"\n",
                  max_line: int = 1 << 16) -> None:
         self.url = url

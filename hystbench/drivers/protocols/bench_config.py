@@ -181,6 +181,9 @@ SCHEMA: dict[str, Key] = {
 
 @dataclass(frozen=True)
 class InstrumentConfig:
+    """One instrument's table of the bench file, checked: its backend (``drivers.BACKENDS``), the
+    options its driver is built with and the settings applied at open."""
+
     name: str
     backend: str
     options: dict[str, Any]
@@ -195,6 +198,9 @@ class InstrumentConfig:
 
 @dataclass(frozen=True)
 class BenchConfig:
+    """A bench file, checked at load: the bench's limits, timeouts and instruments as one typed value
+    for the drivers and the bench."""
+
     source: str
     max_current_a: float
     fs_hz: float

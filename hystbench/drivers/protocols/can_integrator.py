@@ -28,23 +28,29 @@ STREAM_PAYLOAD = 64  # bytes per CAN FD data field
 
 
 def command_id(node: int) -> int:
+    """CAN id of requests to ``node`` (CANopen-style: 0x600 + node)."""
     return 0x600 + node
 
 
 def reply_id(node: int) -> int:
+    """CAN id of ``node``'s replies (0x580 + node)."""
     return 0x580 + node
 
 
 def stream_id(node: int) -> int:
+    """CAN id of ``node``'s sample stream (0x180 + node)."""
     return 0x180 + node
 
 
 def heartbeat_id(node: int) -> int:
+    """CAN id of ``node``'s heartbeat (0x700 + node)."""
     return 0x700 + node
 
 
 @dataclass(frozen=True)
 class Op:
+    """One operation of the integrator's command table: driver and emulator read the same row."""
+
     code: int
     value: str  # 'none', 'u32', 'f32'
     reply: str  # type of the reply's value
@@ -90,6 +96,7 @@ def _unpack_value(kind: str, raw: bytes) -> float | int | None:
 
 
 def encode_command(name: str, value: float | int | None = None) -> bytes:
+    """The 8-byte request for operation ``name`` (its value packed as the table says)."""
     op = OPS[name]
     return _MSG.pack(op.code, 0, _pack_value(op.value, value))
 
@@ -106,6 +113,7 @@ def decode_command(data: bytes) -> tuple[str | None, int, float | int | None]:
 
 
 def encode_reply(code: int, result: int, kind: str = "none", value: float | int | None = None) -> bytes:
+    """The 8-byte reply (opcode, result code, value): the emulator's side of :func:`decode_reply`."""
     return _MSG.pack(code, result, _pack_value(kind, value))
 
 

@@ -90,6 +90,8 @@ COMMANDS: Mapping[str, Mnemonic] = MappingProxyType({
 
 
 def error_reply(code: int) -> str:
+    """The amplifier's reply to a refused command (``E07``): the emulator's side of
+    :func:`parse_reply_error`."""
     return f"E{code:02d}"
 
 

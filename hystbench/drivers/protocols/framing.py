@@ -72,6 +72,8 @@ class Frame:
 
 
 def encode_frame(frame: Frame) -> bytes:
+    """One frame as bytes (header, little-endian float32 samples, CRC-32): what the
+    instruments' streams send, so a damaged frame is detected, not read."""
     data = np.ascontiguousarray(frame.samples, dtype="<f4")
     if data.ndim != 2 or not 1 <= data.shape[0] <= 255 or data.shape[1] > 0xFFFF:
         raise ValueError(f"samples must be (channels 1..255, samples <= 65535), got {data.shape}")
@@ -176,6 +178,8 @@ def length_prefixed(frame_bytes: bytes) -> bytes:
 # --- receivers: bytes in, frames out, damage counted -------------------------------------------
 @dataclass
 class DeframerStats:
+    """What a receiver had to throw away, counted, so damage on a link is visible, not silent."""
+
     frames: int = 0  #: valid frames delivered
     corrupt: int = 0  #: records that failed to decode (bad CRC, bad COBS, bad header)
     discarded_bytes: int = 0  #: bytes thrown away while looking for the next frame

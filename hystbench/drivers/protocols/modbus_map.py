@@ -22,6 +22,9 @@ MODEL_ID = 0x4841  #: register 0 of this amplifier model ('HA')
 
 @dataclass(frozen=True)
 class Register:
+    """One register of the amplifier's map with its unit, scale and limits: driver and emulator
+    read the same row."""
+
     address: int
     name: str
     access: str  # 'R' or 'RW'
@@ -110,6 +113,7 @@ MBAP = struct.Struct(">HHHB")  # transaction id, protocol id (0), length (unit +
 
 
 def mbap(tid: int, unit: int, pdu: bytes) -> bytes:
+    """A Modbus TCP frame: the MBAP header in front of ``pdu``."""
     return MBAP.pack(tid, 0, len(pdu) + 1, unit) + pdu
 
 

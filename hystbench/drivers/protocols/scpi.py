@@ -155,6 +155,8 @@ def parse_error_reply(text: str) -> tuple[int, str]:
 
 
 def format_error_reply(code: int, text: str | None = None) -> str:
+    """A ``SYST:ERR?`` answer (``-222,"Data out of range"``, ``0,"No error"``): the
+    emulator's side of the error queue the driver reads."""
     return f'{code:+d},"{SCPI_ERRORS.get(code, "Error") if text is None else text}"'.replace("+0,", "0,")
 
 
@@ -175,6 +177,8 @@ def dac_from_unit(x: np.ndarray) -> bytes:
 
 
 def unit_from_dac(data: bytes) -> np.ndarray:
+    """The inverse of :func:`dac_from_unit`: the emulator plays back the table the driver
+    uploaded."""
     codes = np.frombuffer(data, dtype="<i2")
     if len(data) % 2 or not ARB_POINTS[0] <= codes.size <= ARB_POINTS[1] or np.any(codes == -32768):
         raise ValueError("invalid DAC block")
