@@ -76,6 +76,9 @@ class _Sos:
 
 
 class MeasurementChain:
+    """Each true signal through its instrument, the sample clock and the ADC (module docstring):
+    what the rig's channels hold is what a real bench would have measured."""
+
     def __init__(self, preset: Mapping[str, Any], effects: Mapping[str, Mapping[str, Any]],
                  fs_hz: float, channels: list[str], seed: int) -> None:
         self.fs_hz = fs_hz

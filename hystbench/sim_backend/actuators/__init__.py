@@ -24,6 +24,7 @@ ACTUATORS = {"ecore": ECoreActuator, "voicecoil": VoiceCoilActuator, "toroid": T
 
 
 def build_actuator(preset: Mapping[str, Any], effects: Mapping[str, Mapping[str, Any]], fs_hz: float) -> Actuator:
+    """The preset's actuator, by its ``actuator`` key: the rig runs any of them through one interface."""
     kind = preset.get("actuator")
     if kind not in ACTUATORS:
         raise ConfigError(f"{preset_where(preset)}: unknown actuator {kind!r}; "

@@ -18,6 +18,8 @@ __all__ = ["ActuatorOutput", "Actuator"]
 
 @dataclass
 class ActuatorOutput:
+    """One block of an actuator's truth, before any instrument sees it; None: it has no such output."""
+
     force_n: np.ndarray | None  # true force on the load cell
     flux_wb: np.ndarray | None  # true flux through the sense coil (absolute, with any bias)
     dflux_dt: np.ndarray | None  # its time derivative (Wb/s)
@@ -25,9 +27,15 @@ class ActuatorOutput:
 
 
 class Actuator(Protocol):
+    """What the rig asks of an actuator, so an E-core, a toroid and a voice coil are interchangeable."""
+
     has_force: bool
     has_flux: bool
 
-    def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput: ...
+    def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
+        """The next block (times in s, current in A, dI/dt in A/s); it continues the previous one."""
+        ...
 
-    def dc_flux_wb(self, current_a: float) -> float: ...
+    def dc_flux_wb(self, current_a: float) -> float:
+        """The flux at a steady current (Wb), which the rig subtracts: the sense coil's integrator sees no DC."""
+        ...

@@ -149,7 +149,7 @@ class ECoreActuator:
         return self.hysteresis.field(b, self._h_state, irreversible=self._irreversible,
                                      saturation=self._saturation)
 
-    def step(self, t_s, current_a, dcurrent_dt) -> ActuatorOutput:
+    def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
         fc = self.turns * current_a
         fm = np.full_like(fc, self.magnet_mmf_a)
         dfm = 0.0

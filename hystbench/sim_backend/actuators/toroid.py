@@ -21,6 +21,8 @@ __all__ = ["ToroidCore"]
 
 
 class ToroidCore:
+    """The laminated ring of the module docstring: flux in (B follows the command), current out."""
+
     has_force = False
     has_flux = True
 
@@ -43,7 +45,7 @@ class ToroidCore:
     def dc_flux_wb(self, current_a: float) -> float:
         return self.tesla_per_a * current_a * self.area_m2
 
-    def step(self, t_s, current_a, dcurrent_dt) -> ActuatorOutput:
+    def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
         b = self.tesla_per_a * current_a  # the flux-feedback reference, followed exactly
         db_dt = self.tesla_per_a * dcurrent_dt
         h, self._state = self.hysteresis.field(b, self._state, irreversible=self._irreversible,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
+import numpy as np
 from scipy import signal
 
 from ...physics.instrument import bilinear_sos
@@ -29,7 +30,7 @@ class VoiceCoilActuator:
     def dc_flux_wb(self, current_a: float) -> float:
         return 0.0
 
-    def step(self, t_s, current_a, dcurrent_dt) -> ActuatorOutput:
+    def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
         force = self.model.force(current_a)
         if self._sos is not None:
             if self._zi is None:

@@ -36,6 +36,9 @@ class _Filter:
 
 
 class ChargeAmplifierEmulator:
+    """The charge amplifier of the module docstring, on real pseudo-terminals, so its driver is
+    tested byte for byte with no hardware."""
+
     kind = "charge_amplifier"
 
     def __init__(self, *, fs_hz: float = 100_000.0, load_cell_pc_per_n: float = 3.5,

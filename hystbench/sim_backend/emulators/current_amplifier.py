@@ -27,6 +27,9 @@ R = mb.REGISTERS
 
 
 class CurrentAmplifierEmulator:
+    """The current amplifier of the module docstring, on real Modbus transports, so its driver and
+    the bench's safety logic are tested with no hardware."""
+
     kind = "current_amplifier"
 
     def __init__(self, *, unit: int = 1, gain_a_per_v: float = 0.5, current_limit_a: float = 2.0,

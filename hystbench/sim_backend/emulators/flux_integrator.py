@@ -24,6 +24,9 @@ INTEGRATOR_STREAM_ID = 4
 
 
 class FluxIntegratorEmulator:
+    """The flux integrator of the module docstring, on a real python-can bus, so its driver is tested
+    with no hardware."""
+
     kind = "flux_integrator"
 
     def __init__(self, *, interface: str = "virtual", channel: str = "hystbench", node: int = 0x10,

@@ -26,6 +26,9 @@ _QUEUE_MAX = 20
 
 
 class SignalGeneratorEmulator:
+    """The signal generator of the module docstring, on real TCP and pseudo-terminal transports, so
+    its driver is tested with no hardware."""
+
     kind = "signal_generator"
 
     def __init__(self, *, on_change: Callable[[], None] | None = None, serial: bool = True,
