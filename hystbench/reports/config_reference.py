@@ -146,6 +146,8 @@ def render() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Write docs/config.md from the schemas (``--check``: exit 1 when it is out of date), so the
+    reference cannot drift from what the validator accepts."""
     ap = argparse.ArgumentParser(prog=COMMAND, description=__doc__.splitlines()[0])
     ap.add_argument("path", nargs="?", type=Path, default=DOC_PATH, help="where to write (default: docs/config.md)")
     ap.add_argument("--check", action="store_true", help="only compare; exit 1 if the file is out of date")

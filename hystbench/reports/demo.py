@@ -70,6 +70,7 @@ def _sweep_through_drivers(rig_name: str, ipp: float, freqs, advance) -> list[Re
 
 
 def run_demo(out: Path) -> int:
+    """The demo of the module docstring into ``out``; returns 0 (a failure raises, naming its cause)."""
     console = make_console()
     out.mkdir(parents=True, exist_ok=True)
     console.rule("hystbench demo: the simulated rig, the paper's E-core sweeps")

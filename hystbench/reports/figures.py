@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -14,10 +15,13 @@ from ..config import load_rig, rig_names  # noqa: E402
 from ..errors import ConfigError  # noqa: E402
 from ..physics import presets  # noqa: E402
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 __all__ = ["plt", "save_figure", "force_map_figure", "loops_figure", "check_ecore"]
 
 
-def save_figure(fig, path: Path, dpi: int = 110) -> Path:
+def save_figure(fig: Figure, path: Path, dpi: int = 110) -> Path:
     """Lay out, write as PNG (making the folder) and free the figure; returns the path."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()

@@ -18,7 +18,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable, Iterable
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from ..analysis.identification import EddyLag, InstrumentFit, eddy_lag, fit_inst
 from ..analysis.method import MethodDelays, measure_delays
 from ..analysis.operating_points import PAPER_FORCE_RANGES_N
 from ..formats.recording import Recording, write_sweep
+
+if TYPE_CHECKING:
+    from rich.progress import Progress
 
 __all__ = ["PaperGrid", "DEFAULT_GRID", "QUICK_GRID", "EcoreRun", "PaperResult", "run_paper", "comparison",
            "summary", "write_recordings", "analyse_ecore", "explanations",
@@ -86,7 +89,7 @@ def _record(rig: SimulatedRig, duration_s: float) -> Recording:
     return Recording(None, rig.fs_hz, dict(block.channels), rig.metadata())
 
 
-def simulate_voice_coil_sweep(rig: str, freqs_hz, *, seed: int = 0, current_pp_a: float = 1.0,
+def simulate_voice_coil_sweep(rig: str, freqs_hz: Iterable[float], *, seed: int = 0, current_pp_a: float = 1.0,
                               tick: Callable[[], None] | None = None) -> list[Recording]:
     """A stepped-sine sweep, one recording per frequency.  As a frequency-response analyser does,
     the sample rate follows the frequency (>= 25 samples per period, at least 100 kS/s) and each
@@ -101,8 +104,8 @@ def simulate_voice_coil_sweep(rig: str, freqs_hz, *, seed: int = 0, current_pp_a
     return recs
 
 
-def simulate_ecore(rig: str, points, *, duration_s: float, fs_hz: float = 100_000.0, seed: int = 0,
-                   tick: Callable[[], None] | None = None) -> list[Recording]:
+def simulate_ecore(rig: str, points: Iterable[tuple[float, float]], *, duration_s: float, fs_hz: float = 100_000.0,
+                   seed: int = 0, tick: Callable[[], None] | None = None) -> list[Recording]:
     """One recording per (frequency, A-pp) point of an E-core rig, with :func:`sim_effects`."""
     recs = []
     for n, (f, ipp) in enumerate(points):
@@ -134,7 +137,10 @@ class EcoreRun:
         return [self.errors[(f, ipp)] for f in self.paper_freqs_hz if (f, ipp) in self.errors]
 
 
-def analyse_ecore(rig: str, recs: list[Recording], main_ipp_a: float, paper_freqs_hz) -> EcoreRun:
+def analyse_ecore(rig: str, recs: list[Recording], main_ipp_a: float, paper_freqs_hz: Iterable[float]) -> EcoreRun:
+    """The paper's Sec. VII on one E-core: delays by the method, Eq. 6 built per amplitude (so the
+    amplitudes can be compared: the paper finds theta independent of amplitude in unsaturated iron)
+    and the force error left at the paper's frequencies."""
     delays = [measure_delays(r) for r in recs]
     run = EcoreRun(rig, main_ipp_a, tuple(paper_freqs_hz), recs, delays)
     for ipp in sorted({r.current_pp_a for r in recs}):
@@ -147,6 +153,8 @@ def analyse_ecore(rig: str, recs: list[Recording], main_ipp_a: float, paper_freq
 
 @dataclass
 class PaperResult:
+    """Everything the paper reproduction computed, so the report and the figures are drawn from one run."""
+
     grid: PaperGrid
     effects: dict[str, bool]
     fits: dict[str, InstrumentFit]  # per voice-coil rig (its own two-filter fit)
@@ -161,7 +169,7 @@ class PaperResult:
         return self.fits[self.benchmark]
 
 
-def run_paper(grid: PaperGrid = DEFAULT_GRID, *, progress=None) -> PaperResult:
+def run_paper(grid: PaperGrid = DEFAULT_GRID, *, progress: Progress | None = None) -> PaperResult:
     """Simulate and analyse everything (no files); ``progress`` is a rich Progress or None."""
     n_vc = len(grid.vc_rigs) * len(grid.vc_freqs_hz)
     pts = {"ecore": [(f, i) for i in grid.ecore_ipp_a for f in grid.ecore_freqs_hz]
