@@ -25,6 +25,8 @@ CHANNEL_UNITS: Mapping[str, str] = {
 
 
 class BlockFlags(enum.IntFlag):
+    """What is wrong with a block, carried with it, so no stage estimates across lost or clipped samples."""
+
     NONE = 0
     GAP = 1  #: samples before this block were lost (see ``gap_samples``)
     OVERRUN = 2  #: a reader fell behind and lost samples

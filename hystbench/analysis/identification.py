@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from ..config import load_rig
@@ -137,7 +138,7 @@ class InstrumentFit:
         p = self.params
         return InstrumentModel(fn_hz=p["fn_Hz"], zeta_n=p["zeta_n"], f0_hz=p["f0_Hz"], zeta_0=p["zeta_0"])
 
-    def phase_deg(self, f_hz) -> np.ndarray:
+    def phase_deg(self, f_hz: ArrayLike) -> np.ndarray:
         """Phase of the fitted model (negative: the measured force lags), degrees."""
         return self.model.phase_deg(f_hz)
 

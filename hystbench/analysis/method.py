@@ -66,6 +66,9 @@ HARMONICS = (1, 2, 3, 4)
 
 @dataclass(frozen=True)
 class MethodDelays:
+    """The method's result for one recording (delays and their standard errors, with what was
+    left out), in one type for identification, force error and the reports."""
+
     frequency_hz: float  # estimated true excitation frequency
     frequency_std_hz: float
     harmonic: int  # 1 with magnet, 2 without (the force's dominant component)

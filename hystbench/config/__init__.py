@@ -42,6 +42,7 @@ def rig_names() -> list[str]:
 
 
 def material_names() -> list[str]:
+    """The shipped materials, by name: what a rig preset's ``material`` may say."""
     return _names("materials")
 
 

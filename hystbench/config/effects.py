@@ -28,6 +28,9 @@ __all__ = ["Effect", "CATALOGUE", "EFFECTS_SCHEMA", "resolve_effects", "parse_ef
 
 @dataclass(frozen=True)
 class Effect:
+    """One switchable physical effect of the simulated rig with its parameters' schema, so the
+    catalogue, the checks and ``hystbench effects`` read one description."""
+
     name: str
     description: str  # one line of physics
     params: Mapping[str, Key]  # one per parameter (a list parameter: its items' range)

@@ -37,6 +37,7 @@ OPTIONAL: Any = _Optional()
 
 
 def type_name(kind: Any) -> str:
+    """A key's type as a message and docs/config.md say it (``number``, ``table``, ``str``)."""
     if kind == NUM:
         return "number"
     if kind is dict:

@@ -242,7 +242,7 @@ class ECoreMEC:
         k0 = -0.5 * fm * self.dphi_pm_self_dz(z)
         return k0, k1, k2
 
-    def force(self, current_a: ArrayLike, z: ArrayLike | None = None) -> float | np.ndarray:
+    def force(self, current_a: ArrayLike, z: ArrayLike | None = None) -> np.ndarray:
         """Attractive force (N) for coil current ``current_a`` at airgap ``z`` (default: nominal)."""
         z = self.geometry.airgap_m if z is None else z
         k0, k1, k2 = self.force_coefficients(z)

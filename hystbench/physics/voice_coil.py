@@ -20,6 +20,8 @@ __all__ = ["VoiceCoil"]
 
 @dataclass(frozen=True)
 class VoiceCoil:
+    """The voice coil of the module docstring: a force with no hysteresis, to identify the instrument."""
+
     force_constant_n_per_a: float
     magnet_conductivity_s_per_m: float = 0.0
     magnet_eddy_depth_m: float = 0.0
@@ -29,7 +31,7 @@ class VoiceCoil:
         """tau of the magnet's eddy lag (s); 0 for a ferrite (non-conducting) magnet."""
         return slab_time_constant(self.magnet_conductivity_s_per_m, self.magnet_eddy_depth_m)
 
-    def force(self, current_a: ArrayLike) -> float | np.ndarray:
+    def force(self, current_a: ArrayLike) -> np.ndarray:
         """Static force (N): no eddy lag."""
         return self.force_constant_n_per_a * np.asarray(current_a, dtype=float)
 

@@ -99,5 +99,6 @@ def check_not_flat(arr: np.ndarray, name: str) -> None:
 
 
 def check_same_shape(x: np.ndarray, y: np.ndarray) -> None:
+    """Refuse two series that do not pair sample by sample (numpy would broadcast them silently)."""
     if x.shape != y.shape:
         raise ValueError(f"y has shape {y.shape} but x has shape {x.shape}; they must match")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +31,8 @@ __all__ = ["LogMessage", "iter_log", "iter_blocks", "log_metadata", "segments", 
 
 @dataclass(frozen=True)
 class LogMessage:
+    """One message of a log as recorded (topic, log time, bytes): decoded only when asked (:meth:`json`)."""
+
     topic: str
     log_time_ns: int
     data: bytes
@@ -202,7 +205,9 @@ class McapSource:
     def metadata(self) -> dict:
         return dict(self._meta)
 
-    def blocks(self, stop=None) -> Iterator[SampleBlock]:
+    def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]:
+        """The log's raw blocks as a live source gives them (the :class:`~hystbench.acquisition.sources.Source`
+        protocol), paced as ``pace`` says, until the log ends or ``stop`` is set."""
         t0 = time.monotonic()
         i0 = None
         for b in iter_blocks(self.path):

@@ -24,6 +24,8 @@ _MAGIC = b"\x89MCAP0\r\n"
 
 @dataclass
 class RecoverReport:
+    """What :func:`recover` salvaged and what it could not, so the user knows what the new log lacks."""
+
     source: Path
     out: Path
     complete: bool  # the source had its footer: nothing was missing
