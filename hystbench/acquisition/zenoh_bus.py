@@ -31,13 +31,16 @@ import socket
 import threading
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping
 
 from ..blocks import SampleBlock
 from ..errors import BenchError, CommandRefused, ConfigError, NetworkError, NoReply
 from .bench_commands import COMMANDS as _COMMAND_ARGS
 from ..messages import json_bytes
 from ..formats.raw_block import BINARY_ENCODING, encode_binary
+
+if TYPE_CHECKING:
+    import zenoh
 
 __all__ = ["PREFIX", "key", "peer_config", "load_zenoh_config", "ZenohBus",
            "Subscription", "send_command", "query_json", "free_port", "open_session", "ListenError", "COMMANDS"]
@@ -84,7 +87,7 @@ def peer_config(*, listen: list[str] | None = None, connect: list[str] | None = 
 
 
 def load_zenoh_config(source: str | Path | Mapping | None, *, listen: list[str] | None = None,
-                      connect: list[str] | None = None):
+                      connect: list[str] | None = None) -> zenoh.Config:
     """A ``zenoh.Config`` from a json5 file, a dict or (None) :func:`peer_config`; ``listen`` and
     ``connect``, when given, replace the file's endpoints (tests put ephemeral ports there)."""
     import zenoh
@@ -120,7 +123,7 @@ def _plain(message: str) -> str:
     return re.sub(r"\s+at\s+\S+\.rs:\d+\.?", "", message).strip()
 
 
-def open_session(config) -> Any:
+def open_session(config: zenoh.Config) -> zenoh.Session:
     """A zenoh session; a taken listening port is a :class:`ListenError` naming the endpoint."""
     import zenoh
 
@@ -146,9 +149,10 @@ class ZenohBus:
     raw blocks use congestion control DROP, and a failed put is counted, not raised.
     """
 
-    def __init__(self, bench: str, config, *, on_command: Callable[[str, dict], dict] | None = None,
+    def __init__(self, bench: str, config: zenoh.Config | None, *,
+                 on_command: Callable[[str, dict], dict] | None = None,
                  config_provider: Callable[[], dict] | None = None,
-                 health_provider: Callable[[], dict] | None = None, session=None,
+                 health_provider: Callable[[], dict] | None = None, session: zenoh.Session | None = None,
                  per_channel: bool = False) -> None:
         self.bench = bench
         self.per_channel = per_channel
@@ -266,7 +270,7 @@ class Subscription:
     """Samples of a key expression, queued (bounded: the oldest are dropped and counted) so that a
     slow reader never holds up zenoh; iterate with a timeout."""
 
-    def __init__(self, session, keyexpr: str, maxsize: int = 10_000) -> None:
+    def __init__(self, session: zenoh.Session, keyexpr: str, maxsize: int = 10_000) -> None:
         self._q: queue.Queue = queue.Queue(maxsize)
         self.dropped = 0
         self._sub = session.declare_subscriber(keyexpr, self._on_sample)
@@ -293,6 +297,8 @@ class Subscription:
 
     def iter(self, *, count: int | None = None, seconds: float | None = None,
              stop: threading.Event | None = None) -> Iterator[tuple[str, bytes, int]]:
+        """What :meth:`get` returns, until ``count`` samples, ``seconds`` or ``stop``: a reader's loop
+        that still notices ``stop`` while nothing arrives (it waits 0.2 s at a time)."""
         deadline = None if seconds is None else time.monotonic() + seconds
         got = 0
         while (count is None or got < count) and not (stop is not None and stop.is_set()):
@@ -311,7 +317,7 @@ class Subscription:
             pass
 
 
-def query_json(session, keyexpr: str, payload: Mapping[str, Any] | None = None, *,
+def query_json(session: zenoh.Session, keyexpr: str, payload: Mapping[str, Any] | None = None, *,
                timeout_s: float = 2.0) -> list[dict]:
     """Every reply to a query, decoded: ``{"ok": ...}`` objects; an error reply is included with
     ``ok: False``.  An empty list means nobody answered (or access control dropped the query)."""
@@ -328,7 +334,7 @@ def query_json(session, keyexpr: str, payload: Mapping[str, Any] | None = None, 
     return out
 
 
-def send_command(session, bench: str, verb: str, args: Mapping[str, Any] | None = None, *,
+def send_command(session: zenoh.Session, bench: str, verb: str, args: Mapping[str, Any] | None = None, *,
                  timeout_s: float = 2.0) -> dict:
     """Run ``cmd/<verb>`` on a bench; raises CommandRefused if refused, NoReply if unanswered (timeout, or
     denied by access control: a denied query is dropped, not answered)."""
