@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping
 
 from ..blocks import SampleBlock
+from ..deadline import Deadline
 from ..errors import BenchError, CommandRefused, ConfigError, NetworkError, NoReply
 from .bench_commands import COMMANDS as _COMMAND_ARGS
 from ..messages import json_bytes
@@ -299,13 +300,12 @@ class Subscription:
              stop: threading.Event | None = None) -> Iterator[tuple[str, bytes, int]]:
         """What :meth:`get` returns, until ``count`` samples, ``seconds`` or ``stop``: a reader's loop
         that still notices ``stop`` while nothing arrives (it waits 0.2 s at a time)."""
-        deadline = None if seconds is None else time.monotonic() + seconds
+        deadline = Deadline(seconds)
         got = 0
         while (count is None or got < count) and not (stop is not None and stop.is_set()):
-            left = 0.2 if deadline is None else min(0.2, deadline - time.monotonic())
-            if deadline is not None and left <= 0:
+            if deadline.expired:
                 return
-            item = self.get(left)
+            item = self.get(deadline.left(0.2))
             if item is not None:
                 got += 1
                 yield item
@@ -320,18 +320,54 @@ class Subscription:
 def query_json(session: zenoh.Session, keyexpr: str, payload: Mapping[str, Any] | None = None, *,
                timeout_s: float = 2.0) -> list[dict]:
     """Every reply to a query, decoded: ``{"ok": ...}`` objects; an error reply is included with
-    ``ok: False``.  An empty list means nobody answered (or access control dropped the query)."""
+    ``ok: False`` (its text as ``error`` when it is no JSON object), for the caller to raise
+    :class:`CommandRefused`.  An empty list means nobody answered in time: nobody serves the key,
+    access control dropped the query, or the queryable did not answer within ``timeout_s`` (zenoh
+    then hands the querier an error reply of its own, ``Timeout``, which is not the daemon's).
+    A reply that is no JSON object is a :class:`NetworkError` naming the key: whoever answered
+    there does not speak this protocol."""
     kwargs: dict[str, Any] = {"timeout": timeout_s}
     if payload is not None:
         kwargs["payload"] = json.dumps(dict(payload)).encode()
     out = []
     for reply in session.get(keyexpr, **kwargs):
         if reply.ok is not None:
-            out.append(json.loads(reply.ok.payload.to_bytes()))
-        else:
-            err = json.loads(reply.err.payload.to_bytes())
-            out.append(err if isinstance(err, dict) and "ok" in err else {"ok": False, "error": err})
+            raw = reply.ok.payload.to_bytes()
+            obj = _json_object(raw)
+            if obj is None:
+                raise NetworkError(f"{keyexpr}: the reply is not a JSON object: {_preview(raw)} "
+                                   "(does something other than a hystbench daemon serve this key?)")
+            out.append(obj)
+            continue
+        raw = reply.err.payload.to_bytes()
+        if raw == _ZENOH_TIMEOUT:
+            continue  # zenoh's own, not the daemon's: nobody answered within timeout_s
+        obj = _json_object(raw)
+        if obj is not None and "error" in obj:  # the daemon's {"ok": false, "error": ...}
+            out.append({**obj, "ok": False})
+        else:  # someone else's refusal: its text is the reason
+            out.append({"ok": False, "error": raw.decode("utf-8", "replace")})
     return out
+
+
+#: What zenoh itself hands the querier, as an error reply, when a queryable it routed the query
+#: to did not answer within the timeout (a busy daemon, or access control dropping the query).
+_ZENOH_TIMEOUT = b"Timeout"
+
+
+def _json_object(raw: bytes) -> dict | None:
+    """``raw`` as a JSON object, or None if it is none (not UTF-8, not JSON, not an object)."""
+    try:
+        obj = json.loads(raw)
+    except ValueError:  # JSONDecodeError and UnicodeDecodeError are both ValueErrors
+        return None
+    return obj if isinstance(obj, dict) else None
+
+
+def _preview(raw: bytes, limit: int = 80) -> str:
+    """The start of a payload for a message (repr: control characters shown, not printed)."""
+    text = repr(raw[:limit].decode("utf-8", "replace"))
+    return text + (f" ... ({len(raw)} bytes)" if len(raw) > limit else "")
 
 
 def send_command(session: zenoh.Session, bench: str, verb: str, args: Mapping[str, Any] | None = None, *,

@@ -8,8 +8,9 @@ import json
 import os
 import subprocess
 import sys
-import time
+import threading
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -21,7 +22,8 @@ from hystbench.acquisition.zenoh_bus import (Subscription, ZenohBus, free_port, 
                                              peer_config, query_json, send_command)
 from hystbench.blocks import BlockFlags, SampleBlock
 from hystbench.config import CONFIG_DIR
-from hystbench.errors import BenchError, ConfigError
+from hystbench.deadline import Deadline
+from hystbench.errors import BenchError, CommandRefused, ConfigError, NetworkError, NoReply
 from hystbench.formats.mcaplog import RAW, iter_blocks
 from hystbench.formats.mcaplog.schemas import SCHEMAS, schema_bytes
 from hystbench.formats.raw_block import decode, encode_binary
@@ -34,8 +36,8 @@ HANG_S = 60.0  # a safety timeout: waits end on their event, only a hang takes t
 def answered(session, key_expr: str) -> list:
     """The replies to a query, asked until the service answers: a client that has just connected
     may not see the service's queryables yet (discovery takes what a busy machine gives it)."""
-    deadline = time.monotonic() + HANG_S
-    while time.monotonic() < deadline:
+    deadline = Deadline(HANG_S)
+    while not deadline.expired:
         got = query_json(session, key_expr, timeout_s=1.0)
         if got:
             return got
@@ -88,8 +90,8 @@ def test_a_remote_subscriber_sees_the_operating_point_and_the_bytes_decode_throu
                                            "force_N": rng.standard_normal(500)},
                       flags=BlockFlags.GAP, gap_samples=17, meta=point.to_meta())
     try:
-        got, deadline = None, time.monotonic() + HANG_S  # a safety timeout: the loop ends on the delivery
-        while got is None and time.monotonic() < deadline:  # discovery: put until the subscriber has one
+        got, deadline = None, Deadline(HANG_S)  # a safety timeout: the loop ends on the delivery
+        while got is None and not deadline.expired:  # discovery: put until the subscriber has one
             bus.publish_block(blk)
             got = sub.get(0.5)
         assert got is not None, "no raw block reached the subscriber"
@@ -214,6 +216,69 @@ def test_access_control_denies_commands_to_unlisted_subjects(tmp_path: Path) -> 
     finally:
         viewer.close()
         svc.stop()
+
+
+def _outcome(call: Callable[[], object]) -> object:
+    """What ``call()`` returned, or the BenchError it raised."""
+    try:
+        return call()
+    except BenchError as err:
+        return err
+
+
+def test_replies_that_are_not_the_daemons_json_through_real_queryables() -> None:
+    """Under load `hystbench ctl` once printed only "Expecting value": query_json fed zenoh's own
+    error reply ``Timeout`` (a queryable that did not answer in time, as when access control drops
+    the query) to json.loads.  Now: a reply that is no JSON object is a NetworkError naming the
+    key; a plain-text error reply is a refusal (CommandRefused, with its text); zenoh's Timeout is
+    "nobody answered" (NoReply naming the key).  Each through a real queryable on loopback."""
+    port = free_port()
+    server = open_session(load_zenoh_config(None, listen=[f"tcp/127.0.0.1:{port}"]))
+    silent_asked = threading.Event()
+    held: list = []  # queries never answered: zenoh times the querier out
+
+    def text(query) -> None:
+        with query:
+            query.reply(query.key_expr, b"<html>not json</html>", encoding="text/html")
+
+    def plain_error(query) -> None:
+        with query:
+            query.reply_err(b"plain failure")
+
+    def silent(query) -> None:
+        held.append(query)
+        silent_asked.set()
+
+    decls = [server.declare_queryable("hystbench/x/health", text),
+             server.declare_queryable("hystbench/x/cmd/stop_sweep", plain_error),
+             server.declare_queryable("hystbench/x/cmd/output", silent)]
+    s = client(port)
+    try:
+        # a new session may not know the queryables yet: such a query finds no one and comes back
+        # at once with no reply (NoReply, []); asked again until it reaches them (bounded: a hang)
+        deadline = Deadline(HANG_S)
+        got = _outcome(lambda: query_json(s, "hystbench/x/health", timeout_s=HANG_S))
+        while got == [] and not deadline.expired:
+            got = _outcome(lambda: query_json(s, "hystbench/x/health", timeout_s=HANG_S))
+        assert isinstance(got, NetworkError) and not isinstance(got, NoReply), got
+        assert str(got).startswith("hystbench/x/health: the reply is not a JSON object: '<html>not json</html>'")
+        got = _outcome(lambda: send_command(s, "x", "stop_sweep", timeout_s=HANG_S))
+        while isinstance(got, NoReply) and not deadline.expired:
+            got = _outcome(lambda: send_command(s, "x", "stop_sweep", timeout_s=HANG_S))
+        assert isinstance(got, CommandRefused) and got.reply == {"ok": False, "error": "plain failure"}, got
+        assert str(got) == "bench 'x': cmd/stop_sweep refused: plain failure"
+        got = _outcome(lambda: send_command(s, "x", "output", {"on": True}, timeout_s=0.5))
+        while not silent_asked.is_set() and not deadline.expired:  # until a query was routed to it
+            got = _outcome(lambda: send_command(s, "x", "output", {"on": True}, timeout_s=0.5))
+        assert silent_asked.is_set()
+        assert isinstance(got, NoReply) and "no reply to cmd/output within 0.5 s" in str(got), got
+        assert query_json(s, "hystbench/x/cmd/output", {"on": True}, timeout_s=0.5) == []  # routed, timed out
+    finally:
+        held.clear()
+        s.close()
+        for d in decls:
+            d.undeclare()
+        server.close()
 
 
 def test_watch_prints_live_estimates_from_another_process(tmp_path: Path) -> None:
