@@ -76,6 +76,7 @@ def run_once(fs_hz: float, seconds: float, out_dir: Path, *, block_s: float = 0.
     from hystbench.acquisition.sources import SyntheticSource
     from hystbench.acquisition.stages import WindowEstimator
     from hystbench.acquisition.zenoh_bus import ZenohBus, free_port, load_zenoh_config
+    from hystbench.deadline import Deadline
 
     block = int(round(block_s * fs_hz))
     src = SyntheticSource(fs_hz=fs_hz, frequency_hz=320.0, block_samples=block, channels=CHANNELS,
@@ -95,8 +96,8 @@ def run_once(fs_hz: float, seconds: float, out_dir: Path, *, block_s: float = 0.
     bus = ZenohBus("bench", load_zenoh_config(None, listen=[f"tcp/127.0.0.1:{port}"])).open()
     try:
         line = ""
-        deadline = time.monotonic() + 20
-        while "ready" not in line and time.monotonic() < deadline:
+        deadline = Deadline(20.0)
+        while "ready" not in line and not deadline.expired:
             line = sub.stdout.readline()
         time.sleep(0.5)  # the subscription reaches the publisher
         log = out_dir / f"bench-{int(fs_hz)}.mcap"

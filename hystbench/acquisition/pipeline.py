@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import DTypeLike
 
 from ..blocks import BlockFlags, SampleBlock
+from ..deadline import Deadline
 from ..errors import ConfigError
 from ..formats.mcaplog.schemas import COMPENSATOR, ESTIMATE, STATS, STATUS
 from ..messages import Estimate
@@ -180,9 +181,9 @@ class Pipeline:
 
     def join(self, timeout_s: float | None = None) -> bool:
         """Wait until the source ended and every reader drained; True if all threads finished."""
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        deadline = Deadline(timeout_s)  # one bound for all the threads, not timeout_s each
         for t in self._threads:
-            t.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
+            t.join(deadline.left())
         done = not any(t.is_alive() for t in self._threads)
         if done:
             if self._previous_switch_s is not None:

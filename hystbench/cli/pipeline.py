@@ -12,10 +12,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
+from ..deadline import Deadline
 from ..errors import BenchError, RecordingError
 
 __all__ = ["register", "format_message"]
@@ -74,25 +74,22 @@ def _watch_items(sub, keyexpr: str, endpoint: str, *, count: int | None, seconds
     """The samples of ``sub`` until ``count`` or ``seconds``; when nothing has arrived for
     ``quiet_after_s`` (0: never), says so once on stderr and keeps waiting (said again only after
     a message came and the line went quiet again)."""
-    start = last = time.monotonic()
-    deadline = None if seconds is None else start + seconds
+    deadline = Deadline(seconds)
+    quiet = Deadline(quiet_after_s)  # since the start, then since the last message
     warned = not quiet_after_s > 0
     got = 0
     while count is None or got < count:
-        now = time.monotonic()
-        if not warned and now - last >= quiet_after_s:  # before the deadline test: said even at the end
+        if not warned and quiet.expired:  # before the deadline test: said even at the end
             what = "no publisher seen" if got == 0 else "no message"
-            print(f"hystbench watch: {what} on {keyexpr} via {endpoint} for {now - last:.1f} s (is the daemon "
+            print(f"hystbench watch: {what} on {keyexpr} via {endpoint} for {quiet.elapsed:.1f} s (is the daemon "
                   "running, with that bench name and endpoint?); still waiting", file=sys.stderr, flush=True)
             warned = True
-        if deadline is not None and now >= deadline:
+        if deadline.expired:
             return
-        waits = [0.2] + ([deadline - now] if deadline is not None else []) \
-            + ([last + quiet_after_s - now] if not warned else [])
-        item = sub.get(max(0.0, min(waits)))
+        item = sub.get(deadline.left(0.2) if warned else min(deadline.left(0.2), quiet.left()))
         if item is not None:
             got += 1
-            last = time.monotonic()
+            quiet = Deadline(quiet_after_s)
             warned = not quiet_after_s > 0
             yield item[0], item[1]
 

@@ -9,7 +9,6 @@ is reported, its files removed, and the demo goes on with its offline parts.
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 from typing import Any, Callable
 
@@ -18,6 +17,7 @@ from rich.markup import escape
 from ..acquisition.control import BenchControl
 from ..acquisition.daemon import BenchService, load_daemon_config
 from ..acquisition.zenoh_bus import Subscription, free_port, key
+from ..deadline import Deadline
 from ..errors import BenchError
 
 __all__ = ["demo_live"]
@@ -37,25 +37,30 @@ def _clear_demo_live(out: Path, *, remove_dir: bool = False) -> None:
         out.rmdir()
 
 
-def _follow_sweep(ests: Subscription, status: Subscription, t_end: float, got: list[dict], errors: list[str],
+#: While the sweep runs, each message gives it at least this long again (seconds).
+_STILL_COMING_S = 10.0
+
+
+def _follow_sweep(ests: Subscription, status: Subscription, wait_s: float, got: list[dict], errors: list[str],
                   show: Show | None) -> list[float]:
     """Take estimates as they arrive (``show`` each) until the sweep says it is done (or
-    ``t_end``), then those still on their way (a source behind the wall clock delivers the last
-    points late); the frequencies the sweep announced.  The sweep dwells on the source's sample clock, so a source
-    slower than real time takes longer: ``t_end`` moves on while messages still come."""
+    ``wait_s`` passes), then those still on their way (a source behind the wall clock delivers the
+    last points late); the frequencies the sweep announced.  The sweep dwells on the source's sample
+    clock, so a source slower than real time takes longer: the wait goes on while messages still come."""
     points: list[float] = []
     done = False
-    while time.monotonic() < t_end:
-        item = ests.get(min(1.0 if done else 0.1, max(0.0, t_end - time.monotonic())))
+    deadline = Deadline(wait_s)
+    while not deadline.expired:
+        item = ests.get(deadline.left(1.0 if done else 0.1))
         if item is not None:
             got.append(json.loads(item[1]))
             if show is not None:
                 show(item[0], item[1])
-            t_end = t_end if done else max(t_end, time.monotonic() + 10.0)
+            deadline = deadline if done else _at_least(deadline, _STILL_COMING_S)
         elif done:  # a second without an estimate after the sweep: the pipeline has caught up
             break
         while (st := status.get(0.0)) is not None:
-            t_end = t_end if done else max(t_end, time.monotonic() + 10.0)
+            deadline = deadline if done else _at_least(deadline, _STILL_COMING_S)
             obj = json.loads(st[1])
             if obj.get("level") == "error":
                 errors.append(str(obj.get("message") or obj.get("event")))
@@ -63,6 +68,11 @@ def _follow_sweep(ests: Subscription, status: Subscription, t_end: float, got: l
                 points.append(float(obj.get("frequency_hz", "nan")))
             done = done or obj.get("event") in ("sweep_done", "sweep_stopped")
     return points
+
+
+def _at_least(deadline: Deadline, seconds: float) -> Deadline:
+    """``deadline``, or a new one ``seconds`` from now if that is later."""
+    return deadline if deadline.left() >= seconds else Deadline(seconds)
 
 
 def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench", *,
@@ -94,7 +104,7 @@ def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench", 
             status = Subscription(ctl.session, key("demo", "status"))
             try:
                 ctl.request("start_sweep", {"frequencies_hz": freqs, "dwell_s": dwell})
-                points = _follow_sweep(ests, status, time.monotonic() + len(freqs) * dwell + 10.0, got, errors, show)
+                points = _follow_sweep(ests, status, len(freqs) * dwell + 10.0, got, errors, show)
                 health = ctl.health()
             finally:
                 ests.close()

@@ -5,7 +5,6 @@ compensator hook."""
 from __future__ import annotations
 
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -254,9 +253,7 @@ def test_compensator_hook_publishes_state_applies_waveforms_and_survives_errors(
 def test_stop_is_prompt_and_a_failing_source_is_reported() -> None:
     src = SyntheticSource(fs_hz=100_000.0, block_samples=1000, pace="realtime")  # endless
     pipe = Pipeline(src, estimator=WindowEstimator(src.fs_hz, src.metadata())).start()
-    deadline = time.monotonic() + 60.0  # a safety timeout: the loop ends when blocks flow
-    while pipe.stats["source"].blocks < 3 and time.monotonic() < deadline:
-        threading.Event().wait(0.01)
+    assert pipe.after_samples(3 * 1000).wait(60.0)  # three blocks flowed (the timeout only bounds a hang)
     assert pipe.stats["source"].blocks >= 3
     pipe.stop(60.0)
     assert pipe.finished.is_set()  # the source is endless: only the stop can have ended it

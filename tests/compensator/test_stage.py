@@ -1,6 +1,8 @@
 """The online stage: the pipeline's compensator interface, following the live theta_hyst."""
 
 import math
+import threading
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -10,6 +12,24 @@ from hystbench.compensator import CompensatorStage, ForceReference, LearningConf
 from hystbench.messages import Estimate
 
 REF = "offset=170,amp=40,freq=320"
+
+
+def wait_on_messages(pipeline, cond: Callable[[], object], timeout_s: float) -> bool:
+    """Whether ``cond()`` came to hold, looked at after every message the pipeline emits
+    (estimates, compensator states, and stats every stats_interval_s: they keep coming while it
+    runs), not on a clock; ``timeout_s`` only turns a hang into a failure."""
+    tick = threading.Condition()
+
+    def poke(topic: str, obj: object) -> None:
+        with tick:
+            tick.notify_all()
+
+    pipeline.listeners.append(poke)
+    try:
+        with tick:
+            return tick.wait_for(lambda: bool(cond()), timeout_s)
+    finally:
+        pipeline.listeners.remove(poke)
 
 
 def estimate(theta_deg, f=320.008, error=None, table=0):
@@ -66,8 +86,6 @@ def test_stage_with_the_live_estimator(models_pm):
 def test_the_daemon_runs_the_compensator_from_its_config_and_logs_its_state(models_pm, tmp_path):
     """Online: the daemon's pipeline feeds live estimates to the stage, which uploads its current
     table to the source and whose state lands in the MCAP log's /compensator topic."""
-    import time
-
     from hystbench.acquisition.daemon import BenchService, load_daemon_config
     from hystbench.formats.mcaplog import COMPENSATOR, iter_log
 
@@ -81,9 +99,7 @@ def test_the_daemon_runs_the_compensator_from_its_config_and_logs_its_state(mode
                    'force = "offset=170,amp=40,freq=320"\n', encoding="utf-8")
     svc = BenchService(load_daemon_config(cfg)).start()
     try:
-        deadline = time.monotonic() + 120.0  # a safety timeout: the loop ends on the event
-        while time.monotonic() < deadline and getattr(svc.source.rig, "_waveform", None) is None:
-            time.sleep(0.1)
+        assert wait_on_messages(svc.pipeline, lambda: getattr(svc.source.rig, "_waveform", None) is not None, 120.0)
         assert svc.source.rig._waveform is not None  # the stage's table reached the generator
     finally:
         logs = svc.stop()
@@ -105,8 +121,6 @@ def test_a_compensator_without_model_or_force_is_refused_naming_the_key(tmp_path
 def test_the_daemon_compensator_drives_the_generator_through_its_driver(models_pm, tmp_path):
     """The same, with the daemon's default source: the table reaches the emulated signal generator
     as an arbitrary waveform over SCPI."""
-    import time
-
     from hystbench.acquisition.daemon import BenchService, load_daemon_config
 
     model = models_pm.save(tmp_path / "models.json")
@@ -118,10 +132,7 @@ def test_the_daemon_compensator_drives_the_generator_through_its_driver(models_p
                    'force = "offset=170,amp=40,freq=320"\n', encoding="utf-8")
     svc = BenchService(load_daemon_config(cfg)).start()
     try:
-        deadline = time.monotonic() + 120.0  # a safety timeout: the loop ends on the event
-        while time.monotonic() < deadline and svc.source.emu.generator.state.get("function") != "ARB":
-            time.sleep(0.1)
-        assert svc.source.emu.generator.state.get("function") == "ARB"
+        assert wait_on_messages(svc.pipeline, lambda: svc.source.emu.generator.state.get("function") == "ARB", 120.0)
         assert svc.pipeline.compensator.errors == 0
     finally:
         svc.stop()
@@ -196,8 +207,6 @@ def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tm
     flux integrator, current monitor, generator output, all over their protocols) correct the
     table the generator plays; the error must reach 2x the window's noise floor, the state (with
     its learning report) is logged."""
-    import time
-
     from hystbench.acquisition.daemon import BenchService, load_daemon_config
     from hystbench.formats.mcaplog import COMPENSATOR, ESTIMATE, iter_log
 
@@ -215,9 +224,8 @@ def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tm
         lambda topic, obj: reports.setdefault(obj["learning"]["iteration"], obj["learning"])
         if topic == COMPENSATOR and "learning" in obj else None)
     try:
-        deadline = time.monotonic() + 300.0  # a safety timeout: the loop ends on the event
-        while time.monotonic() < deadline and not any(k >= 3 and r["ratio"] <= 2.0 for k, r in reports.items()):
-            time.sleep(0.2)
+        wait_on_messages(svc.pipeline, lambda: any(k >= 3 and r["ratio"] <= 2.0 for k, r in list(reports.items())),
+                         300.0)  # the assertions below say what was missing, if anything
         assert svc.pipeline.compensator.errors == 0, svc.pipeline.compensator.last_error
     finally:
         logs = svc.stop()
