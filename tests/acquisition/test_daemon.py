@@ -375,9 +375,15 @@ def test_a_taken_port_names_the_key_to_change(tmp_path: Path) -> None:
                      "already in use (another hystbench daemon or a zenoh router?); change [zenoh] listen"], lines
 
 
-def test_a_hardware_bench_file_as_config_fails_only_at_connect(tmp_path: Path) -> None:
+def test_a_hardware_bench_file_as_config_fails_only_at_connect(tmp_path: Path, monkeypatch) -> None:
     """`hystbench daemon --config bench_hardware.toml` (addresses made local and absent): accepted,
-    then one line naming the instrument and its address, exit 1 (systemd may retry: not a bad file)."""
+    then one line naming the instrument and its address, exit 1 (systemd may retry: not a bad file).
+
+    Given alone, a bench file runs the daemon's defaults, which listen on zenoh's 7447: the test
+    depended on that port being free (another daemon, a router or a parallel run took it, and the
+    daemon stopped at its listen endpoint, exit 2).  So: the bench file as --config is, value for
+    value, the daemon file that names it as [source] bench_file; that daemon file, plus a free
+    port, runs the daemon."""
     text = (ROOT / "hystbench/config/bench_hardware.toml").read_text(encoding="utf-8")
     for old in ("192.168.0.20:5025", "192.168.0.20:5026", "192.168.0.21:5027"):
         text = text.replace(old, f"127.0.0.1:{free_port()}")
@@ -386,8 +392,16 @@ def test_a_hardware_bench_file_as_config_fails_only_at_connect(tmp_path: Path) -
     assert "192.168." not in text
     bench = tmp_path / "bench_hardware.toml"
     bench.write_text(text, encoding="utf-8")
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path / "state"))  # the default log folder, as below
+    as_config = load_daemon_config(bench)
+    naming = tmp_path / "daemon.toml"
+    naming.write_text(f'[source]\nkind = "bench"\nbench_file = "{bench.as_posix()}"\n', encoding="utf-8")
+    named = load_daemon_config(naming)
+    assert (named.values, named.given) == (as_config.values, as_config.given)
+    assert as_config["zenoh"]["listen"] == ["tcp/127.0.0.1:7447"]  # hence the port below
+    naming.write_text(naming.read_text() + f'[zenoh]\nlisten = ["tcp/127.0.0.1:{free_port()}"]\n', encoding="utf-8")
     env = dict(os.environ, STATE_DIRECTORY=str(tmp_path / "state"))
-    proc = subprocess.run([sys.executable, "-m", "hystbench", "daemon", "--config", str(bench)], cwd=ROOT, env=env,
+    proc = subprocess.run([sys.executable, "-m", "hystbench", "daemon", "--config", str(naming)], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 1, proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if "error:" in ln]
