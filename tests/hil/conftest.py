@@ -7,7 +7,11 @@ block, the truth against which samples that came through the drivers are checked
 Nothing here waits on wall time: tests wait for the emulator's sample clock to reach an index
 (``Hil.wait_clock``), for a condition the clock's blocks make true (``Hil.wait_for``), or acquire
 until the samples they need have come (``acquire_through``).  The timeouts only turn a hang into a
-failure.
+failure.  Where a measurement begins is a sample index too: the one where the output came on
+(``switched_on_at``, from the emulator's log of the rig's settings), not "whatever arrives after
+start_output() returned" (``skip_to``).  And the streams' stall timeout is a hang bound
+(``STALL_S``): the emulated instruments share the machine's CPU, so a busy machine holds their
+clock as long as it likes.
 """
 
 from __future__ import annotations
@@ -27,6 +31,12 @@ from hystbench.sim_backend.emulators.bench import EmulatedBench
 
 FAST = {"initial_s": "0.02", "factor": "2.0", "max_s": "0.1", "attempts": "4"}
 HANG_S = 120.0  # a safety timeout: only a hang takes this long
+#: The ``hil`` fixtures' ``[bench] stall_timeout_s``: only a hang.  With the shipped 0.5 s, a busy
+#: machine that held the emulator's clock thread for half a second looked like a pulled cable: the
+#: streams reconnected, the frames sent meanwhile were lost, and a test expecting every sample saw
+#: a gap.  A held clock is no stalled cable (test_hil_pacing); the tests of stall detection set
+#: ``bench.stall_timeout_s`` themselves.
+STALL_S = HANG_S
 
 
 def bench_file(tmp_path: Path, **edits: str) -> Path:
@@ -117,6 +127,29 @@ def merge_runs(runs: list[SampleBlock]) -> list[SampleBlock]:
     return out
 
 
+def switched_on_at(hil: "Hil") -> int:
+    """The first sample index the rig made with the output on, the last time it came on (the
+    emulator's log of the rig's settings, kept on the sample clock)."""
+    changes = list(hil.emu.changes)
+    assert changes and changes[-1][1]["output"], "the output is off"
+    k = len(changes) - 1
+    while k > 0 and changes[k - 1][1]["output"]:
+        k -= 1
+    return changes[k][0]
+
+
+def skip_to(hil: "Hil", index: int) -> None:
+    """Acquire and drop every aligned sample before ``index``: the next acquire starts there (or
+    where the streams began, if later).  After a change, frames the clock made before it can still
+    arrive: the clock thread can make a block, be held by a busy machine while start_output()
+    returns and the streams open, and only then send it (the generator's monitor at 0 V, the
+    output was off).  They show the bench as it was, not the measurement that follows."""
+    bench = hil.bench
+    while bench.next_index is None or bench.next_index < index:
+        n = 1 if bench.next_index is None else index - bench.next_index
+        bench.acquire(n / bench.config.fs_hz, timeout_s=HANG_S)
+
+
 def acquire_through(hil: "Hil", index: int, chunk_s: float = 0.05) -> list[SampleBlock]:
     """Acquire until the samples reach past ``index`` (so a fault placed before it is inside)."""
     runs: list[SampleBlock] = []
@@ -130,7 +163,7 @@ def hil_factory(tmp_path):
     made: list[Hil] = []
 
     def make(**edits: str) -> Hil:
-        h = Hil(bench_file(tmp_path, **edits))
+        h = Hil(bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}", **edits}))
         made.append(h)
         h.bench.open()
         return h

@@ -17,13 +17,15 @@ from hystbench.drivers.safety import SafetyLimitError
 from hystbench.drivers.signal_generator import ScpiError
 from hystbench.errors import ConnectionLost, InstrumentError, InstrumentTimeout, ProtocolError
 
-from .conftest import HANG_S, acquire_through, expected_wire
+from .conftest import HANG_S, acquire_through, expected_wire, skip_to, switched_on_at
 
 
 def streams_flowing(hil):
-    """The four streams open, each with frames received: what arrives from now on is acquired."""
+    """The four streams open, each with frames received, and what the clock made before the output
+    came on dropped (see ``skip_to``): what is acquired from now on was made with the output on."""
     streams = hil.bench.open_streams()
     hil.wait_for(lambda: all(s.stats.frames > 0 for s in streams.values()), "frames on every stream")
+    skip_to(hil, switched_on_at(hil))
     return streams
 
 
@@ -124,6 +126,7 @@ def test_disconnect_switches_output_off_then_reconnects_with_backoff(hil):
     assert bench.generator.reconnects == 1 and hil.emu.generator.state["output"] is False
     bench.clear_faults()
     bench.start_output()
+    skip_to(hil, switched_on_at(hil))
     runs = bench.acquire(0.1)
     check_runs(hil, runs)
 
@@ -235,7 +238,7 @@ def test_charge_amplifier_overload_flags_clip_but_keeps_running(hil):
 
 
 def test_integrator_bus_off_raises_with_the_output_already_off(hil_factory):
-    hil = hil_factory(**{"flux_integrator.timeout_s": "0.2"})
+    hil = hil_factory(**{"flux_integrator.timeout_s": "0.2", "bench.stall_timeout_s": "0.5"})  # a silent bus: a stall
     hil.bench.start_output()
     streams_flowing(hil)
     hil.emu.integrator.disconnect()

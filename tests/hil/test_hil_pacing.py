@@ -35,14 +35,15 @@ def let_real_time_pass(hil, polls):
     assert faults.wait_replies(faults.replies_sent + polls, HANG_S)
 
 
-def test_a_clock_that_fell_behind_goes_on_with_the_same_samples(hil_factory):
-    hil = hil_factory(**{"bench.stall_timeout_s": "30.0"})  # the held clock is not a stalled cable
+def test_a_clock_that_fell_behind_goes_on_with_the_same_samples(hil):
+    """Held for longer than the shipped stall timeout (0.5 s): the ``hil`` fixtures take a held
+    clock for what it is, not for a pulled cable (no reconnect, so no frame lost meanwhile)."""
     hil.bench.start_output()
     streams = streams_flowing(hil)
     at = hil.blocks_ahead(2)
     stalled, release = hold_clock_at(hil, at)
     assert stalled.wait(HANG_S)
-    let_real_time_pass(hil, 3)  # polls 0.1 s apart: the clock is >= 0.2 s behind
+    let_real_time_pass(hil, 7)  # polls 0.1 s apart: the clock is >= 0.6 s behind
     release.set()
     runs = acquire_through(hil, at + 20 * hil.emu.block_samples)
     assert check_runs(hil, runs) == 0 and len(runs) == 1  # every sample, each the rig's own
