@@ -35,7 +35,7 @@ __all__ = ["run_demo", "demo_sweeps", "SWEEPS"]
 SWEEPS = (("ecore", 1.27, (40.0, 80.0, 160.0, 320.0)),
           ("ecore_pm", 1.4, (40.0, 80.0, 160.0, 320.0, 480.0)))
 DURATION_S = 0.5
-SETTLE_S = 0.1  # after each frequency step: frame ringing and eddy currents settle
+SETTLE_S = 0.1  # after each step: the chain rings ~30 ms (analysis.settling); the rest covers samples in flight
 
 
 def _loop(rec: Recording, frequency_hz: float, name: str) -> tuple[np.ndarray, np.ndarray]:
