@@ -9,8 +9,9 @@ file is opened or instrument touched.  Every command module takes its numbers th
 from __future__ import annotations
 
 import argparse
-import math
 from typing import Callable
+
+from ..config.schema import Key
 
 __all__ = ["positive_float", "nonnegative_float", "finite_float", "positive_int", "nonnegative_int",
            "positive_floats", "float_in", "float_list_in", "int_in", "path_arg", "SIM_MAX_IPP_A"]
@@ -21,51 +22,37 @@ __all__ = ["positive_float", "nonnegative_float", "finite_float", "positive_int"
 SIM_MAX_IPP_A = 2e4
 
 
-def _number(text: str, what: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
-    return value
+def _parser(key: Key, noun: str) -> Callable[[str], float]:
+    """An argparse type for one number whose legal range is ``key`` (the one validator's, so the
+    command line and the TOML files refuse alike); ``noun`` names it in the message."""
+    what = f"{noun} {key.range_text()}".strip()
+    convert = int if key.kind is int else float
+
+    def parse(text: str) -> float:
+        try:
+            value = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+        if key.problem(value):
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+        return value
+
+    parse.__name__ = what.removeprefix("a ")
+    return parse
 
 
-def finite_float(text: str) -> float:
-    """Any finite number (an offset, a phase)."""
-    return _number(text, "a finite number")
-
-
-def positive_float(text: str) -> float:
-    """A finite number > 0 (a frequency, a duration, a current amplitude, a sample rate)."""
-    value = _number(text, "a finite number > 0")
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return value
-
-
-def nonnegative_float(text: str) -> float:
-    """A finite number >= 0."""
-    value = _number(text, "a finite number >= 0")
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return value
+finite_float = _parser(Key(float, None, "an offset, a phase"), "a finite number")
+positive_float = _parser(Key(float, None, "a frequency, a duration, an amplitude, a sample rate", gt=0.0),
+                         "a finite number")
+nonnegative_float = _parser(Key(float, None, "", ge=0.0), "a finite number")
+positive_int = _parser(Key(int, None, "a block size, a count", ge=1), "a whole number")
+nonnegative_int = _parser(Key(int, None, "a seed, an index, a number of iterations", ge=0), "a whole number")
 
 
 def float_in(lo: float, hi: float, *, lo_open: bool = True, hi_open: bool = False) -> Callable[[str], float]:
     """A finite number in an interval, e.g. ``float_in(0, 1.5)`` for (0, 1.5]."""
-    span = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
-
-    def parse(text: str) -> float:
-        value = _number(text, f"a number in {span}")
-        low_ok = value > lo if lo_open else value >= lo
-        high_ok = value < hi if hi_open else value <= hi
-        if not (low_ok and high_ok):
-            raise argparse.ArgumentTypeError(f"must be a number in {span}, got {text!r}")
-        return value
-
-    parse.__name__ = f"number in {span}"
-    return parse
+    return _parser(Key(float, None, "", gt=lo if lo_open else None, ge=None if lo_open else lo,
+                       lt=hi if hi_open else None, le=None if hi_open else hi), "a number")
 
 
 def float_list_in(lo: float, hi: float) -> Callable[[str], list[float]]:
@@ -79,40 +66,9 @@ def float_list_in(lo: float, hi: float) -> Callable[[str], list[float]]:
     return parse
 
 
-def _integer(text: str, what: str) -> int:
-    try:
-        return int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
-
-
-def positive_int(text: str) -> int:
-    """A whole number >= 1 (a block size, a count)."""
-    value = _integer(text, "a whole number >= 1")
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
-    return value
-
-
 def int_in(lo: int, hi: int) -> Callable[[str], int]:
     """A whole number in [lo, hi], e.g. ``int_in(1, 1_000_000)`` for a block size."""
-
-    def parse(text: str) -> int:
-        value = _integer(text, f"a whole number in [{lo:g}, {hi:g}]")
-        if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"must be a whole number in [{lo:g}, {hi:g}], got {text!r}")
-        return value
-
-    parse.__name__ = f"whole number in [{lo:g}, {hi:g}]"
-    return parse
-
-
-def nonnegative_int(text: str) -> int:
-    """A whole number >= 0 (a seed, an index, a number of iterations)."""
-    value = _integer(text, "a whole number >= 0")
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}")
-    return value
+    return _parser(Key(int, None, "", ge=lo, le=hi), "a whole number")
 
 
 def positive_floats(text: str) -> list[float]:
