@@ -1,7 +1,8 @@
 """The keys of a rig preset (``rigs/*.toml``) and of a material file (``materials/*.toml``).
 
 A preset is checked once, when it is loaded: the ``actuator`` key chooses the schema (an E-core, a
-voice coil and a toroid need different tables), every table and key is checked for type, unit
+voice coil and a toroid need different tables; a material file's ``model`` likewise: a Preisach
+model, a complex permeability or Rayleigh's law), every table and key is checked for type, unit
 range and spelling, the defaults are filled in, and the consumers (physics/presets, the simulated
 rig) read the checked values.  A bad preset is refused naming the file, the table and the key
 before any simulation starts.
@@ -9,13 +10,17 @@ before any simulation starts.
 
 from __future__ import annotations
 
+import math
 from typing import Any, Mapping
+
+from scipy.constants import mu_0
 
 from ..errors import ConfigError
 from .effects import EFFECTS_SCHEMA
 from .schema import NUM, OPTIONAL, Key, Schema, check_table
 
-__all__ = ["ACTUATORS", "RIG_SCHEMAS", "MATERIAL_SCHEMA", "PREISACH_KINDS", "check_rig", "check_material"]
+__all__ = ["ACTUATORS", "RIG_SCHEMAS", "MATERIAL_MODELS", "MATERIAL_SCHEMAS", "MATERIAL_SCHEMA", "PREISACH_KINDS",
+           "check_rig", "check_material"]
 
 #: The rig's ``actuator`` key: which physics simulates it.
 ACTUATORS = ("ecore", "voicecoil", "toroid")
@@ -133,21 +138,43 @@ _TERM = {
     "j_t": Key(NUM, None, "polarisation of the term", "T", ge=0.0),
     "h_a_per_m": Key(NUM, None, "its field scale: j_t 2/pi atan(H / h_a_per_m)", "A/m", gt=0.0),
 }
-#: A material file: the factorised Preisach model of its static B-H loops.
-MATERIAL_SCHEMA: Schema = {
+#: A material file's ``model`` key: which physics its iron follows (:mod:`hystbench.physics.iron`).
+MATERIAL_MODELS = ("preisach-factorised", "complex-permeability", "rayleigh")
+_MATERIAL_TOP = {
     "name": Key(str, "", "the material's name (left out: the file's name)"),
-    "model": Key(str, "preisach-factorised", "the model's form", choices=("preisach-factorised",)),
-    "preisach": _table({
+    "model": Key(str, "preisach-factorised", "the model's form: chooses the tables below", choices=MATERIAL_MODELS),
+}
+#: ``model`` -> the material file's schema (tables in file order).
+MATERIAL_SCHEMAS: Mapping[str, Schema] = {
+    "preisach-factorised": {**_MATERIAL_TOP, "preisach": _table({
         "j_irr_t": Key(NUM, None, "irreversible polarisation at saturation", "T", gt=0.0),
         "h_max_a_per_m": Key(NUM, None, "the Preisach plane's extent, +-h_max", "A/m", gt=0.0),
         "h_scale_a_per_m": Key(NUM, None, "grid warp: H = h_scale sinh(x)", "A/m", gt=0.0),
         "components": Key(list, None, "mu(alpha, beta) = j_irr_t f(alpha) f(-beta) / Z, f = sum of components",
                           items=Key(dict, None, "components", table=_COMPONENT), nonempty=True),
     }, "the irreversible part"),
-    "reversible": _table({
+                            "reversible": _table({
         "terms": Key(list, None, "B_rev(H) = mu0 H + sum of terms", items=Key(dict, None, "terms", table=_TERM)),
-    }, "the reversible part"),
+    }, "the reversible part")},
+    "complex-permeability": {**_MATERIAL_TOP, "permeability": _table({
+        "mu_r_real": Key(NUM, None, "mu', the real part of mu_r = mu' - j mu'': B in phase with H per mu0 H",
+                         ge=1.0),
+        "loss_angle_deg": Key(NUM, None, "delta, tan(delta) = mu''/mu': B lags H by it at the excitation's "
+                              "frequency (every excitation frequency: the loss per cycle does not depend on it)",
+                              "deg", ge=0.0, lt=90.0),
+    }, "linear iron with elliptic B-H loops, H = nu' B + nu''/omega dB/dt (paper Sec. II B)")},
+    "rayleigh": {**_MATERIAL_TOP, "rayleigh": _table({
+        "initial_mu_r": Key(NUM, None, "mu_i, the initial relative permeability (IEC 60050-221-03-32)", ge=1.0),
+        "hysteresis_coefficient_m_per_a": Key(NUM, None, "v, Rayleigh's hysteresis coefficient: B/mu0 = (mu_i + v "
+                                              "Hpeak) H +- v/2 (Hpeak^2 - H^2) (IEC 60050-221-03-32)", "m/A",
+                                              ge=0.0),
+        "region_t": Key(NUM, None, "the Rayleigh region: the largest B amplitude of a loop (about any point) the "
+                        "law describes; wider loops are refused; beyond it the initial curve goes on straight "
+                        "(the path to a magnet's bias); must be < mu0 mu_i^2 / (2 v)", "T", gt=0.0),
+    }, "rate-independent hysteresis with Rayleigh's amplitude law")},
 }
+#: The schema of the default model (``preisach-factorised``), the one ``hystbench fit-material`` writes.
+MATERIAL_SCHEMA: Schema = MATERIAL_SCHEMAS["preisach-factorised"]
 
 
 def _split(data: Mapping[str, Any]) -> tuple[dict[str, Any], str]:
@@ -174,6 +201,21 @@ def check_rig(data: Mapping[str, Any]) -> dict[str, Any]:
 def check_material(data: Mapping[str, Any]) -> dict[str, Any]:
     """A material file's dict (with ``_source``) checked; returns it with the defaults filled in."""
     body, source = _split(data)
-    out = check_table(body, source, MATERIAL_SCHEMA)
+    model = body.get("model", _MATERIAL_TOP["model"].default)
+    if model not in MATERIAL_MODELS:  # refused naming the key and the choices
+        check_table({"model": model}, source, {"model": _MATERIAL_TOP["model"]})
+    out = check_table(body, source, MATERIAL_SCHEMAS[model])
+    if model == "rayleigh":
+        _check_rayleigh_region(out["rayleigh"], source)
     out["_source"] = source
     return out
+
+
+def _check_rayleigh_region(r: Mapping[str, Any], source: str) -> None:
+    """The declared Rayleigh region must end before a branch's slope dH/dB = nu_i - c |B - B_r| (and the
+    initial curve's, nu_i - 2 c |B|) reaches 0, at amplitude nu_i / (2 c) = mu0 mu_i^2 / (2 v)."""
+    v = r["hysteresis_coefficient_m_per_a"]
+    limit = math.inf if v == 0.0 else mu_0 * r["initial_mu_r"] ** 2 / (2.0 * v)
+    if not r["region_t"] < limit:
+        raise ConfigError(f"{source} [rayleigh] region_t: must be < mu0 mu_i^2 / (2 v) = {limit:.4g} T (the largest "
+                          f"amplitude before a branch's slope dH/dB reaches 0), got {r['region_t']:g}")

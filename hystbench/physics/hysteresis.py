@@ -246,6 +246,8 @@ class PreisachHysteresis:
         """From ``hystbench.config.load_material(name)`` (a dict built otherwise is checked here
         against the same schema); a bad key raises ConfigError naming the file and the key."""
         m = check_material(material)
+        if m["model"] != "preisach-factorised":  # the other models: hystbench.physics.iron.iron_model
+            raise ConfigError(f"{m['_source']}: model {m['model']!r} is not a Preisach model")
         pre = m["preisach"]
         comps = tuple((c["kind"], c["weight"], c["centre_a_per_m"], c["width_a_per_m"]) for c in pre["components"])
         terms = tuple((t["j_t"], t["h_a_per_m"]) for t in m["reversible"]["terms"])

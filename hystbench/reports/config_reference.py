@@ -110,7 +110,7 @@ def _effects() -> list[str]:
 def render() -> str:
     """The text of docs/config.md."""
     from ..acquisition.daemon import SCHEMA as DAEMON
-    from ..config.presets import MATERIAL_SCHEMA
+    from ..config.presets import MATERIAL_SCHEMAS
     from ..drivers.protocols.bench_config import SCHEMA as BENCH
 
     out = [_HEAD, "## daemon.toml (`hystbench daemon --config daemon.toml`)", "",
@@ -138,10 +138,15 @@ def render() -> str:
             "half the sample rate, checked when the rig is built.", ""]
     out += _effects()
     out += ["## Material files (`hystbench/config/materials/*.toml`, `[iron] material`)", "",
-            "Written by `hystbench fit-material --refit`; the factorised Preisach model of the material's "
-            "static B-H loops: `[preisach]` with at least one `[[preisach.components]]`, and `[reversible]` "
-            "with its `[[reversible.terms]]`.", ""]
-    out += _file(MATERIAL_SCHEMA)
+            "`model` chooses the tables the file needs (hystbench/physics/iron.py): `preisach-factorised` "
+            "(the default; written by `hystbench fit-material --refit`), the factorised Preisach model of the "
+            "material's static B-H loops: `[preisach]` with at least one `[[preisach.components]]`, and "
+            "`[reversible]` with its `[[reversible.terms]]`; `complex-permeability`, a linear iron with "
+            "elliptic loops: `[permeability]`; `rayleigh`, Rayleigh's law: `[rayleigh]`. The last two have no "
+            "saturation: a rig with `[effects.iron_saturation]` on such an iron is refused.", ""]
+    for n, schema in enumerate(MATERIAL_SCHEMAS.values()):  # the top level's keys once
+        keys = {k: v for k, v in schema.items() if n == 0 or v.table is not None}
+        out += _file(keys, top="top level (every model)")
     return "\n".join(out).rstrip() + "\n"
 
 
