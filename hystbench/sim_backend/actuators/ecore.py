@@ -1,5 +1,10 @@
 """The E-core reluctance actuator (with or without magnet): the MEC with ideal iron, plus the iron's
-own MMF drop and the eddy currents, advanced one block at a time (vectorised)."""
+own MMF drop and the eddy currents, advanced one block at a time (vectorised).
+
+The iron is the one its material file's ``model`` names (:mod:`hystbench.physics.iron`): a Preisach
+operator or Rayleigh's law is the nonlinear remainder the fixed point iterates; a complex
+permeability is linear and goes into the exactly solved linear part (nu' into N, nu''/omega with
+the eddy currents into D, rebuilt whenever the excitation's period changes)."""
 
 from __future__ import annotations
 
@@ -11,7 +16,8 @@ from scipy import signal
 from ...config import load_material
 from ...errors import SimulationError
 from ...physics.eddy import cylinder_eddy_coefficient, lamination_eddy_coefficient
-from ...physics.presets import ecore_mec
+from ...physics.iron import ComplexPermeabilityIron, RayleighIron, refuse_saturation
+from ...physics.presets import ecore_mec, where
 from ...physics.permeance import mu_0
 from .base import ActuatorOutput
 
@@ -70,11 +76,26 @@ class ECoreActuator:
         self.hysteresis = None
         self._irreversible = "static_hysteresis" in effects
         self._saturation = "iron_saturation" in effects
-        if self._irreversible or self._saturation:
+        material = load_material(iron["material"])
+        refuse_saturation(material, effects, where(preset))
+        #: the material file's ``model``: which physics the iron follows
+        self.iron_model = material["model"]
+        self._complex: ComplexPermeabilityIron | None = None
+        linear_nu = None  # the iron's reluctivity when it is linear and given by its material
+        if self.iron_model == "complex-permeability":
+            self._complex = ComplexPermeabilityIron.from_config(material)
+            linear_nu = self._complex.reluctivity()[0]
+        elif self.iron_model == "rayleigh":
+            rayleigh = RayleighIron.from_config(material)
+            if self._irreversible:
+                self.hysteresis = rayleigh
+                self._h_state = self.hysteresis.initial_state()
+            else:  # c = 0: the reversible part alone, linear
+                linear_nu = rayleigh.nu_i
+        elif self._irreversible or self._saturation:
             from ...physics.hysteresis import PreisachHysteresis  # heavy tables only when needed
 
-            self.hysteresis = PreisachHysteresis.from_config(
-                load_material(iron["material"]))
+            self.hysteresis = PreisachHysteresis.from_config(material)
             self._h_state = self.hysteresis.initial_state()
         self._eddy_coef = 0.0
         if "lamination_eddy_currents" in effects:
@@ -86,13 +107,16 @@ class ECoreActuator:
             self._magnet_eddy = cylinder_eddy_coefficient(m["conductivity_s_per_m"], m["eddy_radius_m"]) * m["length_m"]
         # nu0: the iron's linear reluctivity, solved exactly; only the rest is iterated, so the
         # closer nu0 is to the slope the iron really shows, the faster the passes converge.
-        self._nu0 = 1.0 / (mu_0 * iron["linear_mu_r"])
+        self._nu0 = 1.0 / (mu_0 * iron["linear_mu_r"]) if linear_nu is None else linear_nu
         if self.hysteresis is not None:
-            self._nu0 = _minor_loop_reluctivity(self.hysteresis)
-        d = np.diag([self._eddy_coef * self.iron_length_m, self._magnet_eddy])
-        n = np.diag([self._nu0 * self.iron_length_m, 0.0])
-        m = np.array([self._coil, self._magnet]) / self.area_m2  # flux density per MMF
-        self._lag = _LinearPart(m, n, d, fs_hz)
+            self._nu0 = _minor_loop_reluctivity(self.hysteresis,
+                                                min(0.1, getattr(self.hysteresis, "max_amplitude_t", 0.1)))
+        # nu'' of a complex-permeability iron (0 for the others, and with static_hysteresis off):
+        # its loss term nu''/omega dB/dt joins the eddy currents' in D, at the excitation's omega
+        self._nu_loss = self._complex.reluctivity()[1] if self._complex is not None and self._irreversible else 0.0
+        self._omega = 2.0 * np.pi * float(preset["excitation"]["frequency_hz"])  # until the rig tells the period
+        self._m = np.array([self._coil, self._magnet]) / self.area_m2  # flux density per MMF
+        self._lag = self._linear_part()
         self._b_knee = np.inf  # beyond it the iron's slope outgrows nu0 (only with saturation on)
         if self.hysteresis is not None and self._saturation:
             grid = np.linspace(0.0, 2.6, 1041)
@@ -103,16 +127,32 @@ class ECoreActuator:
         comp = effects.get("load_cell_compliance")
         self._compliance = 0.0 if comp is None else 1.0 / float(comp["stiffness_n_per_m"])
         self._prev_drop: np.ndarray | None = None
+        #: the iron's flux density in the coil leg over the last block (T)
+        self.iron_flux_density_t = np.zeros(0)
         self.set_period(None)
 
     def dc_flux_wb(self, current_a: float) -> float:
         return float(self._outer @ np.array([self.turns * current_a, self.magnet_mmf_a]))
 
+    def _linear_part(self) -> "_LinearPart":
+        """The linear MMF drops at the current excitation's omega (which only a complex permeability
+        needs: nu''/omega joins the lamination eddy coefficient in D)."""
+        eddy = self._eddy_coef if not self._nu_loss else self._eddy_coef + self._nu_loss / self._omega
+        d = np.diag([eddy * self.iron_length_m, self._magnet_eddy])
+        n = np.diag([self._nu0 * self.iron_length_m, 0.0])
+        return _LinearPart(self._m, n, d, self.fs_hz)
+
     def set_period(self, samples: float | None) -> None:
-        """The excitation's period in samples (None: not periodic); the rig calls this on every
+        """The excitation's period in samples (None: not periodic: the preset's [excitation]
+        frequency stands in for a complex permeability's omega); the rig calls this on every
         change of excitation, which also forgets the last period's iron field."""
         self._period = None if samples is None else float(samples)
         self._history = np.zeros(0)
+        if self._nu_loss and self._period is not None:
+            omega = 2.0 * np.pi * self.fs_hz / self._period
+            if omega != self._omega:
+                self._omega = omega
+                self._lag = self._lag.rebuilt(self._linear_part())
 
     def _first_guess(self, n: int) -> tuple[np.ndarray, None, int]:
         """Start of the fixed point: the iron's remainder one (fractional) period earlier, read by
@@ -175,6 +215,7 @@ class ECoreActuator:
         u = np.stack([fc - h_rest * self.iron_length_m, fm])
         x, lag_state = self._lag.run(u)
         self._h_state, self._lag.state = h_state, lag_state
+        self.iron_flux_density_t = x[0]  # B in the coil leg over this block (reports, tests)
         s = u - self._lag.linear_mmf(x)  # (F_coil, F_magnet) as the airgaps see them
 
         quad = lambda lam: -0.5 * (lam[0] * s[0] ** 2 + 2 * lam[1] * s[0] * s[1] + lam[2] * s[1] ** 2)  # noqa: E731
@@ -213,6 +254,14 @@ class _LinearPart:
         #: dB_iron[n] / dF_coil[n]: how much this sample's coil MMF moves this sample's iron B
         self.instantaneous_gain = float((k @ m)[0, 0])
         self.state: tuple[np.ndarray, np.ndarray] | None = None  # (y[n-1], x[n-1])
+
+    def rebuilt(self, new: "_LinearPart") -> "_LinearPart":
+        """``new`` continuing from this one's committed state: x[n-1] carried over (in flux-density
+        coordinates), re-expressed in the new eigenbasis."""
+        if self.state is not None:
+            x_prev = self.state[1]
+            new.state = (new.vec_inv @ x_prev, x_prev.copy())
+        return new
 
     def run(self, u: np.ndarray):
         """x for the MMF sources u (2 x n), from the committed state; returns (x, state after)."""

@@ -4,7 +4,8 @@ The standard asks for a sinusoidal flux density, so the amplifier runs in flux f
 generator's command sets B (``[amplifier] flux_density_per_a_t`` tesla per ampere of nominal
 command), and the magnetising current needed for it is what the current channel measures,
 i = (H_static(B) + sigma d^2/12 dB/dt) l / N.  Driving the B-input hysteresis operator this way
-is also exact: no implicit solve is needed with eddy currents.
+is also exact: no implicit solve is needed with eddy currents.  The iron is the one its material
+file's ``model`` names (:func:`hystbench.physics.iron.iron_model`).
 """
 
 from __future__ import annotations
@@ -27,20 +28,32 @@ class ToroidCore:
     has_flux = True
 
     def __init__(self, preset: Mapping[str, Any], effects: Mapping[str, Mapping[str, Any]], fs_hz: float):
-        from ...physics.hysteresis import PreisachHysteresis
+        from ...physics.iron import ComplexPermeabilityIron, iron_model, refuse_saturation
 
         ring, iron = preset["toroid"], preset["iron"]  # checked by hystbench.config.load_rig
         self.area_m2 = (ring["outer_radius_m"] - ring["inner_radius_m"]) * ring["height_m"]
         self.path_m = np.pi * (ring["inner_radius_m"] + ring["outer_radius_m"])  # mean magnetic path
         self.turns = preset["coil"]["turns"]
         self.tesla_per_a = preset["amplifier"]["flux_density_per_a_t"]
-        self.hysteresis = PreisachHysteresis.from_config(load_material(iron["material"]))
-        self._state = self.hysteresis.initial_state()
+        self.fs_hz = fs_hz
+        material = load_material(iron["material"])
+        refuse_saturation(material, effects, str(preset.get("_source", preset.get("name"))))
+        self.hysteresis = iron_model(material)  # by the material's model (physics.iron)
+        #: a complex permeability is linear and rate-dependent: H from B and dB/dt at the excitation's omega
+        self._linear = isinstance(self.hysteresis, ComplexPermeabilityIron)
+        self._omega = 2.0 * np.pi * float(preset["excitation"]["frequency_hz"])  # until the rig tells the period
+        self._state = None if self._linear else self.hysteresis.initial_state()
         self._irreversible = "static_hysteresis" in effects
         self._saturation = "iron_saturation" in effects
         self._eddy = 0.0
         if "lamination_eddy_currents" in effects:
             self._eddy = lamination_eddy_coefficient(iron["conductivity_s_per_m"], iron["lamination_thickness_m"])
+
+    def set_period(self, samples: float | None) -> None:
+        """The excitation's period in samples: a complex permeability's omega (None: the preset's
+        [excitation] frequency stays)."""
+        if samples is not None:
+            self._omega = 2.0 * np.pi * self.fs_hz / float(samples)
 
     def dc_flux_wb(self, current_a: float) -> float:
         return self.tesla_per_a * current_a * self.area_m2
@@ -48,8 +61,11 @@ class ToroidCore:
     def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
         b = self.tesla_per_a * current_a  # the flux-feedback reference, followed exactly
         db_dt = self.tesla_per_a * dcurrent_dt
-        h, self._state = self.hysteresis.field(b, self._state, irreversible=self._irreversible,
-                                               saturation=self._saturation)
+        if self._linear:
+            h = self.hysteresis.field(b, db_dt, self._omega, lossy=self._irreversible)
+        else:
+            h, self._state = self.hysteresis.field(b, self._state, irreversible=self._irreversible,
+                                                   saturation=self._saturation)
         h = h + self._eddy * db_dt
         return ActuatorOutput(None, b * self.area_m2, db_dt * self.area_m2,
                               current_a=h * self.path_m / self.turns)
