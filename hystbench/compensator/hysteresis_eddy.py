@@ -5,7 +5,7 @@ Why this structure (what the measurements show, ``docs/compensator.md``): after 
 the residual loops are not ellipses and their shape changes with amplitude; the flux-current
 loops show why: the current splits into what the airgaps see and what the iron takes,
 
-    i = j + d_iron(j) + tau dj/dt,        F = k0 + k1 j + k2 j^2,
+    i = j + d_iron(j) + eps j + delta + tau dj/dt,        F = k0 + k1 j + k2 j^2,
 
 and the iron's share d_iron is a hysteresis loop whose shape (not only its phase) depends on the
 amplitude and offset, while the eddy share tau dj/dt grows with frequency.  ``j`` follows from the
@@ -18,9 +18,13 @@ minimises the force-prediction error the accuracy figure measures.  The operator
 project's :class:`~hystbench.physics.hysteresis.PreisachHysteresis` (run with B as input); its
 parameters come only from the measurements.
 
+``j`` and the law come from :mod:`.calibration`, which puts the iron's mean in-phase share into
+the flux-to-current map; ``eps j + delta`` (fitted, small, either sign) gives the Preisach iron
+back the slope and level that map took, so its loops keep their physical, rising shape.
+
 Directions: the inverse (feed-forward: force -> j -> i) is explicit; the forward prediction
-(i -> j) is a fixed point j = (i - d_iron(j)) / (1 + s tau), solved with the eddy term exact per
-harmonic; d_iron changes by at most ~0.2 of a change in j, so it contracts fast.
+(i -> j) is a fixed point j = (i - delta - d_iron(j)) / (1 + eps + s tau), solved with the eddy
+term exact per harmonic; d_iron changes by at most ~0.2 of a change in j, so it contracts fast.
 """
 
 from __future__ import annotations
@@ -93,13 +97,15 @@ def preisach_params(material: dict, tables: dict) -> PreisachParams:
 
 @dataclass
 class HysteresisEddyModel:
-    """i = j + d_iron(j) + tau dj/dt, F = law(j): see the module docstring."""
+    """i = j + d_iron(j) + eps j + delta + tau dj/dt, F = law(j): see the module docstring."""
 
     law: StaticLaw
     scaling: IronScaling
     material: dict  # j_irr_T, components [(kind, weight, centre, width)], reversible [(J, h)], h_scale
     tau_s: float
     report: dict = field(default_factory=dict)
+    linear: float = 0.0  # eps (A/A)
+    offset_a: float = 0.0  # delta
     kind = "best"
     name = "hysteresis_eddy"
 
@@ -118,16 +124,16 @@ class HysteresisEddyModel:
     def current_for(self, j_a: np.ndarray, frequency_hz: float) -> np.ndarray:
         """The coil current that makes the airgaps see ``j_a`` (one period)."""
         j = np.asarray(j_a, float)
-        return j + self.iron_drop(j) + self.tau_s * derivative(j, frequency_hz)
+        return (1.0 + self.linear) * j + self.offset_a + self.iron_drop(j) + self.tau_s * derivative(j, frequency_hz)
 
     def effective_current(self, current_a: np.ndarray, frequency_hz: float) -> np.ndarray:
         """j for one period of the coil current (the fixed point of the module docstring)."""
         i = np.asarray(current_a, float)
-        lag = 1.0 + 2j * np.pi * frequency_hz * self.tau_s * harmonics(i.size)
+        lag = 1.0 + self.linear + 2j * np.pi * frequency_hz * self.tau_s * harmonics(i.size)
         j = i.copy()
         steps: list[float] = []
         for _ in range(_MAX_ITER):
-            j_new = np.fft.irfft(np.fft.rfft(i - self.iron_drop(j)) / lag, i.size)
+            j_new = np.fft.irfft(np.fft.rfft(i - self.offset_a - self.iron_drop(j)) / lag, i.size)
             steps.append(float(np.max(np.abs(j_new - j))))
             if steps[-1] < _TOL_A:
                 return j_new
@@ -157,7 +163,8 @@ class HysteresisEddyModel:
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "name": self.name, "law": self.law.to_dict(), "scaling": self.scaling.to_dict(),
-                "material": self.material, "tau_s": self.tau_s, "report": self.report}
+                "material": self.material, "tau_s": self.tau_s, "linear": self.linear, "offset_A": self.offset_a,
+                "report": self.report}
 
     @classmethod
     def from_dict(cls, d: dict) -> "HysteresisEddyModel":
@@ -165,7 +172,8 @@ class HysteresisEddyModel:
         material = {"j_irr_T": float(m["j_irr_T"]), "h_scale_A_per_m": float(m["h_scale_A_per_m"]),
                     "components": [list(c) for c in m["components"]], "reversible": [list(r) for r in m["reversible"]]}
         return cls(StaticLaw.from_dict(d["law"]), IronScaling.from_dict(d["scaling"]), material,
-                   float(d["tau_s"]), dict(d.get("report", {})))
+                   float(d["tau_s"]), dict(d.get("report", {})), float(d.get("linear", 0.0)),
+                   float(d.get("offset_A", 0.0)))
 
 
 def iron_drop(iron: PreisachHysteresis, scaling: IronScaling, j_a: np.ndarray) -> np.ndarray:

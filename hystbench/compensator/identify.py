@@ -1,18 +1,27 @@
-"""Identification of the hysteresis-eddy model (``hysteresis_eddy``) from a sweep of operating points.
+"""Identification of the best model from a sweep: the iron description the data choose.
 
-1. Flux to current.  The gap force is quadratic in the gap flux, and the sense coil's flux is
-   proportional to it up to the integrator's unknown DC, so per recording
-   F_meas = H_instr{p2 phi^2 + p1_r phi + p0_r} with p2 shared (linear least squares, the
-   instrument's response applied to the flux terms, so its gain and phase never enter the fit).
-   With the ideal-iron MEC law F = k0 + k1 j + k2 j^2 this gives j = kappa phi + c_r:
-   kappa = sqrt(p2 / k2), c_r = (p1_r / kappa - k1) / (2 k2), and the law's fitted k0.
-2. The iron's share of the current, d = i - j, per recording.
-3. The Preisach and eddy parameters by nonlinear least squares on d (see ``hysteresis_eddy``),
-   from two starting points derived from the loops' widths (no material data is read).
+1. :func:`.calibration.calibrate` gives the static law, the flux-to-current map j = kappa phi + c
+   and the instrument, from the sweep alone.
+2. The iron's share d = i - j is described three ways, each fitted on the same j and d:
+   - ``preisach`` (:mod:`.hysteresis_eddy`): a Preisach operator on B = b0 + b_per_a j plus an
+     eddy term, by nonlinear least squares (the magnet's bias b0 is fitted too; b_per_a and H's
+     scale only start the fit, the material parameters absorb them);
+   - ``describing_function`` (:mod:`.describing`): one complex gain per harmonic, smooth in
+     frequency and amplitude, by linear least squares;
+   - ``rayleigh_loop`` (:mod:`.rayleigh_loop`): closed-form parabolic branches (Rayleigh's law)
+     between the period's turning points, by linear least squares.
+3. Each is judged on recordings of the sweep it was not fitted on (whole frequencies and whole
+   amplitudes held out in turn): the predicted force, through the instrument, against the measured
+   one.  The score is the rms of the held-out max|dF| over the rms of their force ranges: the large
+   loops, where the models differ, count most; a small loop's max|dF| is mostly its noise, the same
+   for every candidate (a worst-case score chose by noise).  The lowest score wins; the model's
+   report says which, with every candidate's held-out errors, and the winner is refitted on the
+   whole sweep.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -21,66 +30,41 @@ from scipy.optimize import least_squares
 
 from ..errors import ConfigError
 from ..physics.hysteresis import PreisachHysteresis
+from ..physics.instrument import InstrumentModel
+from .calibration import FIT_POINTS, SweepCalibration, clean_flux
 from .data import PeriodData
+from .describing import DescribingFunctionModel, fit_describing_function
 from .errors import CompensatorError
 from .hysteresis_eddy import (FIT_TABLES, HysteresisEddyModel, IronScaling, coercive_guess, iron_drop,
                               material_dict, preisach_params)
-from .periodic import apply_response, derivative, resample
-from .static import StaticLaw
+from .periodic import apply_response, denoise, derivative, resample
+from .rayleigh_loop import RayleighLoopModel, fit_rayleigh_loop
 
-__all__ = ["FluxCalibration", "calibrate_flux", "fit_hysteresis_eddy", "FIT_POINTS"]
+__all__ = ["IronData", "iron_data", "fit_hysteresis_eddy", "fit_best", "CANDIDATES", "held_out_folds"]
 
-FIT_POINTS = 400  # samples per period in the fit (the loops are smooth; 1000 costs 2.5x)
 _KINDS = ("gauss", "lorentz")
 #: Starting widths of the switching-field distributions, relative to the coercive guess.
 START_SPREADS = (0.12, 0.3)
-Response = Callable[[np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
-class FluxCalibration:
-    """j = kappa * phi + offset_r for each recording, and the static law it implies."""
+class IronData:
+    """What the iron descriptions are fitted on: per recording, one period of j, d = i - j and i."""
 
-    kappa_a_per_wb: float
-    offsets_a: tuple[float, ...]
-    law: StaticLaw
-    p2_spread: float  # relative scatter of per-recording p2 (0 for an exactly quadratic law)
+    points: tuple[PeriodData, ...]
+    js: tuple[np.ndarray, ...]
+    currents: tuple[np.ndarray, ...]
 
-    def as_dict(self) -> dict:
-        return {"kappa_A_per_Wb": self.kappa_a_per_wb, "offsets_A": list(self.offsets_a),
-                "k0_N": self.law.k0_n, "p2_relative_spread": self.p2_spread}
+    def subset(self, keep: Sequence[int]) -> "IronData":
+        return IronData(*(tuple(x[k] for k in keep) for x in (self.points, self.js, self.currents)))
 
 
-def calibrate_flux(points: Sequence[PeriodData], ideal: StaticLaw, response: Response) -> FluxCalibration:
-    """Step 1 of the module docstring."""
-    r = len(points)
-    blocks, rhs, p2_each = [], [], []
-    for n, p in enumerate(points):
-        phi = np.asarray(p.flux_wb, float) - float(np.mean(p.flux_wb))
-        sq = apply_response(phi * phi, p.frequency_hz, response)
-        lin = apply_response(phi, p.frequency_hz, response)
-        cols = np.zeros((p.n, 1 + 2 * r))
-        cols[:, 0], cols[:, 1 + n], cols[:, 1 + r + n] = sq, lin, 1.0
-        blocks.append(cols)
-        rhs.append(np.asarray(p.force_n, float))
-        own = np.linalg.lstsq(np.stack([sq, lin, np.ones(p.n)], axis=1), rhs[-1], rcond=None)[0]
-        p2_each.append(own[0])
-    coef = np.linalg.lstsq(np.vstack(blocks), np.concatenate(rhs), rcond=None)[0]
-    p2, p1, p0 = coef[0], coef[1:1 + r], coef[1 + r:]
-    k0, k1, k2 = ideal.coefficients
-    if not (p2 > 0 and k2 > 0):
-        raise CompensatorError(f"the measured force does not grow with the flux squared (p2 = {p2:.4g}, "
-                               f"MEC k2 = {k2:.4g}); is this an E-core sweep with its flux channel?")
-    sign = np.sign(sum(float(np.dot(p.flux_wb - np.mean(p.flux_wb), p.current_a - np.mean(p.current_a)))
-                       for p in points)) or 1.0
-    kappa = sign * float(np.sqrt(p2 / k2))
-    offs = (p1 / kappa - k1) / (2.0 * k2)
-    # (each recording's flux was centred above: its offset is that of the centred flux)
-    k0_fit = float(np.mean(p0 - k1 * offs - k2 * offs * offs))
-    spread = float(np.std(p2_each) / p2) if r > 1 else 0.0
-    return FluxCalibration(kappa, tuple(float(o) for o in offs), StaticLaw(k0_fit, k1, k2, ideal.magnet), spread)
+def iron_data(points: Sequence[PeriodData], cal: SweepCalibration, n_fit: int = FIT_POINTS) -> IronData:
+    js = tuple(cal.seen_current(k, resample(clean_flux(p), n_fit)) for k, p in enumerate(points))
+    return IronData(tuple(points), js, tuple(resample(np.asarray(p.current_a, float), n_fit) for p in points))
 
 
+# --- candidate 1: Preisach iron + eddy term --------------------------------------------------------
 def _unpack(x: np.ndarray, h_scale: float) -> dict:
     jirr, cg, sg, wl, cl, sl, j1, h1, j2, h2 = np.exp(x[:10])
     return material_dict(jirr, [(_KINDS[0], 1.0, cg, sg), (_KINDS[1], wl, cl, sl)], [(j1, h1), (j2, h2)], h_scale)
@@ -90,53 +74,160 @@ def _start(hc: float, spread: float) -> np.ndarray:
     return np.log([1.3, hc, spread * hc, 1.0, 1.4 * hc, 2.0 * spread * hc, 0.3, 8.0 * hc, 1.0, 1.0e4])
 
 
-def fit_hysteresis_eddy(points: Sequence[PeriodData], ideal: StaticLaw, scaling: IronScaling, response: Response,
-                        *, n_fit: int = FIT_POINTS, max_nfev: int = 200) -> HysteresisEddyModel:
-    """Identify the model from ``points`` (recordings of one rig: several frequencies and
-    amplitudes); ``ideal`` is the MEC's law with ideal iron, ``response`` the force instrument's."""
-    if len(points) < 2:
-        raise CompensatorError(f"hysteresis_eddy fit needs at least 2 recordings, got {len(points)}")
-    cal = calibrate_flux(points, ideal, response)
+def fit_hysteresis_eddy(data: IronData, cal: SweepCalibration, scaling: IronScaling, *,
+                        max_nfev: int = 200) -> HysteresisEddyModel:
+    """The Preisach candidate on ``data``; ``scaling`` (the preset's MEC) only starts the fit: the
+    magnet's bias b0 is fitted, from the law's own bias as a start."""
+    if len(data.points) < 2:
+        raise CompensatorError(f"hysteresis_eddy fit needs at least 2 recordings, got {len(data.points)}")
     law = cal.law
-    rs = [(resample(p.current_a, n_fit), resample(p.flux_wb - np.mean(p.flux_wb), n_fit)) for p in points]
-    js = [cal.kappa_a_per_wb * phi + c for (_, phi), c in zip(rs, cal.offsets_a)]
-    ds = [i - j for (i, _), j in zip(rs, js)]
-    djs = [derivative(j, p.frequency_hz) for j, p in zip(js, points)]
-    weights = [np.abs(law.slope(j)) / max(p.force_range_n, 1e-12) for j, p in zip(js, points)]
+    js = data.js
+    ds = [i - j for i, j in zip(data.currents, js)]
+    djs = [derivative(j, p.frequency_hz) for j, p in zip(js, data.points)]
+    weights = [np.abs(law.slope(j)) / max(p.force_range_n, 1e-12) for j, p in zip(js, data.points)]
+    magnet = law.magnet and cal.bias_current_a > 0
+    b0_start = scaling.b_per_a * cal.bias_current_a if magnet else 0.0
     hc = coercive_guess(ds, scaling)
     h_scale = hc / 3.0
+    i_scale = max(float(np.ptp(i)) for i in data.currents)
     bad = np.full(sum(d.size for d in ds), 1.0)
+
+    def parts(x: np.ndarray):
+        b0 = b0_start * math.exp(x[13]) if magnet else 0.0
+        return IronScaling(b0, scaling.b_per_a, scaling.d_per_h), x[10] * 1e-6, x[11] * 1e-2, x[12] * 1e-3 * i_scale
 
     def residual(x: np.ndarray) -> np.ndarray:
         try:
             iron = PreisachHysteresis(preisach_params(_unpack(x, h_scale), FIT_TABLES))
-            tau = x[10] * 1e-6
-            out = [w * (iron_drop(iron, scaling, j) + tau * dj - d) for j, d, dj, w in zip(js, ds, djs, weights)]
+            sc, tau, eps, delta = parts(x)
+            out = [w * (iron_drop(iron, sc, j) + eps * j + delta + tau * dj - d)
+                   for j, d, dj, w in zip(js, ds, djs, weights)]
             res = np.concatenate(out)
             return res if np.all(np.isfinite(res)) else bad
-        except (ConfigError, CompensatorError, ValueError, FloatingPointError):
+        except (ConfigError, CompensatorError, ValueError, FloatingPointError, IndexError):
             return bad
 
     lo = np.log([0.05, hc / 20, hc / 200, 1e-3, hc / 20, hc / 200, 1e-4, hc / 10, 1e-4, 10 * hc])
     hi = np.log([5.0, hc * 20, hc * 20, 1e3, hc * 50, hc * 50, 5.0, 1e6, 5.0, 1e7])
+    lo = np.append(lo, [0.0, -20.0, -50.0, math.log(0.6)])
+    hi = np.append(hi, [1e3, 20.0, 50.0, math.log(1.6)])
     best = None
     for spread in START_SPREADS:  # the narrow start converges in ~20 evaluations; the wide one is a fallback
-        x0 = np.clip(np.append(_start(hc, spread), 5.0), np.append(lo, 0.0) + 1e-9, np.append(hi, 1e3) - 1e-9)
-        sol = least_squares(residual, x0, bounds=(np.append(lo, 0.0), np.append(hi, 1e3)), x_scale=1.0,
-                            diff_step=1e-4, max_nfev=max_nfev, ftol=1e-5, xtol=1e-6)
+        x0 = np.clip(np.append(_start(hc, spread), [5.0, 0.0, 0.0, 0.0]), lo + 1e-9, hi - 1e-9)
+        sol = least_squares(residual, x0, bounds=(lo, hi), x_scale=1.0, diff_step=1e-4, max_nfev=max_nfev,
+                            ftol=1e-5, xtol=1e-6)
         if best is None or sol.cost < best.cost:
             best = sol
         if sol.success and np.all(np.isfinite(sol.fun)) and sol.cost < 0.5 * bad.size:
             break
-    material = _unpack(best.x, h_scale)
-    model = HysteresisEddyModel(law, scaling, material, float(best.x[10] * 1e-6))
-    fit_res = [np.max(np.abs(w * (model.iron_drop(j) + model.tau_s * dj - d)))
+    if not best.cost < 0.5 * bad.size:
+        raise CompensatorError("hysteresis_eddy fit: no Preisach iron describes this sweep's loops "
+                               f"(cost {best.cost:.3g} after {best.nfev} evaluations)")
+    sc, tau, eps, delta = parts(best.x)
+    model = HysteresisEddyModel(law, sc, _unpack(best.x, h_scale), float(tau), linear=float(eps),
+                                offset_a=float(delta))
+    jac = best.jac
+    dof = max(jac.shape[0] - jac.shape[1], 1)
+    cov = np.linalg.pinv(jac.T @ jac) * 2.0 * best.cost / dof
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    names = ["log j_irr", "log gauss centre", "log gauss width", "log lorentz weight", "log lorentz centre",
+             "log lorentz width", "log J1", "log h1", "log J2", "log h2", "tau_us", "eps_x100", "delta_x1000/ipp",
+             "log b0"]
+    fit_res = [np.max(np.abs(w * (model.iron_drop(j) + eps * j + delta + model.tau_s * dj - d)))
                for j, d, dj, w in zip(js, ds, djs, weights)]
     model.report = {
-        "flux_calibration": cal.as_dict(),
-        "coercive_guess_A_per_m": hc,
+        "parameters": {n: [float(v), float(s)] for n, v, s in zip(names, best.x, se)},
+        "magnet_bias_T": sc.b0_t, "coercive_guess_A_per_m": hc,
         "cost": float(best.cost), "nfev": int(best.nfev), "status": int(best.status),
-        "max_weighted_residual_pct": {p.name: 100.0 * float(v) for p, v in zip(points, fit_res)},
-        "recordings": [p.name for p in points],
+        "max_weighted_residual_pct": {p.name: 100.0 * float(v) for p, v in zip(data.points, fit_res)},
+        "recordings": [p.name for p in data.points],
+    }
+    return model
+
+
+# --- candidate 2: describing function --------------------------------------------------------------
+def fit_describing(data: IronData, cal: SweepCalibration, scaling: IronScaling) -> DescribingFunctionModel:
+    return fit_describing_function(data.js, data.currents, [p.frequency_hz for p in data.points], cal.law,
+                                   [p.name for p in data.points])
+
+
+# --- candidate 3: Rayleigh loops ---------------------------------------------------------------------
+def fit_rayleigh(data: IronData, cal: SweepCalibration, scaling: IronScaling) -> RayleighLoopModel:
+    weights = [np.abs(cal.law.slope(j)) / max(p.force_range_n, 1e-12) for j, p in zip(data.js, data.points)]
+    return fit_rayleigh_loop(data.js, data.currents, [p.frequency_hz for p in data.points], weights, cal.law,
+                             [p.name for p in data.points])
+
+
+Fitter = Callable[[IronData, SweepCalibration, IronScaling], object]
+#: The iron descriptions the best model chooses among (name -> fit).
+CANDIDATES: dict[str, Fitter] = {"preisach": fit_hysteresis_eddy, "describing_function": fit_describing,
+                                  "rayleigh_loop": fit_rayleigh}
+
+
+# --- the choice --------------------------------------------------------------------------------------
+def held_out_folds(points: Sequence[PeriodData]) -> list[tuple[str, list[int]]]:
+    """(what is held out, indices held out): each inner frequency and each inner amplitude of the
+    sweep's grid in turn (interpolation, as the held-out judgement will ask), else one recording."""
+    freqs = sorted({round(p.nominal_frequency_hz, 6) for p in points})
+    amps = sorted({round(p.current_pp_a, 6) for p in points})
+    folds = []
+    for f in freqs[1:-1]:
+        folds.append((f"{f:g} Hz", [k for k, p in enumerate(points) if round(p.nominal_frequency_hz, 6) == f]))
+    for a in amps[1:-1]:
+        folds.append((f"{a:g} A-pp", [k for k, p in enumerate(points) if round(p.current_pp_a, 6) == a]))
+    if not folds:
+        folds = [(points[k].name, [k]) for k in range(1, len(points) - 1)]
+    return [(n, k) for n, k in folds if 0 < len(k) < len(points) - 2]
+
+
+def _held_out_error_n(model, point: PeriodData, instrument: InstrumentModel) -> float:
+    """max|dF| of ``model`` on ``point`` (the measured force against the prediction), N."""
+    i = denoise(point.current_a, point.average_noise_a())
+    pred = apply_response(model.force_period(i, point.frequency_hz), point.frequency_hz,
+                          instrument.frequency_response)
+    return float(np.max(np.abs(point.force_n - pred)))
+
+
+def fit_best(points: Sequence[PeriodData], cal: SweepCalibration, scaling: IronScaling,
+             tick: Callable[[], None] | None = None):
+    """The best model: every candidate judged on held-out folds, the winner refitted on all."""
+    data = iron_data(points, cal)
+    folds = held_out_folds(points)
+    held: dict[str, dict[str, float]] = {}
+    failed: dict[str, str] = {}
+    for name, fit in CANDIDATES.items():
+        errs: dict[str, float] = {}
+        try:
+            for _, out in folds:
+                keep = [k for k in range(len(points)) if k not in out]
+                model = fit(data.subset(keep), cal, scaling)
+                for k in out:
+                    errs[points[k].name] = _held_out_error_n(model, points[k], cal.instrument)
+                if tick is not None:
+                    tick()
+        except CompensatorError as err:
+            failed[name] = str(err)
+            continue
+        held[name] = errs
+    if not held:
+        raise CompensatorError("no iron description fits this sweep: "
+                               + "; ".join(f"{k}: {v}" for k, v in failed.items()))
+    ranges = {p.name: p.force_range_n for p in points}
+
+    def score_of(errs: dict[str, float]) -> float:
+        if not errs:
+            return math.inf
+        return 100.0 * math.sqrt(sum(e * e for e in errs.values()) / sum(ranges[n] ** 2 for n in errs))
+
+    score = {k: score_of(v) for k, v in held.items()}
+    chosen = min(score, key=score.get)
+    model = CANDIDATES[chosen](data, cal, scaling)
+    others = ", ".join(f"{k} {score[k]:.3f} %" for k in score if k != chosen)
+    model.report["choice"] = {
+        "chosen": chosen,
+        "why": (f"lowest held-out force error: rms max|dF| {score[chosen]:.3f} % of the rms force range"
+                + (f" (against {others})" if others else "") + f"; folds held out: "
+                + ", ".join(n for n, _ in folds)),
+        "held_out_max_error_N": held, "score_pct": score, "failed": failed,
     }
     return model

@@ -1,9 +1,13 @@
 """The force models, one interface: fitted from a sweep, predict the force for a current, invert.
 
-- ``nonhysteretic``: the paper's Eq. 1, the MEC with the preset's linearised iron, F = law(i);
+- ``nonhysteretic``: the paper's Eq. 1, F = law(i), with the static law identified from the sweep
+  (:mod:`.calibration`: a bench never equals its preset's MEC, so the preset's geometry is not used);
 - ``paper``: Eq. 6, the same law with the current delayed by theta_hyst(f) measured per frequency
   (flux behind current, the paper's Sec. VII), interpolated in frequency;
-- ``best``: ours, :class:`~.hysteresis_eddy.HysteresisEddyModel`.
+- ``best``: ours, with the iron description the sweep chooses (:mod:`.identify`): a Preisach iron
+  plus eddy term (:class:`~.hysteresis_eddy.HysteresisEddyModel`), a describing function
+  (:class:`~.describing.DescribingFunctionModel`) or Rayleigh loops
+  (:class:`~.rayleigh_loop.RayleighLoopModel`).
 
 Every model works on one period (``force_period``: current -> the actuator's force;
 ``current_period``: force -> current, which is the feed-forward).  What the load cell reports is
@@ -11,7 +15,9 @@ the model's force through the instrument's response (:func:`predict_measured`): 
 corrected in the measurement, never put into the actuator's command.
 
 A :class:`ModelSet` is what ``hystbench model fit`` writes: the rig, the instrument model used,
-the three models and how well each fits the sweep (JSON, ``FORMAT``).
+the three models, what the identification found (law and instrument with standard errors, the
+iron description chosen and why) and how well each model fits the sweep (JSON, ``FORMAT``; files of
+the first format, ``hystbench-force-models/1``, are still read: their models are the same kinds).
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ import math
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -31,14 +37,18 @@ from ..physics.instrument import InstrumentModel
 from ..physics.phase_delay_model import PhaseDelayModel
 from .data import PeriodData
 from .errors import CompensatorError
+from .describing import DescribingFunctionModel
 from .hysteresis_eddy import HysteresisEddyModel, IronScaling
+from .rayleigh_loop import RayleighLoopModel
 from .periodic import apply_response, denoise, shift
 from .static import StaticLaw
 
 __all__ = ["ForceModel", "NonHysteretic", "PaperModel", "ModelSet", "MODEL_KINDS", "FORMAT", "fit_models",
            "predict_measured", "force_error", "model_from_dict", "phase_delay_bound_n"]
 
-FORMAT = "hystbench-force-models/1"
+FORMAT = "hystbench-force-models/2"
+#: Earlier formats this version reads (their entries are a subset of this one's).
+READABLE_FORMATS = (FORMAT, "hystbench-force-models/1")
 MODEL_KINDS = ("nonhysteretic", "paper", "best")
 
 
@@ -134,7 +144,15 @@ def model_from_dict(d: Mapping[str, Any]) -> ForceModel:
         return PaperModel(StaticLaw.from_dict(d["law"]), tuple(map(float, d["frequency_Hz"])),
                           tuple(map(float, d["theta_hyst_rad"])))
     if kind == "best":
-        return HysteresisEddyModel.from_dict(dict(d))
+        name = d.get("name", HysteresisEddyModel.name)
+        if name == DescribingFunctionModel.name:
+            return DescribingFunctionModel.from_dict(dict(d))
+        if name == RayleighLoopModel.name:
+            return RayleighLoopModel.from_dict(dict(d))
+        if name == HysteresisEddyModel.name:
+            return HysteresisEddyModel.from_dict(dict(d))
+        raise ConfigError(f"unknown best-model iron description {name!r}; known: "
+                          f"{HysteresisEddyModel.name}, {DescribingFunctionModel.name}, {RayleighLoopModel.name}")
     raise ConfigError(f"unknown force model kind {kind!r}; known: {', '.join(MODEL_KINDS)}")
 
 
@@ -202,14 +220,17 @@ class ModelSet:
             raise ConfigError(f"{path}: not JSON: {err}") from err
         except UnicodeDecodeError as err:  # a binary file given as the model
             raise ConfigError(f"{path}: not a model file (not UTF-8 text: {err.reason} at byte {err.start})") from err
-        if not isinstance(d, dict) or d.get("format") != FORMAT:
+        if not isinstance(d, dict) or not str(d.get("format", "")).startswith("hystbench-force-models/"):
             raise ConfigError(f"{path}: not a hystbench model file (format {FORMAT!r} expected)")
+        if d["format"] not in READABLE_FORMATS:
+            raise ConfigError(f"{path}: model file format {d['format']!r} is newer than this hystbench reads "
+                              f"({', '.join(READABLE_FORMATS)}); fit the models again with `hystbench model fit`")
         try:
             ins = d["instrument"]
             instrument = InstrumentModel(float(ins["fn_Hz"]), float(ins["zeta_n"]), float(ins["f0_Hz"]),
                                          float(ins["zeta_0"]))
             models = {k: model_from_dict(m) for k, m in d["models"].items()}
-        except (KeyError, TypeError, ValueError) as err:
+        except (KeyError, TypeError, ValueError, CompensatorError) as err:
             raise ConfigError(f"{path}: malformed model file: {err!r}") from err
         return cls(str(d["rig"]), instrument, models, dict(d.get("report", {})))
 
@@ -223,8 +244,14 @@ def _json_default(x):
 
 
 def fit_models(points: Sequence[PeriodData], preset: Mapping[str, Any],
-               instrument: InstrumentModel | None = None, *, kinds: Sequence[str] = MODEL_KINDS) -> ModelSet:
-    """Every model of ``kinds`` from one rig's sweep (``points``: its recordings as period averages)."""
+               instrument: InstrumentModel | None = None, *, kinds: Sequence[str] = MODEL_KINDS,
+               tick: Callable[[], None] | None = None) -> ModelSet:
+    """Every model of ``kinds`` from one bench's sweep (``points``: its recordings as period
+    averages).  The preset only starts the fit (its instrument, or ``instrument`` when given, and
+    the scale of its iron); the law, the instrument and the iron come from the sweep."""
+    from .calibration import calibrate, fit_delayed_law
+    from .identify import fit_best
+
     rig = str(preset.get("name"))
     if preset.get("actuator") != "ecore":
         raise CompensatorError(f"rig {rig!r} is a {preset.get('actuator')}, not an E-core: the force models are "
@@ -233,26 +260,27 @@ def fit_models(points: Sequence[PeriodData], preset: Mapping[str, Any],
         raise CompensatorError(f"{rig}: no recordings to fit the force models on")
     instrument = instrument or presets.instrument(preset)
     magnet = "magnet" in preset
-    linear = presets.ecore_mec(preset, linear_iron=True)
-    law = StaticLaw.from_coefficients(linear.force_coefficients(linear.geometry.airgap_m), magnet)
+    th = [(p.nominal_frequency_hz, p.theta_hyst_rad) for p in points if np.isfinite(p.theta_hyst_rad)]
+    if "paper" in kinds and not th:
+        raise CompensatorError(f"{rig}: no theta_hyst measured in the sweep; the paper's Eq. 6 needs it")
+    identification: dict[str, Any] = {}
     models: dict[str, ForceModel] = {}
-    if "nonhysteretic" in kinds:
-        models["nonhysteretic"] = NonHysteretic(law)
-    if "paper" in kinds:
-        th = [(p.nominal_frequency_hz, p.theta_hyst_rad) for p in points if np.isfinite(p.theta_hyst_rad)]
-        if not th:
-            raise CompensatorError(f"{rig}: no theta_hyst measured in the sweep; the paper's Eq. 6 needs it")
-        pm = PhaseDelayModel.from_phases(law.coefficients, [f for f, _ in th], [t for _, t in th])
-        models["paper"] = PaperModel(law, tuple(map(float, pm.freq_hz)), tuple(map(float, pm.theta_rad)))
+    if "nonhysteretic" in kinds or "paper" in kinds:
+        law, law_se = fit_delayed_law(points, instrument, magnet)
+        identification["eq6_law"] = {**law.to_dict(), "se": dict(zip(("k0_N", "k1_N_per_A", "k2_N_per_A2"), law_se))}
+        if "nonhysteretic" in kinds:
+            models["nonhysteretic"] = NonHysteretic(law)
+        if "paper" in kinds:
+            pm = PhaseDelayModel.from_phases(law.coefficients, [f for f, _ in th], [t for _, t in th])
+            models["paper"] = PaperModel(law, tuple(map(float, pm.freq_hz)), tuple(map(float, pm.theta_rad)))
     if "best" in kinds:
-        from .identify import fit_hysteresis_eddy
-
-        ideal_mec = presets.ecore_mec(preset)
-        ideal = StaticLaw.from_coefficients(ideal_mec.force_coefficients(ideal_mec.geometry.airgap_m), magnet)
-        models["best"] = fit_hysteresis_eddy(points, ideal, IronScaling.from_mec(ideal_mec),
-                                             instrument.frequency_response)
+        cal = calibrate(points, instrument, magnet)
+        identification.update(cal.report)
+        models["best"] = fit_best(points, cal, IronScaling.from_mec(presets.ecore_mec(preset)), tick=tick)
     fit = {k: [_summary(force_error(m, p, instrument)) for p in points] for k, m in models.items()}
-    return ModelSet(rig, instrument, models, {"recordings": [p.name for p in points], "training_error": fit})
+    return ModelSet(rig, instrument, models, {"recordings": [p.name for p in points],
+                                              "identification": identification,
+                                              "training_error": fit})
 
 
 def phase_delay_bound_n(point: PeriodData, instrument: InstrumentModel, *, max_theta_deg: float = 4.0,

@@ -78,6 +78,15 @@ def denoise(x: np.ndarray, noise_rms: float, *, threshold: float = 4.0, keep: in
     return np.fft.irfft(spec, x.size)
 
 
+def noise_floor_rms(x: np.ndarray) -> float:
+    """The white-noise rms per point of a period average, read from the upper half of its spectrum
+    (where a smooth loop has no harmonics): the median bin is sqrt(n ln 2) times it (Rayleigh).
+    For channels whose noise the recording does not state (the flux)."""
+    x = np.asarray(x, float)
+    spec = np.abs(np.fft.rfft(x))[x.size // 4:]
+    return float(np.median(spec) / np.sqrt(x.size * np.log(2.0))) if spec.size else 0.0
+
+
 def shift(x: np.ndarray, delay_cycles: float) -> np.ndarray:
     """The period delayed by a fraction of a period (negative: advanced)."""
     return delay_periodic(np.asarray(x, float), float(delay_cycles))

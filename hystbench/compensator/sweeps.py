@@ -21,11 +21,13 @@ from ..analysis.periodic import estimate_frequency, synchronous_average
 from ..config import load_rig
 from ..errors import RecordingError
 from ..formats.recording import Recording
+from ..physics.instrument import InstrumentModel
 from .data import PeriodData
 from .models import ModelSet, fit_models, predict_measured
 from .periodic import resample
 
-__all__ = ["FIT_GRID", "JUDGE_FREQS_HZ", "period_data", "sweep_data", "quick_models", "predict_recording"]
+__all__ = ["FIT_GRID", "JUDGE_FREQS_HZ", "period_data", "sweep_data", "quick_models", "quick_instrument",
+           "predict_recording"]
 
 #: The identification sweep :func:`quick_models` runs on the simulated rig: three frequencies x
 #: four amplitudes (the models are judged elsewhere on what this does not hold).
@@ -58,15 +60,36 @@ def sweep_data(recs: Iterable[Recording], tick: Callable[[], None] | None = None
     return rigs[0], points
 
 
-def quick_models(rig: str, *, seed: int = 1000, effects: Mapping[str, object] | None = None,
+#: The voice coil's stepped sine that identifies the instrument (paper Sec. IV): 16 points, 10 Hz-45 kHz.
+VOICE_COIL_FREQS_HZ = tuple(float(f) for f in np.round(np.geomspace(10.0, 45000.0, 16), 2))
+
+
+def quick_models(rig: str | Mapping[str, object], *, seed: int = 1000, effects: Mapping[str, object] | None = None,
+                 bench: Mapping[str, object] | None = None, instrument: InstrumentModel | None = None,
                  tick: Callable[[], None] | None = None) -> ModelSet:
-    """A model set identified on the simulated rig from :data:`FIT_GRID` (about 5 s); ``tick()``
-    twice per recording (simulated, averaged)."""
+    """A model set identified from :data:`FIT_GRID` recordings of a simulated bench (about 10 s);
+    ``tick()`` twice per recording (simulated, averaged).  ``bench`` is the bench simulated when it
+    is not ``rig`` itself (a foreign bench: ``sim_backend.benches``), ``rig`` the preset the fit
+    starts from; ``instrument`` the force instrument (default: the preset's)."""
     from ..sim_backend.recordings import simulated_sweep  # the simulator only when asked for
 
-    recs = simulated_sweep(rig, *FIT_GRID, seed=seed, effects=effects, tick=tick)
+    recs = simulated_sweep(rig if bench is None else bench, *FIT_GRID, seed=seed, effects=effects, tick=tick)
     _, points = sweep_data(recs, tick=tick)
-    return fit_models(points, load_rig(rig))
+    return fit_models(points, load_rig(rig), instrument)
+
+
+def quick_instrument(bench: Mapping[str, object], *, seed: int = 77) -> InstrumentModel:
+    """The force instrument of a simulated E-core bench as the paper identifies it (Sec. IV): the
+    ferrite voice coil (no eddy currents) on the bench's load cell and charge amplifier, a stepped
+    sine of :data:`VOICE_COIL_FREQS_HZ`, the two-filter model fitted to force / current."""
+    from ..analysis.identification import fit_instrument, frequency_response
+    from ..sim_backend.recordings import simulate_voice_coil_sweep
+
+    coil = {k: v for k, v in load_rig("voicecoil_ferrite").items() if k != "_source"}
+    coil["instrument"] = dict(bench["instrument"])  # type: ignore[arg-type]
+    coil["_source"] = f"voice coil on the load cell of {bench.get('_source', bench.get('name'))}"
+    return fit_instrument(frequency_response(simulate_voice_coil_sweep(load_rig(coil), VOICE_COIL_FREQS_HZ,
+                                                                       seed=seed))).model
 
 
 def predict_recording(models: ModelSet, rec: Recording, kind: str) -> tuple[np.ndarray, np.ndarray]:

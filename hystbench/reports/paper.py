@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Callable, Iterable
 import numpy as np
 
 from ..errors import BenchError
+from ..sim_backend.recordings import simulate_voice_coil_sweep
 from ..sim_backend.rig import SimulatedRig
 from ..analysis.force_error import ForceError, force_error, phase_delay_model
 from ..analysis.identification import EddyLag, InstrumentFit, eddy_lag, fit_instrument, frequency_response, is_benchmark
@@ -87,21 +88,6 @@ def sim_effects() -> dict[str, bool]:
 def _record(rig: SimulatedRig, duration_s: float) -> Recording:
     block = rig.record(duration_s)
     return Recording(None, rig.fs_hz, dict(block.channels), rig.metadata())
-
-
-def simulate_voice_coil_sweep(rig: str, freqs_hz: Iterable[float], *, seed: int = 0, current_pp_a: float = 1.0,
-                              tick: Callable[[], None] | None = None) -> list[Recording]:
-    """A stepped-sine sweep, one recording per frequency.  As a frequency-response analyser does,
-    the sample rate follows the frequency (>= 25 samples per period, at least 100 kS/s) and each
-    point lasts 20 ms or 5 periods, whichever is longer."""
-    recs = []
-    for n, f in enumerate(freqs_hz):
-        sim = SimulatedRig(rig, fs_hz=max(100_000.0, 25.0 * round(f)), seed=seed + n, frequency_hz=f,
-                           current_pp_a=current_pp_a)
-        recs.append(_record(sim, max(0.02, 5.0 / f)))
-        if tick:
-            tick()
-    return recs
 
 
 def simulate_ecore(rig: str, points: Iterable[tuple[float, float]], *, duration_s: float, fs_hz: float = 100_000.0,

@@ -1,7 +1,8 @@
 """Recordings of the simulated rig: one operating point, or a sweep of them.
 
 What ``hystbench simulate``/``simulate-sweep`` write and what the compensator is identified on
-(:func:`hystbench.compensator.sweeps.quick_models`).  A block the rig's ADC clipped gives a
+(:func:`hystbench.compensator.sweeps.quick_models`), and the voice coil's stepped-sine sweep that
+identifies the force instrument (paper Sec. IV).  A block the rig's ADC clipped gives a
 recording with ``clipped: true`` in its sidecar (the recording format's flag), so the method
 refuses it instead of trusting its phases; :func:`clipped_channels` says which channel and at
 which full scale, for a refusal that names the effect parameter to change.
@@ -17,7 +18,7 @@ from ..blocks import BlockFlags
 from ..formats.recording import Recording
 from .rig import DEFAULT_FS_HZ, SimulatedRig
 
-__all__ = ["simulate_recording", "simulated_sweep", "clipped_channels"]
+__all__ = ["simulate_recording", "simulated_sweep", "simulate_voice_coil_sweep", "clipped_channels"]
 
 
 def simulate_recording(rig: str | Mapping[str, Any], frequency_hz: float, current_pp_a: float, duration_s: float,
@@ -45,6 +46,22 @@ def simulated_sweep(rig: str | Mapping[str, Any], freqs_hz: Iterable[float], ipp
         recs.append(simulate_recording(rig, f, ipp, duration_s or max(0.1, 8.0 / f), fs_hz=fs_hz, seed=seed + n,
                                        effects=effects))
         if tick is not None:
+            tick()
+    return recs
+
+
+def simulate_voice_coil_sweep(rig: str | Mapping[str, Any], freqs_hz: Iterable[float], *, seed: int = 0, current_pp_a: float = 1.0,
+                              tick: Callable[[], None] | None = None) -> list[Recording]:
+    """A stepped-sine sweep, one recording per frequency.  As a frequency-response analyser does,
+    the sample rate follows the frequency (>= 25 samples per period, at least 100 kS/s) and each
+    point lasts 20 ms or 5 periods, whichever is longer."""
+    recs = []
+    for n, f in enumerate(freqs_hz):
+        sim = SimulatedRig(rig, fs_hz=max(100_000.0, 25.0 * round(f)), seed=seed + n, frequency_hz=f,
+                           current_pp_a=current_pp_a)
+        block = sim.record(max(0.02, 5.0 / f))
+        recs.append(Recording(None, sim.fs_hz, dict(block.channels), sim.metadata()))
+        if tick:
             tick()
     return recs
 

@@ -1,0 +1,84 @@
+"""Issue 12: the models hold on benches that are not our simulated rig.
+
+Each foreign bench (``sim_backend.benches``: geometry, turns, magnet and airgap off by up to 20 %,
+another iron, the instrument off its nominal values) is identified the way a user would: the
+instrument with the ferrite voice coil on its load cell (paper Sec. IV), then the force models from
+the identification sweep (40, 160, 480 Hz x 0.3-1.5 A-pp), starting from the NOMINAL preset, which
+is all a user of that bench would have.  They are judged on recordings the fit never saw (other
+seeds, 80 and 320 Hz, 0.9 A-pp and the paper's amplitude).  Expected values come from the
+generator's truth (``bench_truth``) or the paper, never from a model's own output.
+"""
+
+import pytest
+
+from hystbench.compensator import force_error
+from hystbench.compensator.sweeps import period_data, quick_instrument, quick_models
+from hystbench.sim_backend.benches import FOREIGN_BENCHES, bench_truth, foreign_preset
+from hystbench.sim_backend.recordings import simulated_sweep
+
+MAIN = {"ecore": 1.27, "ecore_pm": 1.4}
+PAPER_FACTOR = {"ecore": 2.5, "ecore_pm": 5.0}  # Eq. 6 at 320 Hz (paper Sec. VII)
+_FITTED: dict = {}
+
+
+def fitted(name: str):
+    """(models, judged {(f, ipp): (point, errors per model)}) of one bench, computed once."""
+    if name not in _FITTED:
+        bench = FOREIGN_BENCHES[name]
+        preset = foreign_preset(name)
+        models = quick_models(bench.nominal, bench=preset, instrument=quick_instrument(preset))
+        judged = {}
+        for n, f in enumerate((80.0, 320.0)):
+            for ipp in (MAIN[bench.nominal], 0.9):
+                rec = simulated_sweep(preset, [f], [ipp], seed=5000 + 10 * n + (ipp == 0.9), duration_s=0.5)[0]
+                p = period_data(rec)
+                judged[f, ipp] = (p, {k: force_error(m, p, models.instrument) for k, m in models.models.items()})
+        _FITTED[name] = (models, judged)
+    return _FITTED[name]
+
+
+@pytest.mark.parametrize("name", list(FOREIGN_BENCHES))
+def test_best_model_predicts_a_foreign_bench_within_a_thousandth(name):
+    models, judged = fitted(name)
+    acc = {k: e["best"]["accuracy_pct"] for k, (_, e) in judged.items()}
+    assert min(acc.values()) >= 99.9, (models["best"].report["choice"]["why"], acc)
+    for _, e in judged.values():  # and the hysteresis was there to be modelled
+        assert e["nonhysteretic"]["max_abs_error_N"] > 2.0 * e["best"]["max_abs_error_N"]
+
+
+@pytest.mark.parametrize("name", [n for n in FOREIGN_BENCHES if n.endswith("~elliptic")])
+def test_eq6_reaches_the_papers_factor_where_the_minor_loops_are_elliptic(name):
+    """The paper's iron has nearly elliptic minor loops (Fig. 4), and there Eq. 6 with the measured
+    delay cuts Eq. 1's error 2.5x without and 5x with the magnet at 320 Hz (Sec. VII)."""
+    nominal = FOREIGN_BENCHES[name].nominal
+    _, judged = fitted(name)
+    e = judged[320.0, MAIN[nominal]][1]
+    assert e["nonhysteretic"]["max_abs_error_N"] / e["paper"]["max_abs_error_N"] >= PAPER_FACTOR[nominal]
+
+
+@pytest.mark.parametrize("name, chosen", [("ecore~elliptic", "describing_function"),
+                                          ("ecore_pm~elliptic", "describing_function"),
+                                          ("ecore_pm~m330", "preisach"), ("ecore~m330", "preisach")])
+def test_the_sweep_chooses_the_iron_description_the_bench_has(name, chosen):
+    """Elliptic loops are one complex gain per harmonic exactly; a Preisach iron's pointed loops
+    are not: held-out error inside the fit sweep tells them apart, and the report says why."""
+    models, _ = fitted(name)
+    choice = models["best"].report["choice"]
+    assert choice["chosen"] == chosen, choice["why"]
+    assert chosen in choice["why"] or "against" in choice["why"]
+
+
+@pytest.mark.parametrize("name", ["ecore_pm~elliptic", "ecore~elliptic"])
+def test_identified_static_law_is_the_benchs_not_the_presets(name):
+    """On a linear (complex-permeability) iron the static law of Eq. 6 is the MEC with the iron's
+    in-phase permeability at the bench's own geometry: the fit finds it within 3 %, although the
+    preset it started from is 5-20 % off."""
+    models, _ = fitted(name)
+    truth = bench_truth(name)["force_coefficients_linear_iron"]
+    nominal = FOREIGN_BENCHES[name].nominal
+    fitted_law = models["paper"].law.coefficients
+    k = 2  # k2, and with the magnet k1 too
+    assert fitted_law[k] == pytest.approx(truth[k], rel=0.03)
+    if nominal == "ecore_pm":
+        assert fitted_law[1] == pytest.approx(truth[1], rel=0.03)
+        assert fitted_law[0] == pytest.approx(truth[0], rel=0.03)
