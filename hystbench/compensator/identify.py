@@ -189,7 +189,7 @@ def _held_out_error_n(model, point: PeriodData, instrument: InstrumentModel) -> 
 
 
 def fit_best(points: Sequence[PeriodData], cal: SweepCalibration, scaling: IronScaling,
-             tick: Callable[[], None] | None = None):
+             tick: Callable[[], None] | None = None) -> HysteresisEddyModel | DescribingFunctionModel | RayleighLoopModel:
     """The best model: every candidate judged on held-out folds, the winner refitted on all."""
     data = iron_data(points, cal)
     folds = held_out_folds(points)
