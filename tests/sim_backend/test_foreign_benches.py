@@ -120,3 +120,50 @@ def test_the_elliptic_bench_mean_coil_leg_flux_is_the_linear_iron_bias():
 def test_an_unknown_bench_is_refused_naming_the_known_ones():
     with pytest.raises(ConfigError, match=r"unknown foreign bench 'ecore~steel'; known: .*ecore_pm~m330"):
         foreign_preset("ecore~steel")
+
+
+@pytest.mark.parametrize(("name", "ipps"), [("ecore_pm~m130", (0.6, 0.9, 1.4)), ("ecore~m330", (0.6,))])
+def test_a_whole_number_of_samples_per_period_simulates(name: str, ipps: tuple[float, ...]):
+    """400 Hz at 100 kS/s is 250 samples a period: every period's sampled extrema of B tie with the
+    last ones to < 1 uT, the Preisach iron's turning points nested ~20 deep during the warm-up and
+    the iron's fixed point flipped for ever between the two sides of a wipe-out.  The rig refused
+    it as 'driven far into saturation' at |B| = 0.88 T, far below M130-27S's knee (~1.4 T)."""
+    for rec in simulated_sweep(foreign_preset(name), [400.0], ipps, seed=5020, duration_s=0.01):
+        assert all(np.all(np.isfinite(x)) and np.ptp(x) > 0 for x in rec.channels.values())
+
+
+def test_the_iron_at_400_hz_settles_into_a_periodic_loop_below_its_knee():
+    """What the rig settled on is the iron's steady state: B repeats period after period (250
+    samples; the generator's 25 ppm move it < 2e-5 T) and stays below M130-27S's knee, where the
+    anhysteretic curve still takes < 50 % more H for 10 % more B (IEC 61869-2's knee point)."""
+    from hystbench.config import load_material
+    from hystbench.physics.hysteresis import PreisachHysteresis
+    from hystbench.sim_backend.rig import SimulatedRig
+
+    rig = SimulatedRig(foreign_preset("ecore_pm~m130"), frequency_hz=400.0, current_pp_a=1.4, seed=5020)
+    rig.read(500)
+    b = rig.actuator.iron_flux_density_t
+    assert np.max(np.abs(b[250:] - b[:250])) < 1e-4
+    peak = float(np.max(np.abs(b)))
+    iron = PreisachHysteresis.from_config(load_material("M130-27S"))
+    assert iron.anhysteretic_field(1.1 * peak) < 1.5 * iron.anhysteretic_field(peak)
+
+
+def test_a_refusal_says_saturation_only_beyond_the_knee(monkeypatch: pytest.MonkeyPatch):
+    """The nominal magnet-biased E-core at 6 A-pp drives its M330-50A (knee ~1.0 T) to |B| ~1.3 T:
+    refused as saturation.  A block below the knee that the passes cannot settle (here: one pass
+    allowed) is refused as the fixed point's failure, not as saturation; both name the preset's
+    source and the operating point."""
+    from hystbench.errors import SimulationError
+    from hystbench.sim_backend.actuators import ecore
+    from hystbench.sim_backend.rig import SimulatedRig
+
+    with pytest.raises(SimulationError, match=r"beyond the 1\.\d\d T knee of M330-50A.*saturation") as err:
+        SimulatedRig("ecore_pm", frequency_hz=320.0, current_pp_a=6.0, seed=1)
+    assert "ecore_pm.toml" in str(err.value) and "320 Hz" in str(err.value)
+    monkeypatch.setattr(ecore, "MAX_PASSES", 1)
+    with pytest.raises(SimulationError, match="did not converge") as err:
+        SimulatedRig(foreign_preset("ecore_pm~m130"), frequency_hz=400.0, current_pp_a=1.4, seed=1)
+    msg = str(err.value)
+    assert "saturat" not in msg and "foreign bench ecore_pm~m130" in msg and "400 Hz" in msg
+    assert "below the 1.4" in msg and "M130-27S" in msg

@@ -4,7 +4,9 @@ own MMF drop and the eddy currents, advanced one block at a time (vectorised).
 The iron is the one its material file's ``model`` names (:mod:`hystbench.physics.iron`): a Preisach
 operator or Rayleigh's law is the nonlinear remainder the fixed point iterates; a complex
 permeability is linear and goes into the exactly solved linear part (nu' into N, nu''/omega with
-the eddy currents into D, rebuilt whenever the excitation's period changes)."""
+the eddy currents into D, rebuilt whenever the excitation's period changes).  A block whose passes
+do not converge is refused as saturated beyond the iron's knee, and below it settled with tied
+minor loops closed (:meth:`ECoreActuator._settle_tie`)."""
 
 from __future__ import annotations
 
@@ -32,10 +34,17 @@ IRON_ITERATIONS = 4
 #: Passes when the fixed point starts from the iron's remainder one period earlier (interpolated
 #: at the exact fractional period): in steady state two passes reach the same residual.
 WARM_PASSES = 2
-#: Passes allowed before the rig gives up (deep saturation), and the step that counts as converged
+#: Plain passes before the rig refuses a block beyond the iron's knee or settles a tie below it
+#: (ECoreActuator._settle_tie, as many passes again), and the step that counts as converged
 #: (relative to the iron's remainder field).
 MAX_PASSES = 30
 CONVERGED = 1e-3
+#: The saturation knee of a material (IEC 61869-2's knee point, on the anhysteretic curve): the
+#: flux density beyond which 10 % more B costs 50 % more H.  M330-50A: 1.00 T, M130-27S: 1.43 T.
+KNEE_B_RATIO, KNEE_H_RATIO = 1.1, 1.5
+#: When the plain passes cycle: an extremum of the Preisach iron's B within this of the turning point
+#: it returns to closes that loop (sampled extrema of a periodic B tie to < 1 uT period to period).
+TIE_T = 1e-6
 
 
 def _minor_loop_reluctivity(hysteresis, amplitude_t: float = 0.1) -> float:
@@ -44,6 +53,14 @@ def _minor_loop_reluctivity(hysteresis, amplitude_t: float = 0.1) -> float:
     h, _ = hysteresis.field(b, hysteresis.initial_state())
     second = slice(400, None)  # the second cycle: the loop is closed
     return float(np.ptp(h[second]) / np.ptp(b[second]))
+
+
+def _saturation_knee_t(hysteresis) -> float:
+    """The smallest B on the anhysteretic curve where KNEE_B_RATIO x B takes KNEE_H_RATIO x H."""
+    grid = np.arange(0.01, 2.6, 0.0025)
+    h = hysteresis.anhysteretic_field(grid)
+    past = hysteresis.anhysteretic_field(KNEE_B_RATIO * grid) >= KNEE_H_RATIO * h
+    return float(grid[np.argmax(past)]) if past.any() else np.inf
 
 
 class ECoreActuator:
@@ -74,6 +91,7 @@ class ECoreActuator:
         iron = preset["iron"]
 
         self.hysteresis = None
+        self._tie: dict[str, float] = {}  # how the iron closes tied loops when the passes cycle
         self._irreversible = "static_hysteresis" in effects
         self._saturation = "iron_saturation" in effects
         material = load_material(iron["material"])
@@ -97,6 +115,7 @@ class ECoreActuator:
 
             self.hysteresis = PreisachHysteresis.from_config(material)
             self._h_state = self.hysteresis.initial_state()
+            self._tie = {"close_t": TIE_T}
         self._eddy_coef = 0.0
         if "lamination_eddy_currents" in effects:
             self._eddy_coef = lamination_eddy_coefficient(iron["conductivity_s_per_m"],
@@ -122,7 +141,13 @@ class ECoreActuator:
             grid = np.linspace(0.0, 2.6, 1041)
             steep = np.gradient(self.hysteresis.anhysteretic_field(grid), grid) > self._nu0
             self._b_knee = float(grid[np.argmax(steep)]) if steep.any() else np.inf
+        #: beyond it the refusal says saturation (inf: the iron's model does not saturate here)
+        self.saturation_knee_t = (_saturation_knee_t(self.hysteresis)
+                                  if self.hysteresis is not None and self._saturation else np.inf)
+        self._material = str(iron["material"])
         self.name = str(preset.get("name"))
+        self._where = where(preset)
+        self._preset_frequency_hz = float(preset["excitation"]["frequency_hz"])
         self._thermal = effects.get("magnet_thermal_drift")
         comp = effects.get("load_cell_compliance")
         self._compliance = 0.0 if comp is None else 1.0 / float(comp["stiffness_n_per_m"])
@@ -184,10 +209,56 @@ class ECoreActuator:
         nu_d[steep] = np.maximum(self._nu0, (an(bs + 1e-3) - an(bs - 1e-3)) / 2e-3)
         return residual / (1.0 + (nu_d - self._nu0) * self._lag.instantaneous_gain * self.iron_length_m)
 
-    def _static_field(self, b: np.ndarray):
+    def _static_field(self, b: np.ndarray, **tie: float):
         """The iron's rate-independent H for the trajectory b, and the state it ends in."""
         return self.hysteresis.field(b, self._h_state, irreversible=self._irreversible,
-                                     saturation=self._saturation)
+                                     saturation=self._saturation, **tie)
+
+    def _settle_tie(self, fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, b: np.ndarray,
+                    current_a: np.ndarray):
+        """The fixed point when MAX_PASSES plain passes did not converge (every block that converged
+        before is untouched, sample for sample).
+
+        Below the iron's knee the plain step cycles at a tie: the Preisach iron's tabulated branches
+        close a minor loop to ~1e-3 A/m, not exactly, so loops nested between extrema that tie
+        (B sampled at a whole number of samples per period: 250 at 400 Hz) drift apart level by
+        level, and where the latest extremum wipes the nest out H jumps by the drift (~0.05 A/m on
+        M130-27S after a 20-period warm-up).  Which side the extremum falls on moves with the last
+        pass's uT, so the plain step flips between the two for ever, and there is no fixed point.
+        The passes go on with tied loops closed (TIE_T: return-point memory at the model's
+        resolution): no nest, no jump, and the plain step converges.
+
+        Beyond the knee the block is refused as saturated, as before.  Returns (h_rest, the iron's
+        state at the end of the block); raises SimulationError when it does not converge either."""
+        peak_b = float(np.max(np.abs(b)))
+        if peak_b > self.saturation_knee_t or not self._tie:  # Rayleigh's branches close exactly
+            raise self._refusal(peak_b, current_a)
+        for _ in range(MAX_PASSES):
+            x, _ = self._lag.run(np.stack([fc - h_rest * self.iron_length_m, fm]))
+            h, h_state = self._static_field(x[0], **self._tie)
+            step = self._newton_step(x[0], h - self._nu0 * x[0] - h_rest)
+            h_rest = h_rest + step
+            if np.max(np.abs(step)) <= CONVERGED * (np.max(np.abs(h_rest)) + 1.0):
+                return h_rest, h_state
+        raise self._refusal(float(np.max(np.abs(x[0]))), current_a)
+
+    def _refusal(self, peak_b_t: float, current_a: np.ndarray) -> SimulationError:
+        """The error for a block whose iron field did not converge: saturation only when the iron
+        is beyond its knee; else the fixed point's own failure.  Both name the preset's source and
+        the operating point."""
+        f_hz = self._preset_frequency_hz if self._period is None else self.fs_hz / self._period
+        point = (f"at {f_hz:.4g} Hz, coil current up to {np.max(np.abs(current_a)):.3g} A: |B| up to "
+                 f"{peak_b_t:.2f} T")
+        if peak_b_t > self.saturation_knee_t:
+            return SimulationError(
+                f"{self.name} ({self._where}): the iron's field does not converge {point}, beyond the "
+                f"{self.saturation_knee_t:.2f} T knee of {self._material}: the actuator is driven into "
+                "saturation; lower the current")
+        knee = (f"below the {self.saturation_knee_t:.2f} T knee of {self._material}"
+                if np.isfinite(self.saturation_knee_t) else f"{self._material} has no knee in this model")
+        return SimulationError(
+            f"{self.name} ({self._where}): the iron's fixed point did not converge {point} ({knee}): "
+            "a limit of the simulator, not of the bench; try a slightly different frequency")
 
     def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
         fc = self.turns * current_a
@@ -208,9 +279,7 @@ class ECoreActuator:
                 break
         else:
             if self.hysteresis is not None:
-                raise SimulationError(
-                    f"{self.name}: the iron's field does not converge (|B| up to {np.max(np.abs(x[0])):.2f} T): "
-                    "the actuator is driven far into saturation; lower the current")
+                h_rest, h_state = self._settle_tie(fc, fm, h_rest, x[0], current_a)
         self._remember(h_rest)
         u = np.stack([fc - h_rest * self.iron_length_m, fm])
         x, lag_state = self._lag.run(u)
