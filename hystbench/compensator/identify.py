@@ -59,9 +59,15 @@ class IronData:
         return IronData(*(tuple(x[k] for k in keep) for x in (self.points, self.js, self.currents)))
 
 
+def _instrument(cal: SweepCalibration, p: PeriodData) -> Callable[[np.ndarray], np.ndarray]:
+    """One period through the force instrument at ``p``'s frequency."""
+    return lambda x: apply_response(x, p.frequency_hz, cal.instrument.frequency_response)
+
+
 def iron_data(points: Sequence[PeriodData], cal: SweepCalibration, n_fit: int = FIT_POINTS) -> IronData:
     js = tuple(cal.seen_current(k, resample(clean_flux(p), n_fit)) for k, p in enumerate(points))
-    return IronData(tuple(points), js, tuple(resample(np.asarray(p.current_a, float), n_fit) for p in points))
+    currents = tuple(resample(denoise(p.current_a, p.average_noise_a()), n_fit) for p in points)
+    return IronData(tuple(points), js, currents)
 
 
 # --- candidate 1: Preisach iron + eddy term --------------------------------------------------------
@@ -89,31 +95,41 @@ def fit_hysteresis_eddy(data: IronData, cal: SweepCalibration, scaling: IronScal
     b0_start = scaling.b_per_a * cal.bias_current_a if magnet else 0.0
     hc = coercive_guess(ds, scaling)
     h_scale = hc / 3.0
-    i_scale = max(float(np.ptp(i)) for i in data.currents)
     bad = np.full(sum(d.size for d in ds), 1.0)
 
-    def parts(x: np.ndarray):
-        b0 = b0_start * math.exp(x[13]) if magnet else 0.0
-        return IronScaling(b0, scaling.b_per_a, scaling.d_per_h), x[10] * 1e-6, x[11] * 1e-2, x[12] * 1e-3 * i_scale
+    # tau, eps and delta enter linearly: solved for at every trial iron (variable projection), so the
+    # nonlinear search runs over the iron alone (10 parameters, 11 with the magnet's bias)
+    # every residual goes through the instrument: the fit minimises the force error the load cell
+    # reports, where the harmonics near its resonance count 20-50x (what a loop's shape must get right)
+    through = [_instrument(cal, p) for p in data.points]
+    lin_cols = [np.stack([h(w * dj), h(w * j), h(w)], axis=1) for j, dj, w, h in zip(js, djs, weights, through)]
+    lin_a = np.vstack(lin_cols)
+    lin_scale = np.max(np.abs(lin_a), axis=0)
+
+    def scaling_of(x: np.ndarray) -> IronScaling:
+        return IronScaling(b0_start * math.exp(x[10]) if magnet else 0.0, scaling.b_per_a, scaling.d_per_h)
+
+    def project(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        iron = PreisachHysteresis(preisach_params(_unpack(x, h_scale), FIT_TABLES))
+        sc = scaling_of(x)
+        rest = np.concatenate([h(w * (iron_drop(iron, sc, j) - d)) for j, d, w, h in zip(js, ds, weights, through)])
+        coef = np.linalg.lstsq(lin_a / lin_scale, -rest, rcond=None)[0] / lin_scale
+        return rest + lin_a @ coef, coef
 
     def residual(x: np.ndarray) -> np.ndarray:
         try:
-            iron = PreisachHysteresis(preisach_params(_unpack(x, h_scale), FIT_TABLES))
-            sc, tau, eps, delta = parts(x)
-            out = [w * (iron_drop(iron, sc, j) + eps * j + delta + tau * dj - d)
-                   for j, d, dj, w in zip(js, ds, djs, weights)]
-            res = np.concatenate(out)
+            res = project(x)[0]
             return res if np.all(np.isfinite(res)) else bad
-        except (ConfigError, CompensatorError, ValueError, FloatingPointError, IndexError):
+        except (ConfigError, CompensatorError, ValueError, FloatingPointError, IndexError, np.linalg.LinAlgError):
             return bad
 
     lo = np.log([0.05, hc / 20, hc / 200, 1e-3, hc / 20, hc / 200, 1e-4, hc / 10, 1e-4, 10 * hc])
     hi = np.log([5.0, hc * 20, hc * 20, 1e3, hc * 50, hc * 50, 5.0, 1e6, 5.0, 1e7])
-    lo = np.append(lo, [0.0, -20.0, -50.0, math.log(0.6)])
-    hi = np.append(hi, [1e3, 20.0, 50.0, math.log(1.6)])
+    if magnet:
+        lo, hi = np.append(lo, math.log(0.6)), np.append(hi, math.log(1.6))
     best = None
     for spread in START_SPREADS:  # the narrow start converges in ~20 evaluations; the wide one is a fallback
-        x0 = np.clip(np.append(_start(hc, spread), [5.0, 0.0, 0.0, 0.0]), lo + 1e-9, hi - 1e-9)
+        x0 = np.clip(np.append(_start(hc, spread), [0.0] if magnet else []), lo + 1e-9, hi - 1e-9)
         sol = least_squares(residual, x0, bounds=(lo, hi), x_scale=1.0, diff_step=1e-4, max_nfev=max_nfev,
                             ftol=1e-5, xtol=1e-6)
         if best is None or sol.cost < best.cost:
@@ -123,20 +139,21 @@ def fit_hysteresis_eddy(data: IronData, cal: SweepCalibration, scaling: IronScal
     if not best.cost < 0.5 * bad.size:
         raise CompensatorError("hysteresis_eddy fit: no Preisach iron describes this sweep's loops "
                                f"(cost {best.cost:.3g} after {best.nfev} evaluations)")
-    sc, tau, eps, delta = parts(best.x)
+    res, (tau, eps, delta) = project(best.x)
+    sc = scaling_of(best.x)
     model = HysteresisEddyModel(law, sc, _unpack(best.x, h_scale), float(tau), linear=float(eps),
                                 offset_a=float(delta))
-    jac = best.jac
-    dof = max(jac.shape[0] - jac.shape[1], 1)
-    cov = np.linalg.pinv(jac.T @ jac) * 2.0 * best.cost / dof
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    dof = max(res.size - best.x.size - 3, 1)
+    s2 = float(res @ res) / dof
+    se = np.sqrt(np.maximum(np.diag(np.linalg.pinv(best.jac.T @ best.jac) * s2), 0.0))
+    se_lin = np.sqrt(np.maximum(np.diag(np.linalg.pinv(lin_a.T @ lin_a) * s2), 0.0))
     names = ["log j_irr", "log gauss centre", "log gauss width", "log lorentz weight", "log lorentz centre",
-             "log lorentz width", "log J1", "log h1", "log J2", "log h2", "tau_us", "eps_x100", "delta_x1000/ipp",
-             "log b0"]
-    fit_res = [np.max(np.abs(w * (model.iron_drop(j) + eps * j + delta + model.tau_s * dj - d)))
-               for j, d, dj, w in zip(js, ds, djs, weights)]
+             "log lorentz width", "log J1", "log h1", "log J2", "log h2"] + (["log b0 factor"] if magnet else [])
+    params = {n: [float(v), float(e)] for n, v, e in zip(names, best.x, se)}
+    params.update({n: [float(v), float(e)] for n, v, e in zip(("tau_s", "eps", "delta_A"), (tau, eps, delta), se_lin)})
+    fit_res = [float(np.max(np.abs(r))) for r in np.split(res, np.cumsum([j.size for j in js])[:-1])]
     model.report = {
-        "parameters": {n: [float(v), float(s)] for n, v, s in zip(names, best.x, se)},
+        "parameters": params,
         "magnet_bias_T": sc.b0_t, "coercive_guess_A_per_m": hc,
         "cost": float(best.cost), "nfev": int(best.nfev), "status": int(best.status),
         "max_weighted_residual_pct": {p.name: 100.0 * float(v) for p, v in zip(data.points, fit_res)},
@@ -155,7 +172,7 @@ def fit_describing(data: IronData, cal: SweepCalibration, scaling: IronScaling) 
 def fit_rayleigh(data: IronData, cal: SweepCalibration, scaling: IronScaling) -> RayleighLoopModel:
     weights = [np.abs(cal.law.slope(j)) / max(p.force_range_n, 1e-12) for j, p in zip(data.js, data.points)]
     return fit_rayleigh_loop(data.js, data.currents, [p.frequency_hz for p in data.points], weights, cal.law,
-                             [p.name for p in data.points])
+                             [p.name for p in data.points], [_instrument(cal, p) for p in data.points])
 
 
 Fitter = Callable[[IronData, SweepCalibration, IronScaling], object]

@@ -18,7 +18,7 @@ turning points is taken as its outer loop); :mod:`.hysteresis_eddy` keeps the fu
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -105,13 +105,17 @@ class RayleighLoopModel:
 
 
 def fit_rayleigh_loop(js: Sequence[np.ndarray], currents: Sequence[np.ndarray], freqs_hz: Sequence[float],
-                      weights: Sequence[np.ndarray], law: StaticLaw, names: Sequence[str]) -> RayleighLoopModel:
+                      weights: Sequence[np.ndarray], law: StaticLaw, names: Sequence[str],
+                      through: Sequence[Callable[[np.ndarray], np.ndarray]] | None = None) -> RayleighLoopModel:
     """The coefficients from one period of j and i per recording, each sample weighted (the law's
-    slope over the recording's force range: the fit minimises the force error the accuracy counts)."""
+    slope over the recording's force range) and, with ``through``, put through the force
+    instrument: the fit minimises the force error the accuracy counts."""
     if len(js) < 2:
         raise CompensatorError(f"the rayleigh_loop model needs at least 2 recordings, got {len(js)}")
-    a = np.vstack([w[:, None] * _columns(j, f) for j, f, w in zip(js, freqs_hz, weights)])
-    b = np.concatenate([w * (i - j) for j, i, w in zip(js, currents, weights)])
+    through = through or [lambda x: x] * len(js)
+    a = np.vstack([np.apply_along_axis(h, 0, w[:, None] * _columns(j, f))
+                   for j, f, w, h in zip(js, freqs_hz, weights, through)])
+    b = np.concatenate([h(w * (i - j)) for j, i, w, h in zip(js, currents, weights, through)])
     scale = np.max(np.abs(a), axis=0)
     scale[scale == 0] = 1.0
     coef, *_ = np.linalg.lstsq(a / scale, b, rcond=None)

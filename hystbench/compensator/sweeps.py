@@ -87,9 +87,14 @@ def quick_instrument(bench: Mapping[str, object], *, seed: int = 77) -> Instrume
 
     coil = {k: v for k, v in load_rig("voicecoil_ferrite").items() if k != "_source"}
     coil["instrument"] = dict(bench["instrument"])  # type: ignore[arg-type]
+    # the load cell's frame modes are the bench's, not the catalogue voice coil's
+    effects = {k: v for k, v in coil["effects"].items() if k != "frame_resonance"}  # type: ignore[union-attr]
+    if "frame_resonance" in bench["effects"]:  # type: ignore[operator]
+        effects["frame_resonance"] = bench["effects"]["frame_resonance"]  # type: ignore[index]
+    coil["effects"] = effects
     coil["_source"] = f"voice coil on the load cell of {bench.get('_source', bench.get('name'))}"
     return fit_instrument(frequency_response(simulate_voice_coil_sweep(load_rig(coil), VOICE_COIL_FREQS_HZ,
-                                                                       seed=seed))).model
+                                                                       seed=seed, samples_per_period=100.0))).model
 
 
 def predict_recording(models: ModelSet, rec: Recording, kind: str) -> tuple[np.ndarray, np.ndarray]:
