@@ -53,17 +53,26 @@ def cmd_model_fit(args: argparse.Namespace) -> int:
         raise ConfigError(f"--kinds {','.join(args.kinds)!r}: choose from {', '.join(KINDS)}")
     # --out is checked (exists? a folder we can write in?) before the minutes of fitting
     with output_file(args.out, overwrite=args.overwrite) as tmp, progress() as bar:
+        instrument = None
+        if args.instrument_sweep is not None:
+            from ..analysis.identification import fit_instrument, frequency_response
+
+            instrument = fit_instrument(frequency_response(read_sweep(args.instrument_sweep))).model
         recs = read_sweep(args.sweep)
         task = bar.add_task(f"period averages of {args.sweep}", total=len(recs))
         rig, points = sweep_data(recs, tick=lambda: bar.advance(task))
         bar.update(task, description=f"fitting {', '.join(args.kinds)}", total=None)
-        models = fit_models(points, load_rig(rig), kinds=tuple(args.kinds))
+        models = fit_models(points, load_rig(rig), instrument, kinds=tuple(args.kinds),
+                            tick=lambda: bar.update(task, description="fitting: judging the iron descriptions"))
         models.report["sweep"] = str(args.sweep)
         models.save(tmp, overwrite=True)
     path = Path(args.out)
     rows = models.report["training_error"]
+    choice = models.models["best"].report.get("choice", {}) if "best" in models.models else {}
     if args.json:
-        print(_json_out({"model_file": str(path), "rig": rig, "training_error": rows}))
+        print(_json_out({"model_file": str(path), "rig": rig, "training_error": rows,
+                         "instrument": {"fn_Hz": models.instrument.fn_hz, "zeta_n": models.instrument.zeta_n},
+                         "best_iron_description": choice.get("chosen"), "why": choice.get("why")}))
         return 0
     from rich.table import Table
 
@@ -75,6 +84,8 @@ def cmd_model_fit(args: argparse.Namespace) -> int:
         table.add_row(Path(p.name).name, *(f"{rows[k][n]['accuracy_pct']:.3f}" for k in models.models))
     con = _console()
     con.print(table)
+    if choice:
+        con.print(f"best model's iron description: {choice['chosen']} ({choice['why']})")
     con.print("accuracy = 100 % x (1 - max|F_measured - H_instr{F_model}| / force range) on the period average, on "
               f"the recordings fitted (judge on others with `model predict`). Wrote {path}")
     return 0
@@ -245,6 +256,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     q.add_argument("--out", type=path_arg, required=True, help="model file to write (JSON)")
     q.add_argument("--kinds", type=lambda s: [k.strip() for k in s.split(",") if k.strip()],
                    default=list(MODEL_KINDS), help="comma-separated subset of " + ",".join(MODEL_KINDS))
+    q.add_argument("--instrument-sweep", type=path_arg,
+                   help="voice-coil sweep folder on the same load cell (paper Sec. IV): the force instrument is "
+                        "fitted from it instead of taken from the rig preset")
     q.add_argument("--overwrite", action="store_true")
     q.add_argument("--json", action="store_true")
     q.set_defaults(func=cmd_model_fit)

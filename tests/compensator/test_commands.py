@@ -73,3 +73,31 @@ def test_compensate_learns_and_reports_each_iteration(model_file, capsys):
 def test_compensate_refuses_what_the_actuator_cannot_do(model_file, capsys, argv, message):
     assert run(["compensate", *argv, "--model", str(model_file)]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_model_fit_takes_the_instrument_from_a_voice_coil_sweep_on_the_same_load_cell(tmp_path, capsys):
+    """A bench whose load cell is not the preset's (fn 4 % low, damping x1.3): `model fit
+    --instrument-sweep` fits the instrument from the voice coil's sweep and the models use it; the
+    report names the chosen iron description."""
+    from hystbench.config import load_rig
+    from hystbench.sim_backend.benches import foreign_preset
+    from hystbench.sim_backend.recordings import simulate_voice_coil_sweep
+
+    bench = foreign_preset("ecore_pm~m130")  # its instrument: fn x0.96, zeta_n x1.3
+    coil = {k: v for k, v in load_rig("voicecoil_ferrite").items() if k != "_source"}
+    coil["instrument"] = dict(bench["instrument"])
+    coil["effects"] = {k: v for k, v in coil["effects"].items() if k != "frame_resonance"}
+    write_sweep(simulate_voice_coil_sweep(load_rig(coil), np.geomspace(10.0, 45000.0, 16), seed=3,
+                                          samples_per_period=100.0), tmp_path / "vc")
+    write_sweep(simulated_sweep(bench, (40.0, 160.0, 480.0), (0.4, 1.0, 1.5), seed=310), tmp_path / "sweep")
+    out = tmp_path / "m.json"
+    assert run(["model", "fit", str(tmp_path / "sweep"), "--out", str(out), "--instrument-sweep",
+                str(tmp_path / "vc"), "--json"]) == 0
+    said = json.loads(capsys.readouterr().out)
+    assert said["best_iron_description"] in ("preisach", "describing_function", "rayleigh_loop") and said["why"]
+    ins = json.loads(out.read_text())["instrument"]
+    assert ins["fn_Hz"] == pytest.approx(bench["instrument"]["fn_hz"], rel=2e-3)
+    assert ins["zeta_n"] == pytest.approx(bench["instrument"]["zeta_n"], rel=0.05)
+    assert run(["model", "fit", str(tmp_path / "sweep"), "--out", str(tmp_path / "n.json"),
+                "--instrument-sweep", str(tmp_path / "nothing")]) == 2
+    assert "nothing" in capsys.readouterr().err
