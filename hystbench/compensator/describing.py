@@ -30,6 +30,7 @@ import numpy as np
 
 from .errors import CompensatorError
 from .periodic import harmonics
+from .seen_current import SeenCurrentModel
 from .static import StaticLaw
 
 __all__ = ["DescribingFunctionModel", "fit_describing_function", "RE_TERMS", "IM_TERMS"]
@@ -44,7 +45,7 @@ def _amplitude(spec: np.ndarray, n: int) -> float:
 
 
 @dataclass
-class DescribingFunctionModel:
+class DescribingFunctionModel(SeenCurrentModel):
     """See the module docstring; ``re``/``im`` are the coefficients of :data:`RE_TERMS`/:data:`IM_TERMS`."""
 
     law: StaticLaw
@@ -85,20 +86,6 @@ class DescribingFunctionModel:
             js = spec / self._factor(i.size, frequency_hz, amp)
             amp = _amplitude(js, i.size)
         return np.fft.irfft(js, i.size)
-
-    def force_period(self, current_a: np.ndarray, frequency_hz: float) -> np.ndarray:
-        """The actuator's force (N) over one period of the coil current."""
-        return self.law.force(self.effective_current(current_a, frequency_hz))
-
-    def current_period(self, force_n: np.ndarray, frequency_hz: float,
-                       current_limit_a: float | None = None) -> np.ndarray:
-        """The coil current (one period) that makes the actuator produce ``force_n``."""
-        return self.current_for(self.law.invert(force_n, current_limit_a=current_limit_a), frequency_hz)
-
-    def flux_lag_rad(self, current_a: np.ndarray, frequency_hz: float) -> float:
-        """theta_hyst of the model: j's fundamental behind the current's."""
-        j = self.effective_current(current_a, frequency_hz)
-        return float(np.angle(np.fft.rfft(current_a)[1] / np.fft.rfft(j)[1]))
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "name": self.name, "law": self.law.to_dict(),

@@ -39,6 +39,7 @@ from ..errors import ConfigError
 from ..physics.hysteresis import PreisachHysteresis, PreisachParams
 from .errors import CompensatorError
 from .periodic import derivative, harmonics
+from .seen_current import SeenCurrentModel
 from .static import StaticLaw
 
 if TYPE_CHECKING:
@@ -96,7 +97,7 @@ def preisach_params(material: dict, tables: dict) -> PreisachParams:
 
 
 @dataclass
-class HysteresisEddyModel:
+class HysteresisEddyModel(SeenCurrentModel):
     """i = j + d_iron(j) + eps j + delta + tau dj/dt, F = law(j): see the module docstring."""
 
     law: StaticLaw
@@ -144,22 +145,6 @@ class HysteresisEddyModel:
             j = j_new
         raise CompensatorError(f"hysteresis_eddy model: the current-to-flux fixed point did not converge "
                                f"(last step {steps[-1]:.3g} A after {_MAX_ITER} passes)")
-
-    # --- the ForceModel interface -----------------------------------------------------------------
-    def force_period(self, current_a: np.ndarray, frequency_hz: float) -> np.ndarray:
-        """The actuator's force (N) over one period of the coil current."""
-        return self.law.force(self.effective_current(current_a, frequency_hz))
-
-    def current_period(self, force_n: np.ndarray, frequency_hz: float,
-                       current_limit_a: float | None = None) -> np.ndarray:
-        """The coil current (one period) that makes the actuator produce ``force_n``."""
-        return self.current_for(self.law.invert(force_n, current_limit_a=current_limit_a), frequency_hz)
-
-    def flux_lag_rad(self, current_a: np.ndarray, frequency_hz: float) -> float:
-        """The model's theta_hyst: phase of j's fundamental behind the current's (what the method
-        measures as flux behind current)."""
-        j = self.effective_current(current_a, frequency_hz)
-        return float(np.angle(np.fft.rfft(current_a)[1] / np.fft.rfft(j)[1]))
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "name": self.name, "law": self.law.to_dict(), "scaling": self.scaling.to_dict(),

@@ -24,6 +24,7 @@ import numpy as np
 
 from .errors import CompensatorError
 from .periodic import derivative, harmonics
+from .seen_current import SeenCurrentModel
 from .static import StaticLaw
 
 __all__ = ["RayleighLoopModel", "fit_rayleigh_loop", "TERMS"]
@@ -48,7 +49,7 @@ def _columns(j: np.ndarray, frequency_hz: float) -> np.ndarray:
 
 
 @dataclass
-class RayleighLoopModel:
+class RayleighLoopModel(SeenCurrentModel):
     """See the module docstring; ``coef`` are the values of :data:`TERMS`."""
 
     law: StaticLaw
@@ -82,15 +83,6 @@ class RayleighLoopModel:
             raise CompensatorError(f"rayleigh_loop model: the current-to-flux fixed point did not converge "
                                    f"(last step {step:.3g} A after {_MAX_ITER} passes)")
         return j
-
-    def force_period(self, current_a: np.ndarray, frequency_hz: float) -> np.ndarray:
-        """The actuator's force (N) over one period of the coil current."""
-        return self.law.force(self.effective_current(current_a, frequency_hz))
-
-    def current_period(self, force_n: np.ndarray, frequency_hz: float,
-                       current_limit_a: float | None = None) -> np.ndarray:
-        """The coil current (one period) that makes the actuator produce ``force_n``."""
-        return self.current_for(self.law.invert(force_n, current_limit_a=current_limit_a), frequency_hz)
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "name": self.name, "law": self.law.to_dict(), "terms": list(TERMS),

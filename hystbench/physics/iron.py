@@ -54,6 +54,14 @@ from .hysteresis import HysteresisState, PreisachHysteresis, _run, _Work
 __all__ = ["RayleighIron", "ComplexPermeabilityIron", "IronModel", "iron_model", "refuse_saturation"]
 
 
+
+def _checked(material: Mapping[str, Any], model: str) -> dict[str, Any]:
+    """The material file checked again, refused unless it is of ``model``."""
+    m = check_material(material)
+    if m["model"] != model:
+        raise ConfigError(f"{m['_source']}: model {m['model']!r} is not {model!r}")
+    return m
+
 class RayleighIron:
     """Rayleigh's law with B as input, with the interface the E-core uses from
     :class:`~.hysteresis.PreisachHysteresis` (see the module docstring for the law)."""
@@ -81,9 +89,7 @@ class RayleighIron:
     @classmethod
     def from_config(cls, material: Mapping[str, Any]) -> "RayleighIron":
         """From ``hystbench.config.load_material(name)`` (checked again here)."""
-        m = check_material(material)
-        if m["model"] != "rayleigh":
-            raise ConfigError(f"{m['_source']}: model {m['model']!r} is not 'rayleigh'")
+        m = _checked(material, "rayleigh")
         r = m["rayleigh"]
         return cls(r["initial_mu_r"], r["hysteresis_coefficient_m_per_a"], r["region_t"], m["_source"])
 
@@ -151,9 +157,7 @@ class ComplexPermeabilityIron:
     @classmethod
     def from_config(cls, material: Mapping[str, Any]) -> "ComplexPermeabilityIron":
         """From ``hystbench.config.load_material(name)`` (checked again here)."""
-        m = check_material(material)
-        if m["model"] != "complex-permeability":
-            raise ConfigError(f"{m['_source']}: model {m['model']!r} is not 'complex-permeability'")
+        m = _checked(material, "complex-permeability")
         p = m["permeability"]
         return cls(p["mu_r_real"], p["loss_angle_deg"], m["_source"])
 
