@@ -101,3 +101,24 @@ def test_learning_reaches_twice_the_noise_floor_on_a_foreign_bench(name):
     ratios = [r.ratio for r in res.history]
     assert res.reached_at is not None and res.reached_at <= 10, ratios
     assert ratios[-1] <= 2.0, ratios
+
+
+@pytest.mark.parametrize("name", ["ecore~elliptic", "ecore~rayleigh"])
+def test_each_iron_description_inverts_itself_and_survives_its_model_file(name, tmp_path):
+    """The describing function and the Rayleigh loops: the feed-forward (force -> current) and the
+    prediction (current -> force) are inverses, and a model file written and read back predicts the same."""
+    import numpy as np
+
+    from hystbench.compensator import ModelSet, predict_measured
+
+    models, _ = fitted(name)
+    best = models["best"]
+    assert best.name in ("describing_function", "rayleigh_loop")
+    ref = ForceReference.parse("offset=2,amp=1,freq=320,h2=0.2@30")
+    i = best.current_period(ref.force_n, ref.frequency_hz)
+    assert best.force_period(i, ref.frequency_hz) == pytest.approx(ref.force_n, abs=1e-6 * 3.0)
+    back = ModelSet.load(models.save(tmp_path / "m.json"))
+    assert back["best"].name == best.name
+    a = predict_measured(best, i, 320.0, models.instrument)
+    b = predict_measured(back["best"], i, 320.0, back.instrument)
+    assert np.max(np.abs(a - b)) < 1e-9
