@@ -93,7 +93,8 @@ CATALOGUE: Mapping[str, Effect] = MappingProxyType({e.name: e for e in [
     _e("magnet_eddy_currents",
        "eddy currents in a conducting magnet (NdFeB, SmCo) oppose flux change: extra lag"),
     _e("iron_saturation",
-       "the iron's single-valued B-H curve bends towards saturation instead of staying linear"),
+       "the iron's single-valued B-H curve bends towards saturation instead of staying linear (Preisach "
+       "materials only: refused for a complex-permeability or Rayleigh iron, which have no saturation)"),
     _e("instrument_filter",
        "load cell + frame and charge amplifier as two 2nd-order low-passes (paper Figs. 8-9)"),
     _e("frame_resonance",
