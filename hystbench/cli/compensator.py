@@ -19,9 +19,13 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from .args import float_in, nonnegative_int, path_arg, positive_float
+from .args import float_in, int_in, nonnegative_int, path_arg, positive_float
 
 __all__ = ["register"]
+
+#: Learning iterations a command may ask for: each plays a measurement on the bench (a few tenths of a
+#: second and the settling); the loop reaches its noise floor in a few, so more is a typo, not a wish.
+MAX_ITERATIONS = 200
 
 #: The model kinds (``compensator.MODEL_KINDS``; repeated so that building the parser imports nothing).
 MODEL_KINDS = ("nonhysteretic", "paper", "best")
@@ -279,7 +283,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--learn", action="store_true", help="iterative learning on the measured force error")
     p.add_argument("--model", type=path_arg, help="model file (default: identify on the simulated rig first, ~5 s)")
     p.add_argument("--kind", choices=MODEL_KINDS, default="best", help="feed-forward model (default best)")
-    p.add_argument("--iterations", type=nonnegative_int, default=10, help="learning iterations (default 10)")
+    p.add_argument("--iterations", type=int_in(0, MAX_ITERATIONS), default=10,
+                   help=f"learning iterations, 0-{MAX_ITERATIONS} (default 10; the loop reaches its noise floor in a few)")
     p.add_argument("--gain", type=float_in(0.0, 1.5), default=0.8,
                    help="learning gain in (0, 1.5]; above 1 the error overshoots each iteration (default 0.8)")
     p.add_argument("--measure", type=float_in(0.0, 60.0), default=0.25,

@@ -69,6 +69,7 @@ def test_compensate_learns_and_reports_each_iteration(model_file, capsys):
     (["--rig", "ecore_pm"], "give --force"),
     (["--rig", "ecore_pm", "--force-file", "x.csv"], "--force-file needs --freq"),
     (["--rig", "ecore", "--force", "offset=2,amp=1,freq=320"], "models of 'ecore_pm', but --rig is 'ecore'"),
+    (["--rig", "ecore_pm", "--force", "offset=170,amp=40,freq=320", "--iterations", "100000"], "--iterations"),
 ])
 def test_compensate_refuses_what_the_actuator_cannot_do(model_file, capsys, argv, message):
     assert run(["compensate", *argv, "--model", str(model_file)]) == 2
