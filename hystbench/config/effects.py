@@ -236,7 +236,10 @@ def parse_effect_args(args: Iterable[str]) -> dict[str, Mapping[str, Any] | bool
         key, sep, raw = arg.partition("=")
         if not sep:
             raise ConfigError(f"--effect {arg!r}: expected NAME=VALUE")
-        name, _, param = key.partition(".")
+        name, dot, param = key.partition(".")
+        if dot and not param:  # not the primary parameter silently: the user meant one and left it out
+            raise ConfigError(f"--effect {arg!r}: no parameter name after {name + '.'!r}; "
+                              f"use {name}=VALUE or {name}.PARAM=VALUE")
         if name not in CATALOGUE:
             raise ConfigError(f"--effect {arg!r}: unknown effect {name!r}; known: {', '.join(CATALOGUE)}")
         if not param and raw.strip().lower() in _ON | _OFF:

@@ -41,6 +41,7 @@ def test_command_line_switches_and_parameters():
     ("sensor_noise=loud", "not on/off or a number"),
     ("channel_skew=1e-6", "use channel_skew.PARAM=VALUE"),
     ("sensor_noise.volume=1", "no parameter 'volume'"),
+    ("sensor_noise.=1", "no parameter name after 'sensor_noise.'"),
 ])
 def test_bad_effect_arguments_name_the_argument(arg, words):
     with pytest.raises(ConfigError, match=words):
