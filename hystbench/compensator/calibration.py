@@ -36,7 +36,8 @@ from scipy.signal import hilbert
 from ..physics.instrument import InstrumentModel
 from .data import PeriodData
 from .errors import CompensatorError
-from .periodic import apply_response, denoise, noise_floor_rms, resample
+from .lsq import linear_fit, solution_covariance
+from .periodic import apply_response, denoise, noise_floor_rms, resample, shift
 from .static import StaticLaw
 
 __all__ = ["SweepCalibration", "calibrate", "fit_delayed_law", "clean_flux", "FIT_POINTS"]
@@ -124,17 +125,6 @@ def _start(ff: _ForceFlux) -> np.ndarray:
     return np.concatenate(([p2, p1[0], coef[1 + r]], u0[1:]))  # recording 0's u0 is the gauge (0)
 
 
-def _covariance(sol) -> np.ndarray:
-    """Parameter covariance of a least-squares solution, scaled by its reduced chi^2."""
-    jac = sol.jac
-    dof = max(jac.shape[0] - jac.shape[1], 1)
-    s2 = 2.0 * sol.cost / dof
-    try:
-        return np.linalg.pinv(jac.T @ jac) * s2
-    except np.linalg.LinAlgError:
-        return np.full((jac.shape[1], jac.shape[1]), np.nan)
-
-
 def calibrate(points: Sequence[PeriodData], instrument: InstrumentModel, magnet: bool, *,
               n_fit: int = FIT_POINTS) -> SweepCalibration:
     """Steps 1-3 of the module docstring for one bench's sweep."""
@@ -142,8 +132,8 @@ def calibrate(points: Sequence[PeriodData], instrument: InstrumentModel, magnet:
         raise CompensatorError(f"the static law needs at least 2 recordings of the sweep, got {len(points)}")
     ff = _ForceFlux(points, instrument, n_fit)
     sol = least_squares(ff.residual, _start(ff), x_scale="jac", max_nfev=200)
-    x, cov = sol.x, _covariance(sol)
-    resid = ff.residual(x)
+    x, resid = sol.x, sol.fun
+    cov = solution_covariance(sol.jac, resid)
     force_rms = [float(np.sqrt(np.mean((r / w) ** 2))) * ff.s_f
                  for r, w in zip(np.split(resid, len(points)), ff.weights)]
 
@@ -160,11 +150,9 @@ def calibrate(points: Sequence[PeriodData], instrument: InstrumentModel, magnet:
         w = 1.0 / max(float(np.ptp(i)), 1e-9)
         rows.append(w * cols)
         rhs.append(w * i)
-    a, b = np.vstack(rows), np.concatenate(rhs)
-    coef, *_ = np.linalg.lstsq(a, b, rcond=None)
-    dof = max(b.size - coef.size, 1)
-    cov_i = np.linalg.pinv(a.T @ a) * float(np.sum((b - a @ coef) ** 2)) / dof
-    kappa, c = float(coef[0]), float(coef[1])
+    flux_map = linear_fit(np.vstack(rows), np.concatenate(rhs))
+    cov_i = flux_map.cov
+    kappa, c = float(flux_map.coef[0]), float(flux_map.coef[1])
 
     # step 3: the law in j, F = P2' phi^2 + Q1' phi + Q0 with phi = (j - c) / kappa
     p2, q1, q0 = x[0] * ff.s_f / ff.s_phi ** 2, x[1] * ff.s_f / ff.s_phi, x[2] * ff.s_f
@@ -208,8 +196,6 @@ def fit_delayed_law(points: Sequence[PeriodData], instrument: InstrumentModel, m
     i_d each recording's current delayed by its measured theta_hyst, by linear least squares over
     the sweep (each recording weighted by its own force range, as the accuracy counts).  Without a
     magnet k1 = 0 (the force is even in the current).  Returns the law and its standard errors."""
-    from .periodic import shift
-
     rows, rhs = [], []
     for p in points:
         theta = p.theta_hyst_rad if np.isfinite(p.theta_hyst_rad) else 0.0
@@ -220,11 +206,8 @@ def fit_delayed_law(points: Sequence[PeriodData], instrument: InstrumentModel, m
         w = 1.0 / max(p.force_range_n, 1e-12)
         rows.append(w * np.stack(cols, axis=1))
         rhs.append(w * resample(np.asarray(p.force_n, float), n_fit))
-    a, b = np.vstack(rows), np.concatenate(rhs)
-    coef, *_ = np.linalg.lstsq(a, b, rcond=None)
-    dof = max(b.size - coef.size, 1)
-    cov = np.linalg.pinv(a.T @ a) * float(np.sum((b - a @ coef) ** 2)) / dof
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    fit = linear_fit(np.vstack(rows), np.concatenate(rhs))
+    coef, se = fit.coef, fit.se
     if not magnet:
         coef, se = np.array([coef[0], 0.0, coef[1]]), np.array([se[0], 0.0, se[1]])
     if not coef[2] > 0:

@@ -29,6 +29,7 @@ from typing import Sequence
 import numpy as np
 
 from .errors import CompensatorError
+from .lsq import linear_fit
 from .periodic import harmonics
 from .seen_current import SeenCurrentModel
 from .static import StaticLaw
@@ -119,18 +120,9 @@ def fit_describing_function(js: Sequence[np.ndarray], currents: Sequence[np.ndar
         y_im.append(g.imag)
         w.append(amp)
     w = np.asarray(w) / max(w)
-    out = []
-    for rows, y in ((rows_re, y_re), (rows_im, y_im)):
-        a = np.asarray(rows) * w[:, None]
-        b = np.asarray(y) * w
-        scale = np.max(np.abs(a), axis=0)
-        coef, *_ = np.linalg.lstsq(a / scale, b, rcond=None)
-        coef = coef / scale
-        dof = max(b.size - coef.size, 1)
-        resid = b - a @ coef
-        cov = np.linalg.pinv(a.T @ a) * float(resid @ resid) / dof
-        out.append((coef, np.sqrt(np.maximum(np.diag(cov), 0.0)), resid))
-    (re, re_se, re_res), (im, im_se, im_res) = out
+    fits = [linear_fit(np.asarray(rows) * w[:, None], np.asarray(y) * w)
+            for rows, y in ((rows_re, y_re), (rows_im, y_im))]
+    (re, re_se, re_res), (im, im_se, im_res) = ((f.coef, f.se, f.resid) for f in fits)
     offset = float(np.mean([np.mean(i) - np.mean(j) for j, i in zip(js, currents)]))
     report = {"re": {t: [float(c), float(s)] for t, c, s in zip(RE_TERMS, re, re_se)},
               "im": {t: [float(c), float(s)] for t, c, s in zip(IM_TERMS, im, im_se)},

@@ -37,6 +37,8 @@ from .describing import DescribingFunctionModel, fit_describing_function
 from .errors import CompensatorError
 from .hysteresis_eddy import (FIT_TABLES, HysteresisEddyModel, IronScaling, coercive_guess, iron_drop,
                               material_dict, preisach_params)
+from .lsq import scaled_lstsq, solution_covariance
+from .models import ForceModel, predict_measured
 from .periodic import apply_response, denoise, derivative, resample
 from .rayleigh_loop import RayleighLoopModel, fit_rayleigh_loop
 
@@ -49,25 +51,34 @@ START_SPREADS = (0.12, 0.3)
 
 @dataclass(frozen=True)
 class IronData:
-    """What the iron descriptions are fitted on: per recording, one period of j, d = i - j and i."""
+    """What the iron descriptions are fitted on, per recording: one period of j and of the
+    (denoised) coil current i, the weight of each sample -- dF/dj over the recording's force range,
+    so a residual in current counts as the force error the accuracy measures -- and the force
+    instrument at the recording's frequency (residuals go through it: near its resonance a loop's
+    harmonics count 20-50x, as they do in what the load cell reports)."""
 
     points: tuple[PeriodData, ...]
     js: tuple[np.ndarray, ...]
     currents: tuple[np.ndarray, ...]
+    weights: tuple[np.ndarray, ...]
+    through: tuple[Callable[[np.ndarray], np.ndarray], ...]
 
     def subset(self, keep: Sequence[int]) -> "IronData":
-        return IronData(*(tuple(x[k] for k in keep) for x in (self.points, self.js, self.currents)))
+        return IronData(*(tuple(x[k] for k in keep)
+                          for x in (self.points, self.js, self.currents, self.weights, self.through)))
 
 
-def _instrument(cal: SweepCalibration, p: PeriodData) -> Callable[[np.ndarray], np.ndarray]:
-    """One period through the force instrument at ``p``'s frequency."""
-    return lambda x: apply_response(x, p.frequency_hz, cal.instrument.frequency_response)
+def _instrument(instrument: InstrumentModel, frequency_hz: float) -> Callable[[np.ndarray], np.ndarray]:
+    """One period through the force instrument at ``frequency_hz``."""
+    return lambda x: apply_response(x, frequency_hz, instrument.frequency_response)
 
 
 def iron_data(points: Sequence[PeriodData], cal: SweepCalibration, n_fit: int = FIT_POINTS) -> IronData:
     js = tuple(cal.seen_current(k, resample(clean_flux(p), n_fit)) for k, p in enumerate(points))
     currents = tuple(resample(denoise(p.current_a, p.average_noise_a()), n_fit) for p in points)
-    return IronData(tuple(points), js, currents)
+    weights = tuple(np.abs(cal.law.slope(j)) / max(p.force_range_n, 1e-12) for j, p in zip(js, points))
+    through = tuple(_instrument(cal.instrument, p.frequency_hz) for p in points)
+    return IronData(tuple(points), js, currents, weights, through)
 
 
 # --- candidate 1: Preisach iron + eddy term --------------------------------------------------------
@@ -87,10 +98,9 @@ def fit_hysteresis_eddy(data: IronData, cal: SweepCalibration, scaling: IronScal
     if len(data.points) < 2:
         raise CompensatorError(f"hysteresis_eddy fit needs at least 2 recordings, got {len(data.points)}")
     law = cal.law
-    js = data.js
+    js, weights, through = data.js, data.weights, data.through
     ds = [i - j for i, j in zip(data.currents, js)]
     djs = [derivative(j, p.frequency_hz) for j, p in zip(js, data.points)]
-    weights = [np.abs(law.slope(j)) / max(p.force_range_n, 1e-12) for j, p in zip(js, data.points)]
     magnet = law.magnet and cal.bias_current_a > 0
     b0_start = scaling.b_per_a * cal.bias_current_a if magnet else 0.0
     hc = coercive_guess(ds, scaling)
@@ -99,12 +109,7 @@ def fit_hysteresis_eddy(data: IronData, cal: SweepCalibration, scaling: IronScal
 
     # tau, eps and delta enter linearly: solved for at every trial iron (variable projection), so the
     # nonlinear search runs over the iron alone (10 parameters, 11 with the magnet's bias)
-    # every residual goes through the instrument: the fit minimises the force error the load cell
-    # reports, where the harmonics near its resonance count 20-50x (what a loop's shape must get right)
-    through = [_instrument(cal, p) for p in data.points]
-    lin_cols = [np.stack([h(w * dj), h(w * j), h(w)], axis=1) for j, dj, w, h in zip(js, djs, weights, through)]
-    lin_a = np.vstack(lin_cols)
-    lin_scale = np.max(np.abs(lin_a), axis=0)
+    lin_a = np.vstack([np.stack([h(w * dj), h(w * j), h(w)], axis=1) for j, dj, w, h in zip(js, djs, weights, through)])
 
     def scaling_of(x: np.ndarray) -> IronScaling:
         return IronScaling(b0_start * math.exp(x[10]) if magnet else 0.0, scaling.b_per_a, scaling.d_per_h)
@@ -113,7 +118,7 @@ def fit_hysteresis_eddy(data: IronData, cal: SweepCalibration, scaling: IronScal
         iron = PreisachHysteresis(preisach_params(_unpack(x, h_scale), FIT_TABLES))
         sc = scaling_of(x)
         rest = np.concatenate([h(w * (iron_drop(iron, sc, j) - d)) for j, d, w, h in zip(js, ds, weights, through)])
-        coef = np.linalg.lstsq(lin_a / lin_scale, -rest, rcond=None)[0] / lin_scale
+        coef = scaled_lstsq(lin_a, -rest)
         return rest + lin_a @ coef, coef
 
     def residual(x: np.ndarray) -> np.ndarray:
@@ -143,10 +148,8 @@ def fit_hysteresis_eddy(data: IronData, cal: SweepCalibration, scaling: IronScal
     sc = scaling_of(best.x)
     model = HysteresisEddyModel(law, sc, _unpack(best.x, h_scale), float(tau), linear=float(eps),
                                 offset_a=float(delta))
-    dof = max(res.size - best.x.size - 3, 1)
-    s2 = float(res @ res) / dof
-    se = np.sqrt(np.maximum(np.diag(np.linalg.pinv(best.jac.T @ best.jac) * s2), 0.0))
-    se_lin = np.sqrt(np.maximum(np.diag(np.linalg.pinv(lin_a.T @ lin_a) * s2), 0.0))
+    se = np.sqrt(np.maximum(np.diag(solution_covariance(best.jac, res, extra_parameters=3)), 0.0))
+    se_lin = np.sqrt(np.maximum(np.diag(solution_covariance(lin_a, res, extra_parameters=best.x.size)), 0.0))
     names = ["log j_irr", "log gauss centre", "log gauss width", "log lorentz weight", "log lorentz centre",
              "log lorentz width", "log J1", "log h1", "log J2", "log h2"] + (["log b0 factor"] if magnet else [])
     params = {n: [float(v), float(e)] for n, v, e in zip(names, best.x, se)}
@@ -170,9 +173,8 @@ def fit_describing(data: IronData, cal: SweepCalibration, scaling: IronScaling) 
 
 # --- candidate 3: Rayleigh loops ---------------------------------------------------------------------
 def fit_rayleigh(data: IronData, cal: SweepCalibration, scaling: IronScaling) -> RayleighLoopModel:
-    weights = [np.abs(cal.law.slope(j)) / max(p.force_range_n, 1e-12) for j, p in zip(data.js, data.points)]
-    return fit_rayleigh_loop(data.js, data.currents, [p.frequency_hz for p in data.points], weights, cal.law,
-                             [p.name for p in data.points], [_instrument(cal, p) for p in data.points])
+    return fit_rayleigh_loop(data.js, data.currents, [p.frequency_hz for p in data.points], data.weights, cal.law,
+                             [p.name for p in data.points], data.through)
 
 
 Fitter = Callable[[IronData, SweepCalibration, IronScaling], object]
@@ -197,11 +199,10 @@ def held_out_folds(points: Sequence[PeriodData]) -> list[tuple[str, list[int]]]:
     return [(n, k) for n, k in folds if 0 < len(k) < len(points) - 2]
 
 
-def _held_out_error_n(model, point: PeriodData, instrument: InstrumentModel) -> float:
+def _held_out_error_n(model: ForceModel, point: PeriodData, instrument: InstrumentModel) -> float:
     """max|dF| of ``model`` on ``point`` (the measured force against the prediction), N."""
-    i = denoise(point.current_a, point.average_noise_a())
-    pred = apply_response(model.force_period(i, point.frequency_hz), point.frequency_hz,
-                          instrument.frequency_response)
+    pred = predict_measured(model, point.current_a, point.frequency_hz, instrument,
+                            current_noise_a=point.average_noise_a())
     return float(np.max(np.abs(point.force_n - pred)))
 
 

@@ -15,8 +15,8 @@ the model's force through the instrument's response (:func:`predict_measured`): 
 corrected in the measurement, never put into the actuator's command.
 
 A :class:`ModelSet` is what ``hystbench model fit`` writes: the rig, the instrument model used,
-the three models, what the identification found (law and instrument with standard errors, the
-iron description chosen and why) and how well each model fits the sweep (JSON, ``FORMAT``; files of
+the three models, what the identification found (law, magnet bias and flux map with standard
+errors, the iron description chosen and why) and how well each model fits the sweep (JSON, ``FORMAT``; files of
 the first format, ``hystbench-force-models/1``, are still read: their models are the same kinds).
 """
 
@@ -35,12 +35,13 @@ from ..errors import ConfigError
 from ..physics import presets
 from ..physics.instrument import InstrumentModel
 from ..physics.phase_delay_model import PhaseDelayModel
+from .calibration import calibrate, fit_delayed_law
 from .data import PeriodData
-from .errors import CompensatorError
 from .describing import DescribingFunctionModel
+from .errors import CompensatorError
 from .hysteresis_eddy import HysteresisEddyModel, IronScaling
-from .rayleigh_loop import RayleighLoopModel
 from .periodic import apply_response, denoise, shift
+from .rayleigh_loop import RayleighLoopModel
 from .static import StaticLaw
 
 __all__ = ["ForceModel", "NonHysteretic", "PaperModel", "ModelSet", "MODEL_KINDS", "FORMAT", "fit_models",
@@ -50,6 +51,8 @@ FORMAT = "hystbench-force-models/2"
 #: Earlier formats this version reads (their entries are a subset of this one's).
 READABLE_FORMATS = (FORMAT, "hystbench-force-models/1")
 MODEL_KINDS = ("nonhysteretic", "paper", "best")
+#: The best model's iron descriptions, by the ``name`` a model file gives them (format 1: always Preisach).
+BEST_DESCRIPTIONS = {cls.name: cls for cls in (HysteresisEddyModel, DescribingFunctionModel, RayleighLoopModel)}
 
 
 @runtime_checkable
@@ -145,14 +148,9 @@ def model_from_dict(d: Mapping[str, Any]) -> ForceModel:
                           tuple(map(float, d["theta_hyst_rad"])))
     if kind == "best":
         name = d.get("name", HysteresisEddyModel.name)
-        if name == DescribingFunctionModel.name:
-            return DescribingFunctionModel.from_dict(dict(d))
-        if name == RayleighLoopModel.name:
-            return RayleighLoopModel.from_dict(dict(d))
-        if name == HysteresisEddyModel.name:
-            return HysteresisEddyModel.from_dict(dict(d))
-        raise ConfigError(f"unknown best-model iron description {name!r}; known: "
-                          f"{HysteresisEddyModel.name}, {DescribingFunctionModel.name}, {RayleighLoopModel.name}")
+        if name not in BEST_DESCRIPTIONS:
+            raise ConfigError(f"unknown best-model iron description {name!r}; known: {', '.join(BEST_DESCRIPTIONS)}")
+        return BEST_DESCRIPTIONS[name].from_dict(dict(d))
     raise ConfigError(f"unknown force model kind {kind!r}; known: {', '.join(MODEL_KINDS)}")
 
 
@@ -247,10 +245,10 @@ def fit_models(points: Sequence[PeriodData], preset: Mapping[str, Any],
                instrument: InstrumentModel | None = None, *, kinds: Sequence[str] = MODEL_KINDS,
                tick: Callable[[], None] | None = None) -> ModelSet:
     """Every model of ``kinds`` from one bench's sweep (``points``: its recordings as period
-    averages).  The preset only starts the fit (its instrument, or ``instrument`` when given, and
-    the scale of its iron); the law, the instrument and the iron come from the sweep."""
-    from .calibration import calibrate, fit_delayed_law
-    from .identify import fit_best
+    averages).  The force instrument is ``instrument`` (a voice coil's identification), else the
+    preset's; the preset's geometry only sets the Preisach description's B scale; the law, the
+    magnet's bias and the iron come from the sweep."""
+    from .identify import fit_best  # identify uses this module's predict_measured
 
     rig = str(preset.get("name"))
     if preset.get("actuator") != "ecore":

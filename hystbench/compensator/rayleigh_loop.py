@@ -23,6 +23,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .errors import CompensatorError
+from .lsq import linear_fit
 from .periodic import derivative, harmonics
 from .seen_current import SeenCurrentModel
 from .static import StaticLaw
@@ -31,6 +32,9 @@ __all__ = ["RayleighLoopModel", "fit_rayleigh_loop", "TERMS"]
 
 TERMS = ("delta_A", "a0", "a1_per_A", "e_per_A", "c_per_A", "tau_s")
 _MAX_ITER, _TOL_A = 60, 1e-10
+#: A fixed point stalled below this is accepted: where a turning point sits between two samples the
+#: branch direction flips with it, so the map has steps of a few nA (force error < 1e-6 of range).
+_STALL_A = 1e-6
 
 
 def _loop_basis(j: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -67,19 +71,18 @@ class RayleighLoopModel(SeenCurrentModel):
         """j for one period of the coil current: the linear and eddy terms exact per harmonic, the
         loop's curvature by fixed point (it is a few % of j)."""
         i = np.asarray(current_a, float)
-        delta, a0, a1, e, c, tau = self.coef
+        _, a0, a1, _, _, tau = self.coef
         j = i.copy()
         for _ in range(_MAX_ITER):
-            x, s, m, a = _loop_basis(j)
-            lin = a0 + a1 * a
-            rest = delta - lin * m + e * x * x - 0.5 * c * s * ((x + s * a) ** 2 - 2 * a * a)
+            lin = a0 + a1 * _loop_basis(j)[3]  # the in-phase slope at this amplitude
+            rest = self.current_for(j, frequency_hz) - (1.0 + lin) * j - tau * derivative(j, frequency_hz)
             lag = 1.0 + lin + 2j * np.pi * frequency_hz * tau * harmonics(i.size)
             j_new = np.fft.irfft(np.fft.rfft(i - rest) / lag, i.size)
             step = float(np.max(np.abs(j_new - j)))
             j = j_new
             if step < _TOL_A:
                 return j
-        if step > 1e-6:
+        if step > _STALL_A:
             raise CompensatorError(f"rayleigh_loop model: the current-to-flux fixed point did not converge "
                                    f"(last step {step:.3g} A after {_MAX_ITER} passes)")
         return j
@@ -108,15 +111,9 @@ def fit_rayleigh_loop(js: Sequence[np.ndarray], currents: Sequence[np.ndarray], 
     a = np.vstack([np.apply_along_axis(h, 0, w[:, None] * _columns(j, f))
                    for j, f, w, h in zip(js, freqs_hz, weights, through)])
     b = np.concatenate([h(w * (i - j)) for j, i, w, h in zip(js, currents, weights, through)])
-    scale = np.max(np.abs(a), axis=0)
-    scale[scale == 0] = 1.0
-    coef, *_ = np.linalg.lstsq(a / scale, b, rcond=None)
-    coef = coef / scale
-    resid = b - a @ coef
-    dof = max(b.size - coef.size, 1)
-    cov = np.linalg.pinv(a.T @ a) * float(resid @ resid) / dof
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    per = np.split(resid, np.cumsum([j.size for j in js])[:-1])
+    fit = linear_fit(a, b)
+    coef, se = fit.coef, fit.se
+    per = np.split(fit.resid, np.cumsum([j.size for j in js])[:-1])
     report = {"parameters": {t: [float(c), float(s)] for t, c, s in zip(TERMS, coef, se)},
               "max_weighted_residual_pct": {n: 100.0 * float(np.max(np.abs(r))) for n, r in zip(names, per)}}
     return RayleighLoopModel(law, tuple(float(c) for c in coef), report)

@@ -83,18 +83,12 @@ def quick_instrument(bench: Mapping[str, object], *, seed: int = 77) -> Instrume
     ferrite voice coil (no eddy currents) on the bench's load cell and charge amplifier, a stepped
     sine of :data:`VOICE_COIL_FREQS_HZ`, the two-filter model fitted to force / current."""
     from ..analysis.identification import fit_instrument, frequency_response
+    from ..sim_backend.benches import voice_coil_on_load_cell
     from ..sim_backend.recordings import simulate_voice_coil_sweep
 
-    coil = {k: v for k, v in load_rig("voicecoil_ferrite").items() if k != "_source"}
-    coil["instrument"] = dict(bench["instrument"])  # type: ignore[arg-type]
-    # the load cell's frame modes are the bench's, not the catalogue voice coil's
-    effects = {k: v for k, v in coil["effects"].items() if k != "frame_resonance"}  # type: ignore[union-attr]
-    if "frame_resonance" in bench["effects"]:  # type: ignore[operator]
-        effects["frame_resonance"] = bench["effects"]["frame_resonance"]  # type: ignore[index]
-    coil["effects"] = effects
-    coil["_source"] = f"voice coil on the load cell of {bench.get('_source', bench.get('name'))}"
-    return fit_instrument(frequency_response(simulate_voice_coil_sweep(load_rig(coil), VOICE_COIL_FREQS_HZ,
-                                                                       seed=seed, samples_per_period=100.0))).model
+    recs = simulate_voice_coil_sweep(voice_coil_on_load_cell(bench), VOICE_COIL_FREQS_HZ, seed=seed,
+                                     samples_per_period=100.0)
+    return fit_instrument(frequency_response(recs)).model
 
 
 def predict_recording(models: ModelSet, rec: Recording, kind: str) -> tuple[np.ndarray, np.ndarray]:

@@ -39,7 +39,7 @@ from ..physics.iron import ComplexPermeabilityIron
 from ..physics.mec import ECoreMEC
 from ..physics.presets import ecore_mec
 
-__all__ = ["ForeignBench", "FOREIGN_BENCHES", "foreign_preset", "bench_truth", "IRONS"]
+__all__ = ["ForeignBench", "FOREIGN_BENCHES", "foreign_preset", "bench_truth", "voice_coil_on_load_cell", "IRONS"]
 
 #: A bench's iron (the suffix of its name) -> (material file, lamination thickness m, conductivity S/m):
 #: M130-27S comes in 0.27 mm sheets of higher-silicon steel (resistivity ~52 uOhm cm); the SiFe irons
@@ -144,6 +144,20 @@ def foreign_preset(name: str) -> dict[str, Any]:
     p["description"] = _describe(bench)
     p["_source"] = f"foreign bench {bench.name} (hystbench.sim_backend.benches)"
     return load_rig(p)
+
+
+def voice_coil_on_load_cell(bench: Mapping[str, Any]) -> dict[str, Any]:
+    """The ferrite voice coil (no eddy currents: the paper's instrument identification, Sec. IV)
+    mounted on ``bench``'s load cell and charge amplifier: the bench's instrument table and its frame
+    modes, not the catalogue voice coil's.  A checked rig preset."""
+    coil = {k: v for k, v in load_rig("voicecoil_ferrite").items() if k != "_source"}
+    coil["instrument"] = dict(bench["instrument"])
+    effects = {k: v for k, v in coil["effects"].items() if k != "frame_resonance"}
+    if "frame_resonance" in bench["effects"]:
+        effects["frame_resonance"] = bench["effects"]["frame_resonance"]
+    coil["effects"] = effects
+    coil["_source"] = f"voice coil on the load cell of {bench.get('_source', bench.get('name'))}"
+    return load_rig(coil)
 
 
 def bench_truth(name: str) -> dict[str, Any]:

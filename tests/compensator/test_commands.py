@@ -80,15 +80,11 @@ def test_model_fit_takes_the_instrument_from_a_voice_coil_sweep_on_the_same_load
     """A bench whose load cell is not the preset's (fn 4 % low, damping x1.3): `model fit
     --instrument-sweep` fits the instrument from the voice coil's sweep and the models use it; the
     report names the chosen iron description."""
-    from hystbench.config import load_rig
-    from hystbench.sim_backend.benches import foreign_preset
+    from hystbench.sim_backend.benches import foreign_preset, voice_coil_on_load_cell
     from hystbench.sim_backend.recordings import simulate_voice_coil_sweep
 
     bench = foreign_preset("ecore_pm~m130")  # its instrument: fn x0.96, zeta_n x1.3
-    coil = {k: v for k, v in load_rig("voicecoil_ferrite").items() if k != "_source"}
-    coil["instrument"] = dict(bench["instrument"])
-    coil["effects"] = {k: v for k, v in coil["effects"].items() if k != "frame_resonance"}
-    write_sweep(simulate_voice_coil_sweep(load_rig(coil), np.geomspace(10.0, 45000.0, 16), seed=3,
+    write_sweep(simulate_voice_coil_sweep(voice_coil_on_load_cell(bench), np.geomspace(10.0, 45000.0, 16), seed=3,
                                           samples_per_period=100.0), tmp_path / "vc")
     write_sweep(simulated_sweep(bench, (40.0, 160.0, 480.0), (0.4, 1.0, 1.5), seed=310), tmp_path / "sweep")
     out = tmp_path / "m.json"

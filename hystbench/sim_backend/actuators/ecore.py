@@ -214,6 +214,15 @@ class ECoreActuator:
         return self.hysteresis.field(b, self._h_state, irreversible=self._irreversible,
                                      saturation=self._saturation, **tie)
 
+    def _pass(self, fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, **tie: float):
+        """One fixed-point pass on the iron's remainder: (B in the coil leg, the new remainder, the
+        iron's state at the block's end, whether the step was below CONVERGED)."""
+        x, _ = self._lag.run(np.stack([fc - h_rest * self.iron_length_m, fm]))
+        h, h_state = self._static_field(x[0], **tie)
+        step = self._newton_step(x[0], h - self._nu0 * x[0] - h_rest)
+        h_rest = h_rest + step
+        return x[0], h_rest, h_state, bool(np.max(np.abs(step)) <= CONVERGED * (np.max(np.abs(h_rest)) + 1.0))
+
     def _settle_tie(self, fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, b: np.ndarray,
                     current_a: np.ndarray):
         """The fixed point when MAX_PASSES plain passes did not converge (every block that converged
@@ -234,13 +243,10 @@ class ECoreActuator:
         if peak_b > self.saturation_knee_t or not self._tie:  # Rayleigh's branches close exactly
             raise self._refusal(peak_b, current_a)
         for _ in range(MAX_PASSES):
-            x, _ = self._lag.run(np.stack([fc - h_rest * self.iron_length_m, fm]))
-            h, h_state = self._static_field(x[0], **self._tie)
-            step = self._newton_step(x[0], h - self._nu0 * x[0] - h_rest)
-            h_rest = h_rest + step
-            if np.max(np.abs(step)) <= CONVERGED * (np.max(np.abs(h_rest)) + 1.0):
+            b, h_rest, h_state, converged = self._pass(fc, fm, h_rest, **self._tie)
+            if converged:
                 return h_rest, h_state
-        raise self._refusal(float(np.max(np.abs(x[0]))), current_a)
+        raise self._refusal(float(np.max(np.abs(b))), current_a)
 
     def _refusal(self, peak_b_t: float, current_a: np.ndarray) -> SimulationError:
         """The error for a block whose iron field did not converge: saturation only when the iron
@@ -271,15 +277,12 @@ class ECoreActuator:
         # only the iron's nonlinear remainder h(B) - nu0 B is iterated (a small loop gain).
         h_rest, h_state, passes = self._first_guess(fc.size)
         for n_pass in range(1, MAX_PASSES + 1 if self.hysteresis is not None else 1):
-            x, _ = self._lag.run(np.stack([fc - h_rest * self.iron_length_m, fm]))
-            h, h_state = self._static_field(x[0])
-            step = self._newton_step(x[0], h - self._nu0 * x[0] - h_rest)
-            h_rest = h_rest + step
-            if n_pass >= passes and np.max(np.abs(step)) <= CONVERGED * (np.max(np.abs(h_rest)) + 1.0):
+            b, h_rest, h_state, converged = self._pass(fc, fm, h_rest)
+            if n_pass >= passes and converged:
                 break
         else:
             if self.hysteresis is not None:
-                h_rest, h_state = self._settle_tie(fc, fm, h_rest, x[0], current_a)
+                h_rest, h_state = self._settle_tie(fc, fm, h_rest, b, current_a)
         self._remember(h_rest)
         u = np.stack([fc - h_rest * self.iron_length_m, fm])
         x, lag_state = self._lag.run(u)
