@@ -69,13 +69,14 @@ def paper_phase_only(rec, models) -> float:
     return fe.max_abs_n("instrument") / fe.max_abs_n("hysteresis")
 
 
-def judge(rig: str, models, quick: bool) -> tuple[list[dict], dict]:
+def judge(rig: str, models, quick: bool, bench=None) -> tuple[list[dict], dict]:
+    """Step 2-3 on ``rig`` (the nominal preset's name), or on ``bench`` (a foreign bench's preset)."""
     rows, extra = [], {}
     freqs = (80.0, 320.0) if quick else JUDGE_FREQS_HZ
     for n, f in enumerate(freqs):
         for ipp in (MAIN_IPP[rig], UNSEEN_IPP):
-            rec = simulated_sweep(rig, [f], [ipp], seed=5000 + 10 * n + (ipp == UNSEEN_IPP),
-                                  duration_s=judge_duration_s(f))[0]
+            rec = simulated_sweep(rig if bench is None else bench, [f], [ipp],
+                                  seed=5000 + 10 * n + (ipp == UNSEEN_IPP), duration_s=judge_duration_s(f))[0]
             p = period_data(rec)
             errs = {k: force_error(m, p, models.instrument) for k, m in models.models.items()}
             rows.append({"rig": rig, "frequency_Hz": f, "current_pp_A": ipp, "force_range_N": p.force_range_n,
@@ -131,20 +132,8 @@ def foreign(name: str, quick: bool) -> dict:
     instrument = quick_instrument(preset)
     models = quick_models(bench.nominal, bench=preset, instrument=instrument)
     fit_s = time.monotonic() - t
-    rows, extra = [], {}
-    for n, f in enumerate((80.0, 320.0) if quick else JUDGE_FREQS_HZ):
-        for ipp in (MAIN_IPP[bench.nominal], UNSEEN_IPP):
-            rec = simulated_sweep(preset, [f], [ipp], seed=5000 + 10 * n + (ipp == UNSEEN_IPP),
-                                  duration_s=judge_duration_s(f))[0]
-            p = period_data(rec)
-            errs = {k: force_error(m, p, models.instrument) for k, m in models.models.items()}
-            rows.append({"frequency_Hz": f, "current_pp_A": ipp, "force_range_N": p.force_range_n,
-                         "accuracy_pct": {k: e["accuracy_pct"] for k, e in errs.items()},
-                         "averaged_force_noise_N": p.force_noise_rms_n / np.sqrt(p.periods)})
-            if f == 320.0 and ipp == MAIN_IPP[bench.nominal]:
-                eq1, eq6 = (errs[k]["max_abs_error_N"] for k in ("nonhysteretic", "paper"))
-                extra = {"eq6_reduction_x": eq1 / eq6,
-                         "eq6_oracle_reduction_x": eq1 / phase_delay_bound_n(p, models.instrument)}
+    rows, extra = judge(bench.nominal, models, quick, bench=preset)
+    extra.pop("loops", None)
     ref = foreign_reference(models, bench.nominal)
     act = RigActuation(SimulatedRig(preset, seed=7, frequency_hz=320.0, current_pp_a=0.0),
                        load_bench_config().current_limit_a)
