@@ -56,7 +56,8 @@ def _split_settling(segs: list[Segment], base: dict, settle_s: float, settle_per
 
 def read_mcap_segments(path: str | Path, *, include_idle: bool = False) -> list[Recording]:
     """Every segment of the log as a Recording (metadata: the log's ``recording`` record with the
-    segment's operating point); output-off and settling segments only with ``include_idle``."""
+    segment's operating point; its ``start_time_s``, when of the log's sample 0, becomes the
+    segment's start, ``start_time_s + t0_s``); output-off and settling segments only with ``include_idle``."""
     path = Path(path)
     meta = log_metadata(path)
     base = meta.get("recording")
@@ -71,6 +72,8 @@ def read_mcap_segments(path: str | Path, *, include_idle: bool = False) -> list[
     for s in segs:
         rec = s.recording(base, path)
         rec.path = path
+        if "start_time_s" in base:  # the log's start (its sample 0) on the day's clock: each segment's own
+            rec.metadata["start_time_s"] = float(base["start_time_s"]) + rec.t0_s
         recs.append(rec)
     return recs
 

@@ -117,6 +117,13 @@ class Recording:
         return float(self.metadata["current_pp_A"])
 
     @property
+    def start_time_s(self) -> float | None:
+        """When the recording started on the clock its sweep shares (sidecar ``start_time_s``,
+        seconds); None when the sidecar does not say (slow effects then show in no ordering)."""
+        start = self.metadata.get("start_time_s")
+        return None if start is None else float(start)
+
+    @property
     def n(self) -> int:
         """Samples per channel."""
         return len(next(iter(self.channels.values())))
@@ -199,6 +206,10 @@ def _check_sidecar(meta: Any, where: str) -> None:
     f, fs = meta["frequency_Hz"], meta["sample_rate_Hz"]
     if f >= fs / 2:
         raise RecordingError(f"{where}: frequency_Hz {f!r} is not below half of sample_rate_Hz {fs!r}")
+    start = meta.get("start_time_s")  # optional: the recording's start on the sweep's clock
+    if "start_time_s" in meta and (isinstance(start, bool) or not isinstance(start, numbers.Real)
+                                   or not math.isfinite(start)):
+        raise RecordingError(f"{where}: key 'start_time_s' must be a finite number of seconds, got {start!r}")
 
 
 def _read_text(path: Path) -> str:
