@@ -48,18 +48,13 @@ def _check_size(args, recordings: int = 1) -> None:
 def _simulate_one(args, freq_hz: float, ipp_a: float, seed: int):
     """One recording of the simulated rig; a clipped one is refused before anything is written (a
     channel beyond its ADC full scale is not a measurement), naming the option to change."""
-    from ..errors import SimulationError
     from ..config.effects import parse_effect_args
-    from ..sim_backend.recordings import clipped_channels, simulate_recording
+    from ..sim_backend.recordings import simulate_recording
+    from .bench_day import refuse_clipped
 
     rec = simulate_recording(args.rig, freq_hz, ipp_a, args.duration, fs_hz=args.fs, seed=seed,
                              effects=parse_effect_args(args.effect))
-    if rec.metadata.get("clipped"):
-        over = [f"{ch} (full scale ±{full:g}, adc_quantisation.{ch.lower()})"
-                for ch, full in clipped_channels(rec).items()]
-        raise SimulationError(f"{rec.rig} at {freq_hz:g} Hz, {ipp_a:g} A-pp: the ADC clipped {', '.join(over)}; "
-                              "lower --ipp (or --freq), or raise the full scale with --effect "
-                              "adc_quantisation.PARAM=VALUE")
+    refuse_clipped(rec)
     return rec
 
 
@@ -81,17 +76,22 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _sweep(args, out: Path) -> list:
+    """One rig running on through the points (as on a bench: slow effects accumulate), each recording
+    with its ``start_time_s``; a clipped one is refused before anything is written."""
+    from ..config.effects import parse_effect_args
     from ..reports.console import progress as make_progress
     from ..formats.recording import write_sweep
+    from ..sim_backend.bench_day import RigBlock, run_rig_block
+    from .bench_day import refuse_clipped
 
-    points = [(f, i) for i in args.ipp for f in args.freqs]
-    _check_size(args, len(points))
-    recs = []
+    block = RigBlock.grid(args.rig, args.freqs, args.ipp, periods=0.0, min_duration_s=args.duration, fs_hz=args.fs)
+    _check_size(args, len(block.points))
     with make_progress() as progress:
-        task = progress.add_task(f"simulating {args.rig}", total=len(points))
-        for n, (f, i) in enumerate(points):
-            recs.append(_simulate_one(args, f, i, args.seed + n))
-            progress.advance(task)
+        task = progress.add_task(f"simulating {args.rig}", total=len(block.points))
+        recs, _ = run_rig_block(args.rig, block, seed=args.seed, effects=parse_effect_args(args.effect),
+                                tick=lambda: progress.advance(task))
+    for rec in recs:
+        refuse_clipped(rec)
     write_sweep(recs, out, overwrite=args.overwrite)
     return recs
 
@@ -297,11 +297,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_bench)
 
     from . import bench as commands_bench, compensator as commands_compensator, method as commands_method, pipeline as commands_pipeline
+    from . import bench_day as commands_bench_day
 
     commands_method.register(sub)  # estimate, identify, paper
     commands_bench.register(sub)  # emulate
     commands_pipeline.register(sub)  # watch, record, replay, export, recover, daemon
     commands_compensator.register(sub)  # model fit|predict, compensate
+    commands_bench_day.register(sub)  # simulate-bench-day
 
     p = sub.add_parser("demo", help="the main job on the embedded simulated rig")
     p.add_argument("--out", type=path_arg, default="demo-output")

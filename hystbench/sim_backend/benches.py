@@ -26,6 +26,7 @@ Rayleigh region of ``SiFe-rayleigh``.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -119,8 +120,12 @@ def _describe(bench: ForeignBench) -> str:
             f"{sigma:g} S/m); {off}")
 
 
-def foreign_preset(name: str) -> dict[str, Any]:
+def foreign_preset(name: str, rig: str | None = None) -> dict[str, Any]:
     """The bench ``name`` as a checked rig preset (``hystbench.config.load_rig`` of a dict).
+
+    ``rig`` (``ecore`` or ``ecore_pm``; default the bench's nominal) builds the bench's other E-core:
+    the same core, coil, iron and instrument (the same factors), with or without its magnet, as a
+    bench day swaps the magnet in and out of one core.
 
     Its ``name`` is the nominal rig's (its recordings look like the nominal's, as a real bench's
     would), ``description`` says what differs, and ``_source`` names the bench (errors name it).
@@ -128,6 +133,10 @@ def foreign_preset(name: str) -> dict[str, Any]:
     ``linear_mu_r`` and ``incremental_mu_r`` stay the nominal's: the preset is the starting point a
     user would have, not the truth (that is :func:`bench_truth`)."""
     bench = _declared(name)
+    if rig is not None and rig != bench.nominal:
+        if rig not in ("ecore", "ecore_pm"):
+            raise ConfigError(f"foreign bench {name}: its other rig must be ecore or ecore_pm, got {rig!r}")
+        bench = dataclasses.replace(bench, nominal=rig)
     nominal = load_rig(bench.nominal)
     p = copy.deepcopy({k: v for k, v in nominal.items() if k != "_source"})
     for key, factor in bench.geometry.items():

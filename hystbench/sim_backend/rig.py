@@ -42,7 +42,7 @@ class SimulatedRig:
                  seed: int = 0, effects: Mapping[str, Mapping[str, Any] | bool] | None = None,
                  frequency_hz: float | None = None, current_pp_a: float | None = None,
                  offset_a: float = 0.0, generator_clock_ppm: float = DEFAULT_GENERATOR_CLOCK_PPM,
-                 warmup_s: float | None = None) -> None:
+                 warmup_s: float | None = None, clock_offset_s: float = 0.0) -> None:
         self.preset = load_rig(rig)  # a name, a path or a dict: checked against the preset schema
         self.name = str(self.preset["name"])
         where = self.preset["_source"]
@@ -50,6 +50,11 @@ class SimulatedRig:
             raise ConfigError(f"{where}: the sample rate must be a finite number of Hz > 0, got {fs_hz}")
         self.fs_hz = float(fs_hz)
         self.seed = int(seed)
+        if not math.isfinite(clock_offset_s):
+            raise ConfigError(f"{where}: clock_offset_s must be a finite number of seconds, got {clock_offset_s}")
+        #: Added to the sample clock of the instruments only (drift, mains): on a bench day several rigs
+        #: share one charge amplifier and one mains, whose time runs on while the rigs are swapped.
+        self.clock_offset_s = float(clock_offset_s)
         self.effects = resolve_effects(self.preset["effects"], effects, where, fs_hz=self.fs_hz)
         self.generator_clock_ppm = float(generator_clock_ppm)
         self.amplifier_gain_a_per_v = self.preset["amplifier"]["gain_a_per_v"]
@@ -166,7 +171,7 @@ class SimulatedRig:
         if out.flux_wb is not None:
             truth["flux_Wb"] = out.flux_wb - self._dc_flux  # an integrator has no DC
             truth["sense_V"] = -self.sense_turns * out.dflux_dt
-        channels, flags = self.chain.measure(t, truth)
+        channels, flags = self.chain.measure(t + self.clock_offset_s, truth)
         self._next_index = k0 + n
         return SampleBlock(k0, self.fs_hz, channels, flags=flags)
 
