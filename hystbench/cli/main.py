@@ -304,6 +304,9 @@ def build_parser() -> argparse.ArgumentParser:
     commands_pipeline.register(sub)  # watch, record, replay, export, recover, daemon
     commands_compensator.register(sub)  # model fit|predict, compensate
     commands_bench_day.register(sub)  # simulate-bench-day
+    from . import diagnose as commands_diagnose
+
+    commands_diagnose.register(sub)  # diagnose
 
     p = sub.add_parser("demo", help="the main job on the embedded simulated rig")
     p.add_argument("--out", type=path_arg, default="demo-output")

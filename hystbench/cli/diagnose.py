@@ -1,0 +1,182 @@
+"""``hystbench diagnose``: where a bench day differs from its simulation, what physics was left out,
+its parameters, and the held-out proof (issue 13).
+
+    hystbench diagnose SWEEP_DIR [SWEEP_DIR ...] [--baseline EFFECT,...] [--candidates EFFECT,...]
+                       [--json] [--report DIR]
+
+Inputs: sweep folders of the recording format (a bench day: one folder per rig), MCAP logs (read as
+``hystbench export`` reads them), or measured material loss tables (``.csv`` with their sidecar),
+which take the loss-separation path.  Every input is read and checked, and ``--report`` is checked,
+before the diagnosis runs; the report is written whole or not at all.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any, Callable
+
+from ..errors import ConfigError, RecordingError
+from .args import path_arg
+
+__all__ = ["register", "cmd_diagnose", "effect_list", "read_inputs"]
+
+
+def effect_list(option: str) -> Callable[[str], list[str]]:
+    """``EFFECT,EFFECT,...`` of catalogue names (argparse names ``option`` in its error); an empty
+    string is an empty list (``--baseline ''``: the analyst's model has none of the effects)."""
+
+    def parse(text: str) -> list[str]:
+        from ..config.effects import CATALOGUE
+
+        names = [n.strip() for n in text.split(",") if n.strip()]
+        for n in names:
+            if n not in CATALOGUE:
+                raise argparse.ArgumentTypeError(f"unknown effect {n!r}; known: {', '.join(CATALOGUE)}")
+        if len(set(names)) < len(names):
+            raise argparse.ArgumentTypeError(f"an effect is named twice in {text!r}")
+        return names
+
+    parse.__name__ = option  # argparse's "invalid <name> value" fallback
+    return parse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``diagnose`` to the CLI's subparsers."""
+    p = subparsers.add_parser("diagnose", help="locate, name, model and prove what the simulation leaves out",
+                              description=__doc__.split("\n\n")[0])
+    p.add_argument("inputs", nargs="+", type=path_arg, metavar="SWEEP_DIR",
+                   help="sweep folders (a bench day: one per rig), MCAP logs (.mcap) or material loss tables (.csv)")
+    p.add_argument("--baseline", type=effect_list("--baseline"), default=None, metavar="EFFECT,...",
+                   help="the effects of your model of the bench (default: each rig preset's own)")
+    p.add_argument("--candidates", type=effect_list("--candidates"), default=None, metavar="EFFECT,...",
+                   help="the effects to try (default: every catalogue effect not in the baseline)")
+    p.add_argument("--json", action="store_true", help="print the stable JSON document instead of the table")
+    p.add_argument("--report", type=path_arg, default=None, metavar="DIR",
+                   help="write a markdown page with its figures into DIR")
+    p.add_argument("--overwrite", action="store_true", help="write into an existing, non-empty --report")
+    p.set_defaults(func=cmd_diagnose)
+
+
+def _is_loss_table(path: Path) -> bool:
+    return path.is_file() and path.suffix.lower() == ".csv"
+
+
+def read_inputs(paths: list[Path]) -> list[Any]:
+    """The recordings of every sweep folder and MCAP log, in the order given (each folder sorted by
+    ``read_sweep``); a folder or log with fewer than two operating points is refused."""
+    from ..analysis.log_recordings import read_mcap_segments
+    from ..formats.recording import read_sweep
+
+    recs: list[Any] = []
+    for path in paths:
+        if path.is_dir():
+            part, what = read_sweep(path), "sweep"
+        elif path.is_file() and path.suffix.lower() == ".mcap":
+            part, what = read_mcap_segments(path), "log"
+        elif not path.exists():
+            raise RecordingError(f"{path}: no such folder or file")
+        else:
+            raise RecordingError(f"{path}: not a sweep folder, an MCAP log (.mcap) or a loss table (.csv)")
+        if len(part) < 2:  # read_sweep and the log reader refuse an empty one
+            r = part[0]
+            raise RecordingError(f"{path}: only one recording ({r.rig} at {r.frequency_hz:g} Hz, {r.current_pp_a:g} "
+                                 f"A-pp); a diagnosis needs several operating points per {what}")
+        recs += part
+    return recs
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    """`hystbench diagnose`: read and check everything, then diagnose with a progress bar; print the
+    table (or ``--json``), write ``--report``."""
+    from contextlib import nullcontext
+
+    from ..formats.outputs import output_folder
+
+    paths = [Path(p) for p in args.inputs]
+    tables = [p for p in paths if _is_loss_table(p)]
+    if tables and len(tables) < len(paths):
+        raise ConfigError(f"{tables[0]}: a loss table is diagnosed on its own, not with sweeps or logs; "
+                          "give loss tables or recordings, not both")
+    if tables and (args.baseline is not None or args.candidates is not None):
+        raise ConfigError(f"{'--baseline' if args.baseline is not None else '--candidates'}: a loss table's "
+                          "diagnosis has its own terms (rate independent, classical, excess); the option is for recordings")
+    # --report is checked (exists? writable beside?) before the work, and written only if it all succeeds
+    report = (output_folder(args.report, overwrite=args.overwrite, option="--report") if args.report is not None
+              else nullcontext())
+    with report as stage:
+        if tables:
+            return _loss_tables(tables, args, stage)
+        recs = read_inputs(paths)
+        d = _run(recs, args)
+        page = None
+        if stage is not None:
+            from ..reports.diagnosis import render_report
+
+            page = stage.final(render_report(d, stage.path))
+    _print_warnings(d.warnings)
+    if args.json:
+        print(json.dumps(d.to_json(), indent=2, allow_nan=False))
+        return 0
+    from ..reports.console import console
+    from ..reports.diagnosis import print_summary
+
+    con = console()
+    print_summary(d, con)
+    if page is not None:
+        con.print(f"report: {page}")
+    return 0
+
+
+def _print_warnings(warnings: list[str]) -> None:
+    import sys
+
+    for w in warnings:
+        print(f"hystbench diagnose: warning: {w}", file=sys.stderr, flush=True)
+
+
+def _run(recs: list[Any], args: argparse.Namespace) -> Any:
+    from ..analysis.diagnosis import diagnose
+    from ..reports.console import progress
+
+    with progress() as bar:
+        task = bar.add_task(f"diagnosing {len(recs)} recordings", total=None)
+        return diagnose(recs, baseline=args.baseline, candidates=args.candidates,
+                        progress=lambda msg: bar.update(task, description=msg))
+
+
+def _loss_tables(tables: list[Path], args: argparse.Namespace, stage: Any) -> int:
+    """Measured loss tables: the loss-separation diagnosis per table (rate-independent baseline
+    calibrated at the lowest frequencies, the rest held out)."""
+    from ..analysis.diagnosis.loss_separation import diagnose_loss_table
+
+    results = [diagnose_loss_table(p) for p in tables]
+    page = None
+    if stage is not None:
+        from ..reports.diagnosis import render_loss_report
+
+        page = stage.final(render_loss_report(results, stage.path))
+    if args.json:
+        print(json.dumps(results[0] if len(results) == 1 else results, indent=2, allow_nan=False))
+        return 0
+    from rich.markup import escape
+    from rich.table import Table
+
+    from ..reports.console import console
+
+    t = Table(title="loss tables: rate-independent baseline calibrated at the lowest frequencies, the rest held out")
+    for col in ("table", "named", "held-out rms before (log10)", "after", "improvement"):
+        t.add_column(col)
+    for r in results:
+        imp = r.get("improvement")
+        t.add_row(escape(Path(r["path"]).name), escape(", ".join(r["effects"]) or "none"),
+                  f"{r['residual_before_log10']:.3f}", f"{r['residual_after_log10']:.3f}",
+                  "n/a" if imp is None else f"{imp:.2f}x")
+    con = console()
+    con.print(t)
+    for r in results:
+        con.print(f"{escape(Path(r['path']).name)}: {escape(r['verdict'])}")
+    if page is not None:
+        con.print(f"report: {page}")
+    return 0

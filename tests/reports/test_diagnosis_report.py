@@ -1,0 +1,78 @@
+"""The diagnosis page and terminal table (hystbench/reports/diagnosis.py) on Diagnosis objects built
+here: the verdict comes first, parameters read in the catalogue's names and units, the page is
+written whole or not at all."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from rich.console import Console
+
+from hystbench.analysis.diagnosis.result import Candidate, Diagnosis, Loops
+from hystbench.reports.diagnosis import PAGE, plus_minus, print_summary, verdict, write_report
+
+
+def _loops(channels=("current_A", "flux_Wb", "force_N")) -> Loops:
+    ph = np.linspace(0.0, 1.0, 128, endpoint=False)
+    s = {"current_A": 0.7 * np.sin(2 * np.pi * ph), "flux_Wb": 1e-4 * np.sin(2 * np.pi * ph - 0.05),
+         "force_N": 170 + 40 * np.sin(2 * np.pi * ph - 0.06)}
+    pick = {c: s[c] for c in channels}
+    return Loops("ecore_pm_320Hz_1.4App", "ecore_pm", 320.0, 1.4, ph, pick, {k: 0.99 * v for k, v in pick.items()},
+                 dict(pick))
+
+
+def _diagnosis(named: bool = True, loops: Loops | None = None) -> Diagnosis:
+    params = {"charge_amp_highpass": {"time_constant_s": (0.41, 0.02)}} if named else {}
+    return Diagnosis(
+        effect="charge_amp_highpass" if named else None, effects=["charge_amp_highpass"] if named else [],
+        candidates=[Candidate("charge_amp_highpass", 80.0 if named else 3.0, {"time_constant_s": (0.41, 0.02)}),
+                    Candidate("channel_skew", 12.0 if named else 1.0, {"force_N": (3.02e-6, 5e-8)})],
+        parameters=params, recalibrated={"instrument.fn_hz": {"value": 4460.0, "std": 12.0, "prior": 4450.0}},
+        located={"channels": {"force vs flux": 41.0}, "harmonics": {}, "frequencies_Hz": {}, "amplitudes_pp_A": {},
+                 "rigs": {}, "time": {}},
+        residual_before=40.0, residual_after=2.0 if named else 40.0, noise_floor={"force_N": 1e-3, "flux_Wb": 1e-9},
+        seconds=3.0, baseline=["instrument_filter"], candidates_considered=["charge_amp_highpass", "channel_skew"],
+        recordings=10, rigs=["ecore_pm"], loops=loops)
+
+
+@pytest.mark.parametrize("value, std, text", [(0.41, 0.02, "0.41 +- 0.02"), (3.02e-6, 5e-8, "(3.02 +- 0.05)e-06"),
+                                              (4460.0, 12.0, "4460 +- 12"), (2.0, None, "2")])
+def test_a_value_is_quoted_to_its_standard_error(value, std, text):
+    assert plus_minus(value, std) == text
+
+
+def test_the_page_leads_with_the_verdict_and_names_parameters_with_units(tmp_path):
+    d = _diagnosis(loops=_loops())
+    page = write_report(d, tmp_path / "rep")
+    assert page == tmp_path / "rep" / PAGE
+    text = page.read_text()
+    first = text.split("\n\n")[1]
+    assert "charge_amp_highpass" in first and "40 to 2 noise floors (20x)" in first
+    assert "charge_amp_highpass.time_constant_s = 0.41 +- 0.02 s" in text
+    assert "channel_skew.force_N = (3.02 +- 0.05)e-06 s" in text
+    assert "`instrument.fn_hz` | 4460 +- 12 Hz" in text
+    assert (tmp_path / "rep" / "loops.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_nothing_named_says_so_and_invents_no_model(tmp_path):
+    d = _diagnosis(named=False)
+    assert verdict(d).startswith("Nothing significant is left")
+    text = write_report(d, tmp_path / "rep").read_text()
+    assert "no invented physics" in text and "](loops.png)" not in text
+
+
+def test_a_failure_half_way_leaves_nothing(tmp_path):
+    d = _diagnosis(loops=_loops(channels=("force_N",)))  # no pair to draw: the figure fails after the page began
+    with pytest.raises(ValueError):
+        write_report(d, tmp_path / "rep")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_terminal_table_is_short_and_says_what_was_named():
+    buf = io.StringIO()
+    print_summary(_diagnosis(), Console(file=buf, width=120))
+    out = buf.getvalue()
+    assert "charge_amp_highpass.time_constant_s = 0.41 +- 0.02 s" in out and "(20x)" in out
+    assert "channel_skew" in out and len(out.splitlines()) < 15
