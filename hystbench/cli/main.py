@@ -242,8 +242,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if failed:
         console().print(f"[bold red]the sweeps through the drivers failed[/]: {escape(failed)}\n"
                         "(their files removed; the offline part follows)")
-    return status or cmd_paper(argparse.Namespace(out=str(out / "paper"), quick=False, save_recordings=False,
-                                                  overwrite=True))
+    status = status or cmd_paper(argparse.Namespace(out=str(out / "paper"), quick=False, save_recordings=False,
+                                                    overwrite=True))
+    if status == 0:  # last: a diagnosis of a bench day with a concealed effect (issue 13)
+        from ..reports.demo_diagnosis import demo_diagnosis
+
+        demo_diagnosis(out / "diagnosis", console())
+    return status
 
 
 def build_parser() -> argparse.ArgumentParser:

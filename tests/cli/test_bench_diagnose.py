@@ -1,0 +1,46 @@
+"""``hystbench bench diagnose``: the targets and the confusion table judge the diagnosis's answers
+against the generator's truth as the issue states them; an unknown case is refused naming it."""
+
+from __future__ import annotations
+
+import pytest
+
+from benchmarks.bench_diagnose import confusion, targets
+from hystbench.cli.main import main
+
+
+def _row(case, truth, named, improvement, seconds=5.0):
+    right = (not named) if not truth else (named[0] in truth)
+    return {"case": case, "truth": truth, "named": named, "right": right, "improvement": improvement,
+            "seconds_diagnose": seconds}
+
+
+ROWS = [_row("a", ["charge_amp_highpass"], ["charge_amp_highpass"], 30.0),
+        _row("b", ["channel_skew"], ["lamination_eddy_currents"], 1.2),
+        _row("c", ["force_offset_drift", "mains_pickup"], ["mains_pickup", "force_offset_drift"], 8.0),
+        _row("n1", [], [], 1.0), _row("n2", [], ["iron_saturation"], 1.1, seconds=61.0)]
+
+
+def test_the_targets_pass_and_fail_as_the_issue_states_them():
+    named, improvement, null, speed = targets(ROWS)
+    assert named["measured"].startswith("67 %") and named["pass"] is False  # 2 of 3 < 90 %
+    assert improvement["pass"] is False and "1.20x" in improvement["measured"]
+    assert null["measured"] == "1/2" and null["pass"] is False
+    assert speed["pass"] is False and "61.0" in speed["measured"]
+    good = [r for r in ROWS if r["case"] in ("a", "c", "n1")]
+    assert all(t["pass"] for t in targets(good))
+
+
+def test_the_confusion_table_counts_truth_against_named():
+    conf = confusion(ROWS)
+    assert conf["charge_amp_highpass"] == {"charge_amp_highpass": 1}
+    assert conf["channel_skew"] == {"lamination_eddy_currents": 1}
+    assert conf["none"] == {"none": 1, "iron_saturation": 1}
+
+
+def test_an_unknown_case_is_refused_naming_it(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["bench", "diagnose", "--cases", "null_seed1,no_such_case"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "--cases" in err and "no_such_case" in err and "null_seed1" in err
