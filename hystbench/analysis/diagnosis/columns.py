@@ -1,0 +1,197 @@
+"""What the simulation can change, as columns of a linearised fit: the calibration a bench engineer
+would do, and each candidate effect switched on.
+
+Each column is how the bench day's features move when one parameter moves, measured by replaying
+the day on the simulated rig (:mod:`.forward`) at the baseline and once more with the parameter
+moved.  A parameter is expressed in the coordinate in which the features move almost linearly (a
+time constant as its inverse, a conductivity as a log factor), so the linearised fit is a good
+first answer and one re-simulation at the fitted values refines it.
+
+The calibration (stage 1 of the issue), each parameter with a prior from the preset:
+
+- ``instrument.fn_hz`` (prior +-5 %) and ``instrument.zeta_n`` (+-50 %): the load cell, from the
+  voice coil's sweep and the force's harmonics;
+- ``geometry.airgap_m`` (+-20 %): the force law and the flux per ampere of both E-cores;
+- ``magnet.remanence_t`` (+-10 %): the magnet's bias;
+- ``iron.conductivity_s_per_m`` (+-50 %, when the baseline has ``lamination_eddy_currents``) and
+  ``magnet.conductivity_s_per_m`` (+-70 %, with ``magnet_eddy_currents``): the eddy-current lags;
+- ``gain.flux_Wb`` and ``gain.force_N`` (+-10 %): the integrator's and the charge amplifier's
+  sensitivities (one each for the bench).
+A value the data push beyond three prior widths is a finding of its own.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from ...config.effects import CATALOGUE
+from ...errors import ConfigError
+from .forward import Point, preset_value, replay, with_effects, with_value
+
+__all__ = ["Knob", "KNOBS", "Probe", "PROBES", "GAINS", "Simulator"]
+
+
+@dataclass(frozen=True)
+class Knob:
+    """A preset number calibrated in log space: x = ln(value / preset), prior x ~ N(0, prior_rel^2)."""
+
+    path: str
+    prior_rel: float
+    needs: str | None = None  # the baseline effect without which this knob moves nothing
+
+    @property
+    def name(self) -> str:
+        return self.path
+
+
+KNOBS = (
+    Knob("instrument.fn_hz", 0.05),
+    Knob("instrument.zeta_n", 0.5),
+    Knob("geometry.airgap_m", 0.2),
+    Knob("magnet.remanence_t", 0.1),
+    Knob("iron.conductivity_s_per_m", 0.5, needs="lamination_eddy_currents"),
+    Knob("magnet.conductivity_s_per_m", 0.7, needs="magnet_eddy_currents"),
+)
+#: Channel sensitivities (x = relative gain error), prior +-10 %.
+GAINS = {"gain.flux_Wb": ("flux_Wb", 0.1), "gain.force_N": ("force_N", 0.1)}
+
+
+@dataclass(frozen=True)
+class Probe:
+    """One fitted parameter of a candidate effect: the effect's catalogue parameters at coordinate
+    ``u`` are ``params(u)``; ``u = probe`` is where its column is measured; ``value(u)`` is the
+    catalogue value reported (and ``unit`` its unit), ``lower`` the bound on u."""
+
+    effect: str
+    param: str
+    probe: float
+    params: Callable[[float], Mapping[str, Any]]
+    value: Callable[[float], float]
+    lower: float = -math.inf
+    #: For an effect far from linear in u (a high-pass's time constant moves the force's DC and its
+    #: transients at once): u values to simulate first; the best is refined by a local column.
+    grid: tuple[float, ...] = ()
+
+    def derivative(self, u: float) -> float:
+        """d value / d u, for the standard error of the reported value."""
+        h = 1e-6 * max(abs(u), abs(self.probe))
+        return (self.value(u + h) - self.value(u - h)) / (2 * h)
+
+
+def _inverse(effect: str, param: str, probe: float, grid: tuple[float, ...] = ()) -> Probe:
+    return Probe(effect, param, probe, lambda u: {param: 1.0 / max(u, 1e-300)}, lambda u: 1.0 / u if u > 0 else math.inf,
+                 lower=0.0, grid=tuple(1.0 / g for g in grid))
+
+
+#: Time constants (s) simulated first for the high-pass effects: a day's transients to beyond it.
+TIME_CONSTANT_GRID = (0.25, 1.0, 4.0, 16.0, 64.0)
+
+
+def _skew(channel: str) -> Probe:
+    zero = {"current_A": 0.0, "force_N": 0.0, "flux_Wb": 0.0, "sense_V": 0.0, "command_V": 0.0}
+    return Probe("channel_skew", channel, 2e-6, lambda u: {**zero, channel: max(u, 0.0)}, lambda u: u, lower=0.0)
+
+
+def _linear(effect: str, param: str, probe: float, lower: float = -math.inf, **fixed: Any) -> Probe:
+    return Probe(effect, param, probe, lambda u: {**fixed, param: u}, lambda u: u, lower=lower)
+
+
+def _switch(effect: str) -> Probe:
+    """An effect without a continuous parameter of its own: its strength relative to the preset's
+    (1 = as the preset or the catalogue describes it)."""
+    return Probe(effect, "strength", 1.0, lambda u: {}, lambda u: u, lower=0.0)
+
+
+#: The candidates' fitted parameters.  Effects measured directly (noise, the ADC's grid) or as
+#: lines (mains) are handled elsewhere.
+PROBES: Mapping[str, tuple[Probe, ...]] = {
+    "charge_amp_highpass": (_inverse("charge_amp_highpass", "time_constant_s", 1.0, TIME_CONSTANT_GRID),),
+    "integrator_leak": (_inverse("integrator_leak", "time_constant_s", 1.0, TIME_CONSTANT_GRID),),
+    "channel_skew": (_skew("current_A"), _skew("flux_Wb"), _skew("force_N")),
+    "force_offset_drift": (_linear("force_offset_drift", "offset_n", 0.1, drift_n_per_s=0.0),
+                           _linear("force_offset_drift", "drift_n_per_s", 0.01, offset_n=0.0)),
+    "magnet_thermal_drift": (_linear("magnet_thermal_drift", "kelvin_per_s", 0.1),),
+    "load_cell_compliance": (_inverse("load_cell_compliance", "stiffness_n_per_m", 1e-8),),
+    "amplifier_distortion": (_linear("amplifier_distortion", "second", 0.005, third=0.0),
+                             _linear("amplifier_distortion", "third", 0.005, second=0.0)),
+    "frame_resonance": (_linear("frame_resonance", "depth", 0.2, lower=-1.0),),
+    "static_hysteresis": (_switch("static_hysteresis"),),
+    "lamination_eddy_currents": (_switch("lamination_eddy_currents"),),
+    "magnet_eddy_currents": (_switch("magnet_eddy_currents"),),
+    "iron_saturation": (_switch("iron_saturation"),),
+    "instrument_filter": (_switch("instrument_filter"),),
+}
+
+
+class Simulator:
+    """The bench day's features as a function of the knobs and the effects: replays on the
+    simulated rig, counted (each replay is the unit of a diagnosis's cost)."""
+
+    def __init__(self, presets: Mapping[str, Mapping[str, Any]], baseline: Mapping[str, Mapping[str, Mapping[str, Any]]],
+                 points: Sequence[Point], features: Callable[[list], list]) -> None:
+        self.presets = presets  # rig -> checked preset (the nominal)
+        self.baseline = baseline  # rig -> effect -> params: the analyst's model of each rig
+        self.points = points
+        self.features = features
+        self.replays = 0
+
+    def knob_applies(self, knob: Knob) -> bool:
+        has = any(_has(p, knob.path) for p in self.presets.values())
+        return has and (knob.needs is None or any(knob.needs in e for e in self.baseline.values()))
+
+    def run(self, knobs: Mapping[str, float] | None = None,
+            effects: Mapping[str, Mapping[str, Any]] | None = None) -> list:
+        """Features of the replay with knob log-factors ``knobs`` and extra ``effects`` (name ->
+        parameters, on top of the baseline; parameters ``None`` switches an effect off)."""
+        presets = {}
+        for rig, preset in self.presets.items():
+            p: Mapping[str, Any] = preset
+            for path, x in (knobs or {}).items():
+                if _has(p, path):
+                    p = with_value(p, path, preset_value(preset, path) * math.exp(x))
+            eff = {name: dict(params) for name, params in self.baseline[rig].items()}
+            for name, params in (effects or {}).items():
+                if params is None:
+                    eff.pop(name, None)
+                elif _accepts(rig, p, name):
+                    eff[name] = {**_catalogue_params(preset, name), **eff.get(name, {}), **params}
+            presets[rig] = with_effects(p, eff)
+        self.replays += 1
+        return self.features(replay(presets, self.points))
+
+
+def _has(preset: Mapping[str, Any], path: str) -> bool:
+    node: Any = preset
+    for part in path.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return False
+        node = node[part]
+    return isinstance(node, (int, float)) and not isinstance(node, bool)
+
+
+def _catalogue_params(preset: Mapping[str, Any], name: str) -> dict[str, Any]:
+    """The parameters an effect switched on gets: the preset's table if the preset lists it, else
+    the catalogue's defaults."""
+    return {**dict(CATALOGUE[name].defaults), **dict(preset.get("effects", {}).get(name) or {})}
+
+
+#: Which rigs an effect can act on (the rig's physics); the simulator refuses the rest.
+def _accepts(rig: str, preset: Mapping[str, Any], effect: str) -> bool:
+    magnet = "magnet" in preset
+    ecore = preset.get("actuator") == "ecore"
+    if effect in ("magnet_eddy_currents", "magnet_thermal_drift"):
+        return magnet and ecore
+    if effect in ("static_hysteresis", "lamination_eddy_currents", "iron_saturation", "integrator_leak",
+                  "load_cell_compliance"):
+        return ecore
+    return True
+
+
+def check_known(names: Sequence[str], option: str) -> None:
+    unknown = [n for n in names if n not in CATALOGUE]
+    if unknown:
+        raise ConfigError(f"{option}: unknown effect {unknown[0]!r}; known: {', '.join(CATALOGUE)}")

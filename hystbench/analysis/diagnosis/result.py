@@ -1,0 +1,104 @@
+"""What a diagnosis says: the stable ``hystbench diagnose --json`` document and what the report draws.
+
+The keys are a public interface (issue 13): scripts read them, so a key is added, never renamed.
+Every number is finite or ``None`` (JSON has no NaN).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+
+__all__ = ["Candidate", "Diagnosis", "Loops", "json_number"]
+
+
+def json_number(x: Any) -> float | None:
+    """A float for JSON: ``None`` for NaN or infinity (json.dumps(allow_nan=False) must pass)."""
+    if x is None:
+        return None
+    v = float(x)
+    return v if math.isfinite(v) else None
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate effect scored against the (recalibrated) baseline in one selection round."""
+
+    name: str
+    score: float  # BIC(baseline) - BIC(baseline + this effect): > 0 means the effect explains more than it costs
+    parameters: Mapping[str, tuple[float, float]]  # catalogue parameter -> (value, standard error)
+    round: int = 1
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "score": json_number(self.score), "round": self.round,
+                "parameters": {k: {"value": json_number(v), "std": json_number(s)} for k, (v, s) in self.parameters.items()}}
+
+
+@dataclass(frozen=True)
+class Loops:
+    """One held-out recording's period, measured and predicted before/after (the report's loop figure)."""
+
+    recording: str
+    rig: str
+    frequency_hz: float
+    current_pp_a: float
+    phase: np.ndarray  # cycles, one period
+    measured: Mapping[str, np.ndarray]  # channel -> one period
+    before: Mapping[str, np.ndarray]  # the calibrated baseline's prediction
+    after: Mapping[str, np.ndarray]  # with the named effects
+
+
+@dataclass
+class Diagnosis:
+    """The whole answer; :meth:`to_json` is the ``--json`` document."""
+
+    effect: str | None
+    effects: list[str]
+    candidates: list[Candidate]
+    parameters: dict[str, dict[str, tuple[float, float]]]  # effect -> param -> (value, std)
+    recalibrated: dict[str, dict[str, Any]]  # "effect.param" or "preset.key" -> {value, std, prior, finding?}
+    located: dict[str, Any]  # the issue's `located` keys (channels, harmonics, frequencies_Hz, ...)
+    residual_before: float  # held-out rms residual, units of the noise floor
+    residual_after: float
+    noise_floor: dict[str, float]  # per channel: the period average's noise floor (channel units)
+    seconds: float
+    baseline: list[str] = field(default_factory=list)
+    candidates_considered: list[str] = field(default_factory=list)
+    findings: list[str] = field(default_factory=list)  # sentences: priors pushed far, what could not be located
+    warnings: list[str] = field(default_factory=list)
+    recordings: int = 0
+    rigs: list[str] = field(default_factory=list)
+    loops: Loops | None = None
+    grid: Any = None  # the locate heat map's data (reports draw it)
+
+    @property
+    def improvement(self) -> float:
+        if not (self.residual_after > 0 and math.isfinite(self.residual_before)):
+            return math.nan
+        return self.residual_before / self.residual_after
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "effect": self.effect,
+            "effects": list(self.effects),
+            "candidates": [c.to_json() for c in self.candidates],
+            "parameters": {e: {p: {"value": json_number(v), "std": json_number(s)} for p, (v, s) in ps.items()}
+                           for e, ps in self.parameters.items()},
+            "recalibrated": {k: {kk: (json_number(vv) if isinstance(vv, (int, float, np.floating)) else vv)
+                                  for kk, vv in v.items()} for k, v in self.recalibrated.items()},
+            "located": self.located,
+            "residual_before": json_number(self.residual_before),
+            "residual_after": json_number(self.residual_after),
+            "improvement": json_number(self.improvement),
+            "noise_floor": {k: json_number(v) for k, v in self.noise_floor.items()},
+            "seconds": json_number(self.seconds),
+            "baseline": list(self.baseline),
+            "candidates_considered": list(self.candidates_considered),
+            "findings": list(self.findings),
+            "warnings": list(self.warnings),
+            "recordings": self.recordings,
+            "rigs": list(self.rigs),
+        }
