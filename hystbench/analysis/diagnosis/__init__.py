@@ -15,6 +15,7 @@ The stages, each in its module:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -30,7 +31,7 @@ from ..method import recording_name
 from .columns import GAINS, KNOBS, PROBES, Probe, Simulator, _accepts, _catalogue_params, check_known
 from .features import RecordFeatures, record_features
 from .fit import Column, Solution, solve, variance
-from .forward import MEASURED_DIRECTLY, points_of
+from .forward import MEASURED_DIRECTLY, Replayed, points_of, record_mean
 from .result import Candidate, Diagnosis, Loops
 from .vector import CHANNELS, VIEWS, Layout, layout_of, line_values, values_of
 
@@ -96,15 +97,16 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
     in_base = sorted({e for effs in base_effects.values() for e in effs})
     # a candidate is an effect some rig's baseline lacks (the voice coil's frame modes may be known
     # while the E-cores' model leaves them out: one load cell)
-    lacking = {e for e in CATALOGUE for rig, p in presets.items() if _accepts(rig, p, e) and e not in base_effects[rig]}
+    declared = {rig: set(p["effects"]) if baseline is None else set(baseline) for rig, p in presets.items()}
+    lacking = {e for e in CATALOGUE for rig, p in presets.items() if _accepts(rig, p, e) and e not in declared[rig]}
     pool = [e for e in (candidates if candidates is not None else CATALOGUE) if e in lacking]
     say(f"features of {len(recs)} recordings")
     data = [_features(r) for r in recs]
     layout = layout_of(data)
-    points, clocked = points_of(recs)
+    points, clocked = points_of(recs, [f.periods / f.frequency_hz for f in data])
     if not clocked:
         warnings.append("the sidecars hold no start_time_s: slow effects cannot be placed along the day")
-    sim = Simulator(presets, base_effects, points, lambda rs: [_features(r) for r in rs])
+    sim = Simulator(presets, base_effects, points, lambda reps: [_replayed_features(r) for r in reps])
 
     d_h = values_of(data, layout)
     y_l, s_l, line_labels = line_values(data)
@@ -128,16 +130,16 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
     # 1. calibrate
     knobs = [k for k in KNOBS if sim.knob_applies(k)]
     x0: dict[str, float] = {}
-    cal, m0 = _calibration(model, m0, knobs, x0, layout, n_h, say)
+    cal, m0 = _calibration(model, m0, knobs, x0, layout, n_h, say, data, base_effects)
     sol_cal = solve(d - m0, sigma, cal, rows)
     x1 = {k.path: x0.get(k.path, 0.0) + sol_cal.value(k.path)[0] for k in knobs}
-    # re-linearise around a calibration that stayed within its priors (one pushed beyond them is a
-    # finding, or a sign that an effect is missing: the candidates are measured around the preset then)
-    within = all(abs(x1[k.path]) < 2 * k.prior_rel for k in knobs)
-    if within and any(abs(x1[p] - x0.get(p, 0.0)) > RELINEARISE for p in x1):
+    # re-linearise once around the calibration, held within FAR_FROM_PRIOR prior widths (a knob pushed
+    # beyond them is a finding, or the sign of a missing effect: no reason to measure columns there)
+    if any(abs(x1[p] - x0.get(p, 0.0)) > RELINEARISE for p in x1):
         say("re-linearising the calibration")
-        x0 = dict(x1)
-        cal, m0 = _calibration(model, model(x0), knobs, x0, layout, n_h, say)
+        x0 = {k.path: float(np.clip(x1[k.path], -FAR_FROM_PRIOR * k.prior_rel, FAR_FROM_PRIOR * k.prior_rel))
+              for k in knobs}
+        cal, m0 = _calibration(model, model(x0), knobs, x0, layout, n_h, say, data, base_effects)
         sol_cal = solve(d - m0, sigma, cal, rows)
     resid_base = d - m0 - sol_cal.fitted
 
@@ -159,7 +161,7 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
         else:
             cols = []
             for pr in probes:
-                m = model(x0, {name: pr.params(pr.probe)})
+                m = model(x0, {name: pr.setting(pr.probe)})
                 cols.append(Column(f"{name}.{pr.param}", (m - m0) / pr.probe, lower=pr.lower))
             eff = _Effect(name, cols, probes)
         if any(np.any(np.abs(c.values[rows]) > 0) for c in eff.columns):
@@ -210,7 +212,7 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
     say("cross-validating over operating points")
     proof = _prove(data, layout, d, m0, m0_final, sigma, rows, cal, named, n_h)
 
-    recal = _recalibrated(presets, knobs, x0, sol, cal)
+    recal = _recalibrated(sim, knobs, x0, sol, cal)
     findings = [v["finding"] for v in recal.values() if v.get("finding")]
     findings += _direct(data, base_effects, pool)
     names = [_family(e.name) for e in named]
@@ -228,6 +230,24 @@ def _features(rec: Recording) -> RecordFeatures:
         return record_features(rec)
     except ValueError as err:
         raise DiagnosisError(str(err)) from err
+
+
+def _replayed_features(rep: Replayed) -> RecordFeatures:
+    """A replayed point's features: the middle window's harmonics, each channel's DC the record's mean
+    (the quadratic through the start, middle and end windows), as the recording's features hold it."""
+    f = _features(rep.middle)
+    if rep.edges is None:
+        return f
+    first, last = (_features(w) for w in rep.edges)
+    # a window's DC is the mean of its whole periods, which start at its first sample
+    centres = [w.start_time_s + 0.5 * g.periods / g.frequency_hz
+               for w, g in ((rep.edges[0], first), (rep.middle, f), (rep.edges[1], last))]
+    harmonics = {}
+    for ch, h in f.harmonics.items():
+        h = h.copy()
+        h[0] = record_mean([first.harmonics[ch][0].real, h[0].real, last.harmonics[ch][0].real], centres, rep.span)
+        harmonics[ch] = h
+    return dataclasses.replace(f, harmonics=harmonics)
 
 
 def _check_rates(recs: Sequence[Recording]) -> list[str]:
@@ -255,7 +275,7 @@ def _baseline_effects(presets: Mapping[str, Mapping[str, Any]], baseline: Sequen
 
 
 def _calibration(model, m0: np.ndarray, knobs, x0: Mapping[str, float], layout: Layout, n_h: int,
-                 say) -> tuple[list[Column], np.ndarray]:
+                 say, data, base_effects) -> tuple[list[Column], np.ndarray]:
     cols = []
     for k in knobs:
         say(f"calibration: {k.path}")
@@ -263,6 +283,7 @@ def _calibration(model, m0: np.ndarray, knobs, x0: Mapping[str, float], layout: 
         x = dict(x0)
         x[k.path] = x0.get(k.path, 0.0) + h
         cols.append(Column(k.path, (model(x) - m0) / h, prior=k.prior_rel))
+    cols += _static_loop_columns(data, base_effects, layout, m0)
     for name, (channel, width) in GAINS.items():
         mask = np.zeros(m0.size, bool)
         mask[:n_h] = layout.channel == CHANNELS.index(channel)
@@ -299,7 +320,7 @@ def _effect_params(named: Sequence[_Effect], sol: Solution) -> dict[str, dict[st
     out = {}
     for e in named:
         if e.probes:
-            merged: dict[str, Any] = {}
+            merged: dict[str, Any] = dict(e.probes[0].fixed)
             for pr in e.probes:
                 merged.update(pr.params(max(e.at + sol.value(f"{e.name}.{pr.param}")[0], pr.lower)))
             out[e.name] = _clamp(e.name, merged)
@@ -328,14 +349,46 @@ def _grid_effect(name: str, probe: Probe, model, x0, m0: np.ndarray, d: np.ndarr
     best value's change is the offset and a local column (a 20 % step) refines it."""
     best = None
     for u in probe.grid:
-        change = model(x0, {name: probe.params(u)}) - m0
+        change = model(x0, {name: probe.setting(u)}) - m0
         chi2 = solve(d - m0 - change, sigma, cal, rows).chi2
         if best is None or chi2 < best[0]:
             best = (chi2, u, change)
     _, u, change = best
     h = 0.2 * u
-    local = (model(x0, {name: probe.params(u + h)}) - m0 - change) / h
+    local = (model(x0, {name: probe.setting(u + h)}) - m0 - change) / h
     return _Effect(name, [Column(f"{name}.{probe.param}", local, lower=-u)], (probe,), offset=change, at=u)
+
+
+#: Prior width of the static loop's recalibration, as a share of the channel's largest harmonic.
+STATIC_LOOP_PRIOR = 0.05
+
+
+def _static_loop_columns(data, base_effects, layout: Layout, m0: np.ndarray) -> list[Column]:
+    """The baseline's static hysteresis, recalibrated without a form: at each rig and amplitude, each
+    harmonic of the flux and of the force may move by one complex number, the same at every frequency.
+    A real iron's loop is never the preset material's; what the rig's other physics does with
+    frequency (eddy currents, the instrument, the channels' filters and delays) stays for the
+    candidates to explain.  Only for rigs whose baseline has ``static_hysteresis``."""
+    cols = []
+    groups: dict[tuple[str, float], list[int]] = {}
+    for r, f in enumerate(data):
+        if "static_hysteresis" in base_effects.get(f.rig, {}):
+            groups.setdefault((f.rig, round(f.current_pp_a, 6)), []).append(r)
+    for (rig, amp), recs in groups.items():
+        in_group = np.isin(layout.record, recs)
+        for ch in ("flux_Wb", "force_N"):
+            ci = CHANNELS.index(ch)
+            for k in range(int(layout.harmonic.max(initial=0)) + 1):
+                for part in (0, 1):
+                    sel = in_group & (layout.channel == ci) & (layout.harmonic == k) & (layout.part == part)
+                    if not sel.any():
+                        continue
+                    v = np.zeros(m0.size)
+                    v[np.flatnonzero(sel)] = 1.0
+                    scale = float(np.max(layout.scale[in_group & (layout.channel == ci)]))
+                    cols.append(Column(f"static_loop.{rig}@{amp:g}A.{ch}.k{k}.{'im' if part else 're'}", v,
+                                       prior=STATIC_LOOP_PRIOR * scale))
+    return cols
 
 
 def _mains(f0: float, pair: tuple[float, float], labels, n_h: int, size: int) -> _Effect:
@@ -388,22 +441,23 @@ def _parameters(eff: _Effect, sol: Solution) -> dict[str, tuple[float, float]]:
     return out
 
 
-def _recalibrated(presets, knobs, x0, sol: Solution, cal: list[Column]) -> dict[str, dict[str, Any]]:
+def _recalibrated(sim: Simulator, knobs, x0, sol: Solution, cal: list[Column]) -> dict[str, dict[str, Any]]:
+    """Each calibration parameter's value, standard error and prior; a finding where the data pushed
+    it beyond FAR_FROM_PRIOR prior widths."""
     out: dict[str, dict[str, Any]] = {}
     for k in knobs:
-        x = x0.get(k.path, 0.0) + sol.value(k.path)[0]
-        sx = sol.value(k.path)[1]
-        prior = next(p for p in (_get(pr, k.path) for pr in presets.values()) if p is not None)
-        entry: dict[str, Any] = {"value": prior * math.exp(x), "std": prior * math.exp(x) * sx, "prior": prior,
+        x, sx = x0.get(k.path, 0.0) + sol.value(k.path)[0], sol.value(k.path)[1]
+        prior, value = sim.knob_value(k), sim.knob_value(k, x)
+        entry: dict[str, Any] = {"value": value, "std": sx if k.linear else value * sx, "prior": prior,
                                  "prior_rel": k.prior_rel}
         if abs(x) > FAR_FROM_PRIOR * k.prior_rel:
-            factor = math.exp(x)
-            owner = k.needs or k.path
-            entry["finding"] = (f"{owner}: {k.path} is {factor:.2g}x the preset's ({prior:.4g} -> {prior * factor:.4g}), "
-                                f"{abs(x) / k.prior_rel:.1f} prior widths away"
-                                + (f": {k.needs} is {'stronger' if factor > 1 else 'weaker'} than the preset says"
-                                   if k.needs else ""))
+            how = (f"{value:.4g} instead of the preset's {prior:.4g}" if k.linear else
+                   f"{math.exp(x):.2g}x the preset's ({prior:.4g} -> {value:.4g})")
+            entry["finding"] = f"{k.path} is {how}, {abs(x) / k.prior_rel:.1f} prior widths away"
+            if k.needs and not k.linear:
+                entry["finding"] += f": {k.needs} is {'stronger' if x > 0 else 'weaker'} than the preset says"
         out[k.path] = entry
+    loop = [c for c in cal if c.name.startswith("static_loop.")]
     for c in cal:
         if c.name in GAINS:
             g, s = sol.value(c.name)
@@ -411,6 +465,15 @@ def _recalibrated(presets, knobs, x0, sol: Solution, cal: list[Column]) -> dict[
             if abs(g) > FAR_FROM_PRIOR * (c.prior or 1.0):
                 entry["finding"] = f"{c.name}: the channel reads {1 + g:.3g}x what the preset's sensitivity says"
             out[c.name] = entry
+    if loop:
+        shares = [abs(sol.value(c.name)[0]) / (c.prior / STATIC_LOOP_PRIOR) for c in loop]
+        worst = int(np.argmax(shares))
+        entry = {"value": shares[worst], "std": None, "prior": 0.0, "prior_rel": STATIC_LOOP_PRIOR,
+                 "where": loop[worst].name, "parameters": len(loop)}
+        if shares[worst] > FAR_FROM_PRIOR * STATIC_LOOP_PRIOR:
+            entry["finding"] = (f"static_hysteresis: the loop differs from the preset material's by up to "
+                                f"{100 * shares[worst]:.1f} % of the channel ({loop[worst].name})")
+        out["static_hysteresis.loop"] = entry
     return out
 
 

@@ -22,26 +22,30 @@ A value the data push beyond three prior widths is a finding of its own.
 
 from __future__ import annotations
 
+import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from ...config.effects import CATALOGUE
 from ...errors import ConfigError
-from .forward import Point, preset_value, replay, with_effects, with_value
+from .forward import Point, preset_value, replay_rig, with_effects, with_value
 
 __all__ = ["Knob", "KNOBS", "Probe", "PROBES", "GAINS", "Simulator"]
 
 
 @dataclass(frozen=True)
 class Knob:
-    """A preset number calibrated in log space: x = ln(value / preset), prior x ~ N(0, prior_rel^2)."""
+    """A preset number calibrated in log space: x = ln(value / preset), prior x ~ N(0, prior_rel^2);
+    or, ``linear``, x = value - preset with prior width ``prior_rel`` in the value's unit (a
+    parameter that may be 0).  A path ``effects.NAME.PARAM`` is a baseline effect's parameter."""
 
     path: str
     prior_rel: float
     needs: str | None = None  # the baseline effect without which this knob moves nothing
+    linear: bool = False
 
     @property
     def name(self) -> str:
@@ -55,6 +59,7 @@ KNOBS = (
     Knob("magnet.remanence_t", 0.1),
     Knob("iron.conductivity_s_per_m", 0.5, needs="lamination_eddy_currents"),
     Knob("magnet.conductivity_s_per_m", 0.7, needs="magnet_eddy_currents"),
+    Knob("effects.frame_resonance.depth", 0.2, needs="frame_resonance", linear=True),
 )
 #: Channel sensitivities (x = relative gain error), prior +-10 %.
 GAINS = {"gain.flux_Wb": ("flux_Wb", 0.1), "gain.force_N": ("force_N", 0.1)}
@@ -75,6 +80,12 @@ class Probe:
     #: For an effect far from linear in u (a high-pass's time constant moves the force's DC and its
     #: transients at once): u values to simulate first; the best is refined by a local column.
     grid: tuple[float, ...] = ()
+    #: the effect's other parameters while this one is probed (a skew of one channel: the others 0)
+    fixed: Mapping[str, Any] = field(default_factory=dict)
+
+    def setting(self, u: float) -> dict[str, Any]:
+        """The effect's parameters with this one at u and the others at ``fixed``."""
+        return {**self.fixed, **self.params(u)}
 
     def derivative(self, u: float) -> float:
         """d value / d u, for the standard error of the reported value."""
@@ -93,11 +104,11 @@ TIME_CONSTANT_GRID = (0.25, 1.0, 4.0, 16.0, 64.0)
 
 def _skew(channel: str) -> Probe:
     zero = {"current_A": 0.0, "force_N": 0.0, "flux_Wb": 0.0, "sense_V": 0.0, "command_V": 0.0}
-    return Probe("channel_skew", channel, 2e-6, lambda u: {**zero, channel: max(u, 0.0)}, lambda u: u, lower=0.0)
+    return Probe("channel_skew", channel, 2e-6, lambda u: {channel: max(u, 0.0)}, lambda u: u, lower=0.0, fixed=zero)
 
 
 def _linear(effect: str, param: str, probe: float, lower: float = -math.inf, **fixed: Any) -> Probe:
-    return Probe(effect, param, probe, lambda u: {**fixed, param: u}, lambda u: u, lower=lower)
+    return Probe(effect, param, probe, lambda u: {param: u}, lambda u: u, lower=lower, fixed=fixed)
 
 
 def _switch(effect: str) -> Probe:
@@ -137,31 +148,57 @@ class Simulator:
         self.baseline = baseline  # rig -> effect -> params: the analyst's model of each rig
         self.points = points
         self.features = features
-        self.replays = 0
+        self.replays = 0  # rig replays simulated (a rig whose preset did not change is not replayed)
+        self._cache: dict[str, list] = {}
 
     def knob_applies(self, knob: Knob) -> bool:
+        if knob.path.startswith("effects."):
+            _, name, param = knob.path.split(".")
+            return any(param in e.get(name, {}) for e in self.baseline.values())
         has = any(_has(p, knob.path) for p in self.presets.values())
         return has and (knob.needs is None or any(knob.needs in e for e in self.baseline.values()))
+
+    def knob_value(self, knob: Knob, x: float = 0.0) -> float:
+        """The knob's value at coordinate x (the first rig that has it)."""
+        if knob.path.startswith("effects."):
+            _, name, param = knob.path.split(".")
+            v0 = next(float(e[name][param]) for e in self.baseline.values() if param in e.get(name, {}))
+        else:
+            v0 = next(preset_value(p, knob.path) for p in self.presets.values() if _has(p, knob.path))
+        return v0 + x if knob.linear else v0 * math.exp(x)
 
     def run(self, knobs: Mapping[str, float] | None = None,
             effects: Mapping[str, Mapping[str, Any]] | None = None) -> list:
         """Features of the replay with knob log-factors ``knobs`` and extra ``effects`` (name ->
         parameters, on top of the baseline; parameters ``None`` switches an effect off)."""
         presets = {}
+        linear = {k.path for k in KNOBS if k.linear}
         for rig, preset in self.presets.items():
             p: Mapping[str, Any] = preset
-            for path, x in (knobs or {}).items():
-                if _has(p, path):
-                    p = with_value(p, path, preset_value(preset, path) * math.exp(x))
             eff = {name: dict(params) for name, params in self.baseline[rig].items()}
+            for path, x in (knobs or {}).items():
+                if path.startswith("effects."):
+                    _, name, param = path.split(".")
+                    if param in eff.get(name, {}):
+                        eff[name][param] = float(eff[name][param]) + x if path in linear else eff[name][param] * math.exp(x)
+                elif _has(p, path):
+                    v0 = preset_value(preset, path)
+                    p = with_value(p, path, v0 + x if path in linear else v0 * math.exp(x))
             for name, params in (effects or {}).items():
                 if params is None:
                     eff.pop(name, None)
                 elif _accepts(rig, p, name):
                     eff[name] = {**_catalogue_params(preset, name), **eff.get(name, {}), **params}
             presets[rig] = with_effects(p, eff)
-        self.replays += 1
-        return self.features(replay(presets, self.points))
+        out: dict[int, Any] = {}
+        for rig, preset in presets.items():
+            index = [i for i, pt in enumerate(self.points) if pt.rig == rig]
+            key = json.dumps([rig, preset], sort_keys=True, default=str)
+            if key not in self._cache:
+                self.replays += 1
+                self._cache[key] = self.features(replay_rig(preset, [self.points[i] for i in index]))
+            out.update(zip(index, self._cache[key]))
+        return [out[i] for i in range(len(self.points))]
 
 
 def _has(preset: Mapping[str, Any], path: str) -> bool:

@@ -23,8 +23,8 @@ from scipy.optimize import lsq_linear
 __all__ = ["MODEL_ERROR_FLOOR", "Column", "Solution", "solve", "variance"]
 
 #: Relative model-error floor per view (share of the channel's largest harmonic in the recording).
-MODEL_ERROR_FLOOR: Mapping[str, float] = {"current vs command": 2e-5, "flux vs current": 2e-3,
-                                          "force vs current": 1e-3, "lines": 0.0}
+MODEL_ERROR_FLOOR: Mapping[str, float] = {"current vs command": 2e-5, "flux vs current": 3e-4,
+                                          "force vs current": 3e-4, "lines": 0.0}
 
 
 @dataclass(frozen=True)

@@ -17,12 +17,15 @@ import math
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
 
+import numpy as np
+
 from ...config import load_rig
 from ...formats.recording import Recording
+from ...sim_backend.bench_day import default_settle_s
 from ...sim_backend.rig import SimulatedRig
 from ..method import recording_name
 
-__all__ = ["Point", "points_of", "replay", "MEASURED_DIRECTLY", "with_effects", "with_value", "preset_value"]
+__all__ = ["Point", "Replayed", "points_of", "replay", "replay_rig", "record_mean", "MEASURED_DIRECTLY", "with_effects", "with_value", "preset_value"]
 
 #: Effects the replay leaves out: they add no periodic signal (noise, the ADC's grid) or one the
 #: features see as non-harmonic lines (mains), and are measured from the recording directly.
@@ -40,18 +43,20 @@ class Point:
     start_time_s: float
     duration_s: float
     fs_hz: float
+    averaged_s: float = math.nan  # the whole periods a feature's DC is the mean of (from the record's start)
 
 
-def points_of(recordings: Sequence[Recording]) -> tuple[list[Point], bool]:
+def points_of(recordings: Sequence[Recording], averaged_s: Sequence[float] | None = None) -> tuple[list[Point], bool]:
     """The recordings' points, and whether their sidecars gave the clock.  Without ``start_time_s``
     the recordings are taken as recorded back to back in the order given (the replay then has no
-    slow effect to compare)."""
+    slow effect to compare).  ``averaged_s``: per recording, the span of whole periods its features'
+    DC is the mean of (``periods / frequency_hz`` of its features)."""
     clocked = all(r.start_time_s is not None for r in recordings)
     points, t = [], 0.0
-    for rec in recordings:
+    for n, rec in enumerate(recordings):
         start = float(rec.start_time_s) if clocked else t
         points.append(Point(recording_name(rec), rec.rig, rec.frequency_hz, rec.current_pp_a, start, rec.duration_s,
-                            rec.fs_hz))
+                            rec.fs_hz, math.nan if averaged_s is None else float(averaged_s[n])))
         t = start + rec.duration_s
     return points, clocked
 
@@ -82,34 +87,85 @@ def with_effects(preset: Mapping[str, Any], effects: Mapping[str, Mapping[str, A
     return p
 
 
-def replay(presets: Mapping[str, Mapping[str, Any]], points: Sequence[Point], *, periods: int = 2) -> list[Recording]:
+def replay(presets: Mapping[str, Mapping[str, Any]], points: Sequence[Point], *, periods: int = 2) -> list[Replayed]:
     """Noiseless simulated recordings of ``points`` (same order), each ``periods`` periods around the
     middle of the recorded span, on the day's clock.  ``presets`` maps a rig name to the preset
     (effects included) that simulates it."""
-    out: list[Recording | None] = [None] * len(points)
+    out: dict[int, Replayed] = {}
     for rig_name in dict.fromkeys(p.rig for p in points):
-        order = sorted((i for i, p in enumerate(points) if p.rig == rig_name), key=lambda i: points[i].start_time_s)
-        sim: SimulatedRig | None = None
-        for i in order:
-            p = points[i]
-            if sim is None or sim.fs_hz != p.fs_hz:  # a stepped sine may change rate: a new rig, no memory kept
-                sim = SimulatedRig(load_rig(presets[rig_name]), fs_hz=p.fs_hz, seed=0,
-                                   effects={e: False for e in MEASURED_DIRECTLY}, frequency_hz=p.frequency_hz,
-                                   current_pp_a=p.current_pp_a)
-                # the bench day's procedure settles a rig before its first recording (5 periods, at
-                # least 20 ms): its filters' transients start there, not at the first recorded sample
-                sim.clock_offset_s = p.start_time_s - max(5.0 / p.frequency_hz, 0.02) - sim._next_index / sim.fs_hz
-            else:
-                sim.set_excitation(p.frequency_hz, p.current_pp_a)
-            keep = (max(2, int(periods)) + 0.5) / p.frequency_hz
-            begin = p.start_time_s + max(0.0, 0.5 * (p.duration_s - keep))
-            _run_until(sim, begin)
-            block = sim.read(max(2, int(math.ceil(keep * sim.fs_hz))))
-            meta = sim.metadata()
-            meta["start_time_s"] = begin
-            meta["name"] = p.name
-            out[i] = Recording(None, sim.fs_hz, dict(block.channels), meta)
+        index = [i for i, p in enumerate(points) if p.rig == rig_name]
+        out.update(zip(index, replay_rig(presets[rig_name], [points[i] for i in index], periods=periods)))
+    return [out[i] for i in range(len(points))]
+
+
+#: A record this short is replayed whole: a lightly damped mode's transient after a change of operating
+#: point (the frame's, 9 ms) decays through it, and only the whole record averages it as the data did.
+WHOLE_RECORD_SAMPLES = 25_000
+
+
+@dataclass(frozen=True)
+class Replayed:
+    """One point's replay: ``periods`` periods at the middle of the recorded span (the harmonics), and
+    as many at its start and end (the DC's curvature along the record: a transient's mean over a record
+    is not its value at the middle)."""
+
+    middle: Recording
+    edges: tuple[Recording, Recording] | None  # None when the record is too short to hold three windows
+    span: tuple[float, float]  # the recorded span, seconds on the day's clock
+
+
+def replay_rig(preset: Mapping[str, Any], points: Sequence[Point], *, periods: int = 2) -> list[Replayed]:
+    """:func:`replay` of one rig's points (same order): one running rig, as the bench day had."""
+    out: list[Replayed | None] = [None] * len(points)
+    sim: SimulatedRig | None = None
+    previous_end = 0.0
+    for i in sorted(range(len(points)), key=lambda i: points[i].start_time_s):
+        p = points[i]
+        if sim is None or sim.fs_hz != p.fs_hz:  # a stepped sine may change rate: a new rig, no memory kept
+            # the bench day's procedure: a rig settles 5 periods (at least 20 ms) before its first
+            # recording; its filters' transients start there
+            sim = SimulatedRig(load_rig(preset), fs_hz=p.fs_hz, seed=0,
+                               effects={e: False for e in MEASURED_DIRECTLY}, frequency_hz=p.frequency_hz,
+                               current_pp_a=p.current_pp_a, warmup_s=settle_s(p.frequency_hz),
+                               clock_offset_s=p.start_time_s)
+        else:  # the operating point changes when the previous recording ends (the rig ran on through it)
+            _run_until(sim, previous_end)
+            sim.set_excitation(p.frequency_hz, p.current_pp_a)
+        end = p.start_time_s + p.duration_s
+        previous_end = end
+        keep = (max(2, int(periods)) + 0.5) / p.frequency_hz
+        begin = p.start_time_s + max(0.0, 0.5 * (p.duration_s - keep))
+        if p.duration_s * p.fs_hz <= WHOLE_RECORD_SAMPLES:  # short: the whole record, its transients as they were
+            out[i] = Replayed(_window(sim, p.start_time_s, p.duration_s), None, (p.start_time_s, end))
+        elif p.duration_s >= 3.5 * keep:
+            first = _window(sim, p.start_time_s, keep)
+            middle = _window(sim, begin, keep)
+            last = _window(sim, end - keep, keep)
+            averaged = p.averaged_s if math.isfinite(p.averaged_s) else p.duration_s
+            out[i] = Replayed(middle, (first, last), (p.start_time_s, p.start_time_s + averaged))
+        else:
+            out[i] = Replayed(_window(sim, begin, keep), None, (p.start_time_s, end))
     return [r for r in out if r is not None]
+
+
+def _window(sim: SimulatedRig, begin: float, keep: float) -> Recording:
+    _run_until(sim, begin)
+    block = sim.read(max(2, int(math.ceil(keep * sim.fs_hz))))
+    meta = sim.metadata()
+    meta["start_time_s"] = begin
+    return Recording(None, sim.fs_hz, dict(block.channels), meta)
+
+
+def record_mean(values: Sequence[float], centres: Sequence[float], span: tuple[float, float]) -> float:
+    """The mean over ``span`` of the quadratic through three (time, value) points."""
+    c = np.polyfit(np.asarray(centres) - span[0], np.asarray(values), 2)
+    T = span[1] - span[0]
+    return float(c[0] * T ** 2 / 3 + c[1] * T / 2 + c[2])
+
+
+def settle_s(frequency_hz: float) -> float:
+    """How long the bench day settles a rig at a new operating point (``sim_backend.bench_day``)."""
+    return default_settle_s(frequency_hz)
 
 
 def _run_until(sim: SimulatedRig, t_s: float, chunk: int = 200_000) -> None:

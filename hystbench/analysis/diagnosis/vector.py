@@ -51,7 +51,7 @@ def _rows(f: RecordFeatures):
         if h is None:
             continue
         for k in range(h.size):
-            if not np.isfinite(h[k]):
+            if not np.isfinite(h[k]) or (ch == "flux_Wb" and k == 0):  # an integrator's DC is where it was reset
                 continue
             yield ci, ch, k, 0
             if k > 0 and not (ch == "current_A" and k == 1):  # the current's fundamental is real by construction

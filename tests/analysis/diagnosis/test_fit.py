@@ -1,0 +1,45 @@
+"""The weighted least squares of a diagnosis (analysis/diagnosis/fit.py) against an independent solution:
+priors as pseudo-observations, bounds, the covariance."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hystbench.analysis.diagnosis.fit import Column, solve
+
+
+def test_solve_matches_the_normal_equations_with_priors():
+    rng = np.random.default_rng(1)
+    n = 200
+    J = rng.normal(size=(n, 3))
+    beta = np.array([0.5, -2.0, 1.5])
+    sigma = rng.uniform(0.5, 2.0, n)
+    y = J @ beta + sigma * rng.normal(size=n)
+    cols = [Column("a", J[:, 0], prior=0.1), Column("b", J[:, 1]), Column("c", J[:, 2], prior=3.0)]
+    sol = solve(y, sigma, cols)
+    W = np.diag(1 / sigma ** 2)
+    P = np.diag([1 / 0.1 ** 2, 0.0, 1 / 3.0 ** 2])
+    info = J.T @ W @ J + P
+    expected = np.linalg.solve(info, J.T @ W @ y)
+    np.testing.assert_allclose(sol.beta, expected, rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(sol.cov, np.linalg.inv(info), rtol=1e-6)
+    resid = (y - J @ expected) / sigma
+    assert sol.chi2 == pytest.approx(resid @ resid, rel=1e-9)
+    assert sol.chi2_prior == pytest.approx(expected[0] ** 2 / 0.01 + expected[2] ** 2 / 9.0, rel=1e-9)
+
+
+def test_a_lower_bound_holds_and_the_rest_refits():
+    x = np.linspace(0, 1, 50)
+    y = -1.0 * x + 2.0  # the best slope is negative: a bound at 0 must hold it there
+    sol = solve(y, np.ones_like(x), [Column("slope", x, lower=0.0), Column("offset", np.ones_like(x))])
+    assert sol.value("slope")[0] == pytest.approx(0.0, abs=1e-12)
+    assert sol.value("offset")[0] == pytest.approx(np.mean(y), rel=1e-9)
+
+
+def test_only_the_given_rows_are_fitted():
+    x = np.arange(10.0)
+    y = np.where(x < 5, 3.0 * x, 100.0)
+    sol = solve(y, np.ones_like(x), [Column("k", x)], rows=np.arange(5))
+    assert sol.value("k")[0] == pytest.approx(3.0, rel=1e-12)
+    assert sol.fitted[9] == pytest.approx(27.0)  # the model everywhere, fitted on the rows

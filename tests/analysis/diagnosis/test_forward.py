@@ -1,0 +1,65 @@
+"""The replay (analysis/diagnosis/forward.py) is the simulation a diagnosis compares with: it must be the
+bench day itself, noise aside.  A bench day is simulated by sim_backend.bench_day (its own code path:
+one rig per type, settling, recording whole records) and replayed from the recordings' sidecars alone;
+their features must agree to the noise-free level, slow effects and transients included."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hystbench.analysis.diagnosis import _replayed_features
+from hystbench.analysis.diagnosis.features import record_features
+from hystbench.analysis.diagnosis.forward import points_of, record_mean, replay, with_effects
+from hystbench.config import load_rig
+from hystbench.config.effects import CATALOGUE
+from hystbench.sim_backend.bench_day import BenchDayPlan, bench_effects, simulate_bench_day
+
+QUIET = {"sensor_noise": False, "adc_quantisation": False}
+
+
+def _presets_with(effects: dict[str, dict]) -> dict[str, dict]:
+    """Each rig's preset with its own effects (noise off) and ``effects`` on top, as the generator had."""
+    out = {}
+    for rig, extra in effects.items():
+        p = load_rig(rig)
+        eff = {n: {**CATALOGUE[n].defaults, **(p["effects"][n] or {})} for n in p["effects"] if n not in QUIET}
+        eff.update({n: {**CATALOGUE[n].defaults, **v} for n, v in extra.items() if v is not False})
+        out[rig] = with_effects(p, eff)
+    return out
+
+
+@pytest.mark.parametrize("extra", [
+    {},
+    {"charge_amp_highpass": {"time_constant_s": 2.0}},  # transients after every change of operating point
+    {"force_offset_drift": {"offset_n": 0.1, "drift_n_per_s": 0.05}},  # the day's clock across rigs
+], ids=["presets", "highpass", "drift"])
+def test_the_replay_is_the_bench_day(extra):
+    per_rig = bench_effects({**extra, **QUIET})
+    recs = simulate_bench_day(BenchDayPlan.quick(), seed=3, effects=per_rig)
+    features = [record_features(r) for r in recs]
+    points, clocked = points_of(recs, [f.periods / f.frequency_hz for f in features])
+    assert clocked
+    truth_effects = {rig: {k: v for k, v in e.items() if k not in QUIET} for rig, e in per_rig.items()}
+    reps = replay(_presets_with(truth_effects), points)
+    for rec, data, rep in zip(recs, features, reps):
+        model = _replayed_features(rep)
+        for ch in ("current_A", "flux_Wb", "force_N"):
+            if ch not in data.harmonics:
+                continue
+            d, m = data.harmonics[ch], model.harmonics[ch]
+            scale = np.nanmax(np.abs(d[1:]))
+            ok = np.isfinite(d) & np.isfinite(m)
+            # AC: the same samples but for the window; DC: a record's mean from three windows
+            assert np.max(np.abs(d[ok][1:] - m[ok][1:])) < 2e-5 * scale, (rec.rig, rec.frequency_hz, ch)
+            tol = 2e-3 if extra.get("charge_amp_highpass") else 2e-5
+            assert abs(d[0] - m[0]) < tol * max(scale, abs(d[0])), (rec.rig, rec.frequency_hz, ch, d[0], m[0])
+
+
+def test_record_mean_integrates_a_quadratic_exactly():
+    a, b, c = 0.3, -1.2, 2.0
+    span = (1.0, 4.0)
+    centres = [1.2, 2.5, 3.8]
+    values = [a * (t - 1.0) ** 2 + b * (t - 1.0) + c for t in centres]
+    exact = (a * 27 / 3 + b * 9 / 2 + c * 3) / 3  # mean of the quadratic over 3 s
+    assert record_mean(values, centres, span) == pytest.approx(exact, rel=1e-12)
