@@ -11,7 +11,8 @@ The calibration (stage 1 of the issue), each parameter with a prior from the pre
 
 - ``instrument.fn_hz`` (prior +-5 %) and ``instrument.zeta_n`` (+-50 %): the load cell, from the
   voice coil's sweep and the force's harmonics;
-- ``geometry.airgap_m`` (+-20 %): the force law and the flux per ampere of both E-cores;
+- ``geometry.airgap_m``, ``depth_m`` and ``middle_tooth_width_m`` (+-20 % each): the force law and
+  the flux per ampere of both E-cores (a real core is off its drawing in more than its gap);
 - ``magnet.remanence_t`` (+-10 %): the magnet's bias;
 - ``iron.conductivity_s_per_m`` (+-50 %, when the baseline has ``lamination_eddy_currents``) and
   ``magnet.conductivity_s_per_m`` (+-70 %, with ``magnet_eddy_currents``): the eddy-current lags;
@@ -24,16 +25,16 @@ from __future__ import annotations
 
 import json
 import math
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
-import numpy as np
 
 from ...config.effects import CATALOGUE
 from ...errors import ConfigError
-from .forward import Point, preset_value, replay_rig, with_effects, with_value
+from .forward import Point, preset_value, replay_features, with_effects, with_value
 
-__all__ = ["Knob", "KNOBS", "Probe", "PROBES", "GAINS", "Simulator"]
+__all__ = ["Knob", "KNOBS", "Probe", "PROBES", "GAINS", "Simulator", "accepts", "catalogue_params", "check_known"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,8 @@ KNOBS = (
     Knob("instrument.fn_hz", 0.05),
     Knob("instrument.zeta_n", 0.5),
     Knob("geometry.airgap_m", 0.2),
+    Knob("geometry.depth_m", 0.2),
+    Knob("geometry.middle_tooth_width_m", 0.2),
     Knob("magnet.remanence_t", 0.1),
     Knob("iron.conductivity_s_per_m", 0.5, needs="lamination_eddy_currents"),
     Knob("magnet.conductivity_s_per_m", 0.7, needs="magnet_eddy_currents"),
@@ -139,16 +142,17 @@ PROBES: Mapping[str, tuple[Probe, ...]] = {
 
 
 class Simulator:
-    """The bench day's features as a function of the knobs and the effects: replays on the
-    simulated rig, counted (each replay is the unit of a diagnosis's cost)."""
+    """The bench day's features as a function of the knobs and the effects: replays on the simulated
+    rig, one per rig whose preset changed (a rig's replay is cached by its preset), several at once
+    in ``pool`` (a process pool, or None to replay here)."""
 
     def __init__(self, presets: Mapping[str, Mapping[str, Any]], baseline: Mapping[str, Mapping[str, Mapping[str, Any]]],
-                 points: Sequence[Point], features: Callable[[list], list]) -> None:
+                 points: Sequence[Point], pool: Executor | None = None) -> None:
         self.presets = presets  # rig -> checked preset (the nominal)
         self.baseline = baseline  # rig -> effect -> params: the analyst's model of each rig
         self.points = points
-        self.features = features
-        self.replays = 0  # rig replays simulated (a rig whose preset did not change is not replayed)
+        self.pool = pool
+        self.replays = 0  # rig replays simulated
         self._cache: dict[str, list] = {}
 
     def knob_applies(self, knob: Knob) -> bool:
@@ -169,9 +173,34 @@ class Simulator:
 
     def run(self, knobs: Mapping[str, float] | None = None,
             effects: Mapping[str, Mapping[str, Any]] | None = None) -> list:
-        """Features of the replay with knob log-factors ``knobs`` and extra ``effects`` (name ->
+        """Features of the replay with knob coordinates ``knobs`` and extra ``effects`` (name ->
         parameters, on top of the baseline; parameters ``None`` switches an effect off)."""
-        presets = {}
+        return self.run_many([(knobs, effects)])[0]
+
+    def run_many(self, requests: Sequence[tuple[Mapping[str, float] | None, Mapping[str, Mapping[str, Any]] | None]]
+                 ) -> list[list]:
+        """:meth:`run` of several (knobs, effects) at once: the rigs to replay go to the pool together."""
+        keyed = [self._presets(knobs, effects) for knobs, effects in requests]
+        todo = {key: (rig, preset) for presets in keyed for rig, (key, preset) in presets.items() if key not in self._cache}
+        jobs = {key: ((preset, [p for p in self.points if p.rig == rig])) for key, (rig, preset) in todo.items()}
+        self.replays += len(jobs)
+        if self.pool is not None and len(jobs) > 1:
+            futures = {key: self.pool.submit(replay_features, *job) for key, job in jobs.items()}
+            self._cache.update({key: fut.result() for key, fut in futures.items()})
+        else:
+            self._cache.update({key: replay_features(*job) for key, job in jobs.items()})
+        out = []
+        for presets in keyed:
+            by_point: dict[int, Any] = {}
+            for rig, (key, _) in presets.items():
+                index = [i for i, pt in enumerate(self.points) if pt.rig == rig]
+                by_point.update(zip(index, self._cache[key]))
+            out.append([by_point[i] for i in range(len(self.points))])
+        return out
+
+    def _presets(self, knobs, effects) -> dict[str, tuple[str, dict[str, Any]]]:
+        """Per rig, the preset (knobs applied, effects set) and its cache key."""
+        out = {}
         linear = {k.path for k in KNOBS if k.linear}
         for rig, preset in self.presets.items():
             p: Mapping[str, Any] = preset
@@ -187,18 +216,11 @@ class Simulator:
             for name, params in (effects or {}).items():
                 if params is None:
                     eff.pop(name, None)
-                elif _accepts(rig, p, name):
-                    eff[name] = {**_catalogue_params(preset, name), **eff.get(name, {}), **params}
-            presets[rig] = with_effects(p, eff)
-        out: dict[int, Any] = {}
-        for rig, preset in presets.items():
-            index = [i for i, pt in enumerate(self.points) if pt.rig == rig]
-            key = json.dumps([rig, preset], sort_keys=True, default=str)
-            if key not in self._cache:
-                self.replays += 1
-                self._cache[key] = self.features(replay_rig(preset, [self.points[i] for i in index]))
-            out.update(zip(index, self._cache[key]))
-        return [out[i] for i in range(len(self.points))]
+                elif accepts(rig, p, name):
+                    eff[name] = {**catalogue_params(preset, name), **eff.get(name, {}), **params}
+            full = with_effects(p, eff)
+            out[rig] = (json.dumps([rig, full], sort_keys=True, default=str), full)
+        return out
 
 
 def _has(preset: Mapping[str, Any], path: str) -> bool:
@@ -210,14 +232,14 @@ def _has(preset: Mapping[str, Any], path: str) -> bool:
     return isinstance(node, (int, float)) and not isinstance(node, bool)
 
 
-def _catalogue_params(preset: Mapping[str, Any], name: str) -> dict[str, Any]:
+def catalogue_params(preset: Mapping[str, Any], name: str) -> dict[str, Any]:
     """The parameters an effect switched on gets: the preset's table if the preset lists it, else
     the catalogue's defaults."""
     return {**dict(CATALOGUE[name].defaults), **dict(preset.get("effects", {}).get(name) or {})}
 
 
 #: Which rigs an effect can act on (the rig's physics); the simulator refuses the rest.
-def _accepts(rig: str, preset: Mapping[str, Any], effect: str) -> bool:
+def accepts(rig: str, preset: Mapping[str, Any], effect: str) -> bool:
     magnet = "magnet" in preset
     ecore = preset.get("actuator") == "ecore"
     if effect in ("magnet_eddy_currents", "magnet_thermal_drift"):

@@ -79,11 +79,12 @@ def _start_time(rec: Recording) -> float | None:
 
 
 def record_features(rec: Recording, harmonics: int = 7, lines_hz: Sequence[float] = (50.0, 150.0, 60.0, 180.0),
-                    n_points: int = 256) -> RecordFeatures:
+                    n_points: int = 256, frequency_hz: float | None = None) -> RecordFeatures:
     """The features of ``rec`` up to harmonic ``harmonics``, with the non-harmonic ``lines_hz``.
 
     ``n_points`` is the least number of phases of the period average (more are taken when a period
-    holds more samples).  ``ValueError`` naming the recording for one without ``current_A``, with
+    holds more samples); ``frequency_hz`` the true frequency when it is known (a simulation's),
+    else it is estimated from the current.  ``ValueError`` naming the recording for one without ``current_A``, with
     fewer than two whole periods or whose current has no fundamental to reference phases to."""
     name = recording_name(rec)
     if CURRENT not in rec.channels:
@@ -93,7 +94,7 @@ def record_features(rec: Recording, harmonics: int = 7, lines_hz: Sequence[float
     if K < 1:
         raise ValueError(f"harmonics must be >= 1, got {harmonics!r}")
     try:
-        f = estimate_frequency(rec.channels[CURRENT], fs, rec.frequency_hz)
+        f = float(frequency_hz) if frequency_hz else estimate_frequency(rec.channels[CURRENT], fs, rec.frequency_hz)
     except ValueError as err:
         raise ValueError(f"{name}: {err}") from err
     if f >= NYQUIST_SHARE * fs:

@@ -13,14 +13,15 @@ naming when it explains far more than its parameters could explain in noise.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from scipy.optimize import lsq_linear
 
-__all__ = ["MODEL_ERROR_FLOOR", "Column", "Solution", "solve", "variance"]
+__all__ = ["MODEL_ERROR_FLOOR", "DC_FLOOR", "FLOOR_FACTOR_RANGE", "floor_scales", "Column", "Solution", "Problem", "solve", "variance"]
 
 #: Relative model-error floor per view (share of the channel's largest harmonic in the recording).
 MODEL_ERROR_FLOOR: Mapping[str, float] = {"current vs command": 2e-5, "flux vs current": 3e-4,
@@ -52,9 +53,56 @@ class Solution:
         return float(self.beta[i]), float(math.sqrt(max(self.cov[i, i], 0.0)))
 
 
-def variance(se: np.ndarray, scale: np.ndarray, views: np.ndarray) -> np.ndarray:
-    eps = np.array([MODEL_ERROR_FLOOR[v] for v in views])
-    return se ** 2 + (eps * scale) ** 2
+#: Relative model-error floor of a channel's DC (share of its largest harmonic or of the DC itself):
+#: a force law off by a few per mille moves a magnet's 170 N bias by tenths of a newton, more than any
+#: harmonic's error; a high-pass that loses the whole DC or a drift of 0.1 N along the day stay far above.
+DC_FLOOR = 1e-2
+
+
+#: The floor's factor per part of the bench day (view x rig) is fitted to the calibrated baseline's
+#: residual, within these bounds: a baseline that is the bench (our nominal rigs) is judged at a tenth
+#: of the fixed floor; one whose iron or instrument differ, at what it misses by.
+FLOOR_FACTOR_RANGE = (0.1, 100.0)
+
+
+def variance(se: np.ndarray, scale: np.ndarray, views: np.ndarray, harmonic: np.ndarray,
+             factor: np.ndarray | float = 1.0) -> np.ndarray:
+    """Each number's variance: its standard error squared plus the model-error floor (times ``factor``)."""
+    eps = np.where(harmonic == 0, DC_FLOOR, np.array([MODEL_ERROR_FLOOR[v] for v in views]))
+    return se ** 2 + (factor * eps * scale) ** 2
+
+
+def floor_scales(residual: np.ndarray, layout: Any, data: Sequence[Any], ok: np.ndarray) -> np.ndarray:
+    """Per harmonic row, the factor on the model-error floor of its part of the bench day (its view on
+    its rig): the one that makes the calibrated baseline's reduced chi-square 1 there (bisection in log),
+    within FLOOR_FACTOR_RANGE.  A part the baseline fits to its noise keeps the lowest floor."""
+    views = layout.view()
+    rigs = np.array([data[r].rig for r in layout.record])
+    eps = np.where(layout.harmonic == 0, DC_FLOOR, np.array([MODEL_ERROR_FLOOR[v] for v in views])) * layout.scale
+    r = residual[:layout.size]
+    out = np.ones(layout.size)
+    lo_f, hi_f = FLOOR_FACTOR_RANGE
+    for key in set(zip(views, rigs)):
+        sel = (views == key[0]) & (rigs == key[1]) & ok
+        if not sel.any():
+            continue
+        r2, se2, e2 = r[sel] ** 2, layout.se[sel] ** 2, eps[sel] ** 2
+
+        def reduced(f: float) -> float:
+            return float(np.mean(r2 / (se2 + f * f * e2)))
+
+        lo, hi = math.log(lo_f), math.log(hi_f)
+        if reduced(lo_f) <= 1.0:
+            f = lo_f
+        elif reduced(hi_f) >= 1.0:
+            f = hi_f
+        else:
+            for _ in range(40):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if reduced(math.exp(mid)) > 1.0 else (lo, mid)
+            f = math.exp(hi)
+        out[(views == key[0]) & (rigs == key[1])] = f
+    return out
 
 
 def solve(residual: np.ndarray, sigma: np.ndarray, columns: Sequence[Column], rows: np.ndarray | None = None) -> Solution:
@@ -85,3 +133,30 @@ def solve(residual: np.ndarray, sigma: np.ndarray, columns: Sequence[Column], ro
     cov = np.linalg.pinv(info) / np.outer(norms, norms)
     full = np.column_stack([c.values for c in columns]) @ beta
     return Solution(beta, cov, float(resid @ resid), float(prior_term @ prior_term), names, full)
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One diagnosis's fit: the data vector, each number's sigma (standard error and floor), the rows
+    that count, and the model (the replay's features for knob coordinates and extra effects)."""
+
+    d: np.ndarray
+    sigma: np.ndarray
+    rows: np.ndarray
+    #: the model vector for a list of (knobs, effects): several simulations at once
+    model_many: Callable[[Sequence[tuple[Any, Any]]], list[np.ndarray]]
+    layout: Any  # vector.Layout of the harmonic rows (the line rows follow them)
+
+    def model(self, knobs: Mapping[str, float] | None = None,
+              effects: Mapping[str, Mapping[str, Any]] | None = None) -> np.ndarray:
+        return self.model_many([(knobs, effects)])[0]
+
+    def solve(self, m: np.ndarray, columns: Sequence[Column], rows: np.ndarray | None = None) -> Solution:
+        """The fit of the data minus model ``m`` with ``columns`` on ``rows`` (all that count when None)."""
+        return solve(self.d - m, self.sigma, columns, self.rows if rows is None else rows)
+
+    def with_effects(self, effects: Mapping[str, Mapping[str, Any]]) -> Problem:
+        """The same fit with ``effects`` in the model's baseline (explicit effects still override them)."""
+        base = self.model_many
+        return dataclasses.replace(self, model_many=lambda requests: base(
+            [(knobs, {**effects, **(extra or {})}) for knobs, extra in requests]))

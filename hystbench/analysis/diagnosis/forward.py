@@ -13,6 +13,7 @@ what the features of a noiseless periodic record need.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Sequence
@@ -24,8 +25,9 @@ from ...formats.recording import Recording
 from ...sim_backend.bench_day import default_settle_s
 from ...sim_backend.rig import SimulatedRig
 from ..method import recording_name
+from .features import RecordFeatures, record_features
 
-__all__ = ["Point", "Replayed", "points_of", "replay", "replay_rig", "record_mean", "MEASURED_DIRECTLY", "with_effects", "with_value", "preset_value"]
+__all__ = ["Point", "Replayed", "points_of", "replay", "replay_rig", "record_mean", "replayed_features", "replay_features", "MEASURED_DIRECTLY", "with_effects", "with_value", "preset_value"]
 
 #: Effects the replay leaves out: they add no periodic signal (noise, the ADC's grid) or one the
 #: features see as non-harmonic lines (mains), and are measured from the recording directly.
@@ -179,3 +181,32 @@ def _run_until(sim: SimulatedRig, t_s: float, chunk: int = 200_000) -> None:
 
 def rigs_of(points: Iterable[Point]) -> list[str]:
     return list(dict.fromkeys(p.rig for p in points))
+
+
+def replayed_features(rep: Replayed) -> RecordFeatures:
+    """A replayed point's features: the middle window's harmonics, each channel's DC the record's mean
+    (the quadratic through the start, middle and end windows), as the recording's features hold it."""
+    f = record_features(rep.middle, frequency_hz=rep.middle.metadata["generator_frequency_Hz"])
+    if rep.edges is None:
+        return f
+    (t_first, dc_first), (t_last, dc_last) = (_window_mean(w) for w in rep.edges)
+    centres = [t_first, rep.middle.start_time_s + 0.5 * f.periods / f.frequency_hz, t_last]
+    harmonics = {}
+    for ch, h in f.harmonics.items():
+        h = h.copy()
+        h[0] = record_mean([dc_first[ch], h[0].real, dc_last[ch]], centres, rep.span)
+        harmonics[ch] = h
+    return dataclasses.replace(f, harmonics=harmonics)
+
+
+def _window_mean(window: Recording) -> tuple[float, dict[str, float]]:
+    """A noiseless window's mean over its whole periods (which start at its first sample), and when."""
+    f = window.metadata["generator_frequency_Hz"]
+    periods = math.floor((window.n - 1) / window.fs_hz * f + 1e-9)
+    n = int(round(periods * window.fs_hz / f))
+    return window.start_time_s + 0.5 * periods / f, {ch: float(np.mean(x[:n])) for ch, x in window.channels.items()}
+
+
+def replay_features(preset: Mapping[str, Any], points: Sequence[Point]) -> list[RecordFeatures]:
+    """The features of one rig's replay (what a worker process computes)."""
+    return [replayed_features(r) for r in replay_rig(preset, points)]

@@ -17,7 +17,10 @@ from typing import Any, Callable, Hashable, Iterable
 
 import numpy as np
 
-__all__ = ["VIEWS", "ResidualEntry", "Located", "locate", "chi2_z"]
+from .vector import CHANNELS
+from .vector import VIEWS as CHANNEL_VIEWS
+
+__all__ = ["VIEWS", "ResidualEntry", "Located", "locate", "locate_residual", "chi2_z"]
 
 #: The channel pairs (and channels alone), in the order a reader expects them.
 VIEWS = ("flux vs current", "force vs flux", "force vs current", "current vs command", "alone")
@@ -212,3 +215,25 @@ def locate(entries: Iterable[ResidualEntry], floor_note: str = "") -> Located:
         "time": _time_trend(kept),
     }
     return Located(tuple(kept), floor_note, summary)
+
+
+def locate_residual(data, layout, resid: np.ndarray, sigma_h: np.ndarray, ok: np.ndarray, line_labels,
+                    resid_l: np.ndarray, sigma_l: np.ndarray) -> tuple[dict[str, Any], "Located"]:
+    """:func:`locate` of a diagnosis's calibrated baseline: its residual (data minus model) per record,
+    view and harmonic as entries, the lines' per channel."""
+    entries = []
+    z2 = np.where(ok, (resid / sigma_h) ** 2, np.nan)
+    for r, f in enumerate(data):
+        for ci, ch in enumerate(CHANNELS):
+            for k in range(int(layout.harmonic.max(initial=0)) + 1):
+                sel = (layout.record == r) & (layout.channel == ci) & (layout.harmonic == k) & ok
+                if sel.any():
+                    entries.append(ResidualEntry(r, f.rig, f.frequency_hz, f.current_pp_a, f.start_time_s, ch,
+                                                 CHANNEL_VIEWS[ch], str(k), float(np.sum(z2[sel])), int(sel.sum())))
+    for j, (r, ch, hz) in enumerate(line_labels):
+        if np.isfinite(resid_l[j]) and sigma_l[j] > 0:
+            f = data[r]
+            entries.append(ResidualEntry(r, f.rig, f.frequency_hz, f.current_pp_a, f.start_time_s, ch, "alone",
+                                         f"line {hz:g} Hz", float((resid_l[j] / sigma_l[j]) ** 2), 1))
+    located = locate(entries)
+    return located.to_json(), located

@@ -31,9 +31,11 @@ class Candidate:
     score: float  # BIC(baseline) - BIC(baseline + this effect): > 0 means the effect explains more than it costs
     parameters: Mapping[str, tuple[float, float]]  # catalogue parameter -> (value, standard error)
     round: int = 1
+    held_out_gain: float | None = None  # for a decisive score that was not named: how little it predicted
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "score": json_number(self.score), "round": self.round,
+                "held_out_gain": json_number(self.held_out_gain),
                 "parameters": {k: {"value": json_number(v), "std": json_number(s)} for k, (v, s) in self.parameters.items()}}
 
 

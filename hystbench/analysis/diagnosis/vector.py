@@ -35,7 +35,7 @@ class Layout:
     harmonic: np.ndarray
     part: np.ndarray
     se: np.ndarray  # the data's standard error of each number
-    scale: np.ndarray  # the channel's largest harmonic amplitude in that record (the floor is relative to it)
+    scale: np.ndarray  # the channel's largest harmonic amplitude in that record (the DC's: or the DC); the floor is relative to it
 
     @property
     def size(self) -> int:
@@ -68,7 +68,7 @@ def layout_of(data: Sequence[RecordFeatures]) -> Layout:
             harm.append(k)
             part.append(p)
             se.append(float(f.se[ch][k]))
-            scale.append(amp[ch])
+            scale.append(max(amp[ch], abs(f.harmonics[ch][0])) if k == 0 else amp[ch])
     return Layout(*(np.asarray(x) for x in (rec, chan, harm, part)), np.asarray(se, float), np.asarray(scale, float))
 
 

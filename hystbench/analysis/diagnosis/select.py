@@ -1,0 +1,291 @@
+"""Stages 3 and 4 of a diagnosis: name the physics left out, and model it.
+
+Each candidate effect is switched on in the same simulation as the baseline (:mod:`.forward`) and
+measured as columns of the linearised fit (:mod:`.columns`: one replay per parameter; a grid of
+replays, then a local column, for a time constant, whose effect is far from linear).  Scored by BIC
+against the recalibrated baseline, an effect is named only when decisively better than the baseline
+(NAME_MARGIN) and than the runner-up (RUNNER_UP_MARGIN); otherwise nothing significant is left.  The
+named effect joins the baseline, re-simulated at its fitted values (Gauss-Newton), and the rest are
+scored again (forward selection, at most MAX_ROUNDS effects).  Mains pick-up is scored on the lines
+that are not harmonics; noise and the ADC's grid are measured, not named.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from ...config.effects import CATALOGUE
+from .calibrate import Calibration
+from .columns import GAINS, PROBES, Probe, accepts
+from .fit import Column, Problem, Solution
+from .result import Candidate
+
+__all__ = ["CandidateEffect", "Selection", "candidate_effects", "forward_selection", "family", "parameters_of",
+           "NAME_MARGIN", "RUNNER_UP_MARGIN", "MAX_ROUNDS"]
+
+#: BIC margins that make a finding decisive: over the baseline (Kass & Raftery's "very strong") and
+#: over the runner-up (so that of two look-alikes neither is named on a coin toss).
+NAME_MARGIN = 10.0
+RUNNER_UP_MARGIN = 6.0
+MAX_ROUNDS = 3
+REFINE_STEPS = 3
+#: A named effect must predict the held-out operating points at least this much better.
+MIN_HELD_OUT_GAIN = 1.5
+#: Mains frequencies and their third harmonics, as lines of the recordings.
+LINE_FREQUENCIES = {50.0: (50.0, 150.0), 60.0: (60.0, 180.0)}
+
+
+@dataclass
+class CandidateEffect:
+    """A candidate's columns on the full vector (harmonic rows, then line rows)."""
+
+    name: str
+    columns: list[Column]
+    probes: tuple[Probe, ...] = ()
+    line_hz: float | None = None
+    #: a nonlinear effect's simulated change at its best grid value (its column is local to it)
+    offset: np.ndarray | None = None
+    #: where the columns were measured (u per parameter; 0 when absent): a coefficient adds to it
+    at: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Selection:
+    """What forward selection named (in order), every candidate's score per round, the model with the
+    named effects at their fitted values (linearised around them) and its fit."""
+
+    named: list[CandidateEffect]
+    ranked: list[Candidate]
+    model: np.ndarray
+    solution: Solution
+    calibration: Calibration  # the last one: around the baseline with the named effects in it
+
+    @property
+    def columns(self) -> list[Column]:
+        return [c for e in self.named for c in e.columns]
+
+
+def candidate_effects(problem: Problem, pool: Sequence[str], presets: Mapping[str, Mapping[str, Any]],
+                      calibration: Calibration, line_labels, say: Callable[[str], None]) -> dict[str, CandidateEffect]:
+    """Each candidate's columns, measured around the calibrated baseline."""
+    effects: dict[str, CandidateEffect] = {}
+    m0, x0 = calibration.m0, calibration.x0
+    linear, gridded = [], []
+    for name in pool:
+        if name in ("sensor_noise", "adc_quantisation"):
+            continue
+        if name == "mains_pickup":
+            for f0, pair in LINE_FREQUENCIES.items():
+                effects[f"mains_pickup@{f0:g}"] = mains_effect(f0, pair, line_labels, problem.layout.size, m0.size)
+            continue
+        probes = tuple(p for p in PROBES[name] if any(accepts(r, presets[r], name) for r in presets))
+        if len(probes) == 1 and probes[0].grid:
+            gridded.append((name, probes[0]))
+        elif probes:
+            linear += [(name, pr) for pr in probes]
+    say(f"switching on {', '.join(dict.fromkeys(n for n, _ in linear + gridded))}")
+    # every simulation the candidates need, at once: each linear parameter at its probe, each grid value
+    requests = [(x0, {name: pr.setting(pr.probe)}) for name, pr in linear]
+    requests += [(x0, {name: pr.setting(u)}) for name, pr in gridded for u in pr.grid]
+    runs = iter(problem.model_many(requests))
+    for name, pr in linear:
+        eff = effects.setdefault(name, CandidateEffect(name, [], ()))
+        eff.columns.append(Column(f"{name}.{pr.param}", (next(runs) - m0) / pr.probe, lower=pr.lower))
+        eff.probes += (pr,)
+    for name, pr in gridded:
+        effects[name] = grid_effect(name, pr, problem, calibration, [next(runs) for _ in pr.grid])
+    return {k: e for k, e in effects.items() if any(np.any(np.abs(c.values[problem.rows]) > 0) for c in e.columns)}
+
+
+def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], calibration: Calibration,
+                      recalibrate: Callable[[Mapping[str, Mapping[str, Any]]], Calibration],
+                      held_out: Callable[[np.ndarray, list[Column]], float],
+                      say: Callable[[str], None]) -> Selection:
+    """Score every candidate, name the decisive one, re-simulate it, repeat (module docstring).
+
+    After each name the calibration is redone from the preset with the named effects in the baseline
+    at their fitted values (``recalibrate``): before an effect is known, the calibration absorbs what
+    it can of it (a high-pass that loses the magnet's bias force pulls the remanence down), and the
+    next round must not inherit that.
+
+    A decisive score is not enough: the effect must also predict the held-out operating points
+    better (``held_out``: the cross-validated residual of a model and its columns) by MIN_HELD_OUT_GAIN.
+    A bench that is not its simulation leaves structured residue that some candidate always fits
+    better than noise (a lamination's eddy lag on another iron looks in part like a flux channel's
+    delay); what it does not do is predict the frequencies it was not fitted on.  Mains pick-up is
+    judged on the lines alone (the held-out harmonics do not see it)."""
+    effects = dict(effects)
+    named: list[CandidateEffect] = []
+    ranked: list[Candidate] = []
+    m_named = calibration.m0
+    sol = problem.solve(m_named, calibration.columns)
+    log_n = math.log(problem.rows.size)
+    for rnd in range(1, MAX_ROUNDS + 1):
+        cal = calibration.columns
+        base_cols = cal + [c for e in named for c in e.columns]
+        scores = []
+        for key, eff in effects.items():
+            if any(family(key) == family(e.name) for e in named):
+                continue
+            sol_e = problem.solve(m_named if eff.offset is None else m_named + eff.offset, base_cols + eff.columns)
+            delta = (sol.chi2 + sol.chi2_prior) - (sol_e.chi2 + sol_e.chi2_prior) - len(eff.columns) * log_n
+            scores.append((delta, key, sol_e))
+        scores = sorted(best_per_family(scores), key=lambda s: -s[0])
+        ranked += [Candidate(family(key), float(delta), parameters_of(effects[key], s), rnd) for delta, key, s in scores]
+        if not scores:
+            break
+        top, runner = scores[0], (scores[1][0] if len(scores) > 1 else -math.inf)
+        if not (top[0] >= NAME_MARGIN and top[0] - runner >= RUNNER_UP_MARGIN):
+            say(f"round {rnd}: nothing decisive (best {family(top[1])} {top[0]:.1f}, runner-up {runner:.1f})")
+            break
+        eff = effects[top[1]]
+        if eff.line_hz is None:
+            with_it = held_out(m_named if eff.offset is None else m_named + eff.offset, base_cols + eff.columns)
+            gain = held_out(m_named, base_cols) / with_it
+            if not gain >= MIN_HELD_OUT_GAIN:
+                say(f"round {rnd}: {family(top[1])} scores {top[0]:.1f} but predicts the held-out points only "
+                    f"{gain:.2f}x better: not named")
+                ranked[-len(scores)] = dataclasses.replace(ranked[-len(scores)], held_out_gain=gain)
+                break
+        say(f"round {rnd}: {family(top[1])} (score {top[0]:.1f}, runner-up {runner:.1f}); re-simulating it")
+        if eff.offset is not None:  # its change joins the model; its column stays local to it
+            m_named = m_named + eff.offset
+        named.append(eff)
+        m_named, sol = refine(problem, named, calibration, m_named)
+        fitted = effect_params(named, sol)
+        say(f"recalibrating with {', '.join(family(e.name) for e in named)} in the baseline")
+        for e in named:  # their columns now perturb the fitted values, which the simulation holds
+            e.at = {pr.param: e.at.get(pr.param, 0.0) + sol.value(f"{e.name}.{pr.param}")[0] for pr in e.probes}
+            e.offset = None
+            bounds = {f"{e.name}.{pr.param}": pr.lower - e.at[pr.param] for pr in e.probes}
+            e.columns = [dataclasses.replace(c, lower=bounds.get(c.name, c.lower)) for c in e.columns]
+        calibration = recalibrate(fitted)
+        m_named = calibration.m0
+        sol = problem.solve(m_named, calibration.columns + [c for e in named for c in e.columns])
+    return Selection(named, ranked, m_named, sol, calibration)
+
+
+def refine(problem: Problem, named: Sequence[CandidateEffect], calibration: Calibration,
+           m_lin: np.ndarray) -> tuple[np.ndarray, Solution]:
+    """Gauss-Newton on the calibration and the named effects: each step re-simulates at the fitted
+    values; the columns stay those measured (the model's change at the fitted values is exact, its
+    slope approximate).  Stops when no named parameter moves by 0.3 of its standard error."""
+    knobs, x0, cal = calibration.knobs, calibration.x0, calibration.columns
+    effect_cols = [c for e in named for c in e.columns]
+    moved = [c for c in cal if c.name not in GAINS] + effect_cols
+    sol = problem.solve(m_lin, cal + effect_cols)
+    for _ in range(REFINE_STEPS):
+        x_fit = {k.path: x0.get(k.path, 0.0) + sol.value(k.path)[0] for k in knobs}
+        eff_params = effect_params(named, sol)
+        if not eff_params:
+            break
+        m1 = problem.model(x_fit, eff_params)
+        m_new = m1 - sum(c.values * sol.value(c.name)[0] for c in moved)
+        new = problem.solve(m_new, cal + effect_cols)
+        step = max(abs(new.value(c.name)[0] - sol.value(c.name)[0]) / max(new.value(c.name)[1], 1e-300)
+                   for c in effect_cols)
+        sol, m_lin = new, m_new
+        if step < 0.3:
+            break
+    return m_lin, sol
+
+
+def effect_params(named: Sequence[CandidateEffect], sol: Solution) -> dict[str, dict[str, Any]]:
+    """The named effects' catalogue parameters at the fitted values, kept inside their ranges."""
+    out = {}
+    for e in named:
+        if e.probes:
+            merged: dict[str, Any] = dict(e.probes[0].fixed)
+            for pr in e.probes:
+                merged.update(pr.params(max(e.at.get(pr.param, 0.0) + sol.value(f"{e.name}.{pr.param}")[0], pr.lower)))
+            out[e.name] = clamp(e.name, merged)
+    return out
+
+
+def clamp(effect: str, params: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(params)
+    for k, v in params.items():
+        key = CATALOGUE[effect].params.get(k)
+        if key is None or not isinstance(v, (int, float)):
+            continue
+        lo = key.ge if key.ge is not None else key.gt
+        hi = key.le if key.le is not None else key.lt
+        if lo is not None and v <= lo:
+            v = lo if key.ge is not None else lo + 1e-12 * max(1.0, abs(lo))
+        if hi is not None and v >= hi:
+            v = hi if key.le is not None else hi - 1e-12 * max(1.0, abs(hi))
+        out[k] = v
+    return out
+
+
+def grid_effect(name: str, probe: Probe, problem: Problem, calibration: Calibration,
+                runs: Sequence[np.ndarray]) -> CandidateEffect:
+    """A nonlinear candidate: simulated at each grid value, the calibration re-solved each time; the
+    best value's change is the offset and a local column (a 20 % step) refines it."""
+    model, m0, x0, cal = problem.model, calibration.m0, calibration.x0, calibration.columns
+    best = None
+    for u, m in zip(probe.grid, runs):
+        change = m - m0
+        chi2 = problem.solve(m0 + change, cal).chi2
+        if best is None or chi2 < best[0]:
+            best = (chi2, u, change)
+    _, u, change = best
+    h = 0.2 * u
+    local = (model(x0, {name: probe.setting(u + h)}) - m0 - change) / h
+    return CandidateEffect(name, [Column(f"{name}.{probe.param}", local, lower=-u)], (probe,), offset=change,
+                           at={probe.param: u})
+
+
+def mains_effect(f0: float, pair: tuple[float, float], labels, n_h: int, size: int) -> CandidateEffect:
+    cols = []
+    for ch in ("force_N", "sense_V"):
+        for hz, what in zip(pair, ("fundamental", "third")):
+            v = np.zeros(size)
+            for j, (_, c, line) in enumerate(labels):
+                if c == ch and line == hz:
+                    v[n_h + j] = 1.0
+            if v.any():
+                cols.append(Column(f"mains_pickup@{f0:g}.{ch}.{what}", v, lower=0.0))
+    return CandidateEffect(f"mains_pickup@{f0:g}", cols, line_hz=f0)
+
+
+def family(key: str) -> str:
+    return key.split("@")[0]
+
+
+def best_per_family(scores):
+    best: dict[str, tuple] = {}
+    for s in scores:
+        f = family(s[1])
+        if f not in best or s[0] > best[f][0]:
+            best[f] = s
+    return list(best.values())
+
+
+def parameters_of(eff: CandidateEffect, sol: Solution) -> dict[str, tuple[float, float]]:
+    """A candidate's fitted parameters in the catalogue's names and units."""
+    if eff.line_hz is not None:
+        power = {c.name.split(".", 1)[1]: sol.value(c.name) for c in eff.columns}
+        out = {"frequency_hz": (eff.line_hz, 0.0)}
+        for ch, key in (("force_N", "force_n"), ("sense_V", "sense_v")):
+            p, s = power.get(f"{ch}.fundamental", (math.nan, math.nan))
+            if math.isfinite(p):
+                a = math.sqrt(max(p, 0.0))
+                out[key] = (a, s / (2 * a) if a > 0 else math.sqrt(s))
+        pf, sf = power.get("force_N.fundamental", (math.nan, math.nan))
+        p3, s3 = power.get("force_N.third", (math.nan, math.nan))
+        if pf > 0 and math.isfinite(p3):
+            r = math.sqrt(max(p3, 0.0) / pf)
+            out["third_harmonic"] = (r, 0.5 * r * math.hypot(s3 / max(p3, 1e-300), sf / pf) if r > 0 else math.nan)
+        return out
+    out = {}
+    for pr in eff.probes:
+        u, su = sol.value(f"{eff.name}.{pr.param}")
+        u += eff.at.get(pr.param, 0.0)
+        out[pr.param] = (pr.value(u), abs(pr.derivative(u)) * su if math.isfinite(pr.value(u)) else math.nan)
+    return out
