@@ -117,7 +117,8 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
     sigma_h = np.sqrt(variance(layout.se, layout.scale, layout.view(), layout.harmonic))
     sigma_l = np.sqrt(s_l ** 2 + 2.0 * s_l * np.maximum(y_l, 0.0))
     sigma = np.concatenate([sigma_h, sigma_l])
-    problem = Problem(d, sigma, np.flatnonzero(ok), model_many, layout)
+    problem = Problem(d, sigma, np.flatnonzero(ok), model_many, layout, np.concatenate([layout.se, s_l]),
+                      np.array([r for r, _, _ in line_labels], int))
 
     calibration = calibrate(problem, sim, data, base_effects, m0, say)  # 1
     # the model-error floor each part of the bench day needs: as much as the calibrated baseline misses by
@@ -127,7 +128,7 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
     calibration = dataclasses.replace(calibration, solution=problem.solve(calibration.m0, calibration.columns))
     resid_base = d - calibration.m0 - calibration.residual
     located, grid = locate_residual(data, layout, resid_base[:n_h], sigma_h, ok[:n_h], line_labels,  # 2
-                                    resid_base[n_h:], sigma_l)
+                                    resid_base[n_h:], sigma_l, (calibration.m0 + calibration.residual)[:n_h])
     effects = candidate_effects(problem, pool_names, presets, calibration, line_labels, say)  # 3, 4
 
     def recalibrate(named: Mapping[str, Mapping[str, Any]]):
@@ -136,7 +137,7 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
 
     fold_rows = folds(problem, data)
     selection = forward_selection(problem, effects, calibration, recalibrate,
-                                  lambda m, cols: held_out(problem, fold_rows, m, cols)[0], say)
+                                  lambda m, cols, where: held_out(problem, fold_rows, m, cols, problem.sigma, where)[0], say)
     say("cross-validating over operating points")
     proof = cross_validate(problem, data, calibration, selection)  # 5
 

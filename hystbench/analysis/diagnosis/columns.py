@@ -86,6 +86,11 @@ class Probe:
     #: the effect's other parameters while this one is probed (a skew of one channel: the others 0)
     fixed: Mapping[str, Any] = field(default_factory=dict)
 
+    @property
+    def is_switch(self) -> bool:
+        """An effect without a continuous parameter (its strength is the column's scale only)."""
+        return self.param == "strength"
+
     def setting(self, u: float) -> dict[str, Any]:
         """The effect's parameters with this one at u and the others at ``fixed``."""
         return {**self.fixed, **self.params(u)}

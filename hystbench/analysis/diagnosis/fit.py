@@ -146,6 +146,8 @@ class Problem:
     #: the model vector for a list of (knobs, effects): several simulations at once
     model_many: Callable[[Sequence[tuple[Any, Any]]], list[np.ndarray]]
     layout: Any  # vector.Layout of the harmonic rows (the line rows follow them)
+    noise: np.ndarray  # each number's standard error alone (no model-error floor): the unit of a residual
+    line_records: np.ndarray  # the record of each line row
 
     def model(self, knobs: Mapping[str, float] | None = None,
               effects: Mapping[str, Mapping[str, Any]] | None = None) -> np.ndarray:

@@ -218,10 +218,15 @@ def locate(entries: Iterable[ResidualEntry], floor_note: str = "") -> Located:
 
 
 def locate_residual(data, layout, resid: np.ndarray, sigma_h: np.ndarray, ok: np.ndarray, line_labels,
-                    resid_l: np.ndarray, sigma_l: np.ndarray) -> tuple[dict[str, Any], "Located"]:
+                    resid_l: np.ndarray, sigma_l: np.ndarray, model: np.ndarray | None = None
+                    ) -> tuple[dict[str, Any], "Located"]:
     """:func:`locate` of a diagnosis's calibrated baseline: its residual (data minus model) per record,
-    view and harmonic as entries, the lines' per channel."""
+    view and harmonic as entries, the lines' per channel; given the calibrated ``model`` (harmonic
+    rows), also force vs flux: each side's force referenced to its own flux's fundamental, so what
+    the iron does to the flux's phase drops out and only the force instrument and the force law remain."""
     entries = []
+    if model is not None:
+        entries += _force_vs_flux(data, layout, resid, sigma_h, ok, model)
     z2 = np.where(ok, (resid / sigma_h) ** 2, np.nan)
     for r, f in enumerate(data):
         for ci, ch in enumerate(CHANNELS):
@@ -237,3 +242,40 @@ def locate_residual(data, layout, resid: np.ndarray, sigma_h: np.ndarray, ok: np
                                          f"line {hz:g} Hz", float((resid_l[j] / sigma_l[j]) ** 2), 1))
     located = locate(entries)
     return located.to_json(), located
+
+
+def _force_vs_flux(data, layout, resid: np.ndarray, sigma_h: np.ndarray, ok: np.ndarray, model: np.ndarray
+                   ) -> list[ResidualEntry]:
+    out = []
+    flux, force = CHANNELS.index("flux_Wb"), CHANNELS.index("force_N")
+    measured = model + resid
+    for r, f in enumerate(data):
+        rows = {}
+        for ci in (flux, force):
+            sel = (layout.record == r) & (layout.channel == ci)
+            rows[ci] = sel
+        if not (rows[flux].any() and rows[force].any()):
+            continue
+        turned = []
+        for vec in (measured, model):
+            h = {ci: _complex(vec, layout, rows[ci]) for ci in (flux, force)}
+            k = np.arange(h[force].size)
+            turned.append(h[force] * np.exp(-1j * k * np.angle(h[flux][1])))
+        diff = turned[0] - turned[1]
+        for k in range(diff.size):
+            sel = rows[force] & (layout.harmonic == k) & ok
+            if not sel.any() or not np.isfinite(diff[k]):
+                continue
+            parts = layout.part[sel]
+            z2 = sum(((diff[k].imag if p else diff[k].real) / s) ** 2 for p, s in zip(parts, sigma_h[sel]))
+            out.append(ResidualEntry(r, f.rig, f.frequency_hz, f.current_pp_a, f.start_time_s, "force_N",
+                                     "force vs flux", str(k), float(z2), int(sel.sum())))
+    return out
+
+
+def _complex(vec: np.ndarray, layout, sel: np.ndarray) -> np.ndarray:
+    """One record's complex harmonics of one channel from the vector's rows ``sel``."""
+    h = np.zeros(int(layout.harmonic.max(initial=0)) + 1, complex)
+    idx = np.flatnonzero(sel)
+    np.add.at(h, layout.harmonic[idx], np.where(layout.part[idx] == 0, vec[idx], 1j * vec[idx]))
+    return h

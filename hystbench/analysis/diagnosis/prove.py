@@ -27,34 +27,43 @@ __all__ = ["cross_validate", "folds", "held_out"]
 
 def folds(problem: Problem, data: Sequence[RecordFeatures]) -> list[tuple[np.ndarray, np.ndarray]]:
     """(training rows, held-out rows) per fold: one excitation frequency of the E-core rigs held out
-    (its flux and force harmonics judged), the voice coil's instrument sweep always in training."""
-    layout, rows, n_h = problem.layout, problem.rows, problem.layout.size
+    (its flux and force harmonics and its non-harmonic lines judged), the voice coil's instrument sweep
+    always in training."""
+    layout, rows = problem.layout, problem.rows
     recs_ecore = sorted({r for r, f in enumerate(data) if "flux_Wb" in f.harmonics})
     group = {r: round(data[r].frequency_hz) for r in recs_ecore} or {r: r for r in range(len(data))}
     if len(set(group.values())) < 2:
         group = {r: r for r in group}
-    harmonic_rows = rows[rows < n_h]
-    rec_of = layout.record[harmonic_rows]
-    judged = np.isin(layout.channel[harmonic_rows], [CHANNELS.index("flux_Wb"), CHANNELS.index("force_N")])
+    rec_of = np.concatenate([layout.record, problem.line_records])[rows]
+    judged = np.concatenate([np.isin(layout.channel, [CHANNELS.index("flux_Wb"), CHANNELS.index("force_N")]),
+                             np.ones(problem.line_records.size, bool)])[rows]  # the lines: mains is judged there
     out = []
     for g in sorted(set(group.values())):
         held = np.isin(rec_of, [r for r, gg in group.items() if gg == g])
-        test, train = harmonic_rows[held & judged], np.setdiff1d(rows, harmonic_rows[held])
+        test, train = rows[held & judged], rows[~held]
         if test.size and train.size:
             out.append((train, test))
     return out
 
 
 def held_out(problem: Problem, fold_rows: Sequence[tuple[np.ndarray, np.ndarray]], m: np.ndarray,
-             columns: Sequence[Column]) -> tuple[float, np.ndarray]:
-    """The held-out residual of the model ``m`` + ``columns`` (fitted on each fold's training rows) in
-    units of the held-out numbers' standard errors, and the held-out predictions (NaN elsewhere)."""
+             columns: Sequence[Column], unit: np.ndarray | None = None,
+             where: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+    """The held-out residual of the model ``m`` + ``columns`` (fitted on each fold's training rows): the
+    rms over the held-out numbers of each one's error in units of its standard error (or of ``unit``,
+    with the model-error floor: what forward selection judges by; only at ``where``, a mask, when
+    given), and the held-out predictions (NaN elsewhere)."""
+    unit = problem.noise if unit is None else unit
     pred = np.full(problem.d.size, np.nan)
     num = den = 0.0
     for train, test in fold_rows:
+        if where is not None:  # only the numbers a candidate moves
+            test = test[where[test]]
+            if not test.size:
+                continue
         pred[test] = m[test] + problem.solve(m, columns, train).fitted[test]
-        num += float(np.sum((problem.d[test] - pred[test]) ** 2))
-        den += float(np.sum(problem.layout.se[test] ** 2))
+        num += float(np.sum(((problem.d[test] - pred[test]) / unit[test]) ** 2))
+        den += test.size
     return (math.sqrt(num / den) if den > 0 else math.nan), pred
 
 

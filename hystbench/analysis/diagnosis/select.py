@@ -104,7 +104,7 @@ def candidate_effects(problem: Problem, pool: Sequence[str], presets: Mapping[st
 
 def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], calibration: Calibration,
                       recalibrate: Callable[[Mapping[str, Mapping[str, Any]]], Calibration],
-                      held_out: Callable[[np.ndarray, list[Column]], float],
+                      held_out: Callable[[np.ndarray, list[Column], np.ndarray], float],
                       say: Callable[[str], None]) -> Selection:
     """Score every candidate, name the decisive one, re-simulate it, repeat (module docstring).
 
@@ -113,8 +113,9 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
     it can of it (a high-pass that loses the magnet's bias force pulls the remanence down), and the
     next round must not inherit that.
 
-    A decisive score is not enough: the effect must also predict the held-out operating points
-    better (``held_out``: the cross-validated residual of a model and its columns) by MIN_HELD_OUT_GAIN.
+    A decisive score is not enough: once modelled and recalibrated, the effect must also predict the
+    held-out operating points better where it acts (``held_out``: the cross-validated residual of a
+    model and its columns on the numbers the effect moves) by MIN_HELD_OUT_GAIN, or it is taken back.
     A bench that is not its simulation leaves structured residue that some candidate always fits
     better than noise (a lamination's eddy lag on another iron looks in part like a flux channel's
     delay); what it does not do is predict the frequencies it was not fitted on.  Mains pick-up is
@@ -144,29 +145,37 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
             say(f"round {rnd}: nothing decisive (best {family(top[1])} {top[0]:.1f}, runner-up {runner:.1f})")
             break
         eff = effects[top[1]]
-        if eff.line_hz is None:
-            with_it = held_out(m_named if eff.offset is None else m_named + eff.offset, base_cols + eff.columns)
-            gain = held_out(m_named, base_cols) / with_it
-            if not gain >= MIN_HELD_OUT_GAIN:
-                say(f"round {rnd}: {family(top[1])} scores {top[0]:.1f} but predicts the held-out points only "
-                    f"{gain:.2f}x better: not named")
-                ranked[-len(scores)] = dataclasses.replace(ranked[-len(scores)], held_out_gain=gain)
-                break
         say(f"round {rnd}: {family(top[1])} (score {top[0]:.1f}, runner-up {runner:.1f}); re-simulating it")
+        before = (named, [dataclasses.replace(e) for e in named], m_named, sol, calibration)
+        # judged where it acts: the numbers its fitted contribution moves by half their sigma or more
+        acts = (eff.offset if eff.offset is not None else 0.0) + sum(top[2].value(c.name)[0] * c.values
+                                                                      for c in eff.columns)
+        where = np.abs(acts) >= 0.5 * problem.sigma
+        before_held_out = held_out(m_named, base_cols, where)
+        named = named + [eff]
         if eff.offset is not None:  # its change joins the model; its column stays local to it
             m_named = m_named + eff.offset
-        named.append(eff)
         m_named, sol = refine(problem, named, calibration, m_named)
         fitted = effect_params(named, sol)
         say(f"recalibrating with {', '.join(family(e.name) for e in named)} in the baseline")
         for e in named:  # their columns now perturb the fitted values, which the simulation holds
-            e.at = {pr.param: e.at.get(pr.param, 0.0) + sol.value(f"{e.name}.{pr.param}")[0] for pr in e.probes}
+            # (a switch is simulated on as the preset describes it: strength 1, whatever was fitted)
+            e.at = {pr.param: 1.0 if pr.is_switch else e.at.get(pr.param, 0.0) + sol.value(f"{e.name}.{pr.param}")[0]
+                    for pr in e.probes}
             e.offset = None
             bounds = {f"{e.name}.{pr.param}": pr.lower - e.at[pr.param] for pr in e.probes}
             e.columns = [dataclasses.replace(c, lower=bounds.get(c.name, c.lower)) for c in e.columns]
         calibration = recalibrate(fitted)
         m_named = calibration.m0
         sol = problem.solve(m_named, calibration.columns + [c for e in named for c in e.columns])
+        gain = before_held_out / held_out(m_named, calibration.columns + [c for e in named for c in e.columns], where)
+        if eff.line_hz is None and not gain >= MIN_HELD_OUT_GAIN:
+            say(f"round {rnd}: {family(top[1])} predicts the held-out points only {gain:.2f}x better: not named")
+            ranked[-len(scores)] = dataclasses.replace(ranked[-len(scores)], held_out_gain=gain)
+            named, saved, m_named, sol, calibration = before
+            for e, kept in zip(named, saved):
+                e.at, e.offset, e.columns = kept.at, kept.offset, kept.columns
+            break
     return Selection(named, ranked, m_named, sol, calibration)
 
 

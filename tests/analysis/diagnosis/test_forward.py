@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hystbench.analysis.diagnosis import _replayed_features
+from hystbench.analysis.diagnosis.forward import replayed_features as _replayed_features
 from hystbench.analysis.diagnosis.features import record_features
 from hystbench.analysis.diagnosis.forward import points_of, record_mean, replay, with_effects
 from hystbench.config import load_rig
