@@ -76,8 +76,10 @@ def verdict(d: Diagnosis) -> str:
     proof = (f"the held-out residual falls from {_num(d.residual_before)} to {_num(d.residual_after)} noise floors "
              f"({_num(d.improvement)}x)")
     if not d.effects:
-        return ("Nothing significant is left: the calibrated baseline explains these recordings within their noise "
-                f"and model-error floor (held-out residual {_num(d.residual_before)} noise floors); no effect is named.")
+        return ("No catalogue effect is named: nothing left out explains these recordings decisively and predicts "
+                "held-out operating points better (the held-out residual of the calibrated baseline is "
+                f"{_num(d.residual_before)} noise floors; what it misses beyond its noise is in section 2, "
+                "in the model-error floor, and in the findings).")
     names = " and ".join(f"**{e}**" for e in d.effects)
     what = "an effect" if len(d.effects) == 1 else f"{len(d.effects)} effects"
     return f"The recordings show {what} the baseline leaves out: {names}; with it modelled {proof}."

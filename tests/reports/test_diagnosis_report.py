@@ -58,7 +58,7 @@ def test_the_page_leads_with_the_verdict_and_names_parameters_with_units(tmp_pat
 
 def test_nothing_named_says_so_and_invents_no_model(tmp_path):
     d = _diagnosis(named=False)
-    assert verdict(d).startswith("Nothing significant is left")
+    assert verdict(d).startswith("No catalogue effect is named")
     text = write_report(d, tmp_path / "rep").read_text()
     assert "no invented physics" in text and "](loops.png)" not in text
 
