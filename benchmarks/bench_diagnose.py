@@ -171,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append(run_case(c, plan, out, say=lambda msg, c=c: bar.update(task, description=f"{c.name}: {msg}")))
                 bar.advance(task)
         else:  # one case per process, each diagnosis on one core (its seconds are that core's)
-            with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:
+            with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("forkserver")) as pool:
                 futures = [pool.submit(run_named, c.name, plan, out) for c in cases]
                 for fut in as_completed(futures):
                     bar.advance(task)

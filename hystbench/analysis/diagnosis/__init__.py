@@ -136,8 +136,10 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
         return calibrate(extended, sim, data, base_effects, extended.model(), say, jacobian=calibration.jacobian)
 
     fold_rows = folds(problem, data)
-    selection = forward_selection(problem, effects, calibration, recalibrate,
-                                  lambda m, cols, where: held_out(problem, fold_rows, m, cols, problem.sigma, where)[0], say)
+    def judged(m: np.ndarray, cols, where: np.ndarray) -> float:
+        return held_out(problem, fold_rows, m, cols, problem.sigma, where)[0]
+
+    selection = forward_selection(problem, effects, calibration, recalibrate, judged, say)
     say("cross-validating over operating points")
     proof = cross_validate(problem, data, calibration, selection)  # 5
 
@@ -157,16 +159,16 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
         loops=proof["loops"], grid=grid)
 
 
-
-
 @contextlib.contextmanager
 def _replay_pool(jobs: int | None):
-    """Worker processes for the replays (each is independent); None when one process must do."""
+    """Worker processes for the replays (each is independent); None when one process must do.  They
+    start from a fork server, not by forking this process, which may hold other threads' locks (a
+    zenoh session, a daemon's pipeline)."""
     n = jobs if jobs is not None else int(os.environ.get("HYSTBENCH_JOBS", 0)) or (os.cpu_count() or 1)
     if n <= 1:
         yield None
         return
-    with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("fork")) as pool:
+    with ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("forkserver")) as pool:
         yield pool
 
 

@@ -50,7 +50,7 @@ WITHIN_STD, WITHIN_SHARE = 4.0, 0.1
 @pytest.fixture(scope="module")
 def suite() -> dict[str, dict]:
     jobs = max(1, int(os.environ.get("HYSTBENCH_JOBS", 0)) or (os.cpu_count() or 1))
-    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("fork")) as pool:
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("forkserver")) as pool:
         rows = list(pool.map(run_named, [c.name for c in CASES]))
     return {r["case"]: r for r in rows}
 
