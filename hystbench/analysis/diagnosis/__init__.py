@@ -173,6 +173,7 @@ def _replay_pool(jobs: int | None):
 
 
 def _features(rec: Recording) -> RecordFeatures:
+    """The recording's features; what they cannot take (one period, no current) as a DiagnosisError."""
     try:
         return record_features(rec)
     except ValueError as err:
@@ -193,6 +194,8 @@ def _check_rates(recs: Sequence[Recording]) -> list[str]:
 
 def _baseline_effects(presets: Mapping[str, Mapping[str, Any]], baseline: Sequence[str] | None
                       ) -> dict[str, dict[str, dict[str, Any]]]:
+    """Per rig, the effects the simulation compared has: the preset's (or exactly ``baseline``'s, those
+    the rig can have), each with its parameters; noise, the ADC and mains are measured, not simulated."""
     out = {}
     for rig, p in presets.items():
         if baseline is None:

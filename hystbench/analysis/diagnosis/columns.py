@@ -243,8 +243,9 @@ def catalogue_params(preset: Mapping[str, Any], name: str) -> dict[str, Any]:
     return {**dict(CATALOGUE[name].defaults), **dict(preset.get("effects", {}).get(name) or {})}
 
 
-#: Which rigs an effect can act on (the rig's physics); the simulator refuses the rest.
 def accepts(rig: str, preset: Mapping[str, Any], effect: str) -> bool:
+    """Whether ``effect`` can act on the rig (its physics: an iron's effects need an E-core, a
+    magnet's its magnet); the simulator refuses the rest."""
     magnet = "magnet" in preset
     ecore = preset.get("actuator") == "ecore"
     if effect in ("magnet_eddy_currents", "magnet_thermal_drift"):
@@ -256,6 +257,7 @@ def accepts(rig: str, preset: Mapping[str, Any], effect: str) -> bool:
 
 
 def check_known(names: Sequence[str], option: str) -> None:
+    """A ConfigError naming ``option`` for a name that is not in the catalogue."""
     unknown = [n for n in names if n not in CATALOGUE]
     if unknown:
         raise ConfigError(f"{option}: unknown effect {unknown[0]!r}; known: {', '.join(CATALOGUE)}")

@@ -16,7 +16,7 @@ import copy
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -177,10 +177,6 @@ def _run_until(sim: SimulatedRig, t_s: float, chunk: int = 200_000) -> None:
         n = min(chunk, left)
         sim.read(n)
         left -= n
-
-
-def rigs_of(points: Iterable[Point]) -> list[str]:
-    return list(dict.fromkeys(p.rig for p in points))
 
 
 def replayed_features(rep: Replayed) -> RecordFeatures:

@@ -103,7 +103,7 @@ def cross_validate(problem: Problem, data: Sequence[RecordFeatures], before: Cal
 
 
 def reconstruct(values: np.ndarray, layout: Layout, record: int) -> dict[str, np.ndarray]:
-    """Complex harmonics per channel of one record from the vector's rows."""
+    """Complex harmonics per channel of one record from the vector's rows (the loops' figure)."""
     out: dict[str, np.ndarray] = {}
     K = int(layout.harmonic.max(initial=0))
     for ci, ch in enumerate(CHANNELS):
@@ -118,5 +118,6 @@ def reconstruct(values: np.ndarray, layout: Layout, record: int) -> dict[str, np
 
 
 def period(h: np.ndarray, phase: np.ndarray) -> np.ndarray:
+    """One period from harmonics ``h`` (features' convention: X_0 + sum Re(X_k e^{ikwt})) at ``phase`` (cycles)."""
     k = np.arange(h.size)
-    return (h[None, :] * np.exp(2j * np.pi * np.outer(phase, k))).real @ np.ones(h.size) - 0.0
+    return (h[None, :] * np.exp(2j * np.pi * np.outer(phase, k))).real.sum(axis=1)

@@ -4,9 +4,10 @@ Each candidate effect is switched on in the same simulation as the baseline (:mo
 measured as columns of the linearised fit (:mod:`.columns`: one replay per parameter; a grid of
 replays, then a local column, for a time constant, whose effect is far from linear).  Scored by BIC
 against the recalibrated baseline, an effect is named only when decisively better than the baseline
-(NAME_MARGIN) and than the runner-up (RUNNER_UP_MARGIN); otherwise nothing significant is left.  The
-named effect joins the baseline, re-simulated at its fitted values (Gauss-Newton), and the rest are
-scored again (forward selection, at most MAX_ROUNDS effects).  Mains pick-up is scored on the lines
+(NAME_MARGIN) and than the runner-up (RUNNER_UP_MARGIN), and when, modelled, it predicts the held-out
+frequencies MIN_HELD_OUT_GAIN better where it acts; otherwise nothing significant is left.  The named
+effect joins the baseline, re-simulated at its fitted values (Gauss-Newton), and the rest are scored
+again (forward selection, at most MAX_ROUNDS effects).  Mains pick-up is scored on the lines
 that are not harmonics; noise and the ADC's grid are measured, not named.
 """
 
@@ -217,6 +218,8 @@ def effect_params(named: Sequence[CandidateEffect], sol: Solution) -> dict[str, 
 
 
 def clamp(effect: str, params: Mapping[str, Any]) -> dict[str, Any]:
+    """``params`` held inside the catalogue's ranges (a linear step may overshoot a bound the
+    simulator refuses)."""
     out = dict(params)
     for k, v in params.items():
         key = CATALOGUE[effect].params.get(k)
@@ -251,6 +254,8 @@ def grid_effect(name: str, probe: Probe, problem: Problem, calibration: Calibrat
 
 
 def mains_effect(f0: float, pair: tuple[float, float], labels, n_h: int, size: int) -> CandidateEffect:
+    """Mains at ``f0``: one power per channel (force, sense leads) and line (fundamental, third), the
+    same in every recording (its phase runs on between records, its power does not)."""
     cols = []
     for ch in ("force_N", "sense_V"):
         for hz, what in zip(pair, ("fundamental", "third")):
@@ -264,10 +269,12 @@ def mains_effect(f0: float, pair: tuple[float, float], labels, n_h: int, size: i
 
 
 def family(key: str) -> str:
+    """The catalogue name of a candidate's key (``mains_pickup@50`` -> ``mains_pickup``)."""
     return key.split("@")[0]
 
 
 def best_per_family(scores):
+    """One score per catalogue effect: its best variant (mains at 50 or at 60 Hz)."""
     best: dict[str, tuple] = {}
     for s in scores:
         f = family(s[1])

@@ -59,6 +59,7 @@ def _rows(f: RecordFeatures):
 
 
 def layout_of(data: Sequence[RecordFeatures]) -> Layout:
+    """The rows the data have (a simulation is read into the same rows)."""
     rec, chan, harm, part, se, scale = [], [], [], [], [], []
     for r, f in enumerate(data):
         amp = {ch: float(np.nanmax(np.abs(f.harmonics[ch][1:]))) for ch in CHANNELS if ch in f.harmonics}
