@@ -11,6 +11,9 @@
      │                                   record or replay whose pipeline failed), cli/   (also ValueError)
      ├── EstimationError                 the data cannot give the asked-for estimate (names the recording);
      │                                   analysis/   (also a ValueError)
+     ├── DiagnosisError                  a bench day the diagnosis cannot take: one recording, mixed sample
+     │                                   rates in one rig, a rig no preset simulates (names the recording);
+     │                                   analysis/diagnosis   (also a ValueError)
      ├── SimulationError                 the simulated rig cannot follow what it was asked (names rig and
      │                                   why); sim_backend/actuators/ecore, cli/main (a clipped ADC)
      ├── CommandRefused                  a command the bench cannot carry out now: not running, a sweep is

@@ -83,8 +83,8 @@ def calibrate(problem: Problem, sim: Simulator, data: Sequence[RecordFeatures],
     return Calibration(knobs, cols, m0, {k.path: float(v) for k, v in zip(knobs, x)}, sol, jacobian)
 
 
-def _columns(knobs: Sequence[Knob], jacobian: np.ndarray, m0: np.ndarray, layout: Layout, data,
-             base_effects) -> list[Column]:
+def _columns(knobs: Sequence[Knob], jacobian: np.ndarray, m0: np.ndarray, layout: Layout,
+             data: Sequence[RecordFeatures], base_effects: Mapping[str, Mapping[str, Any]]) -> list[Column]:
     """The knobs' columns, the static loop's and the sensitivities' (which scale the model itself)."""
     cols = [Column(k.path, jacobian[:, i], prior=k.prior_rel) for i, k in enumerate(knobs)]
     cols += static_loop_columns(data, base_effects, layout, m0)
@@ -96,7 +96,8 @@ def _columns(knobs: Sequence[Knob], jacobian: np.ndarray, m0: np.ndarray, layout
     return cols
 
 
-def static_loop_columns(data, base_effects, layout: Layout, m0: np.ndarray) -> list[Column]:
+def static_loop_columns(data: Sequence[RecordFeatures], base_effects: Mapping[str, Mapping[str, Any]], layout: Layout,
+                        m0: np.ndarray) -> list[Column]:
     """The baseline's static hysteresis, recalibrated without a form: at each rig and amplitude, each
     harmonic of the flux and of the force may move by one complex number, the same at every frequency.
     A real iron's loop is never the preset material's; what the rig's other physics does with

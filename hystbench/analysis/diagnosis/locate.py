@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from dataclasses import dataclass, field
-from typing import Any, Callable, Hashable, Iterable
+from typing import Any, Callable, Hashable, Iterable, Sequence
 
 import numpy as np
 
@@ -217,9 +217,9 @@ def locate(entries: Iterable[ResidualEntry], floor_note: str = "") -> Located:
     return Located(tuple(kept), floor_note, summary)
 
 
-def locate_residual(data, layout, resid: np.ndarray, sigma_h: np.ndarray, ok: np.ndarray, line_labels,
-                    resid_l: np.ndarray, sigma_l: np.ndarray, model: np.ndarray | None = None
-                    ) -> tuple[dict[str, Any], "Located"]:
+def locate_residual(data: Sequence[Any], layout: Any, resid: np.ndarray, sigma_h: np.ndarray, ok: np.ndarray,
+                    line_labels: Sequence[tuple[int, str, float]], resid_l: np.ndarray, sigma_l: np.ndarray,
+                    model: np.ndarray | None = None) -> tuple[dict[str, Any], Located]:
     """:func:`locate` of a diagnosis's calibrated baseline: its residual (data minus model) per record,
     view and harmonic as entries, the lines' per channel; given the calibrated ``model`` (harmonic
     rows), also force vs flux: each side's force referenced to its own flux's fundamental, so what

@@ -72,7 +72,8 @@ class Selection:
 
 
 def candidate_effects(problem: Problem, pool: Sequence[str], presets: Mapping[str, Mapping[str, Any]],
-                      calibration: Calibration, line_labels, say: Callable[[str], None]) -> dict[str, CandidateEffect]:
+                      calibration: Calibration, line_labels: Sequence[tuple[int, str, float]],
+                      say: Callable[[str], None]) -> dict[str, CandidateEffect]:
     """Each candidate's columns, measured around the calibrated baseline."""
     effects: dict[str, CandidateEffect] = {}
     m0, x0 = calibration.m0, calibration.x0
@@ -253,7 +254,8 @@ def grid_effect(name: str, probe: Probe, problem: Problem, calibration: Calibrat
                            at={probe.param: u})
 
 
-def mains_effect(f0: float, pair: tuple[float, float], labels, n_h: int, size: int) -> CandidateEffect:
+def mains_effect(f0: float, pair: tuple[float, float], labels: Sequence[tuple[int, str, float]], n_h: int,
+                 size: int) -> CandidateEffect:
     """Mains at ``f0``: one power per channel (force, sense leads) and line (fundamental, third), the
     same in every recording (its phase runs on between records, its power does not)."""
     cols = []
@@ -273,7 +275,7 @@ def family(key: str) -> str:
     return key.split("@")[0]
 
 
-def best_per_family(scores):
+def best_per_family(scores: Sequence[tuple[float, str, Solution]]) -> list[tuple[float, str, Solution]]:
     """One score per catalogue effect: its best variant (mains at 50 or at 60 Hz)."""
     best: dict[str, tuple] = {}
     for s in scores:
