@@ -204,6 +204,11 @@ class SimulatedRig:
         self.samples_in(duration_s)
         return concatenate(list(self.blocks(block_size, duration_s)))
 
+    @property
+    def next_index(self) -> int:
+        """The index of the next sample the rig will deliver (0 is the first after its warm-up)."""
+        return self._next_index
+
     def samples_in(self, duration_s: float) -> int:
         """The number of samples in ``duration_s``: at least one (0 s would be an empty recording)."""
         n = round(duration_s * self.fs_hz) if math.isfinite(duration_s) else 0

@@ -5,7 +5,7 @@ Each column is how the bench day's features move when one parameter moves, measu
 the day on the simulated rig (:mod:`.forward`) at the baseline and once more with the parameter
 moved.  A parameter is expressed in the coordinate in which the features move almost linearly (a
 time constant as its inverse, a conductivity as a log factor), so the linearised fit is a good
-first answer and one re-simulation at the fitted values refines it.
+first answer and re-simulations at the fitted values refine it (Gauss-Newton).
 
 The calibration (stage 1 of the issue), each parameter with a prior from the preset:
 
@@ -16,9 +16,11 @@ The calibration (stage 1 of the issue), each parameter with a prior from the pre
 - ``magnet.remanence_t`` (+-10 %): the magnet's bias;
 - ``iron.conductivity_s_per_m`` (+-50 %, when the baseline has ``lamination_eddy_currents``) and
   ``magnet.conductivity_s_per_m`` (+-70 %, with ``magnet_eddy_currents``): the eddy-current lags;
+- ``effects.frame_resonance.depth`` (+-0.2, when the baseline has the frame's modes);
 - ``gain.flux_Wb`` and ``gain.force_N`` (+-10 %): the integrator's and the charge amplifier's
-  sensitivities (one each for the bench).
-A value the data push beyond three prior widths is a finding of its own.
+  sensitivities (one each for the bench);
+and the static loop (:mod:`.calibrate`).  A value the data push beyond three prior widths is a
+finding of its own.
 """
 
 from __future__ import annotations
@@ -28,7 +30,6 @@ import math
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
-
 
 from ...config.effects import CATALOGUE
 from ...errors import ConfigError

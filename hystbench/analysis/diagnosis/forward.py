@@ -172,7 +172,7 @@ def settle_s(frequency_hz: float) -> float:
 
 def _run_until(sim: SimulatedRig, t_s: float, chunk: int = 200_000) -> None:
     """Run the rig (discarding samples) until its next sample is at ``t_s`` on the day's clock."""
-    left = int(round((t_s - sim.clock_offset_s) * sim.fs_hz)) - sim._next_index
+    left = int(round((t_s - sim.clock_offset_s) * sim.fs_hz)) - sim.next_index
     while left > 0:
         n = min(chunk, left)
         sim.read(n)
