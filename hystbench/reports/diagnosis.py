@@ -149,12 +149,10 @@ def _closed(x: np.ndarray) -> np.ndarray:
 
 
 def _heat_map(d: Diagnosis, path: Path) -> str | None:
-    """The located mismatch's heat map (``reports.diagnosis_figures.heat_map``); None when it cannot
-    be drawn yet (the reason goes on the page)."""
-    try:
-        from .diagnosis_figures import heat_map
-    except ImportError:
-        return "TODO: the heat map figure (reports/diagnosis_figures.py `heat_map`) is not in this build yet"
+    """The located mismatch's heat map (``reports.diagnosis_figures.heat_map``); the reason on the page
+    instead when there is nothing to draw."""
+    from .diagnosis_figures import heat_map
+
     if d.grid is None:
         return "no heat map: the diagnosis carries no located grid"
     heat_map(d.grid, path)
