@@ -74,7 +74,8 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
             except ConfigError as err:
                 raise DiagnosisError(f"{recording_name(rec)}: rig {rec.rig!r} is not a preset this diagnosis can "
                                      f"simulate ({err})") from err
-    warnings = _check_rates(recs)
+    _check_rates(recs)
+    warnings: list[str] = []
     if not any("flux_Wb" in r.channels for r in recs):
         warnings.append("no recording has flux_Wb: force vs flux and flux vs current cannot be located without it; "
                         "going on with force vs current")
@@ -180,7 +181,7 @@ def _features(rec: Recording) -> RecordFeatures:
         raise DiagnosisError(str(err)) from err
 
 
-def _check_rates(recs: Sequence[Recording]) -> list[str]:
+def _check_rates(recs: Sequence[Recording]) -> None:
     """One rig's recordings share one sample rate (one ADC setting), except a stepped sine's."""
     by_rig: dict[str, Recording] = {}
     for rec in recs:
@@ -189,7 +190,6 @@ def _check_rates(recs: Sequence[Recording]) -> list[str]:
             raise DiagnosisError(f"{recording_name(rec)}: sample rate {rec.fs_hz:g} Hz differs from "
                                  f"{recording_name(first)} ({first.fs_hz:g} Hz) of the same rig {rec.rig!r}; "
                                  "a bench day keeps one ADC setting per E-core rig")
-    return []
 
 
 def _baseline_effects(presets: Mapping[str, Mapping[str, Any]], baseline: Sequence[str] | None

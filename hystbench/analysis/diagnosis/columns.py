@@ -49,10 +49,6 @@ class Knob:
     needs: str | None = None  # the baseline effect without which this knob moves nothing
     linear: bool = False
 
-    @property
-    def name(self) -> str:
-        return self.path
-
 
 KNOBS = (
     Knob("instrument.fn_hz", 0.05),

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from hystbench.analysis.diagnosis.forward import replayed_features as _replayed_features
+from hystbench.analysis.diagnosis.columns import catalogue_params
 from hystbench.analysis.diagnosis.features import record_features
 from hystbench.analysis.diagnosis.forward import points_of, record_mean, replay, with_effects
 from hystbench.config import load_rig
-from hystbench.config.effects import CATALOGUE
 from hystbench.sim_backend.bench_day import BenchDayPlan, bench_effects, simulate_bench_day
 
 QUIET = {"sensor_noise": False, "adc_quantisation": False}
@@ -23,8 +23,8 @@ def _presets_with(effects: dict[str, dict]) -> dict[str, dict]:
     out = {}
     for rig, extra in effects.items():
         p = load_rig(rig)
-        eff = {n: {**CATALOGUE[n].defaults, **(p["effects"][n] or {})} for n in p["effects"] if n not in QUIET}
-        eff.update({n: {**CATALOGUE[n].defaults, **v} for n, v in extra.items() if v is not False})
+        eff = {n: catalogue_params(p, n) for n in p["effects"] if n not in QUIET}
+        eff.update({n: {**catalogue_params(p, n), **v} for n, v in extra.items() if v is not False})
         out[rig] = with_effects(p, eff)
     return out
 
