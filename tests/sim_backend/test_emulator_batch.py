@@ -1,0 +1,142 @@
+"""The emulators' fast stream path: a block's frames encoded as one numpy batch must be the very bytes
+the per-frame codec (``framing.encode_frame``) gives; faults armed at a sample index still hit
+exactly their frames; the integrator's virtual-bus handle delivers one Message per frame to every
+other handle of the channel and none to itself.  No sleeps: sends are synchronous, receives wait
+on the queue with a safety timeout only."""
+
+from __future__ import annotations
+
+import itertools
+
+import can
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hystbench.blocks import SampleBlock
+from hystbench.drivers.protocols import can_integrator as ci
+from hystbench.drivers.protocols.framing import FrameError, decode_frame, encode_frame, frames_from_block
+from hystbench.sim_backend.emulators.common import Faults, FrameEmitter, encode_frames
+from hystbench.sim_backend.emulators.flux_integrator import FluxIntegratorEmulator, emulator_bus
+
+FS = 100_000.0
+HANG_S = 30.0  # only turns a hang into a failure
+_channels = itertools.count()
+
+
+def per_frame(stream_id, seq0, first, data, spf, flags):
+    return [encode_frame(f) for f in frames_from_block(stream_id, seq0, first, data, spf, flags)]
+
+
+@settings(max_examples=200, deadline=None)
+@given(n=st.integers(0, 2500), spf=st.sampled_from([1, 3, 10, 250, 500, 1000]), channels=st.integers(1, 3),
+       seq0=st.one_of(st.integers(0, 100), st.integers((1 << 32) - 300, (1 << 32) - 1)),
+       first=st.integers(-(1 << 40), 1 << 40), flags=st.integers(0, 0xFFFF), stream_id=st.integers(0, 255),
+       seed=st.integers(0, 2**32 - 1))
+def test_batch_encoded_frames_are_byte_identical_to_the_per_frame_codec(n, spf, channels, seq0, first, flags,
+                                                                        stream_id, seed):
+    data = np.random.default_rng(seed).standard_normal((channels, n)) * 10.0 ** np.arange(channels)[:, None]
+    assert encode_frames(stream_id, seq0, first, data, spf, flags) == per_frame(stream_id, seq0, first, data, spf,
+                                                                                flags)
+
+
+def test_batch_encoding_keeps_the_codecs_refusals():
+    for shape, spf in (((300, 4), 2), ((1, 20000), 20000)):  # 300 channels; a 80 kB frame
+        data = np.zeros(shape)
+        for encode in (encode_frames, per_frame):
+            try:
+                encode(1, 0, 0, data, spf, 0)
+            except ValueError:
+                continue
+            raise AssertionError(f"{encode.__name__} accepted {shape} in frames of {spf}")
+
+
+def can_blocks(first, count, block=1000):
+    x = np.arange(first, first + count * block, dtype=np.float64) * 1e-3
+    return [x[k * block:(k + 1) * block] for k in range(count)]
+
+
+def test_can_fd_faults_at_a_sample_index_hit_exactly_those_frames_in_a_batch():
+    """10 samples per CAN FD frame, 1000-sample blocks: faults armed mid-block land on the first
+    frame that starts at or after their index, not on the block's first frame."""
+    faults = Faults()
+    em = FrameEmitter(4, 10, faults)
+    faults.arm("drop_frames", 3, at_index=1234)  # frames 1240, 1250, 1260
+    faults.arm("corrupt_frames", 2, at_index=2005)  # frames 2010, 2020
+    faults.silence(2995, 20)  # frames 3000, 3010 (2990 starts before the span)
+    got = []
+    for k, data in enumerate(can_blocks(0, 4)):
+        for raw in em.emit(1000 * k, data[None, :]):
+            try:
+                got.append(decode_frame(raw).first_index)
+            except FrameError:
+                got.append(-1)
+    expected = [i for i in range(0, 4000, 10) if i not in (1240, 1250, 1260, 3000, 3010)]
+    expected = [-1 if i in (2010, 2020) else i for i in expected]
+    assert got == expected
+    assert (em.dropped, em.corrupted, em.sent) == (5, 2, 395)
+    assert faults.drop_frames == 0 and faults.corrupt_frames == 0
+    assert em.seq == 400  # dropped frames use their sequence numbers: the receiver sees the gap
+
+
+def test_a_fault_armed_for_a_later_block_leaves_the_earlier_frames_alone():
+    faults = Faults()
+    em = FrameEmitter(4, 10, faults)
+    faults.arm("drop_frames", 1, at_index=5000)
+    frames = [decode_frame(r) for r in em.emit(0, can_blocks(0, 1)[0][None, :])]
+    assert [f.first_index for f in frames] == list(range(0, 1000, 10))
+    assert [f.seq for f in frames] == list(range(100))
+    assert faults.drop_frames == 1  # still armed for its own frame
+
+
+def drain(bus: can.BusABC, arbitration_id: int, n: int) -> list[can.Message]:
+    out = []
+    while len(out) < n:
+        msg = bus.recv(HANG_S)
+        assert msg is not None, f"only {len(out)} of {n} messages arrived"
+        if msg.arbitration_id == arbitration_id:
+            out.append(msg)
+    return out
+
+
+def test_emulator_bus_hands_each_other_handle_every_message_and_not_the_sender():
+    channel = f"test-emulator-bus-{next(_channels)}"
+    tx = emulator_bus("virtual", channel)
+    rx = [can.Bus(interface="virtual", channel=channel, receive_own_messages=False, fd=True) for _ in range(2)]
+    try:
+        sent = [bytes(range(k, k + 64)) for k in range(5)]
+        for data in sent:
+            tx.send(can.Message(arbitration_id=0x190, data=data, is_extended_id=False, is_fd=True,
+                                bitrate_switch=True), timeout=0.5)
+        got = [drain(r, 0x190, len(sent)) for r in rx]
+        for msgs in got:
+            assert [bytes(m.data) for m in msgs] == sent
+            assert all(m.is_fd and m.bitrate_switch and m.is_rx and m.channel == channel for m in msgs)
+        assert all(a is b for a, b in zip(*got))  # one Message for all receivers: no copy per receiver
+        assert tx.recv(0.0) is None  # nothing came back to the sender
+        rx[0].send(can.Message(arbitration_id=0x610, data=b"\x01", is_extended_id=False), timeout=0.5)
+        assert drain(tx, 0x610, 1)[0].data == b"\x01"  # and it still receives the others' messages
+    finally:
+        for bus in (tx, *rx):
+            bus.shutdown()
+
+
+def test_integrator_stream_reaches_both_driver_handles_intact():
+    """The emulator's block -> CAN FD frames -> a driver's two stock handles (commands, stream)."""
+    channel = f"test-integrator-{next(_channels)}"
+    rx = [can.Bus(interface="virtual", channel=channel, receive_own_messages=False, fd=True) for _ in range(2)]
+    emu = FluxIntegratorEmulator(channel=channel, true_turns=10)
+    try:
+        emu.state["stream"] = True
+        flux = np.linspace(-8e-6, 8e-6, 1000)  # within the +-10 V output
+        emu.on_block(SampleBlock(3000, FS, {"flux_Wb": flux}))
+        volts = (flux * 1e5 * 10 / 1).astype(np.float32)  # gain 1e5 V/Wb, 10 true turns, 1 set turn
+        for r in rx:
+            frames = [decode_frame(bytes(m.data)) for m in drain(r, ci.stream_id(emu.node), 100)]
+            assert [f.first_index for f in frames] == list(range(3000, 4000, 10))
+            assert [f.seq for f in frames] == list(range(100))
+            np.testing.assert_array_equal(np.concatenate([f.samples[0] for f in frames]), volts)
+    finally:
+        emu.close()
+        for bus in rx:
+            bus.shutdown()
