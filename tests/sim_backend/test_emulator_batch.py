@@ -140,3 +140,30 @@ def test_integrator_stream_reaches_both_driver_handles_intact():
         emu.close()
         for bus in rx:
             bus.shutdown()
+
+
+def test_a_batch_send_delivers_in_order_and_wakes_a_waiting_receiver():
+    """``send_batch``: every message, in order, to each other handle; a receiver already blocked
+    in ``recv`` wakes for it (the batch notifies the queue as ``Queue.put`` does)."""
+    import threading
+
+    channel = f"test-emulator-batch-{next(_channels)}"
+    tx = emulator_bus("virtual", channel)
+    bounded = can.Bus(interface="virtual", channel=channel, receive_own_messages=False, fd=True, rx_queue_size=1000)
+    waiting = can.Bus(interface="virtual", channel=channel, receive_own_messages=False, fd=True)
+    got: list = []
+    reader = threading.Thread(target=lambda: got.extend(drain(waiting, 0x190, 50)))
+    reader.start()
+    try:
+        msgs = [can.Message(arbitration_id=0x190, data=k.to_bytes(8, "little"), is_extended_id=False, is_fd=True)
+                for k in range(50)]
+        tx.send_batch(msgs, timeout=0.5)
+        reader.join(HANG_S)
+        assert not reader.is_alive()
+        for received in (got, drain(bounded, 0x190, 50)):
+            assert [int.from_bytes(m.data, "little") for m in received] == list(range(50))
+        assert tx.recv(0.0) is None
+    finally:
+        reader.join(HANG_S)
+        for bus in (tx, bounded, waiting):
+            bus.shutdown()
