@@ -79,7 +79,7 @@ class Bench:
         self.faults: list[BenchFault] = []
         self.streams: dict[str, SampleStream] = {}
         self._aligner: StreamAligner | None = None  # the streams' samples on the common clock
-        self._delivered = dict.fromkeys(self.instruments, 0)  # samples each stream gave the aligner, ever
+        self._delivered = dict.fromkeys([*self.instruments, "digitiser"], 0)  # samples each stream gave, ever
         self.discarded_samples = 0  # dropped by discard_backlog (samples of the common clock)
         self._fault_lock = threading.Lock()
         self._stop = threading.Event()
@@ -223,6 +223,13 @@ class Bench:
         force_N, integrator flux_Wb)."""
         if not self.streams:
             kw = dict(stall_timeout_s=self.config.stall_timeout_s)
+            if self.config.digitiser is not None:  # one digitiser samples the four signals (issue 15)
+                from .digitiser import open_digitiser_stream
+
+                with self.guarded("digitiser"):
+                    self.streams["digitiser"] = open_digitiser_stream(self.config, **kw)
+                self._aligner = StreamAligner(self.streams)
+                return self.streams
             for name, inst in self.instruments.items():
                 with self.guarded(name):
                     self.streams[name] = inst.open_stream(skew_s=self.config.instruments[name].skew_s, **kw)

@@ -18,9 +18,10 @@ from typing import Any, Callable, Mapping
 from ...config import CONFIG_DIR, read_toml
 from ...config.schema import NUM, OPTIONAL, Key, check_table
 from ...errors import ConfigError
-from . import can_integrator, charge_amp, modbus_map, scpi
+from . import can_integrator, charge_amp, modbus_map, scpi, scpi_digitiser
 
-__all__ = ["InstrumentConfig", "BenchConfig", "load_bench_config", "INSTRUMENTS", "DEFAULT_BENCH", "SCHEMA", "SETTINGS"]
+__all__ = ["InstrumentConfig", "BenchConfig", "DigitiserConfig", "load_bench_config", "INSTRUMENTS", "DEFAULT_BENCH",
+           "SCHEMA", "SETTINGS"]
 
 DEFAULT_BENCH = CONFIG_DIR / "bench.toml"
 
@@ -87,6 +88,28 @@ _SIM = {
     "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false }"),
     "load_cell_pc_per_n": Key(NUM, 3.5, "the emulated load cell's true sensitivity", "pC/N", gt=0),
     "samples_per_frame": Key(int, 500, "TCP/serial stream frames (CAN FD frames hold 10)", "samples", gt=0),
+}
+
+
+_SIGNALS = ("current_A", "force_N", "flux_Wb", "command_V")
+_DIGITISER = {
+    "backend": Key(str, "sim", "sim: the emulated digitiser (SCPI on 127.0.0.1); hardware: the address given here",
+                   choices=("sim", "hardware")),
+    "kind": Key(str, "visa", "visa: SCPI digitiser or oscilloscope (pyvisa-py); daqmx: NI-DAQmx card "
+                "(pip install hystbench[nidaqmx])", choices=("visa", "daqmx")),
+    "url": Key(str, "", "VISA resource, e.g. \"TCPIP::192.168.0.30::5025::SOCKET\" or \"USB0::...::INSTR\" "
+               "(required with kind = \"visa\", backend = \"hardware\")"),
+    "dialect": Key(str, "generic", "the SCPI command set: generic (:WAVeform, Keysight style) or a vendor's",
+                   choices=tuple(scpi_digitiser.DIALECTS)),
+    "channels": Key(dict, None, "the instrument channel sampling each signal", table={
+        s: Key(str, None, f"the channel of {s} (visa: e.g. \"CHAN1\"; daqmx: e.g. \"Dev1/ai0\")") for s in _SIGNALS}),
+    "scales": Key(dict, {}, "SI units per volt at the digitiser's input (1 if left out)", table={
+        s: Key(NUM, 1.0, f"{s} per volt") for s in _SIGNALS}),
+    "max_points": Key(int, 100_000, "visa: most points one waveform read returns", "points", gt=0),
+    "clock_source": Key(str, "", "daqmx: the sample clock terminal (the generator's clock), \"\": the card's own"),
+    "trigger_source": Key(str, "", "daqmx: the start trigger terminal, \"\": start at once"),
+    "skew_s": Key(NUM, 0.0, "the digitiser samples this much after the common clock", "s"),
+    "timeout_s": Key(NUM, 0.0, "reply deadline (0: [bench] timeout_s)", "s", ge=0),
 }
 
 
@@ -176,7 +199,60 @@ SCHEMA: dict[str, Key] = {
         **_COMMON, **k.options,
         "settings": Key(dict, {}, "applied in file order when the bench opens", table=SETTINGS[name])})
        for name, k in _KINDS.items()},
+    "digitiser": Key(dict, OPTIONAL, "one digitiser samples the four signals instead of the instruments' own "
+                     "streams (left out: the framed streams)", table=_DIGITISER),
 }
+
+
+@dataclass(frozen=True)
+class DigitiserConfig:
+    """The ``[digitiser]`` table, checked: which backend samples which signal on which channel."""
+
+    backend: str
+    kind: str
+    url: str
+    dialect: str
+    channels: dict[str, str]
+    scales: dict[str, float]
+    max_points: int
+    clock_source: str
+    trigger_source: str
+    skew_s: float
+    timeout_s: float | None
+
+    @property
+    def is_sim(self) -> bool:
+        return self.backend == "sim"
+
+
+def _digitiser(t: dict[str, Any], src: str) -> DigitiserConfig:
+    where = f"{src} [digitiser]"
+    if t["kind"] == "visa":
+        d = scpi_digitiser.DIALECTS[t["dialect"]]
+        for sig, ch in t["channels"].items():
+            if not any(scpi.header_matches(name, ch) for name in d.channel_names):
+                raise ConfigError(f"{where} channels.{sig} = {ch!r}: not a channel of dialect {d.name!r} "
+                                  f"({', '.join(scpi.short_form(n) for n in d.channel_names)})")
+        if t["backend"] == "hardware" and not t["url"]:
+            raise ConfigError(f"{where} url: required with backend = \"hardware\" and kind = \"visa\"")
+    elif t["backend"] == "sim":
+        raise ConfigError(f"{where} kind: the emulated digitiser speaks SCPI: kind = \"daqmx\" needs "
+                          "backend = \"hardware\"")
+    for sig, ch in t["channels"].items():
+        if not ch.strip():
+            raise ConfigError(f"{where} channels.{sig}: empty")
+    seen: dict[str, str] = {}
+    for sig, ch in t["channels"].items():
+        key = scpi.short_form(ch).upper() if t["kind"] == "visa" else ch
+        if key in seen:
+            raise ConfigError(f"{where} channels.{sig} = {ch!r}: already samples {seen[key]}")
+        seen[key] = sig
+    for sig, v in t["scales"].items():
+        if v == 0 or v != v or abs(v) == float("inf"):
+            raise ConfigError(f"{where} scales.{sig} = {v!r}: must be a finite, non-zero number")
+    return DigitiserConfig(t["backend"], t["kind"], t["url"], t["dialect"], dict(t["channels"]), dict(t["scales"]),
+                           t["max_points"], t["clock_source"], t["trigger_source"], t["skew_s"],
+                           t["timeout_s"] or None)
 
 
 @dataclass(frozen=True)
@@ -210,10 +286,12 @@ class BenchConfig:
     backoff: dict[str, Any]
     sim: dict[str, Any]
     instruments: dict[str, InstrumentConfig] = field(default_factory=dict)
+    digitiser: DigitiserConfig | None = None  #: samples the four signals when given
 
     @property
     def any_sim(self) -> bool:
-        return any(i.is_sim for i in self.instruments.values())
+        return any(i.is_sim for i in self.instruments.values()) or (self.digitiser is not None
+                                                                    and self.digitiser.is_sim)
 
     @property
     def current_limit_a(self) -> float:
@@ -236,7 +314,13 @@ class BenchConfig:
                     raise ConfigError(f"{self.source}: no emulator address for [{name}]")
                 opts.update(_KINDS[name].emulated_at(opts, a))
             out[name] = replace(inst, options=opts)
-        return replace(self, instruments=out)
+        dig = self.digitiser
+        if dig is not None and dig.is_sim:
+            a = addresses.get("digitiser")
+            if a is None:
+                raise ConfigError(f"{self.source}: no emulator address for [digitiser]")
+            dig = replace(dig, url=a["visa"])
+        return replace(self, instruments=out, digitiser=dig)
 
 
 def _instrument(name: str, table: dict[str, Any], raw: Mapping[str, Any], src: str) -> InstrumentConfig:
@@ -262,4 +346,5 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
     backoff = bench.pop("backoff")
     instruments = {n: _instrument(n, cfg[n], data[n], src) for n in INSTRUMENTS}
     return BenchConfig(src, bench["max_current_a"], bench["fs_hz"], bench["timeout_s"], bench["stall_timeout_s"],
-                       bench["heartbeat_s"], backoff, cfg["sim"], instruments)
+                       bench["heartbeat_s"], backoff, cfg["sim"], instruments,
+                       _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None)

@@ -89,6 +89,13 @@ class EmulatedBench:
                                                  true_turns=self.rig.sense_turns)
         self.emulators = {"signal_generator": self.generator, "current_amplifier": self.amplifier,
                           "charge_amplifier": self.charge_amp, "flux_integrator": self.integrator}
+        dig = self.config.digitiser
+        if dig is not None and dig.is_sim:  # issue 15: one digitiser samples the four signals
+            from .digitiser import DigitiserEmulator
+
+            self.digitiser = DigitiserEmulator(self.fs_hz, {s: (int(ch[-1]), dig.scales.get(s, 1.0))
+                                                            for s, ch in dig.channels.items()}, dialect=dig.dialect)
+            self.emulators["digitiser"] = self.digitiser
         self.next_index = 0  # the sample clock: first index of the next block (the rig starts at 0)
         #: the newest changes of the rig's settings: (first sample index generated with them, settings)
         self.changes: collections.deque[tuple[int, dict[str, Any]]] = collections.deque(maxlen=1000)

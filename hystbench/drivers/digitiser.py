@@ -1,0 +1,321 @@
+"""A digitiser or oscilloscope (SCPI over VISA) or an NI-DAQmx card as the bench's sample source.
+
+On a real bench the instruments' analogue outputs (current monitor, charge amplifier, integrator,
+generator) are sampled by one digitiser on the common clock, not streamed by each instrument.
+:func:`open_digitiser_stream` gives the same :class:`~.stream.SampleStream` as the framed
+streams: a :class:`FrameSource` that reads segments from the digitiser, so gap accounting
+(from first-sample indices), stall detection, reconnection and scaling are the stream's own.
+
+Backends, imported only when configured (python-can's interface table is the model):
+
+    visa     SCPI over VISA (pyvisa with the pure-Python pyvisa-py: TCPIP SOCKET, USBTMC, serial)
+    daqmx    NI-DAQmx (the optional ``nidaqmx`` package, ``pip install hystbench[nidaqmx]``)
+
+Segments are read channel by channel, each from where its last read stopped; a frame holds the
+span every channel has (the rest waits for the next read), so channels are never shifted against
+each other, and memory the instrument lost shows as a jump in the first index: an exact gap.
+"""
+
+from __future__ import annotations
+
+import importlib
+import threading
+from typing import TYPE_CHECKING, Any, Callable, Mapping
+
+import numpy as np
+
+from ..blocks import BlockFlags
+from ..errors import ConfigError, ConnectionLost, InstrumentError, InstrumentTimeout, ProtocolError
+from .base import Backoff, log
+from .protocols import scpi
+from .protocols import scpi_digitiser as sd
+from .protocols.framing import DeframerStats, Frame
+from .stream import FrameSource, SampleStream
+
+if TYPE_CHECKING:
+    from .protocols.bench_config import BenchConfig, DigitiserConfig
+
+__all__ = ["ScpiDigitiser", "DigitiserFrameSource", "open_digitiser_stream", "DIGITISER_BACKENDS", "SIGNALS"]
+
+#: The signals the digitiser must sample: the bench's four channels.
+SIGNALS = ("current_A", "force_N", "flux_Wb", "command_V")
+
+#: backend -> (module, class of its FrameSource), imported only when configured.
+DIGITISER_BACKENDS: dict[str, tuple[str, str]] = {
+    "visa": ("hystbench.drivers.digitiser", "DigitiserFrameSource"),
+    "daqmx": ("hystbench.drivers.daqmx", "DaqmxFrameSource"),
+}
+_MAX_ERRORS = 32
+
+
+class VisaLink:
+    """A pyvisa message-based resource: text queries and exact byte reads, pyvisa's errors turned
+    into TimeoutError / ConnectionError (the instrument's driver names instrument and command)."""
+
+    def __init__(self, resource: str, timeout_s: float, backend: str = "@py") -> None:
+        self.resource, self.timeout_s, self.backend = resource, timeout_s, backend
+        self._inst: Any = None
+
+    def open(self) -> None:
+        try:
+            import pyvisa
+        except ImportError as err:  # a dependency of the package: only a broken install lands here
+            raise ConfigError("the VISA digitiser needs pyvisa and pyvisa-py: pip install pyvisa pyvisa-py") from err
+        self.close()
+        ms = max(1, int(self.timeout_s * 1000))
+        try:
+            rm = pyvisa.ResourceManager(self.backend)
+            inst = rm.open_resource(self.resource, open_timeout=ms)
+        except (pyvisa.errors.VisaIOError, OSError, ValueError) as err:
+            raise ConnectionError(f"cannot open {self.resource}: {err}") from err
+        inst.read_termination = "\n"
+        inst.write_termination = "\n"
+        inst.timeout = ms
+        inst.chunk_size = 1 << 20
+        self._inst = inst
+
+    def close(self) -> None:
+        inst, self._inst = self._inst, None
+        if inst is not None:
+            try:
+                inst.close()
+            except Exception:  # closing must not raise over the real error
+                pass
+
+    def _call(self, fn: Callable[[], Any]) -> Any:
+        import pyvisa
+
+        if self._inst is None:
+            raise ConnectionError(f"{self.resource} is not open")
+        try:
+            return fn()
+        except pyvisa.errors.VisaIOError as err:
+            if err.error_code == pyvisa.constants.StatusCode.error_timeout:
+                raise TimeoutError(str(err)) from err
+            raise ConnectionError(str(err)) from err
+
+    def write(self, message: str) -> None:
+        self._call(lambda: self._inst.write(message))
+
+    def query(self, message: str) -> str:
+        return self._call(lambda: self._inst.query(message))
+
+    def read_exact(self, n: int) -> bytes:
+        return bytes(self._call(lambda: self._inst.read_bytes(n)))
+
+
+class ScpiDigitiser:
+    """The digitiser's control and waveform reads, every message from its dialect's table.
+
+    ``open`` identifies it, sets it up (each setting followed by ``SYST:ERR?``; an error is a
+    ProtocolError naming the command and every queued error), checks its sample rate against the
+    bench's and starts it; ``fetch(channel)`` reads the next segment of one channel."""
+
+    def __init__(self, link: VisaLink, dialect: sd.Dialect, fs_hz: float, *, name: str = "digitiser",
+                 max_points: int = 100_000) -> None:
+        self.link, self.dialect, self.fs_hz, self.name, self.max_points = link, dialect, fs_hz, name, max_points
+        self.identity = ""
+
+    def _where(self, message: str) -> str:
+        return f"{self.name} ({self.link.resource}): {message!r}"
+
+    def _io(self, message: str, fn: Callable[[], Any]) -> Any:
+        try:
+            return fn()
+        except InstrumentError:
+            raise
+        except TimeoutError as err:
+            raise InstrumentTimeout(f"{self._where(message)}: no answer within {self.link.timeout_s:g} s") from err
+        except ConnectionError as err:
+            raise ConnectionLost(f"{self._where(message)}: connection lost: {err}") from err
+
+    def query(self, op: str, channel: str = "") -> str:
+        msg = self.dialect.command(op).message(channel)
+        return self._io(msg, lambda: self.link.query(msg))
+
+    def send(self, op: str, channel: str = "", value: object = None, *, check: bool = True) -> None:
+        cmd = self.dialect.command(op)
+        if cmd is None:
+            return
+        self.send_text(cmd.message(channel, value), check=check)
+
+    def send_text(self, msg: str, *, check: bool = True) -> None:
+        self._io(msg, lambda: self.link.write(msg))
+        if check:
+            self.check_errors(msg)
+
+    def check_errors(self, after: str) -> None:
+        """Read the error queue; raise naming ``after`` and every error if it holds any."""
+        errors = []
+        for _ in range(_MAX_ERRORS):
+            try:
+                code, text = scpi.parse_error_reply(self.query("error"))
+            except ValueError as err:
+                raise ProtocolError(f"{self._where('SYST:ERR?')}: {err}") from err
+            if code == 0:
+                break
+            errors.append(f"{code},\"{text}\"")
+        if errors:
+            raise ProtocolError(f"{self._where(after)}: the digitiser reports {'; '.join(errors)}")
+
+    def open(self) -> None:
+        self._io("open", self.link.open)
+        self.identity = self.query("identity").strip()
+        if len(self.identity.split(",")) != len(scpi.IDN_FIELDS):
+            raise ProtocolError(f"{self._where('*IDN?')}: answer {self.identity!r} is not maker,model,serial,firmware")
+        self.send("clear_status", check=False)
+        for msg in self.dialect.on_open:
+            self.send_text(msg)
+        for op in ("clock_source", "trigger_source", "format", "byte_order"):
+            self.send(op)
+        self.send("points", value=self.max_points)
+        text = self.query("sample_rate")
+        try:
+            rate = float(text)
+        except ValueError as err:
+            raise ProtocolError(f"{self._where(self.dialect.command('sample_rate').message())}: "
+                                f"{text!r} is not a number") from err
+        if abs(rate - self.fs_hz) > 1e-9 * self.fs_hz:
+            raise ConfigError(f"{self.name}: samples at {rate:g} Hz but [bench] fs_hz = {self.fs_hz:g}: they must "
+                              "be the same clock")
+        self.send("run")
+
+    def close(self) -> None:
+        try:
+            if self.link._inst is not None:
+                self.send("stop", check=False)
+        except InstrumentError as err:
+            log.info("%s: stop on close: %s", self.name, err)
+        self.link.close()
+
+    def fetch(self, channel: str) -> tuple[int, np.ndarray, bool]:
+        """The next segment of ``channel``: (first index on the common clock, volts, clipped)."""
+        self.send("source", channel, check=False)
+        pre_msg = self.dialect.command("preamble").message()
+        text = self.query("preamble")
+        try:
+            pre = sd.Preamble.parse(text, self.dialect)
+            first = pre.first_index(self.fs_hz)
+        except ValueError as err:
+            raise ProtocolError(f"{self._where(pre_msg)} ({channel}): {err}") from err
+        data_msg = self.dialect.command("data").message()
+        self._io(data_msg, lambda: self.link.write(data_msg))
+        raw = self._io(data_msg, lambda: sd.read_block(self.link.read_exact, self._where(data_msg) + f" ({channel})"))
+        if len(raw) != 2 * pre.points:
+            raise ProtocolError(f"{self._where(data_msg)} ({channel}): the block holds {len(raw)} bytes, the preamble "
+                                f"announced {pre.points} points of 2 bytes")
+        codes = np.frombuffer(raw, dtype=sd.CODE_DTYPE)
+        clipped = bool(np.any(np.abs(codes.astype(np.int32)) >= sd.FULL_SCALE_CODE))
+        return first, sd.codes_to_volts(codes, pre), clipped
+
+
+class SegmentJoiner:
+    """Per-channel segments in, frames holding every channel at the same indices out.
+
+    Each channel's samples wait here until every channel has them; a channel whose next segment
+    starts later than its last one ended (lost memory) drops what the others hold before that
+    index, so the frame after it starts later: the stream reports the exact gap."""
+
+    def __init__(self, n_channels: int) -> None:
+        self._first: list[int | None] = [None] * n_channels
+        self._data: list[np.ndarray] = [np.empty(0)] * n_channels
+        self._clip = False
+        self.seq = 0
+
+    def push(self, k: int, first: int, volts: np.ndarray, clipped: bool) -> None:
+        end = None if self._first[k] is None else self._first[k] + self._data[k].size
+        if end is not None and first < end:  # overlap with what is held: keep only what is new
+            volts, first = volts[end - first:], end
+        if end is None or first > end:  # a fresh start or lost memory: what was held before is unusable
+            self._first[k], self._data[k] = first, volts
+        else:
+            self._data[k] = np.concatenate([self._data[k], volts])
+        self._clip |= clipped
+
+    def pop(self) -> Frame | None:
+        if any(f is None for f in self._first):
+            return None
+        start = max(self._first)
+        end = min(f + d.size for f, d in zip(self._first, self._data))
+        if end <= start:
+            return None
+        rows = [d[start - f:end - f] for f, d in zip(self._first, self._data)]
+        for k, (f, d) in enumerate(zip(self._first, self._data)):
+            self._first[k], self._data[k] = end, d[end - f:]
+        flags = int(BlockFlags.CLIP) if self._clip else 0
+        self._clip = False
+        frame = Frame(0, self.seq, start, np.vstack(rows), flags)
+        self.seq = (self.seq + 1) % (1 << 32)
+        return frame
+
+
+class DigitiserFrameSource(FrameSource):
+    """A SCPI digitiser's channels as frames (``channels``: the instrument's channel for each
+    signal, in the stream's order).  An idle digitiser is asked again after ``poll_s``."""
+
+    def __init__(self, digitiser: ScpiDigitiser, channels: list[str], *, poll_s: float = 0.005,
+                 min_points: int = 1) -> None:
+        self.digitiser, self.instrument_channels = digitiser, list(channels)
+        self.name = digitiser.name
+        self.poll_s, self.min_points = poll_s, min_points
+        self.deframer_stats = DeframerStats()
+        self._joiner = SegmentJoiner(len(channels))
+        self._idle = threading.Event()  # never set: waits between polls are bounded by poll_s
+
+    @classmethod
+    def from_config(cls, dc: DigitiserConfig, bench: BenchConfig) -> "DigitiserFrameSource":
+        d = sd.dialect(dc.dialect)
+        link = VisaLink(dc.url, dc.timeout_s or bench.timeout_s)
+        return cls(ScpiDigitiser(link, d, bench.fs_hz, max_points=dc.max_points),
+                   [dc.channels[s] for s in SIGNALS])
+
+    def open(self) -> None:
+        # what the joiner holds stays: its indices count the digitiser's clock, which a new session keeps
+        try:
+            self.digitiser.open()
+        except (InstrumentTimeout, ConnectionLost, ProtocolError) as err:
+            self.digitiser.link.close()
+            raise ConnectionError(str(err)) from err
+
+    def close(self) -> None:
+        self.digitiser.close()
+
+    def read_frames(self, timeout_s: float) -> list[Frame]:
+        """One segment of every channel (a protocol error drops the session: the stream reopens it
+        and the lost segment becomes a gap)."""
+        got = 0
+        try:
+            for k, ch in enumerate(self.instrument_channels):
+                first, volts, clipped = self.digitiser.fetch(ch)
+                got += volts.size
+                if volts.size:
+                    self._joiner.push(k, first, volts, clipped)
+        except ProtocolError as err:
+            self.deframer_stats.corrupt += 1
+            raise ConnectionError(str(err)) from err
+        frame = self._joiner.pop()
+        if frame is None:
+            if got < self.min_points:
+                self._idle.wait(min(self.poll_s, timeout_s))
+            return []
+        self.deframer_stats.frames += 1
+        return [frame]
+
+
+def _source_class(kind: str) -> type[FrameSource]:
+    module, cls = DIGITISER_BACKENDS[kind]
+    return getattr(importlib.import_module(module), cls)
+
+
+def open_digitiser_stream(bench: BenchConfig, *, stall_timeout_s: float = 0.5, backoff: Backoff | None = None,
+                          skew_s: float | None = None) -> SampleStream:
+    """The bench file's ``[digitiser]`` as one started stream of the four signals (SI units:
+    volts times the file's ``scales``)."""
+    dc = bench.digitiser
+    if dc is None:
+        raise ConfigError(f"{bench.source}: no [digitiser] table")
+    source = _source_class(dc.kind).from_config(dc, bench)
+    scale: Mapping[str, float] = {s: float(dc.scales.get(s, 1.0)) for s in SIGNALS}
+    return SampleStream("digitiser", source, list(SIGNALS), bench.fs_hz, scale=scale,
+                        skew_s=dc.skew_s if skew_s is None else skew_s, stall_timeout_s=stall_timeout_s,
+                        backoff=backoff or Backoff(**bench.backoff)).start()

@@ -1,0 +1,221 @@
+"""Emulated digitiser: the rig's four signals sampled on the emulator's clock, served over SCPI on
+127.0.0.1 in any dialect of ``drivers/protocols/scpi_digitiser.py`` (the table the driver reads).
+
+Wiring: each signal reaches a channel as volts = SI value / the bench file's ``scales`` (the
+analogue outputs of the current monitor, charge amplifier, integrator and generator), sampled as
+16-bit codes over +-10 V (``y_increment`` = 10/32768 V, exact in binary).  Once ``RUN`` is
+received every clock block is kept in the channel's memory (``memory_points`` deep: the oldest is
+lost first, and a read then starts later: the gap the driver must report).  A preamble query
+latches the source channel's next segment (at most ``points``) from where its last data read
+stopped; the data query sends that segment as a definite-length block and moves on.  Errors go to
+the queue read by ``SYST:ERR?`` (-113 unknown header, -224 illegal value, -109 missing value).
+"""
+
+from __future__ import annotations
+
+import collections
+import socket
+import threading
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from ...blocks import SampleBlock
+from ...drivers.protocols import scpi
+from ...drivers.protocols import scpi_digitiser as sd
+from .common import Faults, TcpServer
+
+__all__ = ["DigitiserEmulator", "RANGE_V", "Y_INCREMENT"]
+
+RANGE_V = 10.0
+Y_INCREMENT = RANGE_V / 32768  #: volts per code: 2**-15 x 10, exact
+_QUEUE_MAX = 20
+
+
+class DigitiserEmulator:
+    """``wiring``: signal -> (channel number 1..4, SI units per volt)."""
+
+    kind = "digitiser"
+
+    def __init__(self, fs_hz: float, wiring: Mapping[str, tuple[int, float]], *, dialect: str = "generic",
+                 memory_points: int = 4_000_000, identity: str = "HYSTBENCH,SIMDIG-4,0001,1.0") -> None:
+        self.fs_hz, self.dialect = float(fs_hz), sd.dialect(dialect)
+        self.wiring = {s: (int(ch), float(scale)) for s, (ch, scale) in wiring.items()}
+        self.memory_points, self.identity = int(memory_points), identity
+        self.faults = Faults()
+        self.running = False
+        self.max_points = 100_000
+        self.source = 1
+        self.errors: collections.deque[tuple[int, str]] = collections.deque()
+        self.commands_seen: list[bytes] = []
+        #: faults of the next data replies, consumed in order: "truncate" sends half the block and stops
+        self.block_faults: collections.deque[str] = collections.deque()
+        self.lost_points = 0  # memory overwritten before it was read, per channel, summed
+        self._memory: dict[int, collections.deque[tuple[int, np.ndarray]]] = {
+            ch: collections.deque() for ch, _ in self.wiring.values()}
+        self._held = dict.fromkeys(self._memory, 0)
+        self._read_at: dict[int, int | None] = dict.fromkeys(self._memory)
+        self._latched: dict[int, tuple[int, np.ndarray]] = {}
+        self._lock = threading.RLock()
+        self.data_replies = threading.Semaphore(0)  # released once per data block sent (tests wait on it)
+        self.server = TcpServer(self._serve, "digitiser")
+
+    @property
+    def addresses(self) -> dict[str, str]:
+        return {"visa": f"TCPIP::127.0.0.1::{self.server.port}::SOCKET", "scpi_tcp": self.server.address}
+
+    # --- sampling ----------------------------------------------------------------------------------
+    def on_block(self, block: SampleBlock) -> None:
+        if not self.running:
+            return
+        with self._lock:
+            for signal, (ch, scale) in self.wiring.items():
+                codes, _ = sd.volts_to_codes(np.asarray(block.channels[signal], dtype=np.float64) / scale, Y_INCREMENT)
+                mem = self._memory[ch]
+                mem.append((block.first_index, codes))
+                self._held[ch] += codes.size
+                if self._read_at[ch] is None:
+                    self._read_at[ch] = block.first_index
+                while self._held[ch] - mem[0][1].size >= self.memory_points:
+                    first, old = mem.popleft()
+                    self._held[ch] -= old.size
+                    if self._read_at[ch] < first + old.size:
+                        self.lost_points += first + old.size - self._read_at[ch]
+                        self._read_at[ch] = first + old.size
+                    self._latched.pop(ch, None)
+
+    def _segment(self, ch: int) -> tuple[int, np.ndarray]:
+        """The next unread points of channel ``ch`` (at most ``max_points``)."""
+        start = self._read_at[ch]
+        if start is None:
+            return 0, np.empty(0, sd.CODE_DTYPE)
+        parts, n = [], 0
+        for first, codes in self._memory[ch]:
+            if first + codes.size <= start:
+                continue
+            piece = codes[max(0, start - first):]
+            parts.append(piece[:self.max_points - n])
+            n += parts[-1].size
+            if n >= self.max_points:
+                break
+        return start, (np.concatenate(parts) if parts else np.empty(0, sd.CODE_DTYPE))
+
+    # --- the instrument ----------------------------------------------------------------------------
+    def push_error(self, code: int, text: str | None = None) -> None:
+        with self._lock:
+            if len(self.errors) >= _QUEUE_MAX:
+                self.errors[-1] = (-350, scpi.SCPI_ERRORS[-350])
+            else:
+                self.errors.append((code, scpi.SCPI_ERRORS.get(code, "Error") if text is None else text))
+
+    def _channel(self, arg: str) -> int | None:
+        for k, name in enumerate(self.dialect.channel_names, start=1):
+            if scpi.header_matches(name, arg) and k in self._memory:
+                return k
+        return None
+
+    def _find(self, header: str, is_query: bool, arg: str) -> str | None:
+        """The operation a message names; None (and an error queued) when none."""
+        candidates = [op for op, c in self.dialect.commands.items() if c.query == is_query and c.matches(header)]
+        for op in candidates:
+            want = self.dialect.command(op).argument
+            if is_query or want is None or op in ("source", "points") or scpi.header_matches(want, arg):
+                return op
+        self.push_error(-224 if candidates else -113)
+        return None
+
+    def handle(self, message: bytes) -> bytes | None:
+        """Execute one program message; the reply (with terminator) or None."""
+        with self._lock:
+            self.commands_seen.append(message)
+            header, is_query, raw = scpi.split_command(message)
+            arg = raw.decode("ascii", "replace").strip()
+            if not is_query and scpi.header_matches("HEADer", header) and self.dialect.on_open:
+                return None  # the dialect's HEADer OFF: replies carry no headers (the only form emulated)
+            op = self._find(header, is_query, arg)
+            if op is None:
+                return None
+            if is_query:
+                return self._query(op)
+            if op == "source":
+                ch = self._channel(arg)
+                if ch is None:
+                    self.push_error(-224 if arg else -109)
+                else:
+                    self.source = ch
+            elif op == "points":
+                try:
+                    self.max_points = int(arg)
+                    if self.max_points < 1:
+                        raise ValueError(arg)
+                except ValueError:
+                    self.max_points = 100_000
+                    self.push_error(-224)
+            elif op == "run":
+                self.running = True
+            elif op == "stop":
+                self.running = False
+            elif op == "clear_status":
+                self.errors.clear()
+            return None
+
+    def _query(self, op: str) -> bytes:
+        if op == "identity":
+            return self.identity.encode() + b"\n"
+        if op == "error":
+            return scpi.format_error_reply(*(self.errors.popleft() if self.errors else (0, None))).encode() + b"\n"
+        if op == "sample_rate":
+            return f"{self.fs_hz:.10g}".encode() + b"\n"
+        ch = self.source
+        if op == "preamble":
+            self._latched[ch] = seg = self._segment(ch)
+            return self._preamble(*seg).format(self.dialect).encode() + b"\n"
+        first, codes = self._latched.pop(ch, None) or self._segment(ch)
+        if codes.size:
+            self._read_at[ch] = first + codes.size
+        return sd.encode_block(codes.astype(sd.CODE_DTYPE, copy=False).tobytes()) + b"\n"
+
+    def _preamble(self, first: int, codes: np.ndarray) -> sd.Preamble:
+        return sd.Preamble(int(codes.size), 1.0 / self.fs_hz, first / self.fs_hz, 0.0, Y_INCREMENT, 0.0, 0.0)
+
+    # --- transport ---------------------------------------------------------------------------------
+    def _reply(self, send: Callable[[bytes], Any], reply: bytes | None, is_data: bool) -> None:
+        if reply is None or not self.faults.before_reply():
+            return
+        if is_data and self.block_faults:
+            fault = self.block_faults.popleft()
+            if fault == "truncate":
+                head = 2 + int(reply[1:2])  # '#', the digit, the length digits
+                reply = reply[:head + (len(reply) - head - 1) // 2]
+        send(reply)
+        self.faults.sent_reply()
+        if is_data:
+            self.data_replies.release()
+
+    def _serve(self, conn: socket.socket) -> None:
+        reader = scpi.ScpiMessageReader()
+        conn.settimeout(0.2)
+        data_cmd = self.dialect.command("data")
+        while not self.server.stopped:
+            try:
+                data = conn.recv(65536)
+            except socket.timeout:
+                continue
+            if not data:
+                return
+            for msg in reader.feed(data):
+                if self.faults.is_silent():
+                    continue
+                header, is_query, _ = scpi.split_command(msg)
+                self._reply(conn.sendall, self.handle(msg), is_query and data_cmd.matches(header))
+
+    def disconnect(self) -> None:
+        self.faults.silent = True
+        self.server.pause()
+
+    def reconnect(self) -> None:
+        self.server.resume()
+        self.faults.silent = False
+
+    def close(self) -> None:
+        self.server.close()

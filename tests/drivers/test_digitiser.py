@@ -1,0 +1,196 @@
+"""The SCPI digitiser through real pyvisa-py on 127.0.0.1: byte-exact transcripts of what goes on
+the wire (arm, trigger, preamble, waveform queries) per dialect, the IEEE 488.2 block's failures
+(each a clear error naming instrument and command, nothing invented), and the joining of
+per-channel segments with exact gaps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hystbench.drivers.digitiser import DigitiserFrameSource, ScpiDigitiser, SegmentJoiner, VisaLink
+from hystbench.drivers.protocols import scpi_digitiser as sd
+from hystbench.errors import InstrumentTimeout, ProtocolError
+
+OK = b'0,"No error"\n'
+IDN = b"ACME,DIG-4,123,1.0\n"
+
+GENERIC_OPEN = [
+    (b"*IDN?\n", IDN), (b"*CLS\n", None),
+    (b"ROSC:SOUR EXT\n", None), (b"SYST:ERR?\n", OK),
+    (b"TRIG:SOUR EXT\n", None), (b"SYST:ERR?\n", OK),
+    (b"WAV:FORM WORD\n", None), (b"SYST:ERR?\n", OK),
+    (b"WAV:BYT LSBF\n", None), (b"SYST:ERR?\n", OK),
+    (b"WAV:POIN 1000\n", None), (b"SYST:ERR?\n", OK),
+    (b"ACQ:SRAT?\n", b"100000\n"),
+    (b"RUN\n", None), (b"SYST:ERR?\n", OK),
+]
+TEK_OPEN = [
+    (b"*IDN?\n", b"TEKTRONIX,MSO44,C0001,CF:91.1CT FV:1.0\n"), (b"*CLS\n", None),
+    (b"HEADer OFF\n", None), (b"SYST:ERR?\n", OK),
+    (b"ROSC:SOUR EXT\n", None), (b"SYST:ERR?\n", OK),
+    (b"TRIG:A:EDGE:SOU AUX\n", None), (b"SYST:ERR?\n", OK),
+    (b"DAT:ENC SRI\n", None), (b"SYST:ERR?\n", OK),
+    (b"WFMO:BYT_N 2\n", None), (b"SYST:ERR?\n", OK),
+    (b"HOR:MODE:SAMPLER?\n", b"1.0E+5\n"),
+    (b"ACQ:STATE RUN\n", None), (b"SYST:ERR?\n", OK),
+]
+# a peer left with bytes the driver never read sees its close as a reset: not the driver's business
+pytestmark = pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
+
+
+def digitiser(peer, dialect="generic", timeout_s=2.0) -> ScpiDigitiser:
+    link = VisaLink(f"TCPIP::127.0.0.1::{peer.port}::SOCKET", timeout_s)
+    return ScpiDigitiser(link, sd.dialect(dialect), 100_000.0, max_points=1000)
+
+
+@pytest.mark.parametrize("dialect, opening, fetch", [
+    ("generic", GENERIC_OPEN, [
+        (b"WAV:SOUR CHAN2\n", None),
+        (b"WAV:PRE?\n", b"1,0,3,1,1e-05,0.0125,0,0.5,1.0,0\n"),
+        (b"WAV:DATA?\n", b"#16\xfe\xff\x00\x00\x03\x00\n")]),
+    ("tektronix", TEK_OPEN, [
+        (b"DAT:SOU CH2\n", None),
+        (b"WFMO?\n", b'2;16;BIN;RI;LSB;"Ch2, DC coupling, 1 V/div";3;Y;"s";1.0E-5;1.25E-2;0;"V";5.0E-1;0.0E+0;1.0E+0\n'),
+        (b"CURV?\n", b"#16\xfe\xff\x00\x00\x03\x00\n")]),
+])
+def test_transcript_open_arm_and_one_waveform_read(scripted_peer, dialect, opening, fetch):
+    peer = scripted_peer(opening + fetch + [(b"STOP\n" if dialect == "generic" else b"ACQ:STATE STOP\n", None)])
+    dig = digitiser(peer, dialect)
+    dig.open()
+    ch = "CHAN2" if dialect == "generic" else "CH2"
+    first, volts, clipped = dig.fetch(ch)
+    dig.close()
+    peer.check()
+    # x_origin 12.5 ms at 100 kS/s is sample 1250; (code - 0) * 0.5 V + 1 V
+    assert first == 1250 and not clipped
+    np.testing.assert_array_equal(volts, [0.0, 1.0, 2.5])
+
+
+def test_an_error_in_the_queue_after_a_setting_names_the_command_and_every_error(scripted_peer):
+    peer = scripted_peer(GENERIC_OPEN[:6] + [
+        (b"WAV:FORM WORD\n", None), (b"SYST:ERR?\n", b'-224,"Illegal parameter value"\n'),
+        (b"SYST:ERR?\n", b'-113,"Undefined header"\n'), (b"SYST:ERR?\n", OK)])
+    dig = digitiser(peer)
+    with pytest.raises(ProtocolError, match=r"digitiser \(TCPIP::127.0.0.1::\d+::SOCKET\): 'WAV:FORM WORD': the "
+                                            r'digitiser reports -224,"Illegal parameter value"; -113,"Undefined header"'):
+        dig.open()
+    dig.link.close()
+    peer.check()
+
+
+def test_a_sample_rate_other_than_the_bench_clock_is_refused(scripted_peer):
+    from hystbench.errors import ConfigError
+
+    peer = scripted_peer(GENERIC_OPEN[:12] + [(b"ACQ:SRAT?\n", b"250000\n")])
+    with pytest.raises(ConfigError, match="samples at 250000 Hz but \\[bench\\] fs_hz = 100000"):
+        digitiser(peer).open()
+    peer.check()
+
+
+def _fetch_with(scripted_peer, pre: bytes, data_reply: bytes, timeout_s: float = 2.0):
+    peer = scripted_peer(GENERIC_OPEN + [(b"WAV:SOUR CHAN1\n", None), (b"WAV:PRE?\n", pre),
+                                         (b"WAV:DATA?\n", data_reply)], timeout_s=30.0)
+    dig = digitiser(peer, timeout_s=timeout_s)
+    dig.open()
+    return peer, dig
+
+
+PRE5 = b"1,0,5,1,1e-05,0,0,1,0,0\n"
+
+
+@pytest.mark.parametrize("reply, error, message", [
+    # a wrong length digit: '#1' announces one length digit where there are two: the data is off by one
+    (b"#110\x01\x00\x02\x00\x03\x00\x04\x00\x05\x00\n", ProtocolError,
+     r"no terminator after the 1 bytes the block announced .*the length does not match the data"),
+    # a length digit that is no digit
+    (b"#A10\x01\x00\x02\x00\x03\x00\x04\x00\x05\x00\n", ProtocolError, r"bad block header b'#A': length digit b'A'"),
+    # an indefinite-length block
+    (b"#0\x01\x00\x02\x00\n", ProtocolError, r"indefinite-length block \('#0'\) is not accepted"),
+    # an error text where the block should be
+    (b'-222,"Data out of range"\n', ProtocolError, r"expected a definite-length block"),
+    # truncated: a complete block with fewer points than the preamble announced
+    (b"#18\x01\x00\x02\x00\x03\x00\x04\x00\n", ProtocolError,
+     r"the block holds 8 bytes, the preamble announced 5 points of 2 bytes"),
+])
+def test_a_malformed_block_is_a_protocol_error_naming_instrument_and_command(scripted_peer, reply, error, message):
+    peer, dig = _fetch_with(scripted_peer, PRE5, reply)
+    with pytest.raises(error, match=message) as info:
+        dig.fetch("CHAN1")
+    assert "digitiser (TCPIP::127.0.0.1::" in str(info.value) and "'WAV:DATA?'" in str(info.value)
+    assert "(CHAN1)" in str(info.value)
+    dig.link.close()
+
+
+def test_a_timeout_mid_block_says_how_far_the_block_came(scripted_peer):
+    # 10 bytes announced, 6 sent, then nothing: the read times out inside the data
+    peer, dig = _fetch_with(scripted_peer, PRE5, b"#210\x01\x00\x02\x00\x03\x00", timeout_s=0.3)
+    with pytest.raises(InstrumentTimeout, match=r"'WAV:DATA\?' \(CHAN1\): timed out in the binary block after 4 "
+                                                r"bytes, waiting for 10 data bytes"):
+        dig.fetch("CHAN1")
+    dig.link.close()
+
+
+def test_a_bad_block_under_the_frame_source_yields_no_frame_and_drops_the_session(scripted_peer):
+    """The stream's reader reopens on ConnectionError: the lost segment becomes a gap there."""
+    peer = scripted_peer(GENERIC_OPEN + [
+        (b"WAV:SOUR CHAN1\n", None), (b"WAV:PRE?\n", b"1,0,2,1,1e-05,0,0,1,0,0\n"),
+        (b"WAV:DATA?\n", b"#14\x01\x00\x02\x00\n"),
+        (b"WAV:SOUR CHAN2\n", None), (b"WAV:PRE?\n", b"1,0,2,1,1e-05,0,0,1,0,0\n"),
+        (b"WAV:DATA?\n", b"#13\x01\x00\x02\x00\n")], timeout_s=30.0)
+    link = VisaLink(f"TCPIP::127.0.0.1::{peer.port}::SOCKET", 2.0)
+    src = DigitiserFrameSource(ScpiDigitiser(link, sd.dialect("generic"), 100_000.0, max_points=1000),
+                               ["CHAN1", "CHAN2"])
+    src.open()
+    with pytest.raises(ConnectionError, match=r"'WAV:DATA\?' \(CHAN2\): no terminator"):
+        src.read_frames(1.0)
+    assert src.deframer_stats.frames == 0 and src.deframer_stats.corrupt == 1
+    link.close()
+
+
+# --- the block codec and the preamble, no transport -------------------------------------------------
+
+def test_encoded_blocks_read_back_and_the_preamble_round_trips_in_every_dialect():
+    data = bytes(range(256)) * 5
+    wire = sd.encode_block(data) + b"\n"
+    assert wire[:6] == b"#41280"
+    pos = 0
+
+    def read(n):
+        nonlocal pos
+        out, pos = wire[pos:pos + n], pos + n
+        return out
+
+    assert sd.read_block(read, "x") == data
+    pre = sd.Preamble(7, 1e-5, 123456 / 1e5, 0.0, 10 / 32768, 0.0, 0.0)
+    for d in sd.DIALECTS.values():
+        back = sd.Preamble.parse(pre.format(d), d)
+        assert back == pre and back.first_index(1e5) == 123456
+
+
+def test_a_segment_between_two_samples_of_the_clock_is_refused():
+    with pytest.raises(ValueError, match="between two samples"):
+        sd.Preamble(1, 1e-5, 0.5e-5, 0, 1, 0, 0).first_index(1e5)
+
+
+def test_the_joiner_keeps_channels_aligned_and_a_jump_is_a_gap_never_filled():
+    j = SegmentJoiner(2)
+    j.push(0, 100, np.arange(100, 110, dtype=float), False)
+    assert j.pop() is None  # channel 1 has nothing yet
+    j.push(1, 100, -np.arange(100, 106, dtype=float), False)
+    f = j.pop()
+    assert f.first_index == 100 and f.n == 6
+    np.testing.assert_array_equal(f.samples[0], np.arange(100, 106))
+    np.testing.assert_array_equal(f.samples[1], -np.arange(100, 106))
+    # channel 1 lost [106, 115): channel 0's samples there are dropped, the next frame starts at 115
+    j.push(0, 110, np.arange(110, 120, dtype=float), True)
+    j.push(1, 115, -np.arange(115, 118, dtype=float), False)
+    f = j.pop()
+    assert f.first_index == 115 and f.n == 3 and f.flags == 4  # CLIP from channel 0's segment
+    np.testing.assert_array_equal(f.samples[0], np.arange(115, 118))
+    np.testing.assert_array_equal(f.samples[1], -np.arange(115, 118))
+    # an overlap (a segment read twice) adds only what is new
+    j.push(1, 116, -np.arange(116, 120, dtype=float), False)
+    f = j.pop()
+    assert f.first_index == 118 and f.n == 2
+    np.testing.assert_array_equal(f.samples[1], [-118, -119])

@@ -1,0 +1,114 @@
+"""The bench sampled by one digitiser (issue 15): the emulated digitiser serves the rig's four
+signals over SCPI on 127.0.0.1, read through real pyvisa-py by the drivers' Bench, checked sample
+for sample against the rig, and the paper's three delays estimated from it against the rig's own,
+to the tolerance of test_hil_stream."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hystbench.analysis.method import measure_delays
+from hystbench.blocks import BlockFlags
+from hystbench.formats.recording import Recording
+from hystbench.sim_backend.rig import SimulatedRig
+
+from .conftest import HANG_S, STALL_S, Hil, acquire_through, bench_file, skip_to, switched_on_at
+
+SCALES = {"current_A": 0.2, "force_N": 50.0, "flux_Wb": 1e-5, "command_V": 1.0}  # SI per volt at the inputs
+CHANNELS = {"generic": ("CHAN1", "CHAN2", "CHAN3", "CHAN4"), "tektronix": ("CH1", "CH2", "CH3", "CH4")}
+
+
+def digitiser_table(dialect: str = "generic") -> str:
+    chans = ", ".join(f'{s} = "{c}"' for s, c in zip(SCALES, CHANNELS[dialect]))
+    scales = ", ".join(f"{s} = {v!r}" for s, v in SCALES.items())
+    return f'\n[digitiser]\nbackend = "sim"\ndialect = "{dialect}"\nchannels = {{ {chans} }}\nscales = {{ {scales} }}\n'
+
+
+@pytest.fixture
+def dig_factory(tmp_path):
+    made: list[Hil] = []
+
+    def make(dialect: str = "generic") -> Hil:
+        path = bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}"})
+        path.write_text(path.read_text() + digitiser_table(dialect))
+        h = Hil(path)
+        made.append(h)
+        h.bench.open()
+        return h
+
+    yield make
+    for h in made:
+        h.close()
+
+
+def through_the_digitiser(hil: Hil, name: str, first: int, n: int) -> np.ndarray:
+    """The rig's samples as the digitiser must deliver them, computed here: SI / scale volts at its
+    input, 16-bit codes of 10/32768 V rounded and held at +-32767, times the scale again."""
+    lsb = 10.0 / 32768
+    volts = hil.truth.channel(name, first, n) / SCALES[name]
+    return np.clip(np.round(volts / lsb), -32767, 32767) * lsb * SCALES[name]
+
+
+def test_one_second_through_the_digitiser_and_the_papers_delays(dig_factory):
+    hil = dig_factory()
+    bench = hil.bench
+    bench.start_output()
+    on = switched_on_at(hil)
+    skip_to(hil, on)
+    runs = bench.acquire(1.1, timeout_s=HANG_S)
+    assert len(runs) == 1, [(r.first_index, r.n, r.gap_samples) for r in runs]
+    run = runs[0]
+    assert run.first_index >= on and run.n == 110_000 and set(run.channels) == set(SCALES)
+    assert not run.flags & (BlockFlags.GAP | BlockFlags.CLIP) and run.gap_samples == 0
+    stats = bench.stream_stats()["digitiser"]
+    assert stats["gap_samples"] == stats["reconnects"] == 0
+    for name in SCALES:  # nothing lost, shifted or invented: the rig's samples through the 16-bit ADC
+        np.testing.assert_allclose(run.channels[name], through_the_digitiser(hil, name, run.first_index, run.n),
+                                   rtol=1e-12, atol=0, err_msg=name)
+
+    meta = hil.emu.rig.metadata()
+    got = measure_delays(Recording(None, run.fs_hz, {k: run.channels[k][10_000:] for k in
+                                                     ("current_A", "force_N", "flux_Wb")}, dict(meta)))
+    sim = hil.config.sim
+    rig = SimulatedRig(sim["rig"], fs_hz=run.fs_hz, seed=sim["seed"], effects=dict(sim["effects"]),
+                       frequency_hz=320.0, current_pp_a=1.4)
+    direct = measure_delays(Recording(None, run.fs_hz, dict(rig.record(1.0).channels), rig.metadata()))
+    for name in ("hysteresis", "instrument", "total"):
+        tol = 5 * np.hypot(got.delays_std_s[name], direct.delays_std_s[name]) + 10e-9
+        assert got.delays_s[name] == pytest.approx(direct.delays_s[name], abs=tol), name
+    assert got.delays_s["hysteresis"] > 0
+
+
+def test_a_truncated_block_loses_its_segment_as_an_exact_gap(dig_factory):
+    hil = dig_factory()
+    emu, bench = hil.emu.digitiser, hil.bench
+    bench.start_output()
+    before = bench.acquire(0.02, timeout_s=HANG_S)[-1]
+    sent = emu.faults.replies_sent
+    emu.block_faults.append("truncate")  # the next data block stops half way: the driver times out in it
+    hil.wait_for(lambda: not emu.block_faults, "the truncated block")
+    runs = acquire_through(hil, hil.emu.next_index)
+    gapped = [r for r in runs if r.flags & BlockFlags.GAP]
+    assert len(gapped) == 1 and gapped[0].gap_samples > 0
+    g = gapped[0]
+    stats = bench.stream_stats()["digitiser"]
+    assert stats["reconnects"] == 1 and stats["gap_samples"] == g.gap_samples and emu.faults.replies_sent > sent
+    # the gap is what the runs skip: the run before ends where the gap begins
+    prev = runs[runs.index(g) - 1] if runs.index(g) else before
+    assert g.first_index - g.gap_samples == prev.end_index
+    for r in runs:  # every sample delivered is the rig's, at its own index
+        for name in SCALES:
+            np.testing.assert_allclose(r.channels[name], through_the_digitiser(hil, name, r.first_index, r.n),
+                                       rtol=1e-12, atol=0, err_msg=name)
+
+
+def test_the_tektronix_dialect_through_the_emulator(dig_factory):
+    hil = dig_factory("tektronix")
+    hil.bench.start_output()
+    run = hil.bench.acquire(0.05, timeout_s=HANG_S)[0]
+    assert run.n == 5000
+    assert any(m.startswith(b"CURV?") for m in hil.emu.digitiser.commands_seen)
+    for name in SCALES:
+        np.testing.assert_allclose(run.channels[name], through_the_digitiser(hil, name, run.first_index, run.n),
+                                   rtol=1e-12, atol=0, err_msg=name)
