@@ -101,8 +101,9 @@ _DIGITISER = {
                "(required with kind = \"visa\", backend = \"hardware\")"),
     "dialect": Key(str, "generic", "the SCPI command set: generic (:WAVeform, Keysight style) or a vendor's",
                    choices=tuple(scpi_digitiser.DIALECTS)),
-    "channels": Key(dict, None, "the instrument channel sampling each signal", table={
-        s: Key(str, None, f"the channel of {s} (visa: e.g. \"CHAN1\"; daqmx: e.g. \"Dev1/ai0\")") for s in _SIGNALS}),
+    "channels": Key(dict, {}, "the instrument channel sampling each signal", table={
+        s: Key(str, f"CHAN{k}", f"the channel of {s} (visa: e.g. \"CHAN1\"; daqmx: e.g. \"Dev1/ai0\")")
+        for k, s in enumerate(_SIGNALS, start=1)}),
     "scales": Key(dict, {}, "SI units per volt at the digitiser's input (1 if left out)", table={
         s: Key(NUM, 1.0, f"{s} per volt") for s in _SIGNALS}),
     "max_points": Key(int, 100_000, "visa: most points one waveform read returns", "points", gt=0),
@@ -238,6 +239,11 @@ def _digitiser(t: dict[str, Any], src: str) -> DigitiserConfig:
     elif t["backend"] == "sim":
         raise ConfigError(f"{where} kind: the emulated digitiser speaks SCPI: kind = \"daqmx\" needs "
                           "backend = \"hardware\"")
+    else:
+        for sig, ch in t["channels"].items():
+            if "/" not in ch:
+                raise ConfigError(f"{where} channels.{sig} = {ch!r}: not an NI-DAQmx physical channel "
+                                  "(e.g. \"Dev1/ai0\")")
     for sig, ch in t["channels"].items():
         if not ch.strip():
             raise ConfigError(f"{where} channels.{sig}: empty")
