@@ -13,6 +13,7 @@ when a test thread happened to run, so the exact gap a receiver must report is k
 from __future__ import annotations
 
 import errno
+import functools
 import logging
 import os
 import select
@@ -309,6 +310,11 @@ class TcpServer:
         self._thread.join(timeout=1.0)
 
 
+#: Fewer whole frames than this in a block: per frame is as quick (TCP and serial send two a block).
+_BATCH_MIN_FRAMES = 8
+
+
+@functools.lru_cache(maxsize=64)
 def _frame_dtype(channels: int, samples: int) -> np.dtype:
     """One frame of :mod:`~hystbench.drivers.protocols.framing` as a packed record (header, samples, CRC)."""
     return np.dtype([("magic", "u1"), ("version", "u1"), ("stream_id", "u1"), ("channels", "u1"),
@@ -324,7 +330,8 @@ def encode_frames(stream_id: int, seq0: int, first_index: int, data: np.ndarray,
     data = np.asarray(data, dtype=np.float32)
     spf = int(samples_per_frame)
     if (data.ndim != 2 or not 1 <= data.shape[0] <= 255 or not 1 <= spf <= 0xFFFF
-            or OVERHEAD + 4 * data.shape[0] * spf > MAX_FRAME_SIZE):  # the per-frame path says what is wrong
+            or OVERHEAD + 4 * data.shape[0] * spf > MAX_FRAME_SIZE  # the per-frame path says what is wrong
+            or data.shape[1] < _BATCH_MIN_FRAMES * spf):
         return [encode_frame(f) for f in frames_from_block(stream_id, seq0, first_index, data, spf, flags)]
     c, n = data.shape
     full = n // spf
