@@ -9,17 +9,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from types import ModuleType
 from typing import Any, Mapping
 
 import numpy as np
 from scipy import signal
 
+from .. import jit
 from ..blocks import BlockFlags
 from ..physics import presets as physics_presets
 from ..physics.instrument import InstrumentModel, bilinear_sos
 
-__all__ = ["MeasurementChain", "FractionalDelay", "instrument_from_preset"]
+__all__ = ["MeasurementChain", "FractionalDelay", "instrument_from_preset", "noise_adc_reference", "KERNEL"]
 
+_NO_DRAWS = np.empty(0)  # the noise kernel's draws when the noise is off (one array type, one specialisation)
 _NOISE_KEYS = {"current_A": "current_a", "force_N": "force_n", "flux_Wb": "flux_wb",
                "sense_V": "sense_v", "command_V": "command_v"}
 
@@ -61,18 +64,53 @@ class FractionalDelay:
         return y
 
 
+#: None: the compiled kernels run when ``jit.enabled()``; a test sets True or False to run one path.
+KERNEL: bool | None = None
+
+
+def _kernels() -> ModuleType | None:
+    """``hystbench.sim_backend.kernels`` when compiled kernels run (asked at each call, so a test
+    can set ``KERNEL`` and run both paths in one process), else None: the numpy path."""
+    if not (jit.enabled() if KERNEL is None else KERNEL):
+        return None
+    from . import kernels
+
+    return kernels
+
+
 class _Sos:
-    """A stateful sosfilt that starts in steady state for its first input value."""
+    """A stateful sosfilt that starts in steady state for its first input value.  ``sosfilt`` is
+    the reference; the compiled kernel runs the same recursion on the same state."""
 
     def __init__(self, sos: np.ndarray) -> None:
-        self.sos = sos
+        self.sos = np.ascontiguousarray(sos, dtype=np.float64)
         self.zi: np.ndarray | None = None
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         if self.zi is None:
             self.zi = signal.sosfilt_zi(self.sos) * x[0]
-        y, self.zi = signal.sosfilt(self.sos, x, zi=self.zi)
+        kernels = _kernels()
+        if kernels is None:
+            y, self.zi = signal.sosfilt(self.sos, x, zi=self.zi)
+            return y
+        y = np.array(x, dtype=np.float64, order="C")  # filtered in place
+        self.zi = np.ascontiguousarray(self.zi, dtype=np.float64)
+        kernels.sosfilt_inplace(self.sos, self.zi, y)
         return y
+
+
+def noise_adc_reference(x: np.ndarray, sigma: float | None, draws: np.ndarray | None,
+                        full_scale: float | None, lsb: float) -> tuple[np.ndarray, bool]:
+    """``x + sigma * draws`` (with noise), then the ADC (with ``full_scale``): clip to one LSB below
+    full scale, round to the LSB; and whether any sample was beyond full scale (the CLIP flag)."""
+    clipped = False
+    if sigma is not None:
+        x = x + sigma * draws
+    if full_scale is not None:
+        if np.any(np.abs(x) > full_scale):
+            clipped = True
+        x = np.round(np.clip(x, -full_scale, full_scale - lsb) / lsb) * lsb
+    return x, clipped
 
 
 class MeasurementChain:
@@ -114,6 +152,8 @@ class MeasurementChain:
         out: dict[str, np.ndarray] = {}
         flags = BlockFlags.NONE
         e = self.effects
+        noise, adc = e.get("sensor_noise"), e.get("adc_quantisation")
+        kernels = _kernels() if noise is not None or adc is not None else None
         for ch in self.channels:
             x = np.asarray(truth[ch], dtype=float)
             if ch == "force_N":
@@ -129,14 +169,23 @@ class MeasurementChain:
                 x = x + self._mains(t_s, float(e["mains_pickup"]["sense_v"]), 1)
             if ch in self._skew:
                 x = self._skew[ch](x)
-            if "sensor_noise" in e:
-                x = x + float(e["sensor_noise"][_NOISE_KEYS[ch]]) * self._rng[ch].standard_normal(x.size)
-            if "adc_quantisation" in e:
-                q = e["adc_quantisation"]
-                full_scale = float(q[_NOISE_KEYS[ch]])
-                lsb = 2.0 * full_scale / 2 ** int(q["bits"])
-                if np.any(np.abs(x) > full_scale):
-                    flags |= BlockFlags.CLIP
-                x = np.round(np.clip(x, -full_scale, full_scale - lsb) / lsb) * lsb
+            sigma = draws = full_scale = None
+            lsb = 1.0
+            if noise is not None:  # each channel its own generator: the draws never depend on the path
+                sigma, draws = float(noise[_NOISE_KEYS[ch]]), self._rng[ch].standard_normal(x.size)
+            if adc is not None:
+                full_scale = float(adc[_NOISE_KEYS[ch]])
+                lsb = 2.0 * full_scale / 2 ** int(adc["bits"])
+            if kernels is not None:
+                x = np.ascontiguousarray(x, dtype=np.float64)
+                y = np.empty(x.size)
+                clipped = kernels.noise_adc(x, 0.0 if sigma is None else sigma, _NO_DRAWS if draws is None else draws,
+                                            sigma is not None, 1.0 if full_scale is None else full_scale, lsb,
+                                            full_scale is not None, y)
+                x = y
+            else:
+                x, clipped = noise_adc_reference(x, sigma, draws, full_scale, lsb)
+            if clipped:
+                flags |= BlockFlags.CLIP
             out[ch] = x
         return out, flags

@@ -13,7 +13,7 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, jit
 from ..blocks import SampleBlock, concatenate
 from ..config import load_rig
 from ..config.effects import resolve_effects
@@ -21,7 +21,7 @@ from ..errors import ConfigError
 from .actuators import build_actuator
 from .measurement import MeasurementChain
 
-__all__ = ["SimulatedRig", "DEFAULT_FS_HZ"]
+__all__ = ["SimulatedRig", "DEFAULT_FS_HZ", "KERNEL"]
 
 DEFAULT_FS_HZ = 100_000.0
 #: The generator's clock against the ADC's: they are independent, so the true excitation
@@ -33,6 +33,9 @@ MAX_CURRENT_A = 1e4
 #: The most samples the rig computes to settle before sample 0 (5 periods, at least 50 ms): a lower
 #: frequency or a higher rate would take hours, or overflow the sample index.
 MAX_WARMUP_SAMPLES = 10_000_000
+#: None: the command sine is a compiled kernel when ``jit.enabled()``; a test sets True or False to
+#: run one path (the numpy expression is the reference).
+KERNEL: bool | None = None
 
 
 class SimulatedRig:
@@ -133,28 +136,40 @@ class SimulatedRig:
         return self.frequency_hz * (1.0 + 1e-6 * self.generator_clock_ppm)
 
     # --- the physics of one block ----------------------------------------------------------------
-    def _command_current(self, cycles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Commanded current and its time derivative at the given generator phases (cycles)."""
+    def _command_current(self, c0: float, step: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Commanded current and its time derivative at the generator phases ``c0 + step k`` (cycles),
+        k = 0..n-1.  The sine is a compiled kernel when kernels run (the same numbers to a few ulp),
+        else the numpy expression below, its reference."""
         w = 2 * np.pi * self.generator_frequency_hz
         if self._waveform is None:
             amp = 0.5 * self.current_pp_a
-            return self.offset_a + amp * np.sin(2 * np.pi * cycles), amp * w * np.cos(2 * np.pi * cycles)
+            if (jit.enabled() if KERNEL is None else KERNEL):
+                from .kernels import sine_and_rate
+
+                i_cmd, di_cmd = np.empty(n), np.empty(n)
+                sine_and_rate(float(c0), float(step), self.offset_a, amp, amp * w, i_cmd, di_cmd)
+                return i_cmd, di_cmd
+            return self._sine_reference(c0 + step * np.arange(n), amp, w)
+        cycles = c0 + step * np.arange(n)
         table = self._waveform
-        n = table.size
-        grid = np.arange(n + 1) / n
+        size = table.size
+        grid = np.arange(size + 1) / size
         wrapped = np.append(table, table[0])
-        slope = np.diff(wrapped) * n * self.generator_frequency_hz
+        slope = np.diff(wrapped) * size * self.generator_frequency_hz
         frac = np.mod(cycles, 1.0)
-        idx = np.minimum((frac * n).astype(int), n - 1)
+        idx = np.minimum((frac * size).astype(int), size - 1)
         return np.interp(frac, grid, wrapped), slope[idx]
+
+    def _sine_reference(self, cycles: np.ndarray, amp: float, w: float) -> tuple[np.ndarray, np.ndarray]:
+        """The sine command in numpy: the reference the kernel is tested against."""
+        return self.offset_a + amp * np.sin(2 * np.pi * cycles), amp * w * np.cos(2 * np.pi * cycles)
 
     def _generate(self, n: int) -> SampleBlock:
         k0 = self._next_index
         t = (k0 + np.arange(n)) / self.fs_hz
         step = self.generator_frequency_hz / self.fs_hz
-        cycles = self._cycle + step * np.arange(n)
+        i_cmd, di_cmd = self._command_current(self._cycle, step, n)
         self._cycle = float(np.mod(self._cycle + step * n, 1.0))
-        i_cmd, di_cmd = self._command_current(cycles)
         command_v = i_cmd / self.amplifier_gain_a_per_v
         if not self.output_enabled:
             i_cmd, di_cmd = np.zeros(n), np.zeros(n)
@@ -171,7 +186,8 @@ class SimulatedRig:
         if out.flux_wb is not None:
             truth["flux_Wb"] = out.flux_wb - self._dc_flux  # an integrator has no DC
             truth["sense_V"] = -self.sense_turns * out.dflux_dt
-        channels, flags = self.chain.measure(t + self.clock_offset_s, truth)
+        # t + 0.0 is t: the shifted clock only costs a pass when a bench day shifts it
+        channels, flags = self.chain.measure(t + self.clock_offset_s if self.clock_offset_s else t, truth)
         self._next_index = k0 + n
         return SampleBlock(k0, self.fs_hz, channels, flags=flags)
 
