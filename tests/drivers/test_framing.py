@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 
 from hystbench.drivers.protocols.framing import (
     MAX_FRAME_SIZE, OVERHEAD, CobsDeframer, Frame, FrameError, LengthPrefixDeframer, cobs_decode,
-    cobs_encode, cobs_record, decode_frame, encode_frame, frames_from_block, length_prefixed,
-    samples_per_frame_for)
+    cobs_decode_reference, cobs_encode, cobs_encode_reference, cobs_record, decode_frame, encode_frame,
+    frames_from_block, length_prefixed, samples_per_frame_for)
 
 FAST = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -137,3 +137,100 @@ def test_can_fd_payload_holds_ten_samples_of_one_channel():
 def test_oversized_frames_are_refused():
     with pytest.raises(ValueError):
         encode_frame(Frame(1, 0, 0, np.zeros((2, (MAX_FRAME_SIZE // 8) + 1), np.float32)))
+
+
+# --- the compiled COBS codec against its Python reference (issue 14) -----------------------------
+def kernels():
+    from hystbench.drivers.protocols import framing
+
+    pair = framing._cobs_kernels()
+    if pair is None:
+        pytest.skip("numba is off (HYSTBENCH_JIT=0 or not installed): only the reference runs")
+    return pair
+
+
+def kernel_encode(data: bytes) -> bytes:
+    src = np.frombuffer(data, dtype=np.uint8)
+    dst = np.empty(src.size + src.size // 254 + 2, dtype=np.uint8)
+    return dst[:kernels()[0](src, dst)].tobytes()
+
+
+def kernel_decode(data: bytes) -> bytes:
+    src = np.frombuffer(data, dtype=np.uint8)
+    dst = np.empty(src.size, dtype=np.uint8)
+    n = kernels()[1](src, dst)
+    if n < 0:
+        raise FrameError({-1: "zero byte inside a COBS record", -2: "COBS record truncated"}[n])
+    return dst[:n].tobytes()
+
+
+def same_outcome(f, g, data):
+    """f(data) and g(data) give the same bytes, or both refuse with the same message."""
+    try:
+        want = f(data)
+    except FrameError as err:
+        with pytest.raises(FrameError, match=str(err)):
+            g(data)
+        return
+    assert g(data) == want
+
+
+#: bytes with long zero-free runs and many zeros, as ADC-quantised float32 samples have
+cobs_inputs = st.lists(st.one_of(st.binary(max_size=600), st.just(b"\x00"), st.integers(250, 600).map(
+    lambda n: bytes(i % 255 + 1 for i in range(n)))), max_size=8).map(b"".join)
+
+
+@FAST
+@given(cobs_inputs)
+def test_cobs_kernel_encodes_the_reference_bytes_and_round_trips(data):
+    enc = kernel_encode(data)
+    assert enc == cobs_encode_reference(data) == cobs_encode(data)
+    assert kernel_decode(enc) == cobs_decode_reference(enc) == data
+
+
+@FAST
+@given(st.binary(max_size=800), st.data())
+def test_cobs_kernel_decodes_any_bytes_as_the_reference_does(data, draw):
+    """Valid or not (a zero inside, a code running past the end): the same bytes or the same refusal."""
+    enc = bytearray(cobs_encode_reference(data))
+    for _ in range(draw.draw(st.integers(0, 3))):  # damage: a byte anywhere, zeros and codes included
+        if enc:
+            enc[draw.draw(st.integers(0, len(enc) - 1))] = draw.draw(st.sampled_from([0, 1, 2, 0xFE, 0xFF, 77]))
+    cut = draw.draw(st.integers(0, len(enc)))  # truncation
+    same_outcome(cobs_decode_reference, kernel_decode, bytes(enc[:cut]))
+
+
+@pytest.mark.parametrize("data", [b"", b"\x00", b"\x00\x00", b"a\x00", b"\x01" * 253, b"\x01" * 254,
+                                  b"\x01" * 254 + b"\x00", b"\x01" * 255, b"\x00" + b"\x01" * 508 + b"\x00",
+                                  b"\x01" * 254 + b"\x00" + b"\x01" * 254])
+def test_cobs_kernel_edge_cases_match_the_reference(data):
+    """254-byte runs (a 0xFF code with no zero after it), a trailing zero, empty input: byte for byte."""
+    assert kernel_encode(data) == cobs_encode_reference(data)
+    assert kernel_decode(cobs_encode_reference(data)) == data
+
+
+@pytest.mark.parametrize("record, message", [(b"\x03a\x00b", "zero byte inside"), (b"\x00", "zero byte inside"),
+                                             (b"\x05abc", "truncated"), (b"\xff" + b"\x01" * 100, "truncated")])
+def test_cobs_kernel_refuses_what_the_reference_refuses(record, message):
+    for decode in (cobs_decode_reference, kernel_decode):
+        with pytest.raises(FrameError, match=message):
+            decode(record)
+
+
+def test_cobs_deframer_on_the_kernel_equals_the_reference_on_a_quantised_stream(monkeypatch):
+    """A float32 stream quantised like an ADC's (a fifth of its bytes are zero), with one damaged
+    record: the kernel path hands out the same frames and counts as the reference."""
+    x = (np.round(6 * np.sin(np.arange(4000) / 30) / (20 / 65536)) * (20 / 65536)).astype(np.float32)
+    raws = [encode_frame(f) for f in frames_from_block(3, 0, 0, x[None, :], 500)]
+    wire = bytearray(b"".join(b"\x00" + cobs_record(r) for r in raws))
+    wire[len(wire) // 2] ^= 0x21
+    assert kernels() and sum(r.count(0) for r in raws) > 0.15 * sum(map(len, raws))
+    from hystbench.drivers.protocols import framing
+
+    got = {}
+    for name, decode in (("kernel", cobs_decode), ("reference", cobs_decode_reference)):
+        monkeypatch.setattr(framing, "cobs_decode", decode)  # the deframer's codec: kernel, then reference
+        d = CobsDeframer(3, 1)
+        got[name] = ([(f.seq, f.first_index, f.samples.tobytes()) for f in d.feed(bytes(wire))], d.stats)
+    assert got["kernel"] == got["reference"]
+    assert got["kernel"][1].corrupt == 1 and len(got["kernel"][0]) == len(raws) - 1
