@@ -23,7 +23,9 @@ from ..blocks import BlockFlags, SampleBlock
 from ..deadline import Deadline
 from ..errors import ConnectionLost, InstrumentError
 from .base import Backoff, log
-from .protocols.framing import CobsDeframer, DeframerStats, Frame, FrameError, LengthPrefixDeframer, decode_frame
+from .protocols.framing import (
+    BATCH_CORRUPT, BATCH_OTHER_SHAPE, OVERHEAD, CobsDeframer, DeframerStats, Frame, FrameBatch, FrameError,
+    LengthPrefixDeframer, decode_batch, decode_frame)
 
 if TYPE_CHECKING:
     import can
@@ -62,7 +64,7 @@ class FrameSource(abc.ABC):
     def close(self) -> None: ...
 
     @abc.abstractmethod
-    def read_frames(self, timeout_s: float) -> list[Frame]: ...
+    def read_frames(self, timeout_s: float) -> list[Frame | FrameBatch]: ...
 
 
 class TcpFrameSource(FrameSource):
@@ -144,13 +146,15 @@ class SerialFrameSource(FrameSource):
 class CanFrameSource(FrameSource):
     """CAN FD: one frame per CAN message with the stream's arbitration id; others are ignored."""
 
+    max_batch = 256  #: messages drained per read: one decode amortised over them, the reader never starved
+
     def __init__(self, bus: can.BusABC, can_id: int, *, stream_id: int | None = None, channels: int | None = None,
                  open_timeout_s: float = 0.2) -> None:
         self.bus, self.can_id = bus, can_id
         self._ids = (stream_id, channels)
         self.open_timeout_s = open_timeout_s
         self.deframer_stats = DeframerStats()
-        self._pending: list[Frame] = []
+        self._pending: list[Frame | FrameBatch] = []
         self._opened = False
 
     def open(self) -> None:
@@ -166,22 +170,60 @@ class CanFrameSource(FrameSource):
     def close(self) -> None:
         self._pending = []
 
-    def read_frames(self, timeout_s: float) -> list[Frame]:
+    def read_frames(self, timeout_s: float) -> list[Frame | FrameBatch]:
+        """Drain up to ``max_batch`` messages of this stream (waiting for the first one only), then
+        decode them together (:meth:`decode`)."""
         out, self._pending = self._pending, []
         deadline = Deadline(timeout_s)
-        while len(out) < 256:
-            msg = self.bus.recv(deadline.left() if not out else 0.0)
+        payloads: list[bytes | bytearray] = []
+        recv, can_id = self.bus.recv, self.can_id
+        while len(payloads) < self.max_batch:
+            msg = recv(deadline.left() if not (out or payloads) else 0.0)
             if msg is None:
                 break
-            if msg.arbitration_id != self.can_id or msg.is_error_frame or msg.is_remote_frame:
+            if msg.arbitration_id != can_id or msg.is_error_frame or msg.is_remote_frame:
                 continue
+            payloads.append(msg.data)  # python-can made the Message for this handle alone: no copy
+        return out + self.decode(payloads)
+
+    def decode(self, payloads: Sequence[bytes | bytearray]) -> list[Frame | FrameBatch]:
+        """Message payloads (in arrival order) to what the stream accepts, damage counted: one
+        :class:`FrameBatch` when they all have the stream's size (the case on a healthy bus; header
+        checks vectorised, one CRC call each), else frame by frame (:meth:`decode_each`, the
+        reference it must equal)."""
+        sid, ch = self._ids
+        if not payloads or ch is None:
+            return self.decode_each(payloads)
+        size = len(payloads[0])
+        n = (size - OVERHEAD) // (4 * ch)
+        if n < 1 or OVERHEAD + 4 * ch * n != size or set(map(len, payloads)) != {size}:
+            return self.decode_each(payloads)
+        batch, verdict = decode_batch(payloads, ch, n)
+        if (verdict == BATCH_OTHER_SHAPE).any():  # valid frames of another shape: rare, keep the order
+            return self.decode_each(payloads)
+        stats = self.deframer_stats
+        bad = int(np.count_nonzero(verdict == BATCH_CORRUPT))
+        stats.corrupt += bad
+        stats.discarded_bytes += bad * size
+        if sid is not None:
+            mine = batch.stream_id == sid
+            if not mine.all():
+                stats.foreign += len(batch) - int(np.count_nonzero(mine))
+                batch = batch.take(mine)
+        stats.frames += len(batch)
+        return [batch] if len(batch) else []
+
+    def decode_each(self, payloads: Sequence[bytes | bytearray]) -> list[Frame | FrameBatch]:
+        """Message payloads to frames one by one: the reference :meth:`decode` equals."""
+        out: list[Frame | FrameBatch] = []
+        sid, ch = self._ids
+        for data in payloads:
             try:
-                frame = decode_frame(bytes(msg.data))
+                frame = decode_frame(bytes(data))
             except FrameError:
                 self.deframer_stats.corrupt += 1
-                self.deframer_stats.discarded_bytes += len(msg.data)
+                self.deframer_stats.discarded_bytes += len(data)
                 continue
-            sid, ch = self._ids
             if (sid is not None and frame.stream_id != sid) or (ch is not None and frame.samples.shape[0] != ch):
                 self.deframer_stats.foreign += 1
                 continue
@@ -208,6 +250,26 @@ class StreamStats:
         d = {k: v for k, v in self.__dict__.items() if k != "deframer"}
         d.update({f"deframer_{k}": v for k, v in self.deframer.__dict__.items()})
         return d
+
+
+class _Runs:
+    """Contiguous pieces collected by one ``_accept``: arrays listed, concatenated once per run at
+    the end (concatenating per frame made a drain of n frames cost n^2 copies)."""
+
+    def __init__(self) -> None:
+        self._pieces: list[tuple[int, list[np.ndarray], int]] = []
+        self._end: int | None = None
+
+    def add(self, first: int, data: np.ndarray, flags: int) -> None:
+        if self._pieces and self._end == first and self._pieces[-1][2] == flags:
+            self._pieces[-1][1].append(data)
+        else:
+            self._pieces.append((first, [data], flags))
+        self._end = first + data.shape[1]
+
+    def finish(self) -> list[tuple[int, np.ndarray, int]]:
+        return [(first, parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1), flags)
+                for first, parts, flags in self._pieces]
 
 
 class SampleStream:
@@ -302,30 +364,16 @@ class SampleStream:
         return SampleBlock(first, self.fs_hz, chans, flags=BlockFlags(flags), gap_samples=max(gap, 0), meta=meta)
 
     # --- reader side -----------------------------------------------------------------------------
-    def _accept(self, frames: list[Frame]) -> None:
-        """Keep frames that extend the stream; merge contiguous ones into runs (a loop per frame)."""
-        pieces: list[tuple[int, np.ndarray, int]] = []
-        for f in frames:
-            first, data = f.first_index, f.samples
-            if self._next_index is not None and first < self._next_index:
-                if f.end_index <= self._next_index:
-                    self.stats.stale_frames += 1
-                    continue
-                data = data[:, self._next_index - first:]  # overlap: keep only what is new
-                first = self._next_index
-            if data.shape[0] != len(self.channels):
-                self.stats.deframer.foreign += 1
-                continue
-            if self._next_seq is not None:  # frames never seen (informative; gaps come from indices)
-                step = (f.seq - self._next_seq) % _SEQ_MOD
-                self.stats.frames_lost += step if step < _SEQ_MOD // 2 else 0
-            self._next_seq = (f.seq + 1) % _SEQ_MOD
-            self.stats.frames += 1
-            self._next_index = first + data.shape[1]
-            if pieces and pieces[-1][0] + pieces[-1][1].shape[1] == first and pieces[-1][2] == f.flags:
-                pieces[-1] = (pieces[-1][0], np.concatenate([pieces[-1][1], data], axis=1), f.flags)
+    def _accept(self, items: Sequence[Frame | FrameBatch]) -> None:
+        """Keep frames that extend the stream; merge contiguous ones into runs, each concatenated
+        once (a frame at a time for :class:`Frame` s, vectorised for a :class:`FrameBatch`)."""
+        runs = _Runs()
+        for item in items:
+            if isinstance(item, FrameBatch):
+                self._accept_batch(item, runs)
             else:
-                pieces.append((first, data, f.flags))
+                self._accept_frame(item, runs)
+        pieces = runs.finish()
         if not pieces:
             return
         with self._cond:
@@ -337,6 +385,71 @@ class SampleStream:
                 self._queued -= dropped.shape[1]
                 self.stats.overruns += 1
             self._cond.notify_all()
+
+    def _accept_frame(self, f: Frame, runs: "_Runs") -> None:
+        """One frame: the rule :meth:`_accept_batch` vectorises (and must equal)."""
+        first, data = f.first_index, f.samples
+        if self._next_index is not None and first < self._next_index:
+            if f.end_index <= self._next_index:
+                self.stats.stale_frames += 1
+                return
+            data = data[:, self._next_index - first:]  # overlap: keep only what is new
+            first = self._next_index
+        if data.shape[0] != len(self.channels):
+            self.stats.deframer.foreign += 1
+            return
+        if self._next_seq is not None:  # frames never seen (informative; gaps come from indices)
+            step = (f.seq - self._next_seq) % _SEQ_MOD
+            self.stats.frames_lost += step if step < _SEQ_MOD // 2 else 0
+        self._next_seq = (f.seq + 1) % _SEQ_MOD
+        self.stats.frames += 1
+        self._next_index = first + data.shape[1]
+        runs.add(first, data, f.flags)
+
+    def _accept_batch(self, b: FrameBatch, runs: "_Runs") -> None:
+        """:meth:`_accept_frame` on every row, vectorised.  A row is stale when it ends at or before
+        the furthest end kept before it (every kept row ends past that, so it is the running maximum
+        of the ends); a kept row starts at that end when it overlaps it."""
+        k, c, n = b.samples.shape
+        end = b.first_index + n
+        prev = self._next_index
+        if c != len(self.channels):  # none is kept: stale against what was kept before, else foreign
+            stale = 0 if prev is None else int(np.count_nonzero(end <= prev))
+            self.stats.stale_frames += stale
+            self.stats.deframer.foreign += k - stale
+            return
+        before = np.empty(k, dtype=np.int64)
+        before[0] = np.iinfo(np.int64).min if prev is None else prev
+        np.maximum.accumulate(end[:-1], out=before[1:])
+        if prev is not None:
+            np.maximum(before[1:], prev, out=before[1:])
+        kept = end > before
+        self.stats.stale_frames += k - int(np.count_nonzero(kept))
+        rows = np.flatnonzero(kept)
+        if rows.size == 0:
+            return
+        seq = b.seq[rows]
+        expected = np.empty_like(seq)
+        expected[1:] = (seq[:-1] + 1) % _SEQ_MOD
+        step = (seq - expected) % _SEQ_MOD
+        if self._next_seq is None:
+            step = step[1:]
+        else:
+            step[0] = (seq[0] - self._next_seq) % _SEQ_MOD
+        self.stats.frames_lost += int(step[step < _SEQ_MOD // 2].sum())
+        self._next_seq = int(seq[-1] + 1) % _SEQ_MOD
+        self.stats.frames += rows.size
+        self._next_index = int(end[rows[-1]])
+        first, start, flags = b.first_index[rows], np.maximum(b.first_index[rows], before[rows]), b.flags[rows]
+        # a new run where a row leaves a gap or changes flags; rows inside a run follow each other
+        cut = np.flatnonzero((start[1:] != before[rows[1:]]) | (flags[1:] != flags[:-1])) + 1
+        for lo, hi in zip(np.r_[0, cut], np.r_[cut, rows.size]):
+            trim = start[lo:hi] - first[lo:hi]
+            if not trim.any():
+                data = b.samples[rows[lo:hi]].transpose(1, 0, 2).reshape(c, (hi - lo) * n)
+            else:  # overlapping rows: keep only what is new of each
+                data = np.concatenate([b.samples[r][:, t:] for r, t in zip(rows[lo:hi], trim)], axis=1)
+            runs.add(int(start[lo]), data, int(flags[lo]))
 
     def _reader(self) -> None:
         quiet = Deadline(self.stall_timeout_s)  # a stall: no frame before it passes

@@ -1,0 +1,212 @@
+"""CAN FD's batch receive path equals the frame-by-frame one: the batch decoder (damaged, foreign and
+other-shaped records among good ones) and the vectorised accept (gaps, lost frames, stale and
+overlapping frames, flag changes), down to every counter; and through a real python-can virtual bus."""
+
+import uuid
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from hystbench.blocks import BlockFlags
+from hystbench.drivers.protocols.framing import (
+    BATCH_CORRUPT, BATCH_OK, BATCH_OTHER_SHAPE, Frame, FrameBatch, decode_batch, encode_frame)
+from hystbench.drivers.stream import CanFrameSource, SampleStream
+
+from .test_stream import FakeSource
+
+FAST = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+HANG_S = 60.0
+
+
+def frame(first, seq, sid=4, n=10, flags=0, channels=1):
+    x = np.arange(first, first + n, dtype=np.float32) + 0.25  # each sample says its own index
+    return Frame(sid, seq % (1 << 32), first, np.repeat(x[None, :], channels, axis=0), flags)
+
+
+def batch_of(frames):
+    batch, verdict = decode_batch([encode_frame(f) for f in frames], *frames[0].samples.shape)
+    assert (verdict == BATCH_OK).all()
+    return batch
+
+
+def as_tuples(items):
+    """Items (Frames or FrameBatches) as plain per-frame tuples."""
+    out = []
+    for item in items:
+        for f in item.frames() if isinstance(item, FrameBatch) else [item]:
+            out.append((f.stream_id, f.seq, f.first_index, f.flags, f.samples.tobytes()))
+    return out
+
+
+def corrupt(raw, at):
+    b = bytearray(raw)
+    b[at] ^= 0x10
+    return bytes(b)
+
+
+# --- the batch decoder ---------------------------------------------------------------------------
+def test_batch_decode_flags_a_corrupt_record_in_the_middle_and_keeps_the_others():
+    raws = [encode_frame(frame(10 * i, i)) for i in range(7)]
+    raws[3] = corrupt(raws[3], 30)  # a sample bit: the CRC no longer matches
+    raws[5] = corrupt(raws[5], 0)  # the magic byte
+    batch, verdict = decode_batch(raws, 1, 10)
+    assert verdict.tolist() == [BATCH_OK, BATCH_OK, BATCH_OK, BATCH_CORRUPT, BATCH_OK, BATCH_CORRUPT, BATCH_OK]
+    assert batch.seq.tolist() == [0, 1, 2, 4, 6] and batch.first_index.tolist() == [0, 10, 20, 40, 60]
+    np.testing.assert_array_equal(batch.samples[3, 0], np.arange(40, 50) + 0.25)
+
+
+def test_batch_decode_tells_another_shape_of_the_same_size_from_damage():
+    other = encode_frame(frame(0, 0, n=5, channels=2))  # 2 x 5 samples: 64 bytes too
+    batch, verdict = decode_batch([encode_frame(frame(0, 0)), other], 1, 10)
+    assert verdict.tolist() == [BATCH_OK, BATCH_OTHER_SHAPE] and len(batch) == 1
+    with pytest.raises(ValueError, match="64 bytes"):
+        decode_batch([other[:-1]], 1, 10)
+
+
+def can_source(stream_id=4):
+    return CanFrameSource(None, 0x184, stream_id=stream_id, channels=1)
+
+
+payload_kinds = st.sampled_from(["good", "crc", "magic", "foreign_sid", "other_shape", "short"])
+
+
+@FAST
+@given(st.lists(payload_kinds, min_size=1, max_size=40))
+def test_batch_decode_equals_frame_by_frame_decode(kinds):
+    """Whatever mix of damaged, foreign, other-shaped and short payloads: the same frames in the
+    same order, and the same counters, as decoding one message at a time."""
+    payloads = []
+    for i, kind in enumerate(kinds):
+        raw = encode_frame(frame(10 * i, i, sid=9 if kind == "foreign_sid" else 4))
+        raw = {"crc": lambda r: corrupt(r, 40), "magic": lambda r: corrupt(r, 0),
+               "other_shape": lambda r: encode_frame(frame(10 * i, i, n=5, channels=2)),
+               "short": lambda r: r[:33]}.get(kind, lambda r: r)(raw)
+        payloads.append(raw)
+    batched, each = can_source(), can_source()
+    assert as_tuples(batched.decode(payloads)) == as_tuples(each.decode_each(payloads))
+    assert batched.deframer_stats == each.deframer_stats
+    assert batched.deframer_stats.frames == kinds.count("good")
+    assert batched.deframer_stats.foreign == kinds.count("foreign_sid") + kinds.count("other_shape")
+
+
+def test_all_good_payloads_come_out_as_one_batch():
+    items = can_source().decode([encode_frame(frame(10 * i, i)) for i in range(5)])
+    assert len(items) == 1 and isinstance(items[0], FrameBatch) and len(items[0]) == 5
+
+
+# --- the vectorised accept -------------------------------------------------------------------------
+def queued(stream):
+    """Every run the stream queued, as (first, samples bytes, flags), and its counters."""
+    runs = [(first, data.tobytes(), flags) for first, data, flags in stream._runs]
+    return runs, {k: v for k, v in stream.stats.as_dict().items()}
+
+
+def accept_both(history, frames):
+    """Stream A takes ``frames`` as one FrameBatch, stream B one Frame at a time, after the same
+    ``history`` (per frame): their runs and counters."""
+    a, b = (SampleStream("s", FakeSource([]), ["x"], 1e5) for _ in range(2))
+    for s in (a, b):
+        if history:
+            s._accept(history)
+    a._accept([batch_of(frames)])
+    b._accept(frames)
+    return queued(a), queued(b)
+
+
+@FAST
+@given(st.lists(st.tuples(st.integers(-25, 40), st.integers(-2, 5), st.sampled_from([0, 0, 0, 4])),
+                min_size=1, max_size=30), st.booleans())
+def test_batch_accept_equals_per_frame_accept(moves, with_history):
+    """Frames that jump ahead (gaps), repeat (stale), step back partly (overlap), skip or repeat
+    sequence numbers, change flags: the batch queues the same runs and counts the same as the
+    frame-by-frame rule, after a history or from a fresh stream."""
+    frames, first, seq = [], 100, 7
+    for jump, seq_step, flags in moves:
+        first, seq = max(0, first + jump), seq + seq_step
+        frames.append(frame(first, seq, flags=flags))
+    history = [frame(95, 3), frame(105, 4)] if with_history else []
+    got, want = accept_both(history, frames)
+    assert got == want
+
+
+def test_batch_accept_counts_a_sequence_gap_exactly():
+    """Frames 3 and 4 (20 samples) never came: 2 frames lost, a block flagged GAP of exactly 20."""
+    frames = [frame(10 * i, i) for i in range(10) if i not in (3, 4)]
+    s = SampleStream("s", FakeSource([]), ["x"], 1e5)
+    s._accept([batch_of(frames)])
+    blocks = [s.read(0.0), s.read(0.0)]
+    assert s.read(0.0) is None
+    assert [(b.first_index, b.n, b.gap_samples) for b in blocks] == [(0, 30, 0), (50, 50, 20)]
+    assert blocks[1].flags & BlockFlags.GAP
+    assert s.stats.frames_lost == 2 and s.stats.gap_samples == 20 and s.stats.frames == 8
+    np.testing.assert_array_equal(blocks[1].channels["x"], np.arange(50, 100) + 0.25)
+
+
+def test_batch_accept_drops_stale_and_trims_overlapping_frames():
+    frames = [frame(0, 0), frame(10, 1), frame(5, 1), frame(15, 2), frame(25, 3)]  # stale 5..14; 15..24 overlaps
+    s = SampleStream("s", FakeSource([]), ["x"], 1e5)
+    s._accept([batch_of(frames)])
+    block = s.read(0.0)
+    assert (block.first_index, block.n, block.gap_samples) == (0, 35, 0)
+    np.testing.assert_array_equal(block.channels["x"], np.arange(35) + 0.25)
+    assert s.stats.stale_frames == 1 and s.stats.frames == 4
+
+
+def test_batch_of_another_channel_count_is_foreign_or_stale_as_per_frame():
+    frames2 = [frame(i * 10, i, channels=2) for i in range(4)]
+    got, want = accept_both([frame(0, 0), frame(10, 1)], frames2)
+    assert got == want and got[1]["stale_frames"] == 2 and got[1]["deframer_foreign"] == 2
+
+
+def test_frames_and_a_batch_in_one_accept_merge_into_one_run():
+    """A reopen's pending frames then a drain's batch: one contiguous run, concatenated once."""
+    s = SampleStream("s", FakeSource([]), ["x"], 1e5)
+    s._accept([frame(0, 0), frame(10, 1), batch_of([frame(20 + 10 * i, 2 + i) for i in range(5)])])
+    assert len(s._runs) == 1
+    block = s.read(0.0)
+    np.testing.assert_array_equal(block.channels["x"], np.arange(70) + 0.25)
+
+
+# --- through a python-can virtual bus ----------------------------------------------------------------
+def test_can_stream_through_a_virtual_bus_counts_damage_and_gaps_exactly():
+    """A real stream over python-can: a corrupt message, a foreign stream id, a lost frame and a
+    message of another CAN id among 30 good ones; the samples delivered are the ones sent."""
+    can = pytest.importorskip("can")
+    channel = f"test-batch-{uuid.uuid4().hex[:8]}"
+    tx = can.Bus(interface="virtual", channel=channel, fd=True, receive_own_messages=False)
+    rx = can.Bus(interface="virtual", channel=channel, fd=True, receive_own_messages=False)
+    try:
+        def send(raw, can_id=0x184):
+            tx.send(can.Message(arbitration_id=can_id, data=raw, is_extended_id=False, is_fd=True))
+
+        for i in range(34):
+            raw = encode_frame(frame(10 * i, i))
+            if i == 7:
+                raw = corrupt(raw, 44)
+            elif i == 12:
+                raw = encode_frame(frame(10 * i, i, sid=5))
+            elif i == 20:
+                continue  # lost on the way
+            elif i == 25:
+                send(raw, can_id=0x185)  # another node's stream: not ours
+                continue
+            send(raw)
+        source = CanFrameSource(rx, 0x184, stream_id=4, channels=1)
+        with SampleStream("flux", source, ["x"], 1e5, stall_timeout_s=5.0) as s:
+            blocks = []
+            while sum(b.n for b in blocks) < 300:
+                b = s.read(HANG_S)
+                assert b is not None, "stream stopped delivering"
+                blocks.append(b)
+        x = np.concatenate([b.channels["x"] for b in blocks])
+        idx = np.concatenate([b.first_index + np.arange(b.n) for b in blocks])
+        np.testing.assert_array_equal(x, idx + 0.25)
+        missing = [i for k in (7, 12, 20, 25) for i in range(10 * k, 10 * k + 10)]
+        assert sorted(set(range(340)) - set(idx.tolist())) == missing
+        assert s.stats.gap_samples == 40 and s.stats.frames == 30 and s.stats.frames_lost == 4
+        assert source.deframer_stats.corrupt == 1 and source.deframer_stats.foreign == 1
+    finally:
+        tx.shutdown()
+        rx.shutdown()
