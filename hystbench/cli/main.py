@@ -232,13 +232,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from .method import cmd_paper
     from .pipeline import format_message
 
+    from ..config import CONFIG_DIR
+
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file, not a folder")
+    # --source digitiser: the samples come from the emulated SCPI digitiser through pyvisa-py (issue 15)
+    bench_file = CONFIG_DIR / "bench_digitiser.toml" if args.source == "digitiser" else None
     console().rule("live: the daemon's pipeline, a sweep through the emulated instruments, estimates over zenoh")
-    live = demo_live(out / "live", seconds=6.0, show=lambda k, msg: print(format_message(k, msg), flush=True))
+    live = demo_live(out / "live", seconds=6.0, show=lambda k, msg: print(format_message(k, msg), flush=True),
+                     bench_file=bench_file)
     console().print(live["summary"])
-    status, failed = demo_sweeps(out)
+    status, failed = demo_sweeps(out, bench_file)
     if failed:
         console().print(f"[bold red]the sweeps through the drivers failed[/]: {escape(failed)}\n"
                         "(their files removed; the offline part follows)")
@@ -315,6 +320,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="the main job on the embedded simulated rig")
     p.add_argument("--out", type=path_arg, default="demo-output")
+    p.add_argument("--source", choices=("streams", "digitiser"), default="streams",
+                   help="where the samples come from: the instruments' own frame streams, or one SCPI digitiser "
+                        "(config/bench_digitiser.toml)")
     p.set_defaults(func=cmd_demo)
     return parser
 

@@ -45,10 +45,12 @@ def _loop(rec: Recording, frequency_hz: float, name: str) -> tuple[np.ndarray, n
     return np.append(i, i[0]), np.append(x, x[0])
 
 
-def _sweep_through_drivers(rig_name: str, ipp: float, freqs, advance) -> list[Recording]:
-    """One sweep as the bench engineer takes it: the shipped bench file with every instrument
-    emulated, the generator stepped through the frequencies, each point acquired by the drivers."""
-    config = load_bench_config()
+def _sweep_through_drivers(rig_name: str, ipp: float, freqs, advance,
+                           bench_file: str | Path | None = None) -> list[Recording]:
+    """One sweep as the bench engineer takes it: the shipped bench file (or ``bench_file``, e.g.
+    the digitiser's) with every instrument emulated, the generator stepped through the
+    frequencies, each point acquired by the drivers."""
+    config = load_bench_config(bench_file)
     config = dataclasses.replace(config, sim={**config.sim, "rig": rig_name})
     recs = []
     with EmulatedBench(config) as emu, Bench(config.resolved(emu.addresses)) as bench:
@@ -69,7 +71,7 @@ def _sweep_through_drivers(rig_name: str, ipp: float, freqs, advance) -> list[Re
     return recs
 
 
-def run_demo(out: Path) -> int:
+def run_demo(out: Path, bench_file: str | Path | None = None) -> int:
     """The demo of the module docstring into ``out``; returns 0 (a failure raises, naming its cause)."""
     console = make_console()
     out.mkdir(parents=True, exist_ok=True)
@@ -78,7 +80,7 @@ def run_demo(out: Path) -> int:
     with make_progress() as progress:
         task = progress.add_task("acquiring through the drivers", total=sum(len(f) for _, _, f in SWEEPS))
         for rig_name, ipp, freqs in SWEEPS:
-            recs = _sweep_through_drivers(rig_name, ipp, freqs, lambda: progress.advance(task))
+            recs = _sweep_through_drivers(rig_name, ipp, freqs, lambda: progress.advance(task), bench_file)
             write_sweep(recs, out / "sweeps" / rig_name, overwrite=True)
 
     table = Table(title=f"delays from the recordings ({DURATION_S:g} s each, 100 kS/s), degrees at f",
@@ -114,14 +116,14 @@ def run_demo(out: Path) -> int:
     return 0
 
 
-def demo_sweeps(out_dir: str | Path) -> tuple[int, str | None]:
+def demo_sweeps(out_dir: str | Path, bench_file: str | Path | None = None) -> tuple[int, str | None]:
     """:func:`run_demo`, tolerant of the bench.  When the instruments fail (a machine too slow for
     the emulated bench at 100 kS/s: "bench: only 0 of 10000 aligned samples"; gaps in the streams),
     returns (0, why) after removing what that part writes, so no result of an earlier run is left
     looking like this one's; the demo says so and goes on with the offline part."""
     out = Path(out_dir)
     try:
-        return run_demo(out), None
+        return run_demo(out, bench_file), None
     except BenchError as err:  # InstrumentError, RecordingError (gaps): the bench part failed
         shutil.rmtree(out / "sweeps", ignore_errors=True)
         for name in ["summary.json", "force_map.png", *(f"{rig}_current_force.png" for rig, _, _ in SWEEPS)]:

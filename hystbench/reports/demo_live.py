@@ -76,7 +76,7 @@ def _at_least(deadline: Deadline, seconds: float) -> Deadline:
 
 
 def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench", *,
-              show: Show | None = None) -> dict[str, Any]:
+              show: Show | None = None, bench_file: str | Path | None = None) -> dict[str, Any]:
     """The daemon's pipeline in-process, driven the way an operator drives a bench: a short sweep
     started with ``hystbench ctl``'s control path over zenoh (an ephemeral port on 127.0.0.1)
     through the emulated instruments' drivers (``source="bench"``; ``"sim"``: the simulated rig
@@ -93,7 +93,8 @@ def demo_live(out_dir: str | Path, seconds: float = 6.0, source: str = "bench", 
     dwell = max(seconds / len(freqs), 0.5)
     toml = out / "demo-daemon.toml"
     out.mkdir(parents=True, exist_ok=True)
-    toml.write_text(f'[daemon]\nbench = "demo"\nlog_dir = "{out.as_posix()}"\n[source]\nkind = "{source}"\n'
+    bench_key = f'bench_file = "{Path(bench_file).as_posix()}"\n' if bench_file else ""  # e.g. the digitiser's
+    toml.write_text(f'[daemon]\nbench = "demo"\nlog_dir = "{out.as_posix()}"\n[source]\nkind = "{source}"\n{bench_key}'
                     f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n[sweep]\nfrequencies_hz = {freqs}\n'
                     f'dwell_s = {dwell:g}\n', encoding="utf-8")
     svc, paths, got, errors, points, error = None, [], [], [], [], None
