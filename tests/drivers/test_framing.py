@@ -234,3 +234,18 @@ def test_cobs_deframer_on_the_kernel_equals_the_reference_on_a_quantised_stream(
         got[name] = ([(f.seq, f.first_index, f.samples.tobytes()) for f in d.feed(bytes(wire))], d.stats)
     assert got["kernel"] == got["reference"]
     assert got["kernel"][1].corrupt == 1 and len(got["kernel"][0]) == len(raws) - 1
+
+
+@FAST
+@given(st.integers(0, 40), st.integers(4, 80), st.data())
+def test_row_crc_equals_zlib_on_every_row(k, size, data):
+    """The batch decoder's CRC (compiled when numba runs) is zlib's CRC-32 of each record."""
+    import zlib
+
+    from hystbench.drivers.protocols.framing import crc32_rows, crc32_rows_reference
+
+    raw = data.draw(st.binary(min_size=k * size, max_size=k * size))
+    rows = np.frombuffer(raw, dtype=np.uint8).reshape(k, size)
+    length = data.draw(st.integers(0, size))
+    want = [zlib.crc32(raw[i * size:i * size + length]) for i in range(k)]
+    assert crc32_rows(rows, length).tolist() == crc32_rows_reference(rows, length).tolist() == want
