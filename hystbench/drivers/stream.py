@@ -176,14 +176,16 @@ class CanFrameSource(FrameSource):
         out, self._pending = self._pending, []
         deadline = Deadline(timeout_s)
         payloads: list[bytes | bytearray] = []
-        recv, can_id = self.bus.recv, self.can_id
-        while len(payloads) < self.max_batch:
-            msg = recv(deadline.left() if not (out or payloads) else 0.0)
+        recv, can_id, append, limit = self.bus.recv, self.can_id, payloads.append, self.max_batch
+        wait = not out  # python-can's recv is the bound here (a Python call per message): keep the rest lean
+        while len(payloads) < limit:
+            msg = recv(deadline.left() if wait else 0.0)
             if msg is None:
                 break
             if msg.arbitration_id != can_id or msg.is_error_frame or msg.is_remote_frame:
                 continue
-            payloads.append(msg.data)  # python-can made the Message for this handle alone: no copy
+            append(msg.data)  # python-can made the Message for this handle alone: no copy
+            wait = False
         return out + self.decode(payloads)
 
     def decode(self, payloads: Sequence[bytes | bytearray]) -> list[Frame | FrameBatch]:
