@@ -140,6 +140,12 @@ class MeasurementChain:
         self._rng = {ch: np.random.default_rng(s) for ch, s in zip(channels, seq.spawn(len(channels)))}
         mains_rng = np.random.default_rng(seq.spawn(1)[0])
         self._mains_phase = mains_rng.uniform(0, 2 * np.pi, size=2)
+        noise, adc = effects.get("sensor_noise"), effects.get("adc_quantisation")
+        #: per channel (noise sigma or None, ADC full scale or None, LSB): looked up once, not per block
+        self._noise_adc = {ch: (None if noise is None else float(noise[_NOISE_KEYS[ch]]),
+                                None if adc is None else float(adc[_NOISE_KEYS[ch]]),
+                                1.0 if adc is None else 2.0 * float(adc[_NOISE_KEYS[ch]]) / 2 ** int(adc["bits"]))
+                           for ch in channels}
 
     def _mains(self, t_s: np.ndarray, amplitude: float, which: int) -> np.ndarray:
         m = self.effects["mains_pickup"]
@@ -152,8 +158,7 @@ class MeasurementChain:
         out: dict[str, np.ndarray] = {}
         flags = BlockFlags.NONE
         e = self.effects
-        noise, adc = e.get("sensor_noise"), e.get("adc_quantisation")
-        kernels = _kernels() if noise is not None or adc is not None else None
+        kernels = _kernels() if "sensor_noise" in e or "adc_quantisation" in e else None
         for ch in self.channels:
             x = np.asarray(truth[ch], dtype=float)
             if ch == "force_N":
@@ -169,13 +174,9 @@ class MeasurementChain:
                 x = x + self._mains(t_s, float(e["mains_pickup"]["sense_v"]), 1)
             if ch in self._skew:
                 x = self._skew[ch](x)
-            sigma = draws = full_scale = None
-            lsb = 1.0
-            if noise is not None:  # each channel its own generator: the draws never depend on the path
-                sigma, draws = float(noise[_NOISE_KEYS[ch]]), self._rng[ch].standard_normal(x.size)
-            if adc is not None:
-                full_scale = float(adc[_NOISE_KEYS[ch]])
-                lsb = 2.0 * full_scale / 2 ** int(adc["bits"])
+            sigma, full_scale, lsb = self._noise_adc[ch]
+            # each channel its own generator: the draws never depend on the path or the cut
+            draws = None if sigma is None else self._rng[ch].standard_normal(x.size)
             if kernels is not None:
                 x = np.ascontiguousarray(x, dtype=np.float64)
                 y = np.empty(x.size)

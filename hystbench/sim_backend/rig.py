@@ -166,10 +166,10 @@ class SimulatedRig:
 
     def _generate(self, n: int) -> SampleBlock:
         k0 = self._next_index
-        t = (k0 + np.arange(n)) / self.fs_hz
+        t = np.arange(k0, k0 + n, dtype=float) / self.fs_hz  # whole numbers: exact, as (k0 + arange(n)) / fs
         step = self.generator_frequency_hz / self.fs_hz
         i_cmd, di_cmd = self._command_current(self._cycle, step, n)
-        self._cycle = float(np.mod(self._cycle + step * n, 1.0))
+        self._cycle = (self._cycle + step * n) % 1.0  # >= 0: exact, as np.mod
         command_v = i_cmd / self.amplifier_gain_a_per_v
         if not self.output_enabled:
             i_cmd, di_cmd = np.zeros(n), np.zeros(n)
