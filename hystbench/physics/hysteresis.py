@@ -474,6 +474,19 @@ class PreisachHysteresis:
         single = h_an if saturation else self.small_signal_dh_db * b
         return (single + (h - h_an) if irreversible else single), new_state
 
+    def kernel_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What a compiled kernel needs to evaluate :meth:`field` sample by sample, so it reads no
+        private attribute: (scalars, psi, virgin, anhysteretic), float64 and contiguous.  scalars =
+        (h0, x0, 1/dx_rows, nrow, ncol, h_max, s_end, dmax, kcol, virgin step, anhysteretic step,
+        small_signal_dh_db), in that order (hystbench.sim_backend.actuators.ecore_kernel)."""
+        inv = self._inverse
+        (v_step, virgin), (a_step, anhyst) = inv["virgin"], inv["anhyst"]
+        scalars = np.array([self._h0, inv["x0"], 1.0 / inv["dx_rows"], inv["nrow"], inv["ncol"],
+                            self.params.h_max_a_per_m, self._s_end, inv["dmax"], inv["kcol"], v_step, a_step,
+                            self.small_signal_dh_db], dtype=np.float64)
+        return (scalars, np.ascontiguousarray(inv["psi"], dtype=np.float64),
+                np.ascontiguousarray(virgin, dtype=np.float64), np.ascontiguousarray(anhyst, dtype=np.float64))
+
     @cached_property
     def small_signal_dh_db(self) -> float:
         """dH/dB of the anhysteretic curve at B = 0 (A/m per T), slope of the unsaturated iron."""

@@ -6,14 +6,23 @@ import time
 import numpy as np
 import pytest
 
+from hystbench import jit
 from hystbench.blocks import BlockFlags
 from hystbench.errors import ConfigError
 from hystbench.physics.instrument import InstrumentModel
 from hystbench.physics.permeance import mu_0
+from hystbench.sim_backend.actuators import ecore
 from hystbench.sim_backend.rig import SimulatedRig
 
 LINEAR = {"static_hysteresis": False, "iron_saturation": False}
 QUIET = {"sensor_noise": False, "adc_quantisation": False}
+
+
+@pytest.fixture(params=[False, pytest.param(True, marks=pytest.mark.skipif(not jit.enabled(), reason="no numba"))],
+                ids=["numpy", "kernel"])
+def ecore_path(request, monkeypatch):
+    """The E-core actuator's numpy code or its numba kernels (the block-cut contract holds on both)."""
+    monkeypatch.setattr(ecore, "KERNEL", request.param)
 
 
 def phase_at(x, fs, f, k=1):
@@ -37,7 +46,7 @@ def test_channels_follow_the_recording_format(rig):
     assert block.first_index == 0 and block.fs_hz == 100_000.0
 
 
-def test_same_seed_same_samples_any_block_cut():
+def test_same_seed_same_samples_any_block_cut(ecore_path):
     effects = {**LINEAR, "mains_pickup": True, "channel_skew": True, "amplifier_distortion": True}
     a = SimulatedRig("ecore_pm", seed=7, effects=effects).record(0.02, block_size=333)
     b = SimulatedRig("ecore_pm", seed=7, effects=effects).record(0.02, block_size=2000)
@@ -128,7 +137,7 @@ def test_bad_settings_are_refused_with_the_reason():
         SimulatedRig("nope")
 
 
-def test_block_cut_with_preisach_iron_changes_nothing_measurable():
+def test_block_cut_with_preisach_iron_changes_nothing_measurable(ecore_path):
     # The iron's nonlinear remainder is a fixed point whose last pass depends on the cut; its
     # residual sits at current reversals, where the inverse Preisach branch is stiff.  It must stay
     # far below the sensor noise: < 1e-4 of each channel's range (noise is ~3e-4 of the force range).

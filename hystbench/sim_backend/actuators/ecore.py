@@ -6,7 +6,10 @@ operator or Rayleigh's law is the nonlinear remainder the fixed point iterates; 
 permeability is linear and goes into the exactly solved linear part (nu' into N, nu''/omega with
 the eddy currents into D, rebuilt whenever the excitation's period changes).  A block whose passes
 do not converge is refused as saturated beyond the iron's knee, and below it settled with tied
-minor loops closed (:meth:`ECoreActuator._settle_tie`)."""
+minor loops closed (:meth:`ECoreActuator._settle_tie`).
+
+The same step runs as numba kernels (:mod:`.ecore_kernel`) when :func:`hystbench.jit.enabled`:
+the numpy code here is the reference they are tested against, and the fallback (``KERNEL``)."""
 
 from __future__ import annotations
 
@@ -17,13 +20,20 @@ from scipy import signal
 
 from ...config import load_material
 from ...errors import SimulationError
+from ...jit import enabled as jit_enabled
 from ...physics.eddy import cylinder_eddy_coefficient, lamination_eddy_coefficient
+from ...physics.hysteresis import HysteresisState
 from ...physics.iron import ComplexPermeabilityIron, RayleighIron, refuse_saturation
 from ...physics.presets import ecore_mec, where
 from ...physics.permeance import mu_0
 from .base import ActuatorOutput
 
-__all__ = ["ECoreActuator", "IRON_ITERATIONS"]
+__all__ = ["ECoreActuator", "IRON_ITERATIONS", "KERNEL"]
+
+#: Which implementation ECoreActuator.step runs, read at every step: None = the numba kernels when
+#: hystbench.jit.enabled() (numba importable, HYSTBENCH_JIT not 0), False = the numpy code of this
+#: module, True = the kernels.  Tests set it to compare both paths in one process.
+KERNEL: bool | None = None
 
 #: Fixed-point passes for the iron's static MMF drop.  The gap carries ~97 % of the MMF, so each
 #: pass shrinks the error ~30x away from current reversals (where the inverse branch is stiff,
@@ -152,6 +162,11 @@ class ECoreActuator:
         comp = effects.get("load_cell_compliance")
         self._compliance = 0.0 if comp is None else 1.0 / float(comp["stiffness_n_per_m"])
         self._prev_drop: np.ndarray | None = None
+        # the kernels cover the Preisach iron and every linear iron; Rayleigh's loops stay in numpy
+        self._kernel_ok = self.hysteresis is None or hasattr(self.hysteresis, "kernel_tables")
+        self._kernel_lag: tuple[_LinearPart, np.ndarray, np.ndarray] | None = None  # lag it was built for
+        self._kernel_tables: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._kernel_mode = np.array([self._irreversible, self._saturation], dtype=np.int64)
         #: the iron's flux density in the coil leg over the last block (T)
         self.iron_flux_density_t = np.zeros(0)
         self.set_period(None)
@@ -267,6 +282,8 @@ class ECoreActuator:
             "a limit of the simulator, not of the bench; try a slightly different frequency")
 
     def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
+        if self._kernel_ok and current_a.size and (jit_enabled() if KERNEL is None else KERNEL):
+            return self._step_kernel(t_s, current_a, dcurrent_dt)
         fc = self.turns * current_a
         fm = np.full_like(fc, self.magnet_mmf_a)
         dfm = 0.0
@@ -304,6 +321,76 @@ class ECoreActuator:
         self._prev_drop = drop[:, -1].copy()
         dflux = (self._outer[0] * (self.turns * dcurrent_dt - drop_rate[0])
                  + self._outer[1] * (dfm - drop_rate[1]))
+        return ActuatorOutput(force, flux, dflux)
+
+    def _kernel_constants(self) -> tuple[np.ndarray, np.ndarray]:
+        """The linear part's coefficients as the kernels read them: (lam, q, vec) and (N, D), rebuilt
+        when set_period rebuilds the linear part."""
+        lag = self._lag
+        if self._kernel_lag is None or self._kernel_lag[0] is not lag:
+            coef = np.concatenate((lag.lam, lag.q.ravel(), lag.vec.ravel())).astype(np.float64)
+            nd = np.concatenate((lag.n.ravel(), lag.d.ravel())).astype(np.float64)
+            self._kernel_lag = (lag, coef, nd)
+        return self._kernel_lag[1], self._kernel_lag[2]
+
+    def _tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The Preisach iron's tables for the kernel (built once: its ``_inverse`` is cached too)."""
+        if self._kernel_tables is None:
+            self._kernel_tables = self.hysteresis.kernel_tables()
+        return self._kernel_tables
+
+    def _step_kernel(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
+        """:meth:`step` by the numba kernels (same passes, same numbers; see ecore_kernel)."""
+        from . import ecore_kernel as kern  # numba compiles (or loads its cache) on the first call
+
+        f64 = np.float64
+        fc = np.ascontiguousarray(self.turns * current_a, dtype=f64)
+        n = fc.size
+        fm = np.full_like(fc, self.magnet_mmf_a)
+        dfm = 0.0
+        if self._thermal is not None:
+            rate = self._thermal["remanence_tc_per_k"] * self._thermal["kelvin_per_s"]
+            fm, dfm = np.ascontiguousarray(fm * (1.0 + rate * t_s), dtype=f64), self.magnet_mmf_a * rate
+        coef, nd = self._kernel_constants()
+        lag = self._lag
+        cold = lag.state is None
+        y_start = np.zeros(2) if cold else np.ascontiguousarray(lag.state[0], dtype=f64)
+        if self.hysteresis is None:
+            h_rest = np.zeros(n)
+        else:
+            p, hist = self._period, self._history
+            if p is None or hist.size < int(np.ceil(p)) + 2:
+                h_rest, first = np.zeros(n), IRON_ITERATIONS
+            else:
+                h_rest, first = np.empty(n), WARM_PASSES
+                kern.first_guess(np.ascontiguousarray(hist, dtype=f64), float(p), h_rest)
+            st = self._h_state
+            turns = np.array(st.turns, dtype=f64).reshape(len(st.turns), 2)
+            tin, tout = np.empty(turns.shape[0] + n + 2), np.empty(turns.shape[0] + n + 2)
+            end, out = np.empty(4), np.empty(3)
+            kern.passes(fc, fm, h_rest, first, MAX_PASSES, CONVERGED, coef, y_start, cold,
+                        np.ascontiguousarray(turns[:, 0]), np.ascontiguousarray(turns[:, 1]),
+                        np.array([st.b_t, st.h_a_per_m, float(st.direction)]), tin, tout, end,
+                        *self._tables(), self._kernel_mode, self._b_knee, self._nu0, lag.instantaneous_gain,
+                        self.iron_length_m, out)
+            if out[0]:
+                m = int(end[3])
+                h_state = HysteresisState(float(end[0]), float(end[1]), int(end[2]),
+                                          tuple(zip(tin[:m].tolist(), tout[:m].tolist())))
+            else:  # as step: tied loops closed below the knee, refused beyond it (numpy, rare)
+                h_rest, h_state = self._settle_tie(fc, fm, h_rest, np.array([out[2]]), current_a)
+            self._remember(h_rest)
+            self._h_state = h_state
+        force, flux, dflux, iron_b = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        prev = np.full(2, np.nan) if self._prev_drop is None else self._prev_drop.astype(f64)
+        lag_end = np.empty(4)
+        kern.final_run(fc, fm, h_rest, self.iron_length_m, coef, y_start, cold, nd, float(self.fs_hz),
+                       self._dlam, self._d2lam, self._outer, self._douter_dz, float(self._compliance),
+                       float(self.turns), np.ascontiguousarray(dcurrent_dt, dtype=f64), float(dfm), prev,
+                       force, flux, dflux, iron_b, lag_end)
+        lag.state = (lag_end[:2].copy(), lag_end[2:].copy())
+        self._prev_drop = prev
+        self.iron_flux_density_t = iron_b
         return ActuatorOutput(force, flux, dflux)
 
 

@@ -1,0 +1,265 @@
+"""The E-core actuator's block step as numba kernels: the same arithmetic as the numpy code in
+:mod:`.ecore` (the reference, and the fallback without numba), sample by sample in one loop per pass.
+
+Why: the numpy step makes 5-20 passes over the block with a temporary each (the Preisach branch
+reads alone about 20), three times per block (two fixed-point passes and the final run), plus a
+Python loop per reversal; one compiled loop per pass holds everything in registers (issue 14).
+
+What stays equal: the fixed-point iteration (first guess from the last period, WARM_PASSES or
+IRON_ITERATIONS passes, convergence checked from then on, MAX_PASSES at most), every pass starting
+from the block's committed states, the turning-point rule of :func:`hystbench.physics.hysteresis._plan`
+(plateaus keep their direction; a reversal pushes the previous sample; reaching the threshold pops
+the inner pair, -t[0] for a single turn, which returns to the virgin curve), the branch arithmetic of
+``PreisachHysteresis.field`` in its operation order, and the final run's formulas.  numpy's 2x2
+matmuls may fuse multiply-adds where this code rounds twice: that, and libm's asinh, is the only
+difference (about 1e-12 of a channel's range).  No fastmath: it would reorder operations.
+
+Why one module: numba's on-disk cache is invalidated by a change of the file that defines the
+cached function only, not of the files whose jitted helpers it inlines; the Preisach helpers live
+here, beside their one caller, so an edit can never run against a stale compiled copy.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ...jit import njit
+
+__all__ = ["first_guess", "passes", "final_run"]
+
+#: what :func:`passes` reports: a pass converged / none did within max_passes
+SETTLED, UNSETTLED = 1, 0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _read_uniform(step, t, s_end, b):
+    """PreisachHysteresis._read_uniform at one sample: odd table H(|B|), straight beyond its end."""
+    a = abs(b) / step
+    ac = min(a, t.size - 1.0)
+    i = min(int(ac), t.size - 2)
+    v = t[i] + (ac - i) * (t[i + 1] - t[i]) + (a - ac) * step / s_end
+    if b > 0.0:
+        return v
+    if b < 0.0:
+        return -v
+    return 0.0 * v
+
+
+@njit(cache=True, nogil=True)
+def _branch_consts(s, b_r, h_r, h0, x0, inv_dx, nrow, ncol, hmax, s_end):
+    """The per-branch constants of ``field``'s ``branch`` (c1, row fraction, row base, edge, shift);
+    a real call: it runs once per reversal or wipe-out, not per sample."""
+    hs = s * h_r
+    c1 = s * b_r
+    edge = False
+    shift = 0.0
+    if hs < -hmax or hs > hmax:
+        edge = True
+        if hs < -hmax:
+            c1 = c1 + s_end * (-hmax - hs)
+        shift = max(hs - hmax, 0.0)
+        hs = min(max(hs, -hmax), hmax)
+    fr = (math.asinh(hs / h0) - x0) * inv_dx
+    jr = min(int(fr), nrow - 2)
+    return c1, fr - jr, jr * ncol, edge, shift
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _branch_at(s, c1, tr, base, edge, shift, b, psi, ncol, dmax, kcol, s_end):
+    """H on the ascending-frame branch at B = b: the sqrt-warped column, bilinear in the table."""
+    d = s * b - c1
+    neg = min(d, 0.0)
+    d = max(d, 0.0)
+    extra = 0.0
+    if d > dmax:
+        extra = (d - dmax) / s_end
+    d = math.sqrt(d) * kcol
+    ik = min(int(d), ncol - 2)  # clipping only matters past dmax (the spare column covers the rest)
+    d = min(d, ncol - 2.0)
+    d -= ik
+    ik += base
+    v0 = psi[ik]
+    v1 = psi[ik + 1]
+    w1 = psi[ik + 1 + ncol]
+    w0 = psi[ik + ncol]
+    w0 = w0 + (w1 - w0) * d
+    v0 = v0 + (v1 - v0) * d
+    v0 = v0 + (w0 - v0) * tr
+    if edge:
+        v0 += neg / s_end + shift
+    v0 += extra
+    return v0 * s
+
+
+@njit(cache=True, nogil=True)
+def first_guess(hist, period, out):
+    """The iron's remainder one (fractional) period earlier: ``np.interp(size - p + k % p, ...)``,
+    with k % p kept incrementally (exact: fmod's result plus 1 is representable) and recomputed at
+    each wrap; clamped at the last sample as np.interp is."""
+    size = hist.size
+    ph = 0.0
+    for k in range(out.size):
+        pos = size - period + ph
+        ph += 1.0
+        if ph >= period:
+            ph = float(k + 1) % period
+        j = int(pos)
+        if j >= size - 1:
+            out[k] = hist[size - 1]
+        else:
+            out[k] = (hist[j + 1] - hist[j]) * (pos - j) + hist[j]
+
+
+@njit(cache=True, nogil=True)
+def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout, end, tabs, psi, virg, an,
+              mode, knee, nu0, gain, length, track):
+    """One fixed-point pass (ECoreActuator._pass) from the committed states, h_rest updated in place.
+    Returns (max |step|, max |h_rest|, max |B|) (tracked only when ``track``); the iron's state at
+    the block's end goes to end = (B, H, direction, number of turns) and tin/tout[:turns]."""
+    n = fc.size
+    lam0, lam1, q00, q01, q10, q11, v00, v01 = lag[0], lag[1], lag[2], lag[3], lag[4], lag[5], lag[6], lag[7]
+    h0, x0, inv_dx, nrow, ncol, hmax = tabs[0], tabs[1], tabs[2], int(tabs[3]), int(tabs[4]), tabs[5]
+    s_end, dmax, kcol, v_step, a_step, ss = tabs[6], tabs[7], tabs[8], tabs[9], tabs[10], tabs[11]
+    irreversible, saturation = mode[0] != 0, mode[1] != 0
+    full = irreversible and saturation
+    if cold:  # lfilter's y[-1] = w[0] / (1 - lam), from this pass's first input
+        u0 = fc[0] - h_rest[0] * length
+        ya = (q00 * u0 + q01 * fm[0]) / (1.0 - lam0)
+        yb = (q10 * u0 + q11 * fm[0]) / (1.0 - lam1)
+    else:
+        ya, yb = y_start[0], y_start[1]
+    nst = c_in.size
+    for i in range(nst):
+        tin[i] = c_in[i]
+        tout[i] = c_out[i]
+    u_prev, y_prev, d = state0[0], state0[1], state0[2]
+    s = d
+    virgin = nst == 0
+    c1, tr, base, edge, shift = 0.0, 0.0, 0, False, 0.0
+    if not virgin:
+        c1, tr, base, edge, shift = _branch_consts(s, tin[nst - 1], tout[nst - 1], h0, x0, inv_dx, nrow, ncol,
+                                                   hmax, s_end)
+    mstep, mh, mb = 0.0, 0.0, 0.0
+    for k in range(n):
+        hr = h_rest[k]
+        u0 = fc[k] - hr * length
+        u1 = fm[k]
+        ya = lam0 * ya + (q00 * u0 + q01 * u1)
+        yb = lam1 * yb + (q10 * u0 + q11 * u1)
+        b = v00 * ya + v01 * yb
+        # the turning-point bookkeeping of hysteresis._plan, one sample at a time
+        diff = b - u_prev
+        ds = 1.0 if diff > 0.0 else (-1.0 if diff < 0.0 else d)
+        reset = False
+        if ds != d:
+            if d != 0.0:  # a reversal at the previous sample: it becomes a turning point
+                tin[nst] = u_prev
+                tout[nst] = y_prev
+                nst += 1
+            reset = True
+        while nst > 0:  # wiping out: reaching the threshold forgets the inner pair
+            thr = tin[nst - 2] if nst > 1 else -tin[0]
+            if (b < thr) if ds > 0.0 else (b > thr):
+                break
+            nst = max(nst - 2, 0)
+            reset = True
+        if reset:
+            s = ds
+            virgin = nst == 0
+            if not virgin:
+                c1, tr, base, edge, shift = _branch_consts(s, tin[nst - 1], tout[nst - 1], h0, x0, inv_dx, nrow,
+                                                           ncol, hmax, s_end)
+        if virgin:
+            y = _read_uniform(v_step, virg, s_end, b)
+        else:
+            y = _branch_at(s, c1, tr, base, edge, shift, b, psi, ncol, dmax, kcol, s_end)
+        u_prev, y_prev, d = b, y, ds
+        h = y
+        if not full:  # field(irreversible=..., saturation=...): the state stays the full model's
+            h_an = _read_uniform(a_step, an, s_end, b)
+            single = h_an if saturation else ss * b
+            h = single + (y - h_an) if irreversible else single
+        r = h - nu0 * b - hr
+        if abs(b) > knee:  # ECoreActuator._newton_step
+            nu_d = max(nu0, (_read_uniform(a_step, an, s_end, b + 1e-3)
+                             - _read_uniform(a_step, an, s_end, b - 1e-3)) / 2e-3)
+            r = r / (1.0 + (nu_d - nu0) * gain * length)
+        hr = hr + r
+        h_rest[k] = hr
+        if track:
+            mstep = max(mstep, abs(r))
+            mh = max(mh, abs(hr))
+            mb = max(mb, abs(b))
+    end[0], end[1], end[2], end[3] = u_prev, y_prev, d, nst
+    return mstep, mh, mb
+
+
+@njit(cache=True, nogil=True)
+def passes(fc, fm, h_rest, first, max_passes, converged_ratio, lag, y_start, cold, c_in, c_out, state0, tin,
+           tout, end, tabs, psi, virg, an, mode, knee, nu0, gain, length, out):
+    """ECoreActuator.step's loop of passes: at least ``first``, then until one converges, at most
+    ``max_passes``.  out = (converged 1/0, passes run, max |B| of the last pass)."""
+    done = SETTLED
+    peak = 0.0
+    n_pass = 0
+    for n_pass in range(1, max_passes + 1):
+        track = n_pass >= first or n_pass == max_passes  # the last one names |B| in a refusal
+        mstep, mh, peak = _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout, end, tabs,
+                                    psi, virg, an, mode, knee, nu0, gain, length, track)
+        if track and mstep <= converged_ratio * (mh + 1.0):
+            break
+    else:
+        done = UNSETTLED
+    out[0], out[1], out[2] = done, n_pass, peak
+
+
+@njit(cache=True, nogil=True)
+def final_run(fc, fm, h_rest, length, lag, y_start, cold, nd, fs, dlam, d2lam, outer, douter, compliance, turns,
+              dcur, dfm, prev_drop, force, flux, dflux, iron_b, lag_end):
+    """The linear run with the converged remainder, straight into force, flux and its rate
+    (ECoreActuator.step after the passes).  nd = (N, D) row-major; prev_drop: the last block's MMF
+    drops, NaN before the first block, updated in place; lag_end = (y, x) at the block's end."""
+    n = fc.size
+    lam0, lam1, q00, q01, q10, q11 = lag[0], lag[1], lag[2], lag[3], lag[4], lag[5]
+    v00, v01, v10, v11 = lag[6], lag[7], lag[8], lag[9]
+    n00, n01, n10, n11, d00, d01, d10, d11 = nd[0], nd[1], nd[2], nd[3], nd[4], nd[5], nd[6], nd[7]
+    dl0, dl1, dl2, e0, e1, e2 = dlam[0], dlam[1], dlam[2], d2lam[0], d2lam[1], d2lam[2]
+    o0, o1, g0, g1 = outer[0], outer[1], douter[0], douter[1]
+    if cold:  # lfilter's y[-1] = w[0] / (1 - lam)
+        u0 = fc[0] - h_rest[0] * length
+        ya = (q00 * u0 + q01 * fm[0]) / (1.0 - lam0)
+        yb = (q10 * u0 + q11 * fm[0]) / (1.0 - lam1)
+    else:
+        ya, yb = y_start[0], y_start[1]
+    xa = v00 * ya + v01 * yb  # x before the block: linear_mmf's backward difference starts there
+    xb = v10 * ya + v11 * yb
+    pd0, pd1 = prev_drop[0], prev_drop[1]
+    for k in range(n):
+        u0 = fc[k] - h_rest[k] * length
+        u1 = fm[k]
+        ya = lam0 * ya + (q00 * u0 + q01 * u1)
+        yb = lam1 * yb + (q10 * u0 + q11 * u1)
+        x0 = v00 * ya + v01 * yb
+        x1 = v10 * ya + v11 * yb
+        dx0 = (x0 - xa) * fs
+        dx1 = (x1 - xb) * fs
+        s0 = u0 - ((n00 * x0 + n01 * x1) + (d00 * dx0 + d01 * dx1))  # u - (N x + D dx/dt)
+        s1 = u1 - ((n10 * x0 + n11 * x1) + (d10 * dx0 + d11 * dx1))
+        xa, xb = x0, x1
+        f = -0.5 * (dl0 * (s0 * s0) + 2.0 * dl1 * s0 * s1 + dl2 * (s1 * s1))
+        phi = o0 * s0 + o1 * s1
+        if compliance != 0.0:
+            dz = -f * compliance  # the gap closes as the load cell yields
+            f = f + -0.5 * (e0 * (s0 * s0) + 2.0 * e1 * s0 * s1 + e2 * (s1 * s1)) * dz
+            phi = phi + (g0 * s0 + g1 * s1) * dz
+        force[k] = f
+        flux[k] = phi
+        iron_b[k] = x0
+        r0 = fc[k] - s0  # the MMF drops; their rate is a causal backward difference
+        r1 = u1 - s1
+        if k == 0 and pd0 != pd0:  # NaN: no block before
+            pd0, pd1 = r0, r1
+        dflux[k] = o0 * (turns * dcur[k] - (r0 - pd0) * fs) + o1 * (dfm - (r1 - pd1) * fs)
+        pd0, pd1 = r0, r1
+    prev_drop[0], prev_drop[1] = pd0, pd1
+    lag_end[0], lag_end[1], lag_end[2], lag_end[3] = ya, yb, xa, xb
