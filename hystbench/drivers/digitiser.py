@@ -158,7 +158,9 @@ class ScpiDigitiser:
         if errors:
             raise ProtocolError(f"{self._where(after)}: the digitiser reports {'; '.join(errors)}")
 
-    def open(self) -> None:
+    def open(self, channels: tuple[str, ...] = ()) -> None:
+        """Identify, set up and start the digitiser; each of ``channels`` is selected once here
+        with its error check (a channel the instrument lacks is refused now, not read wrongly)."""
         self._io("open", self.link.open)
         self.identity = self.query("identity").strip()
         if len(self.identity.split(",")) != len(scpi.IDN_FIELDS):
@@ -169,6 +171,8 @@ class ScpiDigitiser:
         for op in ("clock_source", "trigger_source", "format", "byte_order"):
             self.send(op)
         self.send("points", value=self.max_points)
+        for ch in channels:
+            self.send("source", ch)
         text = self.query("sample_rate")
         try:
             rate = float(text)
@@ -190,9 +194,10 @@ class ScpiDigitiser:
 
     def fetch(self, channel: str) -> tuple[int, np.ndarray, bool]:
         """The next segment of ``channel``: (first index on the common clock, volts, clipped)."""
-        self.send("source", channel, check=False)
-        pre_msg = self.dialect.command("preamble").message()
-        text = self.query("preamble")
+        # source and preamble as one program message (IEEE 488.2 ';'-separated units): as two, the
+        # query would wait for the instrument's delayed ACK of the command (Nagle: 40 ms on Linux)
+        pre_msg = sd.compound(self.dialect.command("source").message(channel), self.dialect.command("preamble").message())
+        text = self._io(pre_msg, lambda: self.link.query(pre_msg))
         try:
             pre = sd.Preamble.parse(text, self.dialect)
             first = pre.first_index(self.fs_hz)
@@ -272,7 +277,7 @@ class DigitiserFrameSource(FrameSource):
     def open(self) -> None:
         # what the joiner holds stays: its indices count the digitiser's clock, which a new session keeps
         try:
-            self.digitiser.open()
+            self.digitiser.open(tuple(self.instrument_channels))
         except (InstrumentTimeout, ConnectionLost, ProtocolError) as err:
             self.digitiser.link.close()
             raise ConnectionError(str(err)) from err

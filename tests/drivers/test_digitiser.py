@@ -46,19 +46,19 @@ def digitiser(peer, dialect="generic", timeout_s=2.0) -> ScpiDigitiser:
 
 @pytest.mark.parametrize("dialect, opening, fetch", [
     ("generic", GENERIC_OPEN, [
-        (b"WAV:SOUR CHAN2\n", None),
-        (b"WAV:PRE?\n", b"1,0,3,1,1e-05,0.0125,0,0.5,1.0,0\n"),
+        (b"WAV:SOUR CHAN2;:WAV:PRE?\n", b"1,0,3,1,1e-05,0.0125,0,0.5,1.0,0\n"),
         (b"WAV:DATA?\n", b"#16\xfe\xff\x00\x00\x03\x00\n")]),
     ("tektronix", TEK_OPEN, [
-        (b"DAT:SOU CH2\n", None),
-        (b"WFMO?\n", b'2;16;BIN;RI;LSB;"Ch2, DC coupling, 1 V/div";3;Y;"s";1.0E-5;1.25E-2;0;"V";5.0E-1;0.0E+0;1.0E+0\n'),
+        (b"DAT:SOU CH2;:WFMO?\n", b'2;16;BIN;RI;LSB;"Ch2, DC coupling, 1 V/div";3;Y;"s";1.0E-5;1.25E-2;0;"V";5.0E-1;0.0E+0;1.0E+0\n'),
         (b"CURV?\n", b"#16\xfe\xff\x00\x00\x03\x00\n")]),
 ])
 def test_transcript_open_arm_and_one_waveform_read(scripted_peer, dialect, opening, fetch):
+    ch = "CHAN2" if dialect == "generic" else "CH2"
+    select = [(b"WAV:SOUR CHAN2\n" if dialect == "generic" else b"DAT:SOU CH2\n", None), (b"SYST:ERR?\n", OK)]
+    opening = opening[:-3] + select + opening[-3:]  # each channel selected once at open, with its check
     peer = scripted_peer(opening + fetch + [(b"STOP\n" if dialect == "generic" else b"ACQ:STATE STOP\n", None)])
     dig = digitiser(peer, dialect)
-    dig.open()
-    ch = "CHAN2" if dialect == "generic" else "CH2"
+    dig.open((ch,))
     first, volts, clipped = dig.fetch(ch)
     dig.close()
     peer.check()
@@ -89,8 +89,8 @@ def test_a_sample_rate_other_than_the_bench_clock_is_refused(scripted_peer):
 
 
 def _fetch_with(scripted_peer, pre: bytes, data_reply: bytes, timeout_s: float = 2.0):
-    peer = scripted_peer(GENERIC_OPEN + [(b"WAV:SOUR CHAN1\n", None), (b"WAV:PRE?\n", pre),
-                                         (b"WAV:DATA?\n", data_reply)], timeout_s=30.0)
+    peer = scripted_peer(GENERIC_OPEN + [(b"WAV:SOUR CHAN1;:WAV:PRE?\n", pre), (b"WAV:DATA?\n", data_reply)],
+                         timeout_s=30.0)
     dig = digitiser(peer, timeout_s=timeout_s)
     dig.open()
     return peer, dig
@@ -133,10 +133,11 @@ def test_a_timeout_mid_block_says_how_far_the_block_came(scripted_peer):
 
 def test_a_bad_block_under_the_frame_source_yields_no_frame_and_drops_the_session(scripted_peer):
     """The stream's reader reopens on ConnectionError: the lost segment becomes a gap there."""
-    peer = scripted_peer(GENERIC_OPEN + [
-        (b"WAV:SOUR CHAN1\n", None), (b"WAV:PRE?\n", b"1,0,2,1,1e-05,0,0,1,0,0\n"),
+    select = [(b"WAV:SOUR CHAN1\n", None), (b"SYST:ERR?\n", OK), (b"WAV:SOUR CHAN2\n", None), (b"SYST:ERR?\n", OK)]
+    peer = scripted_peer(GENERIC_OPEN[:-3] + select + GENERIC_OPEN[-3:] + [
+        (b"WAV:SOUR CHAN1;:WAV:PRE?\n", b"1,0,2,1,1e-05,0,0,1,0,0\n"),
         (b"WAV:DATA?\n", b"#14\x01\x00\x02\x00\n"),
-        (b"WAV:SOUR CHAN2\n", None), (b"WAV:PRE?\n", b"1,0,2,1,1e-05,0,0,1,0,0\n"),
+        (b"WAV:SOUR CHAN2;:WAV:PRE?\n", b"1,0,2,1,1e-05,0,0,1,0,0\n"),
         (b"WAV:DATA?\n", b"#13\x01\x00\x02\x00\n")], timeout_s=30.0)
     link = VisaLink(f"TCPIP::127.0.0.1::{peer.port}::SOCKET", 2.0)
     src = DigitiserFrameSource(ScpiDigitiser(link, sd.dialect("generic"), 100_000.0, max_points=1000),
@@ -149,6 +150,13 @@ def test_a_bad_block_under_the_frame_source_yields_no_frame_and_drops_the_sessio
 
 
 # --- the block codec and the preamble, no transport -------------------------------------------------
+
+def test_compound_messages_split_into_units_from_the_root_or_the_last_path():
+    assert sd.compound("WAV:SOUR CHAN1", "WAV:PRE?") == "WAV:SOUR CHAN1;:WAV:PRE?"
+    assert sd.split_units(b"WAV:SOUR CHAN1;:WAV:PRE?") == [b"WAV:SOUR CHAN1", b"WAV:PRE?"]
+    assert sd.split_units(b":WAV:SOUR CHAN1;PRE?;*OPC?;DATA?") == [b"WAV:SOUR CHAN1", b"WAV:PRE?", b"*OPC?",
+                                                                    b"WAV:DATA?"]
+
 
 def test_encoded_blocks_read_back_and_the_preamble_round_trips_in_every_dialect():
     data = bytes(range(256)) * 5

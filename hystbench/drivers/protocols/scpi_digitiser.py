@@ -27,7 +27,7 @@ from ...errors import InstrumentTimeout, ProtocolError
 from .scpi import encode_block, header_matches, short_form
 
 __all__ = ["Command", "Dialect", "GENERIC", "DIALECTS", "Preamble", "dialect", "read_block", "encode_block",
-           "codes_to_volts", "volts_to_codes", "CODE_DTYPE", "FULL_SCALE_CODE", "block_header_len"]
+           "codes_to_volts", "volts_to_codes", "compound", "split_units", "CODE_DTYPE", "FULL_SCALE_CODE", "block_header_len"]
 
 #: Sample codes on the wire: signed 16-bit, least significant byte first.
 CODE_DTYPE = np.dtype("<i2")
@@ -187,6 +187,32 @@ class Preamble:
                                                ("x_increment", "x_origin", "x_reference", "y_increment",
                                                 "y_origin", "y_reference")}}
         return d.separator.join(mine.get(f, d.constants.get(f, "0")) for f in d.preamble_fields)
+
+
+def compound(*messages: str) -> str:
+    """Program message units as one message, each from the root: ``WAV:SOUR CHAN1;:WAV:PRE?``."""
+    return ";:".join(messages)
+
+
+def split_units(message: bytes) -> list[bytes]:
+    """The units of a program message (``;``-separated; a leading ``:`` is the root).  A unit
+    without one continues the previous unit's header path (``WAV:SOUR CHAN1;PRE?`` is
+    ``WAV:PRE?``).  Digitiser messages carry no blocks or strings, so ``;`` always separates."""
+    out: list[bytes] = []
+    path = b""
+    for unit in message.split(b";"):
+        unit = unit.strip()
+        if not unit:
+            continue
+        if unit.startswith(b":"):
+            unit = unit[1:]
+        elif not unit.startswith(b"*") and path:
+            unit = path + unit
+        head = unit.split(b" ", 1)[0]
+        if not head.startswith(b"*"):
+            path = head[:head.rfind(b":") + 1]
+        out.append(unit)
+    return out
 
 
 def codes_to_volts(codes: np.ndarray, pre: Preamble) -> np.ndarray:

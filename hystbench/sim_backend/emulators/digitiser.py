@@ -48,7 +48,7 @@ class DigitiserEmulator:
         self.source = 1
         self.errors: collections.deque[tuple[int, str]] = collections.deque()
         self.commands_seen: list[bytes] = []
-        #: faults of the next data replies, consumed in order: "truncate" sends half the block and stops
+        #: faults of the next data replies holding points, in order: "truncate" sends half the block and stops
         self.block_faults: collections.deque[str] = collections.deque()
         self.lost_points = 0  # memory overwritten before it was read, per channel, summed
         self._memory: dict[int, collections.deque[tuple[int, np.ndarray]]] = {
@@ -182,10 +182,10 @@ class DigitiserEmulator:
     def _reply(self, send: Callable[[bytes], Any], reply: bytes | None, is_data: bool) -> None:
         if reply is None or not self.faults.before_reply():
             return
-        if is_data and self.block_faults:
+        head = 2 + int(reply[1:2]) if is_data and reply[:1] == b"#" else 0  # '#', the digit, the length digits
+        if is_data and self.block_faults and len(reply) - head - 1 > 0:  # a block with data in it
             fault = self.block_faults.popleft()
             if fault == "truncate":
-                head = 2 + int(reply[1:2])  # '#', the digit, the length digits
                 reply = reply[:head + (len(reply) - head - 1) // 2]
         send(reply)
         self.faults.sent_reply()
@@ -206,8 +206,13 @@ class DigitiserEmulator:
             for msg in reader.feed(data):
                 if self.faults.is_silent():
                     continue
-                header, is_query, _ = scpi.split_command(msg)
-                self._reply(conn.sendall, self.handle(msg), is_query and data_cmd.matches(header))
+                replies, is_data = [], False
+                for unit in sd.split_units(msg):  # IEEE 488.2: the replies of one message joined by ';'
+                    header, is_query, _ = scpi.split_command(unit)
+                    is_data |= is_query and data_cmd.matches(header)
+                    if (r := self.handle(unit)) is not None:
+                        replies.append(r[:-1])
+                self._reply(conn.sendall, b";".join(replies) + b"\n" if replies else None, is_data)
 
     def disconnect(self) -> None:
         self.faults.silent = True
