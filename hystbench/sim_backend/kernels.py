@@ -4,7 +4,7 @@ Each kernel is the per-sample loop of a numpy expression in ``rig.py`` or ``meas
 the same floating-point operations in the same order, so it gives the same samples (the numpy code
 stays beside it as the reference and the fallback).  Numpy spends its time here on temporaries and
 on a transcendental pair per sample; one loop over the block does not (issue 14, CPU ms per 10 000
-samples: the sine 0.20 -> 0.017, the force filter 0.086 -> 0.037, noise + ADC 0.025 -> 0.005 a channel).
+samples: the sine 0.20 -> 0.017, the force filter 0.086 -> 0.035, noise + ADC 0.025 -> 0.005 a channel).
 
 Imported only when ``hystbench.jit.enabled()`` (so importing the rig never imports numba); callers
 pass C-contiguous float64 arrays, so one specialisation serves every call.
@@ -18,7 +18,7 @@ import numpy as np
 
 from ..jit import njit
 
-__all__ = ["sine_and_rate", "sosfilt_inplace", "noise_adc", "ANGLE_BLOCK"]
+__all__ = ["sine_and_rate", "sosfilt", "noise_adc", "ANGLE_BLOCK"]
 
 #: Samples per exact angle in :func:`sine_and_rate`: the table costs 2 x ANGLE_BLOCK sin/cos a call,
 #: each exact angle 2, the samples in between one complex multiply.
@@ -51,14 +51,15 @@ def sine_and_rate(c0: float, step: float, offset: float, amp: float, amp_w: floa
 
 
 @njit(cache=True, nogil=True)
-def sosfilt_inplace(sos: np.ndarray, zi: np.ndarray, y: np.ndarray) -> None:
-    """``y, zi = scipy.signal.sosfilt(sos, y, zi=zi)`` in place: the transposed direct form II
-    recursion scipy runs, with each section's operations in scipy's order (so the numbers are
-    scipy's).  Sections go over the block two at a time with their state in locals: one section's
-    recursion is latency-bound, and the second runs in the first one's shadow (0.066 -> 0.034 ms
-    per 10 000 samples for the force filter's two sections)."""
+def sosfilt(sos: np.ndarray, zi: np.ndarray, x: np.ndarray, y: np.ndarray) -> None:
+    """``y[:], zi[:] = scipy.signal.sosfilt(sos, x, zi=zi)`` (``y`` may be ``x``): the transposed
+    direct form II recursion scipy runs, with each section's operations in scipy's order (so the
+    numbers are scipy's).  Sections go over the block two at a time with their state in locals: one
+    section's recursion is latency-bound, and the second runs in the first one's shadow (0.066 ->
+    0.034 ms per 10 000 samples for the force filter's two sections)."""
     s = 0
     n_sections = sos.shape[0]
+    src = x
     while s < n_sections:
         b0, b1, b2, a1, a2 = sos[s, 0], sos[s, 1], sos[s, 2], sos[s, 4], sos[s, 5]
         z0, z1 = zi[s, 0], zi[s, 1]
@@ -66,10 +67,10 @@ def sosfilt_inplace(sos: np.ndarray, zi: np.ndarray, y: np.ndarray) -> None:
             c0, c1, c2, d1, d2 = sos[s + 1, 0], sos[s + 1, 1], sos[s + 1, 2], sos[s + 1, 4], sos[s + 1, 5]
             w0, w1 = zi[s + 1, 0], zi[s + 1, 1]
             for k in range(y.size):
-                x = y[k]
-                v = b0 * x + z0
-                z0 = b1 * x - a1 * v + z1
-                z1 = b2 * x - a2 * v
+                xk = src[k]
+                v = b0 * xk + z0
+                z0 = b1 * xk - a1 * v + z1
+                z1 = b2 * xk - a2 * v
                 u = c0 * v + w0
                 w0 = c1 * v - d1 * u + w1
                 w1 = c2 * v - d2 * u
@@ -78,13 +79,14 @@ def sosfilt_inplace(sos: np.ndarray, zi: np.ndarray, y: np.ndarray) -> None:
             zi[s + 1, 1] = w1
         else:
             for k in range(y.size):
-                x = y[k]
-                v = b0 * x + z0
-                z0 = b1 * x - a1 * v + z1
-                z1 = b2 * x - a2 * v
+                xk = src[k]
+                v = b0 * xk + z0
+                z0 = b1 * xk - a1 * v + z1
+                z1 = b2 * xk - a2 * v
                 y[k] = v
         zi[s, 0] = z0
         zi[s, 1] = z1
+        src = y
         s += 2
 
 

@@ -93,9 +93,10 @@ class _Sos:
         if kernels is None:
             y, self.zi = signal.sosfilt(self.sos, x, zi=self.zi)
             return y
-        y = np.array(x, dtype=np.float64, order="C")  # filtered in place
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        y = np.empty(x.size)
         self.zi = np.ascontiguousarray(self.zi, dtype=np.float64)
-        kernels.sosfilt_inplace(self.sos, self.zi, y)
+        kernels.sosfilt(self.sos, self.zi, x, y)
         return y
 
 
