@@ -196,7 +196,8 @@ class ScpiDigitiser:
         """The next segment of ``channel``: (first index on the common clock, volts, clipped)."""
         # source and preamble as one program message (IEEE 488.2 ';'-separated units): as two, the
         # query would wait for the instrument's delayed ACK of the command (Nagle: 40 ms on Linux)
-        pre_msg = sd.compound(self.dialect.command("source").message(channel), self.dialect.command("preamble").message())
+        pre_msg = sd.compound(self.dialect.command("source").message(channel),
+                              self.dialect.command("preamble").message())
         text = self._io(pre_msg, lambda: self.link.query(pre_msg))
         try:
             pre = sd.Preamble.parse(text, self.dialect)

@@ -202,3 +202,17 @@ def test_the_joiner_keeps_channels_aligned_and_a_jump_is_a_gap_never_filled():
     f = j.pop()
     assert f.first_index == 118 and f.n == 2
     np.testing.assert_array_equal(f.samples[1], [-118, -119])
+
+
+def test_docs_protocols_lists_every_command_of_every_dialect():
+    """docs/protocols.md's digitiser table is written from the tables: each message is in it."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "protocols.md").read_text()
+    section = text.split("## Digitiser — SCPI over VISA", 1)[1].split("## Digitiser — NI-DAQmx", 1)[0]
+    for d in sd.DIALECTS.values():
+        for op, cmd in d.commands.items():
+            msg = cmd.message(d.channel_names[0])[:-1] + "<n>" if op == "source" else cmd.message()
+            assert f"`{msg}`" in section, (d.name, op, msg)
+        for msg in d.on_open:
+            assert f"`{msg}`" in section, (d.name, msg)

@@ -27,7 +27,7 @@ from ...errors import InstrumentTimeout, ProtocolError
 from .scpi import encode_block, header_matches, short_form
 
 __all__ = ["Command", "Dialect", "GENERIC", "DIALECTS", "Preamble", "dialect", "read_block", "encode_block",
-           "codes_to_volts", "volts_to_codes", "compound", "split_units", "CODE_DTYPE", "FULL_SCALE_CODE", "block_header_len"]
+           "codes_to_volts", "volts_to_codes", "compound", "split_units", "CODE_DTYPE", "FULL_SCALE_CODE"]
 
 #: Sample codes on the wire: signed 16-bit, least significant byte first.
 CODE_DTYPE = np.dtype("<i2")
@@ -77,7 +77,8 @@ GENERIC: Mapping[str, Command] = MappingProxyType({
     "run": _c("RUN", doc="acquire continuously (armed: starts on the trigger)"),
     "stop": _c("STOP", doc="stop acquiring"),
     "source": _c("WAVeform:SOURce", "{ch}", doc="the channel the next preamble and data are read from"),
-    "preamble": _c("WAVeform:PREamble", query=True, doc="the next segment of the source: see PREAMBLE_FIELDS"),
+    "preamble": _c("WAVeform:PREamble", query=True,
+                   doc="the next segment of the source (latched until its data is read)"),
     "data": _c("WAVeform:DATA", query=True, doc="the segment the preamble announced, as a definite-length block"),
 })
 
@@ -224,10 +225,6 @@ def volts_to_codes(volts: np.ndarray, y_increment: float) -> tuple[np.ndarray, b
     k = np.round(np.asarray(volts, dtype=np.float64) / y_increment)
     clipped = bool(np.any(np.abs(k) > FULL_SCALE_CODE))
     return np.clip(k, -FULL_SCALE_CODE, FULL_SCALE_CODE).astype(CODE_DTYPE), clipped
-
-
-def block_header_len(n_bytes: int) -> int:
-    return 2 + len(str(n_bytes))
 
 
 def read_block(read: Callable[[int], bytes], where: str, *, max_bytes: int = 1 << 28) -> bytes:
