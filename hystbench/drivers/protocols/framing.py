@@ -35,7 +35,7 @@ from ...errors import ProtocolError
 
 __all__ = [
     "MAGIC", "VERSION", "HEADER_SIZE", "OVERHEAD", "MAX_FRAME_SIZE", "FrameError", "Frame", "FrameBatch",
-    "encode_frame", "decode_frame", "decode_batch", "crc32_rows", "crc32_rows_reference", "BATCH_OK", "BATCH_CORRUPT", "BATCH_OTHER_SHAPE",
+    "encode_frame", "decode_frame", "decode_batch", "batch_verdicts", "batch_verdicts_reference", "BATCH_OK", "BATCH_CORRUPT", "BATCH_OTHER_SHAPE",
     "frames_from_block", "samples_per_frame_for", "cobs_encode", "cobs_decode", "cobs_encode_reference",
     "cobs_decode_reference", "CobsDeframer", "LengthPrefixDeframer", "DeframerStats", "length_prefixed",
     "cobs_record",
@@ -144,15 +144,29 @@ class FrameBatch:
                 zip(self.stream_id, self.seq, self.first_index, self.flags, self.samples)]
 
 
-def crc32_rows_reference(rows: np.ndarray, length: int) -> np.ndarray:
-    """zlib.crc32 of the first ``length`` bytes of each row of a (k, size) uint8 array."""
-    return np.fromiter((zlib.crc32(row[:length]) for row in rows), dtype=np.uint32, count=rows.shape[0])
+#: :func:`decode_batch`'s verdict per record
+BATCH_OK, BATCH_CORRUPT, BATCH_OTHER_SHAPE = 0, 1, 2
+
+
+def batch_verdicts_reference(rows: np.ndarray, channels: int) -> np.ndarray:
+    """The verdict on each row of a (k, size) uint8 array of records, in numpy with zlib's CRC: the
+    reference :func:`batch_verdicts` equals, and its implementation when numba is off."""
+    k, size = rows.shape
+    head = rows[:, :HEADER_SIZE]
+    c = head[:, 3].astype(np.int64)
+    n = head[:, 4].astype(np.int64) | (head[:, 5].astype(np.int64) << 8)
+    crc = np.fromiter((zlib.crc32(row[:size - 4]) for row in rows), dtype=np.uint32, count=k)
+    valid = ((head[:, 0] == MAGIC) & (head[:, 1] == VERSION) & (c != 0) & (OVERHEAD + 4 * c * n == size)
+             & (crc == np.ascontiguousarray(rows[:, size - 4:]).view("<u4")[:, 0]))
+    ok = valid & (c == channels)  # same size and channels: the same samples count too
+    return np.where(ok, BATCH_OK, np.where(valid, BATCH_OTHER_SHAPE, BATCH_CORRUPT)).astype(np.int8)
 
 
 @functools.cache
-def _crc32_kernel() -> Callable | None:
-    """The compiled row CRC (zlib's CRC-32, a table per byte), or None when numba is off: for
-    64-byte CAN FD records, a zlib call per record cost more than the decode around it."""
+def _verdict_kernel() -> Callable | None:
+    """:func:`batch_verdicts_reference` as one compiled pass (CRC-32 by table, byte by byte), or None
+    when numba is off: a drain's dozen numpy calls and a zlib call per 64-byte record cost more than
+    the records' samples."""
     if not jit.enabled():
         return None
     table = np.zeros(256, dtype=np.uint32)
@@ -163,50 +177,53 @@ def _crc32_kernel() -> Callable | None:
         table[i] = c
 
     @jit.njit(cache=True, nogil=True)
-    def crc_rows(rows: np.ndarray, length: int, table: np.ndarray) -> np.ndarray:
-        out = np.empty(rows.shape[0], dtype=np.uint32)
-        for r in range(rows.shape[0]):
-            c = np.uint32(0xFFFFFFFF)
-            for j in range(length):
-                c = table[(c ^ rows[r, j]) & 0xFF] ^ (c >> np.uint32(8))
-            out[r] = c ^ np.uint32(0xFFFFFFFF)
+    def verdicts(rows: np.ndarray, channels: int, table: np.ndarray, magic: int, version: int,
+                 overhead: int) -> np.ndarray:
+        k, size = rows.shape
+        out = np.empty(k, dtype=np.int8)
+        for r in range(k):
+            c, n = np.int64(rows[r, 3]), np.int64(rows[r, 4]) | (np.int64(rows[r, 5]) << 8)
+            crc = np.uint32(0xFFFFFFFF)
+            for j in range(size - 4):
+                crc = table[(crc ^ rows[r, j]) & 0xFF] ^ (crc >> np.uint32(8))
+            crc ^= np.uint32(0xFFFFFFFF)
+            sent = (np.uint32(rows[r, size - 4]) | (np.uint32(rows[r, size - 3]) << np.uint32(8))
+                    | (np.uint32(rows[r, size - 2]) << np.uint32(16)) | (np.uint32(rows[r, size - 1]) << np.uint32(24)))
+            valid = (rows[r, 0] == magic and rows[r, 1] == version and c != 0
+                     and overhead + 4 * c * n == size and crc == sent)
+            out[r] = (0 if c == channels else 2) if valid else 1  # BATCH_OK, BATCH_OTHER_SHAPE, BATCH_CORRUPT
         return out
 
-    return lambda rows, length: crc_rows(rows, length, table)
+    return lambda rows, channels: verdicts(rows, channels, table, MAGIC, VERSION, OVERHEAD)
 
 
-def crc32_rows(rows: np.ndarray, length: int) -> np.ndarray:
-    """zlib.crc32 of the first ``length`` bytes of each row of a (k, size) uint8 array (compiled
-    when numba runs; :func:`crc32_rows_reference` otherwise, and as the reference)."""
-    kernel = _crc32_kernel()
-    return crc32_rows_reference(rows, length) if kernel is None else kernel(rows, length)
+def batch_verdicts(rows: np.ndarray, channels: int) -> np.ndarray:
+    """Per record (a row of a (k, size) uint8 array): BATCH_OK (a valid frame of ``channels``
+    rows), BATCH_CORRUPT (what :func:`decode_frame` refuses: magic, version, shape, length, CRC) or
+    BATCH_OTHER_SHAPE (a valid frame of another channel count).  Compiled when numba runs."""
+    kernel = _verdict_kernel()
+    return batch_verdicts_reference(rows, channels) if kernel is None else kernel(rows, channels)
 
 
-#: :func:`decode_batch`'s verdict per record
-BATCH_OK, BATCH_CORRUPT, BATCH_OTHER_SHAPE = 0, 1, 2
+@functools.cache
+def _record_dtype(channels: int, samples: int) -> np.dtype:
+    return np.dtype([("magic", "u1"), ("version", "u1"), ("stream_id", "u1"), ("channels", "u1"), ("n", "<u2"),
+                     ("flags", "<u2"), ("seq", "<u4"), ("first", "<i8"), ("samples", "<f4", (channels, samples)),
+                     ("crc", "<u4")])
 
 
 def decode_batch(records: Sequence[bytes | bytearray], channels: int, samples: int) -> tuple[FrameBatch, np.ndarray]:
     """Records of ``OVERHEAD + 4 * channels * samples`` bytes each, decoded at once: the batch of
-    those that are valid frames of shape (channels, samples), and a verdict per record:
-    BATCH_OK, BATCH_CORRUPT (what :func:`decode_frame` refuses: magic, version, shape, CRC) or
-    BATCH_OTHER_SHAPE (a valid frame of another shape of the same size, for the caller to decode one
-    by one).  The header checks run vectorised; the CRC is zlib's, one call per record."""
+    those that are valid frames of shape (channels, samples), and :func:`batch_verdicts` on each
+    (BATCH_OTHER_SHAPE ones are left for the caller to decode one by one)."""
     size = OVERHEAD + 4 * channels * samples
     if not 1 <= channels <= 255 or samples < 1 or not set(map(len, records)) <= {size}:
         raise ValueError(f"decode_batch: every record must be {size} bytes ({channels} x {samples} samples)")
     raw = b"".join(records)
-    rec = np.frombuffer(raw, dtype=np.dtype([
-        ("magic", "u1"), ("version", "u1"), ("stream_id", "u1"), ("channels", "u1"), ("n", "<u2"),
-        ("flags", "<u2"), ("seq", "<u4"), ("first", "<i8"), ("samples", "<f4", (channels, samples)),
-        ("crc", "<u4")]))
-    crc = crc32_rows(np.frombuffer(raw, dtype=np.uint8).reshape(len(records), size), size - 4)
-    c, n = rec["channels"].astype(np.int64), rec["n"].astype(np.int64)
-    valid = ((rec["magic"] == MAGIC) & (rec["version"] == VERSION) & (c != 0)
-             & (OVERHEAD + 4 * c * n == size) & (crc == rec["crc"]))
-    ok = valid & (c == channels)  # same size and channels: the same samples count too
-    verdict = np.where(ok, BATCH_OK, np.where(valid, BATCH_OTHER_SHAPE, BATCH_CORRUPT)).astype(np.int8)
-    good = rec[ok]
+    verdict = batch_verdicts(np.frombuffer(raw, dtype=np.uint8).reshape(len(records), size), channels)
+    good = np.frombuffer(raw, dtype=_record_dtype(channels, samples))
+    if verdict.any():
+        good = good[verdict == BATCH_OK]
     batch = FrameBatch(good["stream_id"].astype(np.int64), good["seq"].astype(np.int64),
                        good["first"].astype(np.int64), good["flags"].astype(np.int64), good["samples"])
     return batch, verdict
