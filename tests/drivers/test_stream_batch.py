@@ -65,8 +65,10 @@ def test_batch_decode_tells_another_shape_of_the_same_size_from_damage():
         decode_batch([other[:-1]], 1, 10)
 
 
-def can_source(stream_id=4):
-    return CanFrameSource(None, 0x184, stream_id=stream_id, channels=1)
+def can_source(stream_id=4, min_batch=1):
+    source = CanFrameSource(None, 0x184, stream_id=stream_id, channels=1)
+    source.min_batch = min_batch  # the batch path even for a drain of one message
+    return source
 
 
 payload_kinds = st.sampled_from(["good", "crc", "magic", "foreign_sid", "other_shape", "short"])
@@ -91,9 +93,12 @@ def test_batch_decode_equals_frame_by_frame_decode(kinds):
     assert batched.deframer_stats.foreign == kinds.count("foreign_sid") + kinds.count("other_shape")
 
 
-def test_all_good_payloads_come_out_as_one_batch():
-    items = can_source().decode([encode_frame(frame(10 * i, i)) for i in range(5)])
-    assert len(items) == 1 and isinstance(items[0], FrameBatch) and len(items[0]) == 5
+def test_all_good_payloads_come_out_as_one_batch_and_a_short_drain_frame_by_frame():
+    payloads = [encode_frame(frame(10 * i, i)) for i in range(12)]
+    items = can_source(min_batch=8).decode(payloads)
+    assert len(items) == 1 and isinstance(items[0], FrameBatch) and len(items[0]) == 12
+    items = can_source(min_batch=8).decode(payloads[:7])
+    assert [type(i) for i in items] == [Frame] * 7
 
 
 # --- the vectorised accept -------------------------------------------------------------------------
@@ -126,6 +131,18 @@ def test_batch_accept_equals_per_frame_accept(moves, with_history):
     for jump, seq_step, flags in moves:
         first, seq = max(0, first + jump), seq + seq_step
         frames.append(frame(first, seq, flags=flags))
+    history = [frame(95, 3), frame(105, 4)] if with_history else []
+    got, want = accept_both(history, frames)
+    assert got == want
+
+
+@FAST
+@given(st.integers(-30, 30), st.integers(-3, 3), st.integers(1, 30), st.booleans())
+def test_a_contiguous_batch_after_any_history_equals_per_frame_accept(jump, seq_jump, k, with_history):
+    """The healthy drain (indices and sequence numbers contiguous, one flag value), after a history it
+    may overlap, repeat or leave a gap to: the same runs and counters as frame by frame."""
+    first, seq = 115 + jump, 5 + seq_jump
+    frames = [frame(first + 10 * i, seq + i) for i in range(k)]
     history = [frame(95, 3), frame(105, 4)] if with_history else []
     got, want = accept_both(history, frames)
     assert got == want
