@@ -39,11 +39,15 @@ CAN_ID = 0x184  #: any standard id: the benchmark's bus is its own
 TCP_READ, SERIAL_READ = 1 << 18, 1 << 12  #: bytes per transport read (TcpFrameSource's; a pty's page)
 
 BOUNDS = {
-    "tcp": "per-frame Python (length check, header, CRC call, Frame) and the block's float64 copy",
-    "serial_cobs": "the COBS decode pass over every byte (compiled), then per-frame Python as TCP",
-    "canfd": "one zlib.crc32 call per 10-sample record plus the batch's numpy calls",
-    "canfd_bus": "python-can's per-message recv (see canfd_recv_only) and bytes(msg.data)",
-    "canfd_recv_only": "python-can VirtualBus.recv with the driver's filter: a Python call per message",
+    "tcp": "per-frame Python in the deframer (length and header checks, a copy, the CRC call, a Frame)",
+    "serial_cobs": "per-frame Python as TCP plus the compiled COBS pass over every byte; 4 kB reads "
+                   "make short runs, so read()'s per-block cost shows",
+    "canfd": "per drain of 256 records, numpy's per-call cost (header checks, the accept's running "
+             "maximum, the run's copy) and the compiled CRC, about 0.1 us a record",
+    "canfd_bus": "python-can's recv, one Python call per 10-sample message (canfd_recv_only): "
+                 "no receiver that takes one message at a time can pass it",
+    "canfd_recv_only": "python-can VirtualBus.recv with the driver's filter: a queue get, a software "
+                       "filter and a Python call per message",
 }
 
 
