@@ -183,3 +183,18 @@ def test_first_guess_is_np_interp_one_period_back():
         ecore_kernel.first_guess(hist, period, out)
         pos = hist.size - period + np.mod(np.arange(n), period)
         np.testing.assert_array_equal(out, np.interp(pos, np.arange(hist.size), hist))
+
+
+@needs_numba
+def test_kernel_hands_a_tied_block_to_the_numpy_settling_and_agrees(monkeypatch):
+    """400 Hz at 100 kS/s on M130-27S: the plain passes cycle at tied extrema (ECoreActuator.
+    _settle_tie); the kernel's unconverged block goes on in numpy from the kernel's last pass."""
+    settled = []
+    real = ecore.ECoreActuator._settle_tie
+    monkeypatch.setattr(ecore.ECoreActuator, "_settle_tie",
+                        lambda self, *a: settled.append(ecore.KERNEL) or real(self, *a))
+    p = foreign_preset("ecore_pm~m130")
+    a = record(False, p, 2000, 500, monkeypatch, seed=5020, effects=QUIET, frequency_hz=400.0, current_pp_a=1.4)
+    b = record(True, p, 2000, 500, monkeypatch, seed=5020, effects=QUIET, frequency_hz=400.0, current_pp_a=1.4)
+    assert False in settled and True in settled  # both paths met the tie
+    assert_same(a, b, quantised=False)
