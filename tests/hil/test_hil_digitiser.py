@@ -112,3 +112,41 @@ def test_the_tektronix_dialect_through_the_emulator(dig_factory):
     for name in SCALES:
         np.testing.assert_allclose(run.channels[name], through_the_digitiser(hil, name, run.first_index, run.n),
                                    rtol=1e-12, atol=0, err_msg=name)
+
+
+def test_the_daemons_source_records_and_estimates_from_the_digitiser(tmp_path):
+    """The daemon's path: BenchSource (its [source] kind = "bench") on bench_digitiser.toml ->
+    pipeline -> live estimates and an MCAP log; the method on the logged samples gives the rig's
+    delays to the tolerance of test_hil_stream, as from the framed streams."""
+    import re
+
+    from hystbench.acquisition.record import record_log
+    from hystbench.acquisition.sources import BenchSource
+    from hystbench.blocks import concatenate
+    from hystbench.config import CONFIG_DIR
+    from hystbench.formats.mcaplog import iter_blocks
+
+    text = (CONFIG_DIR / "bench_digitiser.toml").read_text()
+    path = tmp_path / "bench.toml"
+    path.write_text(re.sub(r"(?m)^stall_timeout_s = .*$", f"stall_timeout_s = {STALL_S:g}", text, count=1))
+    src = BenchSource(str(path), duration_s=1.6, excitation=(320.0, 1.4))
+    try:
+        assert src.bench.config.digitiser is not None and src.emu.digitiser is not None
+        src.set_output(True)
+        res = record_log(src, tmp_path / "run.mcap", timeout_s=HANG_S)
+    finally:
+        src.close()
+    assert res["samples"] == 160_000 and res["estimates"]
+    blocks = [b for b in iter_blocks(res["log"][0]) if b.meta["output_on"] and not b.meta.get("settling")]
+    assert not any(b.flags & BlockFlags.GAP for b in blocks)
+    run = concatenate(blocks)
+    assert run.end_index - run.first_index == run.n  # one contiguous run
+    n = 100_000
+    assert run.n >= n, run.n
+    got = measure_delays(Recording(None, run.fs_hz, {k: run.channels[k][-n:] for k in
+                                                     ("current_A", "force_N", "flux_Wb")}, src.metadata()))
+    rig = SimulatedRig("ecore_pm", fs_hz=run.fs_hz, seed=0, frequency_hz=320.0, current_pp_a=1.4)
+    direct = measure_delays(Recording(None, run.fs_hz, dict(rig.record(1.0).channels), rig.metadata()))
+    for name in ("hysteresis", "instrument", "total"):
+        tol = 5 * np.hypot(got.delays_std_s[name], direct.delays_std_s[name]) + 10e-9
+        assert got.delays_s[name] == pytest.approx(direct.delays_s[name], abs=tol), name
