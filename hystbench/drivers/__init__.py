@@ -5,6 +5,7 @@
     ModbusCurrentAmplifier     Modbus TCP / RTU (pymodbus)                    -> current_A stream
     ChargeAmplifier            Kistler 5070-class ASCII over RS-232           -> force_N stream
     CanFluxIntegrator          CAN / CAN FD (python-can)                      -> flux_Wb stream
+    digitiser (optional)       SCPI over VISA (pyvisa-py) or NI-DAQmx         -> all four, instead
     Bench                      the four from a bench file: safety, heartbeat, aligned acquisition
 
 Protocol definitions (command tables, register map, frame codecs, bench-file schema) are in
@@ -53,6 +54,7 @@ _PUBLIC = {
     "ChargeAmplifier": "charge_amplifier", "ChargeAmpError": "charge_amplifier",
     "CanFluxIntegrator": "flux_integrator", "IntegratorError": "flux_integrator",
     "Bench": "bench", "BenchFault": "bench",
+    "ScpiDigitiser": "digitiser", "open_digitiser_stream": "digitiser",
     "BenchConfig": "protocols.bench_config", "load_bench_config": "protocols.bench_config",
 }
 
