@@ -414,6 +414,8 @@ class SampleStream:
         the furthest end kept before it (every kept row ends past that, so it is the running maximum
         of the ends); a kept row starts at that end when it overlaps it."""
         k, c, n = b.samples.shape
+        if k == 0:
+            return
         end = b.first_index + n
         prev = self._next_index
         if c != len(self.channels):  # none is kept: stale against what was kept before, else foreign

@@ -177,6 +177,12 @@ def test_batch_of_another_channel_count_is_foreign_or_stale_as_per_frame():
     assert got == want and got[1]["stale_frames"] == 2 and got[1]["deframer_foreign"] == 2
 
 
+def test_an_empty_batch_changes_nothing():
+    s = SampleStream("s", FakeSource([]), ["x"], 1e5)
+    s._accept([frame(0, 0), batch_of([frame(10, 1)]).take(np.zeros(1, bool))])
+    assert [(first, data.shape[1]) for first, data, _ in s._runs] == [(0, 10)] and s.stats.frames == 1
+
+
 def test_frames_and_a_batch_in_one_accept_merge_into_one_run():
     """A reopen's pending frames then a drain's batch: one contiguous run, concatenated once."""
     s = SampleStream("s", FakeSource([]), ["x"], 1e5)
