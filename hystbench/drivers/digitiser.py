@@ -259,11 +259,14 @@ class DigitiserFrameSource(FrameSource):
     """A SCPI digitiser's channels as frames (``channels``: the instrument's channel for each
     signal, in the stream's order).  An idle digitiser is asked again after ``poll_s``."""
 
-    def __init__(self, digitiser: ScpiDigitiser, channels: list[str], *, poll_s: float = 0.005,
-                 min_points: int = 1) -> None:
+    def __init__(self, digitiser: ScpiDigitiser, channels: list[str], *, poll_s: float = 0.02,
+                 min_points: int | None = None) -> None:
         self.digitiser, self.instrument_channels = digitiser, list(channels)
         self.name = digitiser.name
-        self.poll_s, self.min_points = poll_s, min_points
+        # a read that brought fewer than poll_s of samples per channel waits poll_s before the next:
+        # each read costs a few round trips per channel, and the digitiser's memory holds seconds
+        self.poll_s = poll_s
+        self.min_points = int(poll_s * digitiser.fs_hz) if min_points is None else min_points
         self.deframer_stats = DeframerStats()
         self._joiner = SegmentJoiner(len(channels))
         self._idle = threading.Event()  # never set: waits between polls are bounded by poll_s
@@ -300,9 +303,9 @@ class DigitiserFrameSource(FrameSource):
             self.deframer_stats.corrupt += 1
             raise ConnectionError(str(err)) from err
         frame = self._joiner.pop()
+        if got < self.min_points * len(self.instrument_channels):
+            self._idle.wait(min(self.poll_s, timeout_s))
         if frame is None:
-            if got < self.min_points:
-                self._idle.wait(min(self.poll_s, timeout_s))
             return []
         self.deframer_stats.frames += 1
         return [frame]
