@@ -324,12 +324,14 @@ class ECoreActuator:
         return ActuatorOutput(force, flux, dflux)
 
     def _kernel_constants(self) -> tuple[np.ndarray, np.ndarray]:
-        """The linear part's coefficients as the kernels read them: (lam, q, vec) and (N, D), rebuilt
-        when set_period rebuilds the linear part."""
+        """The linear part's coefficients as the kernels read them: (lam, q, vec) and the diagonal of
+        (N, D) (_linear_part builds them diagonal), rebuilt when set_period rebuilds the linear part."""
         lag = self._lag
         if self._kernel_lag is None or self._kernel_lag[0] is not lag:
             coef = np.concatenate((lag.lam, lag.q.ravel(), lag.vec.ravel())).astype(np.float64)
-            nd = np.concatenate((lag.n.ravel(), lag.d.ravel())).astype(np.float64)
+            nd = np.array([lag.n[0, 0], lag.d[0, 0], lag.d[1, 1]], dtype=np.float64)
+            if np.any(lag.n != np.diag([nd[0], 0.0])) or np.any(lag.d != np.diag(nd[1:])):
+                raise AssertionError("ecore_kernel.final_run takes N = diag(n, 0) and a diagonal D")
             self._kernel_lag = (lag, coef, nd)
         return self._kernel_lag[1], self._kernel_lag[2]
 

@@ -217,12 +217,14 @@ def passes(fc, fm, h_rest, first, max_passes, converged_ratio, lag, y_start, col
 def final_run(fc, fm, h_rest, length, lag, y_start, cold, nd, fs, dlam, d2lam, outer, douter, compliance, turns,
               dcur, dfm, prev_drop, force, flux, dflux, iron_b, lag_end):
     """The linear run with the converged remainder, straight into force, flux and its rate
-    (ECoreActuator.step after the passes).  nd = (N, D) row-major; prev_drop: the last block's MMF
-    drops, NaN before the first block, updated in place; lag_end = (y, x) at the block's end."""
+    (ECoreActuator.step after the passes).  nd = (N00, D00, D11): N = diag(nu0 L, 0) and D is
+    diagonal (ECoreActuator._linear_part), so the zero terms of numpy's N x + D dx/dt, which add
+    exact zeros, are left out; prev_drop: the last block's MMF drops, NaN before the first block,
+    updated in place; lag_end = (y, x) at the block's end."""
     n = fc.size
     lam0, lam1, q00, q01, q10, q11 = lag[0], lag[1], lag[2], lag[3], lag[4], lag[5]
     v00, v01, v10, v11 = lag[6], lag[7], lag[8], lag[9]
-    n00, n01, n10, n11, d00, d01, d10, d11 = nd[0], nd[1], nd[2], nd[3], nd[4], nd[5], nd[6], nd[7]
+    n00, d00, d11 = nd[0], nd[1], nd[2]
     dl0, dl1, dl2, e0, e1, e2 = dlam[0], dlam[1], dlam[2], d2lam[0], d2lam[1], d2lam[2]
     o0, o1, g0, g1 = outer[0], outer[1], douter[0], douter[1]
     if cold:  # lfilter's y[-1] = w[0] / (1 - lam)
@@ -243,8 +245,8 @@ def final_run(fc, fm, h_rest, length, lag, y_start, cold, nd, fs, dlam, d2lam, o
         x1 = v10 * ya + v11 * yb
         dx0 = (x0 - xa) * fs
         dx1 = (x1 - xb) * fs
-        s0 = u0 - ((n00 * x0 + n01 * x1) + (d00 * dx0 + d01 * dx1))  # u - (N x + D dx/dt)
-        s1 = u1 - ((n10 * x0 + n11 * x1) + (d10 * dx0 + d11 * dx1))
+        s0 = u0 - (n00 * x0 + d00 * dx0)  # u - (N x + D dx/dt)
+        s1 = u1 - d11 * dx1
         xa, xb = x0, x1
         f = -0.5 * (dl0 * (s0 * s0) + 2.0 * dl1 * s0 * s1 + dl2 * (s1 * s1))
         phi = o0 * s0 + o1 * s1
