@@ -210,6 +210,10 @@ def _run(u, state: HysteresisState, coord: int, branch: Callable, virgin: Callab
     return y, HysteresisState(last[0], last[1], p.direction, turns)
 
 
+#: PreisachHysteresis._inverse per material (PreisachParams is frozen, so it is the key)
+_INVERSE_TABLES: dict[PreisachParams, dict[str, Any]] = {}
+
+
 class PreisachHysteresis:
     """The iron's B-H relation with static hysteresis; see the module docstring for why."""
 
@@ -330,6 +334,21 @@ class PreisachHysteresis:
     # ---- B as the input (the simulator) ----------------------------------------------------
     @cached_property
     def _inverse(self) -> dict[str, Any]:
+        """The B-driven tables, shared by every instance of one material: building them costs
+        about 50 ms, and a diagnosis builds a rig per simulation (read-only arrays)."""
+        tables = _INVERSE_TABLES.get(self.params)
+        if tables is None:
+            tables = self._build_inverse()
+            for value in tables.values():
+                for array in value if isinstance(value, tuple) else (value,):
+                    if isinstance(array, np.ndarray):
+                        array.flags.writeable = False
+            if len(_INVERSE_TABLES) >= 16:
+                _INVERSE_TABLES.clear()
+            _INVERSE_TABLES[self.params] = tables
+        return tables
+
+    def _build_inverse(self) -> dict[str, Any]:
         """Inverse branch table psi[row, col] = H on the ascending branch from H_r.
 
         Rows: H_r on every ``step``-th fine node; columns: B - B_r = dmax (k/K)^2 (fine near the
