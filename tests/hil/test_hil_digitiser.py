@@ -150,3 +150,38 @@ def test_the_daemons_source_records_and_estimates_from_the_digitiser(tmp_path):
     for name in ("hysteresis", "instrument", "total"):
         tol = 5 * np.hypot(got.delays_std_s[name], direct.delays_std_s[name]) + 10e-9
         assert got.delays_s[name] == pytest.approx(direct.delays_s[name], abs=tol), name
+
+
+def test_a_raw_socket_speaks_scpi_to_the_emulated_digitiser_and_reads_its_error_queue():
+    """A program that is not ours (a raw socket) gets the standard replies: identity, sample rate,
+    an empty segment before RUN, and each bad command as an entry of SYST:ERR?."""
+    import socket
+
+    from hystbench.config import CONFIG_DIR
+    from hystbench.drivers.protocols.bench_config import load_bench_config
+    from hystbench.sim_backend.emulators.bench import EmulatedBench
+
+    with EmulatedBench(load_bench_config(CONFIG_DIR / "bench_digitiser.toml")) as emu:
+        host, _, port = emu.addresses["digitiser"]["scpi_tcp"].rpartition(":")
+        with socket.create_connection((host, int(port)), timeout=HANG_S) as s:
+            buf = b""
+
+            def ask(msg: bytes) -> bytes:
+                nonlocal buf
+                s.sendall(msg + b"\n")
+                while b"\n" not in buf:
+                    chunk = s.recv(4096)
+                    assert chunk, "connection closed before a reply"
+                    buf += chunk
+                line, _, buf = buf.partition(b"\n")
+                return line
+
+            assert ask(b"*IDN?") == b"HYSTBENCH,SIMDIG-4,0001,1.0"
+            assert float(ask(b":ACQuire:SRATe?")) == 100_000.0
+            assert ask(b"WAV:SOUR CHAN3;:WAV:PRE?").split(b",")[2] == b"0"  # not RUN yet: nothing to read
+            assert ask(b"WAV:DATA?") == b"#10"
+            s.sendall(b"WAV:FORM FLOAT\nWAV:SOUR CHAN9\nMEASure:VOLTage?\n")
+            assert ask(b"SYST:ERR?") == b'-224,"Illegal parameter value"'
+            assert ask(b"SYST:ERR?") == b'-224,"Illegal parameter value"'
+            assert ask(b"SYST:ERR?") == b'-113,"Undefined header"'
+            assert ask(b"SYST:ERR?") == b'0,"No error"'
