@@ -387,6 +387,7 @@ def test_a_hardware_bench_file_as_config_fails_only_at_connect(tmp_path: Path, m
     text = (ROOT / "hystbench/config/bench_hardware.toml").read_text(encoding="utf-8")
     for old in ("192.168.0.20:5025", "192.168.0.20:5026", "192.168.0.21:5027"):
         text = text.replace(old, f"127.0.0.1:{free_port()}")
+    text = text.replace("TCPIP::192.168.0.30::", "TCPIP::127.0.0.1::")  # the (commented) digitiser variant
     for dev in ("/dev/ttyUSB0", "/dev/ttyUSB1", "/dev/ttyS0"):
         text = text.replace(dev, (tmp_path / ("absent-" + dev.rsplit("/", 1)[1])).as_posix())
     assert "192.168." not in text

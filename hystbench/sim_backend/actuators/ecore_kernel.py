@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from ...jit import njit
 
 __all__ = ["first_guess", "passes", "final_run"]
@@ -92,7 +94,7 @@ def _branch_at(s, c1, tr, base, edge, shift, b, psi, ncol, dmax, kcol, s_end):
 
 
 @njit(cache=True, nogil=True)
-def first_guess(hist, period, out):
+def first_guess(hist: np.ndarray, period: float, out: np.ndarray) -> None:
     """The iron's remainder one (fractional) period earlier: ``np.interp(size - p + k % p, ...)``,
     with k % p kept incrementally (exact: fmod's result plus 1 is representable) and recomputed at
     each wrap; clamped at the last sample as np.interp is."""
@@ -195,8 +197,10 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
 
 
 @njit(cache=True, nogil=True)
-def passes(fc, fm, h_rest, first, max_passes, converged_ratio, lag, y_start, cold, c_in, c_out, state0, tin,
-           tout, end, tabs, psi, virg, an, mode, knee, nu0, gain, length, out):
+def passes(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, first: int, max_passes: int, converged_ratio: float,
+           lag: np.ndarray, y_start: np.ndarray, cold: bool, c_in: np.ndarray, c_out: np.ndarray, state0: np.ndarray,
+           tin: np.ndarray, tout: np.ndarray, end: np.ndarray, tabs: np.ndarray, psi: np.ndarray, virg: np.ndarray,
+           an: np.ndarray, mode: int, knee: float, nu0: float, gain: float, length: float, out: np.ndarray) -> None:
     """ECoreActuator.step's loop of passes: at least ``first``, then until one converges, at most
     ``max_passes``.  out = (converged 1/0, passes run, max |B| of the last pass)."""
     done = SETTLED
@@ -214,8 +218,10 @@ def passes(fc, fm, h_rest, first, max_passes, converged_ratio, lag, y_start, col
 
 
 @njit(cache=True, nogil=True)
-def final_run(fc, fm, h_rest, length, lag, y_start, cold, nd, fs, dlam, d2lam, outer, douter, compliance, turns,
-              dcur, dfm, prev_drop, force, flux, dflux, iron_b, lag_end):
+def final_run(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, length: float, lag: np.ndarray, y_start: np.ndarray,
+              cold: bool, nd: np.ndarray, fs: float, dlam: np.ndarray, d2lam: np.ndarray, outer: np.ndarray,
+              douter: np.ndarray, compliance: float, turns: float, dcur: np.ndarray, dfm: float, prev_drop: np.ndarray,
+              force: np.ndarray, flux: np.ndarray, dflux: np.ndarray, iron_b: np.ndarray, lag_end: np.ndarray) -> None:
     """The linear run with the converged remainder, straight into force, flux and its rate
     (ECoreActuator.step after the passes).  nd = (N00, D00, D11): N = diag(nu0 L, 0) and D is
     diagonal (ECoreActuator._linear_part), so the zero terms of numpy's N x + D dx/dt, which add

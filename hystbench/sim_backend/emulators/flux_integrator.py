@@ -12,6 +12,7 @@ import functools
 import queue
 import threading
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from ...blocks import SampleBlock
 from ...drivers.protocols import can_integrator as ci
 from ...drivers.protocols.framing import samples_per_frame_for
 from .common import Faults, FrameEmitter, log
+
+if TYPE_CHECKING:
+    import can
 
 __all__ = ["FluxIntegratorEmulator", "INTEGRATOR_STREAM_ID", "emulator_bus"]
 
@@ -77,7 +81,7 @@ def _shared_message_virtual_bus() -> type:
     return SharedMessageVirtualBus
 
 
-def emulator_bus(interface: str, channel: str):
+def emulator_bus(interface: str, channel: str) -> can.BusABC:
     """The emulator's own bus handle.  On python-can's virtual bus, a handle whose ``send`` hands
     every other handle of the channel the same Message instead of a deep copy each (python-can
     copies once per receiver: at 10 000 stream frames a second to the driver's two handles, that
