@@ -4,7 +4,8 @@ Each kernel is the per-sample loop of a numpy expression in ``rig.py`` or ``meas
 the same floating-point operations in the same order, so it gives the same samples (the numpy code
 stays beside it as the reference and the fallback).  Numpy spends its time here on temporaries and
 on a transcendental pair per sample; one loop over the block does not (issue 14, CPU ms per 10 000
-samples: the sine 0.20 -> 0.017, the force filter 0.086 -> 0.035, noise + ADC 0.025 -> 0.005 a channel).
+samples: the sine 0.20 -> 0.017, the force filter 0.086 -> 0.035, noise + ADC 0.025 -> 0.005 a channel,
+the noise draws 0.094 -> 0.039 a channel).
 
 Imported only when ``hystbench.jit.enabled()`` (so importing the rig never imports numba); callers
 pass C-contiguous float64 arrays, so one specialisation serves every call.
@@ -18,7 +19,7 @@ import numpy as np
 
 from ..jit import njit
 
-__all__ = ["sine_and_rate", "sosfilt", "noise_adc", "ANGLE_BLOCK"]
+__all__ = ["sine_and_rate", "sosfilt", "standard_normal", "noise_adc", "ANGLE_BLOCK"]
 
 #: Samples per exact angle in :func:`sine_and_rate`: the table costs 2 x ANGLE_BLOCK sin/cos a call,
 #: each exact angle 2, the samples in between one complex multiply.
@@ -88,6 +89,15 @@ def sosfilt(sos: np.ndarray, zi: np.ndarray, x: np.ndarray, y: np.ndarray) -> No
         zi[s, 1] = z1
         src = y
         s += 2
+
+
+@njit(cache=True, nogil=True)
+def standard_normal(rng: np.random.Generator, out: np.ndarray) -> None:
+    """``out[:] = rng.standard_normal(out.size)``: numba's Generator runs numpy's ziggurat on the
+    same bit generator, so the draws and the generator's state after them are numpy's, at 4 ns a
+    draw instead of 9 (the noise was half of the rig's time: 5 channels x 10 000 draws a block)."""
+    for k in range(out.size):
+        out[k] = rng.standard_normal()
 
 
 @njit(cache=True, nogil=True)

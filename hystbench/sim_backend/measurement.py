@@ -177,7 +177,12 @@ class MeasurementChain:
                 x = self._skew[ch](x)
             sigma, full_scale, lsb = self._noise_adc[ch]
             # each channel its own generator: the draws never depend on the path or the cut
-            draws = None if sigma is None else self._rng[ch].standard_normal(x.size)
+            draws = None
+            if sigma is not None and kernels is not None:
+                draws = np.empty(x.size)
+                kernels.standard_normal(self._rng[ch], draws)
+            elif sigma is not None:
+                draws = self._rng[ch].standard_normal(x.size)
             if kernels is not None:
                 x = np.ascontiguousarray(x, dtype=np.float64)
                 y = np.empty(x.size)

@@ -144,6 +144,21 @@ def test_noise_adc_kernel_gives_the_reference_codes_and_clip_flag(seed, n, noisy
     assert clip == ref_clip == (quantise and bool(np.any(np.abs(x + (sigma * draws if noisy else 0)) > full_scale)))
 
 
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), sizes=st.lists(st.integers(0, 3000), min_size=1, max_size=4))
+def test_noise_draws_kernel_gives_numpys_draws_and_leaves_the_same_state(seed, sizes):
+    """numba's Generator must run numpy's ziggurat on the shared bit generator: the same draws,
+    and the generator where numpy would have left it (the next block's draws depend on it)."""
+    from hystbench.sim_backend import kernels
+
+    ours, theirs = np.random.default_rng(seed), np.random.default_rng(seed)
+    for n in sizes:
+        out = np.empty(n)
+        kernels.standard_normal(ours, out)
+        np.testing.assert_array_equal(out, theirs.standard_normal(n))
+    assert ours.bit_generator.state == theirs.bit_generator.state
+
+
 def test_noise_adc_reference_is_todays_expression():
     """The numpy reference is the chain's expression: x + sigma*noise, clip to one LSB below full
     scale, round half to even on the LSB grid (checked here with Python's own round)."""
