@@ -20,7 +20,10 @@ Everything is vectorised over records ``b``; records that have converged drop ou
 Along the time axis the sums are taken block by block (``BLOCK`` samples): the regressors of a
 block are made, used and dropped, so the memory a fit needs does not grow with the record (a
 60 s recording at 100 kS/s has 6e6 samples; its N x 9 regressor matrix alone would be 412 MiB),
-and a block's temporaries stay in the processor's cache.
+and a block's temporaries stay in the processor's cache.  Short records are the exception that
+pays: a live window's regressors (25 000 samples x 9, 1.8 MB) are kept (:func:`bases`), as both
+passes of an evaluation and the next fits of the window at the same frequency need them; making
+their cos and sin was two thirds of the live estimator's time.
 Samples can be left out per channel (``mask``, e.g. outliers): they then weigh nothing, exactly as
 if they were not there (the Gram matrix loses their outer products, the degrees of freedom their
 count), while the time axis stays uniform.
@@ -28,6 +31,8 @@ count), while the time axis stays uniform.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,6 +43,11 @@ _EPS = np.finfo(np.float64).eps
 _STAT_TOL = 1e-6  # also stop once the frequency step is this small against its standard error
 BLOCK = 1 << 14  # samples of a record per block: its temporaries, ~p x BLOCK floats, stay in cache
 MIN_BLOCK = 256  # ... but at least this many of each record (many short records share a block)
+#: An evaluation's regressors are kept between its two passes when they hold at most this many
+#: floats (8 MiB; a live window's 25 000 samples x 9 take 1.8 MB), else made again for the second.
+KEEP_FLOATS = 1 << 20
+#: ... and up to this many floats of the latest evaluations' regressors, per thread (16 MiB).
+RECENT_FLOATS = 1 << 21
 
 
 @dataclass
@@ -53,9 +63,10 @@ class Solution:
     converged: np.ndarray  # (B,) bool
 
 
-def _basis(f: np.ndarray, ks: np.ndarray, tau: np.ndarray) -> np.ndarray:
-    """Regressors (b, p, N): a row of ones, then cos, sin for each harmonic.  One cos and one sin
-    of the fundamental; the harmonics follow by angle addition (k x eps of rounding at most)."""
+def basis_reference(f: np.ndarray, ks: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Regressors (b, p, N) at times ``tau``: a row of ones, then cos, sin for each harmonic; one
+    cos and one sin of the fundamental per sample, the harmonics by angle addition (k x eps of
+    rounding at most).  The plain form, kept as the reference :func:`_basis` is tested against."""
     phase = (_TWO_PI * f)[:, None] * tau[None, :]
     basis = np.empty((f.shape[0], 1 + 2 * ks.size, tau.size))
     basis[:, 0] = 1.0
@@ -66,6 +77,37 @@ def _basis(f: np.ndarray, ks: np.ndarray, tau: np.ndarray) -> np.ndarray:
         if k > 1:
             c, s = c * c1 - s * s1, s * c1 + c * s1
         if k in rows:
+            basis[:, 1 + 2 * rows[k]] = c
+            basis[:, 2 + 2 * rows[k]] = s
+    return basis
+
+
+def _basis(f: np.ndarray, ks: np.ndarray, sl: slice, n: int, fs: float) -> np.ndarray:
+    """Regressors (b, p, L) of samples ``sl`` of an ``n``-sample record: a row of ones, then cos,
+    sin for each harmonic: :func:`basis_reference`'s numbers, bit for bit (the same operations in
+    the same order), with the harmonics written straight into their rows."""
+    nr, length = f.shape[0], sl.stop - sl.start
+    basis = np.empty((nr, 1 + 2 * ks.size, length))
+    basis[:, 0] = 1.0
+    phase = (_TWO_PI * f)[:, None] * times(sl, n, fs)[None, :]
+    c1, s1 = np.cos(phase), np.sin(phase)
+    rows = {int(k): j for j, k in enumerate(ks)}
+    top = int(ks[-1])
+    scratch = np.empty((2, 2, nr, length)) if top > 1 else None  # harmonics not fitted, by parity
+    tmp = np.empty((2, nr, length)) if top > 1 else None
+    c, s = c1, s1
+    for k in range(1, top + 1):
+        if k > 1:  # c, s <- c c1 - s s1, s c1 + c s1 (the reference's operations, in its order)
+            j = rows.get(k)
+            cn = basis[:, 1 + 2 * j] if j is not None else scratch[k % 2, 0]
+            sn = basis[:, 2 + 2 * j] if j is not None else scratch[k % 2, 1]
+            cc, ss = np.multiply(c, c1, out=tmp[0]), np.multiply(s, s1, out=tmp[1])
+            np.subtract(cc, ss, out=cn)
+            np.multiply(s, c1, out=cc)
+            np.multiply(c, s1, out=ss)
+            np.add(cc, ss, out=sn)
+            c, s = cn, sn
+        elif k in rows:
             basis[:, 1 + 2 * rows[k]] = c
             basis[:, 2 + 2 * rows[k]] = s
     return basis
@@ -82,6 +124,72 @@ def times(sl: slice, n: int, fs: float) -> np.ndarray:
     """Time of samples ``sl`` from the centre of an ``n``-sample record (s); the same numbers,
     element by element, as the whole record's time axis."""
     return (np.arange(sl.start, sl.stop) - (n - 1) / 2.0) / fs
+
+
+class Bases:
+    """The regressors of every block of ``n``-sample records at frequencies ``f`` (b,), made on
+    first use and kept when small (at most :data:`KEEP_FLOATS`), with their Gram matrices (the
+    same for every channel when no sample is left out): an evaluation's two passes share them,
+    and so do later fits at the same frequency (see :func:`bases`).  Read-only."""
+
+    def __init__(self, f: np.ndarray, ks: np.ndarray, n: int, fs: float) -> None:
+        self.f, self.ks, self.n, self.fs = f, ks, n, fs
+        self.slices = blocks(n, f.shape[0])
+        self.floats = f.shape[0] * (1 + 2 * ks.size) * n
+        self.kept = self.floats <= KEEP_FLOATS
+        self._bases: list[np.ndarray] = []
+        self._grams: dict[int, np.ndarray] = {}
+
+    def __iter__(self):
+        for i, sl in enumerate(self.slices):
+            if i < len(self._bases):
+                yield sl, self._bases[i]
+                continue
+            basis = _basis(self.f, self.ks, sl, self.n, self.fs)
+            basis.flags.writeable = False
+            if self.kept and i == len(self._bases):
+                self._bases.append(basis)
+            yield sl, basis
+
+    def gram(self, i: int, basis: np.ndarray) -> np.ndarray:
+        """Gram matrices (b, p, p) of block ``i``'s regressors ``basis`` (as iteration gave them)."""
+        g = self._grams.get(i)
+        if g is None:
+            g = basis @ np.swapaxes(basis, -1, -2)
+            if self.kept:
+                g.flags.writeable = False
+                self._grams[i] = g
+        return g
+
+
+_recent = threading.local()  # per thread: the latest Bases, most recent last
+
+
+def bases(f: np.ndarray, ks: np.ndarray, n: int, fs: float) -> Bases:
+    """The :class:`Bases` at frequencies ``f``: the same object as a recent call's when the
+    arguments are equal (bit for bit), else a new one, remembered when small.
+
+    The live estimator's fits of one window keep coming back to one frequency: the second
+    outlier pass starts where the first ended, the outlier test takes residuals there, and the
+    force's fit and the two drive fits start at the frequency the current and flux found.  This
+    thread's last :data:`RECENT_FLOATS` floats of regressors are kept (per thread: nothing is
+    shared, so no lock)."""
+    f = np.array(f, dtype=np.float64)
+    key = (f.tobytes(), ks.tobytes(), int(n), float(fs))
+    recent: OrderedDict[tuple, Bases] | None = getattr(_recent, "lru", None)
+    if recent is None:
+        recent = _recent.lru = OrderedDict()
+    hit = recent.get(key)
+    if hit is not None:
+        recent.move_to_end(key)
+        return hit
+    made = Bases(f, ks, n, fs)
+    if made.kept:
+        recent[key] = made
+        total = sum(b.floats for b in recent.values())
+        while total > RECENT_FLOATS:
+            total -= recent.popitem(last=False)[1].floats
+    return made
 
 
 def _block(x: np.ndarray, mask: np.ndarray | None, rows, sl: slice):
@@ -104,38 +212,36 @@ def _sum_squares(x: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
     return out
 
 
-def _normal(x, mask, rows, f, ks, fs):
-    """Normal equations at frequencies ``f`` of records ``rows``, summed block by block: Gram
-    matrices (b, 1, p, p), or (b, C, p, p) per channel when samples are left out, and the
-    projections (b, C, p) of the data on the regressors."""
-    n, nc, nr = x.shape[-1], x.shape[1], f.shape[0]
-    p = 1 + 2 * ks.size
+def _normal(x, mask, rows, regs: Bases):
+    """Normal equations at the frequencies of ``regs`` for records ``rows``, summed block by
+    block: Gram matrices (b, 1, p, p), or (b, C, p, p) per channel when samples are left out, and
+    the projections (b, C, p) of the data on the regressors."""
+    nc, nr = x.shape[1], regs.f.shape[0]
+    p = 1 + 2 * regs.ks.size
     gram = np.zeros((nr, 1 if mask is None else nc, p, p))
     proj = np.zeros((nr, nc, p))
-    for sl in blocks(n, nr):
-        basis = _basis(f, ks, times(sl, n, fs))
+    for i, (sl, basis) in enumerate(regs):
         bt = np.swapaxes(basis, -1, -2)
         xs, ms = _block(x, mask, rows, sl)
         if ms is None:
-            gram += (basis @ bt)[:, None]
+            gram += regs.gram(i, basis)[:, None]
         else:  # a left-out sample weighs nothing in its channel's Gram matrix
             gram += (basis[:, None] * ~ms[:, :, None, :]) @ bt[:, None]
         proj += xs @ bt
     return gram, proj
 
 
-def _residual_sums(x, mask, rows, f, ks, fs, coef, grad: bool):
-    """Residual sums of squares (b, C) of the fit ``coef`` at frequencies ``f``, block by block;
+def _residual_sums(x, mask, rows, regs: Bases, coef, grad: bool):
+    """Residual sums of squares (b, C) of the fit ``coef`` at the frequencies of ``regs``, block by block;
     with ``grad`` also what the Gauss-Newton step needs of the frequency column g = d(model)/df:
     g's projections on the regressors (b, C, p), g.g and g.residual (b, C)."""
-    n, nc, nr = x.shape[-1], x.shape[1], f.shape[0]
+    n, nc, nr, ks, fs = x.shape[-1], x.shape[1], regs.f.shape[0], regs.ks, regs.fs
     ssq = np.zeros((nr, nc))
     gb, gg, gr = np.zeros((nr, nc, coef.shape[-1])), np.zeros((nr, nc)), np.zeros((nr, nc))
     kc = coef[..., 2::2] * ks  # sine coefficients times k
     ka = coef[..., 1::2] * ks
-    for sl in blocks(n, nr):
+    for sl, basis in regs:
         tau = times(sl, n, fs)
-        basis = _basis(f, ks, tau)
         xs, ms = _block(x, mask, rows, sl)
         resid = xs - coef @ basis
         if ms is not None:
@@ -156,8 +262,8 @@ def residual_rows(x: np.ndarray, coef: np.ndarray, freq: np.ndarray, ks: np.ndar
     computed block by block: the only N-sized array is the result."""
     n = x.shape[-1]
     out = np.empty(x.shape)
-    for sl in blocks(n, x.shape[0]):
-        out[:, sl] = x[:, sl] - (coef[:, None, :] @ _basis(freq, ks, times(sl, n, fs)))[:, 0]
+    for sl, basis in bases(freq, ks, n, fs):
+        out[:, sl] = x[:, sl] - (coef[:, None, :] @ basis)[:, 0]
     return out
 
 
@@ -176,8 +282,9 @@ def solve(
     N, bool) marks samples to leave out (their values are not used).
 
     Each evaluation at a trial frequency takes two passes over the samples, block by block (the
-    normal equations, then the residuals and the frequency column at the solved coefficients),
-    so no N x p regressor matrix ever exists, whatever N."""
+    normal equations, then the residuals and the frequency column at the solved coefficients);
+    the regressors are made once for both when small (:class:`Bases`), else once per pass, so no
+    large N x p regressor matrix ever exists, whatever N."""
     nb, nc, n = x.shape
     if mask is not None and not mask.any():
         mask = None
@@ -200,9 +307,10 @@ def solve(
     converged = np.zeros(nb, dtype=bool)
 
     if not fit_freq:
-        gram, proj = _normal(x, mask, slice(None), freq, ks, fs)
+        bases_f = bases(freq, ks, n, fs)
+        gram, proj = _normal(x, mask, slice(None), bases_f)
         coef = np.linalg.solve(gram, proj[..., None])[..., 0]
-        ssq = _residual_sums(x, mask, slice(None), freq, ks, fs, coef, grad=False)[0]
+        ssq = _residual_sums(x, mask, slice(None), bases_f, coef, grad=False)[0]
         iterations[:] = 1
         converged[:] = True
     else:
@@ -213,9 +321,10 @@ def solve(
         for it in range(1, max_iter + 1):
             rows = slice(None) if active.size == nb else active
             f_try = freq[active] + step[active]
-            g_try, proj = _normal(x, mask, rows, f_try, ks, fs)
+            bases_f = bases(f_try, ks, n, fs)
+            g_try, proj = _normal(x, mask, rows, bases_f)
             c_try = np.linalg.solve(g_try, proj[..., None])[..., 0]
-            s_try, g_b, g_g, g_r = _residual_sums(x, mask, rows, f_try, ks, fs, c_try, grad=True)
+            s_try, g_b, g_g, g_r = _residual_sums(x, mask, rows, bases_f, c_try, grad=True)
             cost = np.sum(np.log(s_try + floor[active]), axis=-1)
             iterations[active] = it
 
