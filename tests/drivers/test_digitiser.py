@@ -216,3 +216,30 @@ def test_docs_protocols_lists_every_command_of_every_dialect():
             assert f"`{msg}`" in section, (d.name, op, msg)
         for msg in d.on_open:
             assert f"`{msg}`" in section, (d.name, msg)
+
+
+# --- review R1: what the preamble says must be what the driver assumes ---------------------------------
+def test_points_further_apart_than_the_bench_clock_are_refused_not_read_as_consecutive_samples(scripted_peer):
+    """A digitiser that decimates (e.g. a scope's screen-resolution read: x_increment = 2/fs) sends
+    half the samples: read as consecutive samples of the clock they would be placed at the wrong
+    indices.  The preamble's x_increment must be one period of [bench] fs_hz."""
+    decimated = b"1,0,5,1,2e-05,0,0,1,0,0\n"
+    peer, dig = _fetch_with(scripted_peer, decimated, b"#210\x01\x00\x02\x00\x03\x00\x04\x00\x05\x00\n")
+    with pytest.raises(ProtocolError, match=r"'WAV:SOUR CHAN1;:WAV:PRE\?' \(CHAN1\): the points are 2e-05 s apart, "
+                                            r"not one period of the 100000 Hz clock"):
+        dig.fetch("CHAN1")
+    dig.link.close()
+
+
+@pytest.mark.parametrize("fields, wrong", [
+    (b"2;16;BIN;RI;MSB", "byt_or"),   # most significant byte first: every code byte-swapped
+    (b"2;16;BIN;RP;LSB", "bn_fmt"),   # unsigned codes: read as signed they wrap at half scale
+    (b"1;8;BIN;RI;LSB", "byt_nr"),    # one byte a point
+])
+def test_a_tektronix_preamble_whose_encoding_is_not_the_one_read_is_refused(fields, wrong):
+    d = sd.dialect("tektronix")
+    text = fields.decode() + ';"Ch1, DC coupling";3;Y;"s";1.0E-5;0;0;"V";5.0E-1;0.0E+0;0.0E+0'
+    with pytest.raises(ValueError, match=rf"preamble says {wrong} = "):
+        sd.Preamble.parse(text, d)
+    good = '2;16;BIN;RI;LSB;"Ch1, DC coupling";3;Y;"s";1.0E-5;0;0;"V";5.0E-1;0.0E+0;0.0E+0'
+    assert sd.Preamble.parse(good, d).points == 3

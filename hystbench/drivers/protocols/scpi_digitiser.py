@@ -89,7 +89,9 @@ class Dialect:
     once after opening, how channels are named, and the preamble's fields and separator.
 
     ``preamble_fields`` names every field of the reply in order; those named after a
-    :class:`Preamble` attribute are read, the rest are skipped."""
+    :class:`Preamble` attribute are read, ``encoding``'s must say what the driver reads (signed
+    16-bit codes, least significant byte first: else the codes would be silently wrong), the rest
+    are skipped."""
 
     name: str
     replaces: Mapping[str, Command | None]
@@ -98,6 +100,7 @@ class Dialect:
     separator: str = ","
     on_open: tuple[str, ...] = ()
     constants: Mapping[str, str] = field(default_factory=dict)  # the other fields' values (the emulator's)
+    encoding: tuple[str, ...] = ()  # fields of ``constants`` the instrument's reply must match (any case)
 
     def command(self, op: str) -> Command | None:
         return self.replaces[op] if op in self.replaces else GENERIC[op]
@@ -131,7 +134,8 @@ DIALECTS: Mapping[str, Dialect] = MappingProxyType({
         ("CH1", "CH2", "CH3", "CH4"), _TEK_FIELDS, separator=";", on_open=("HEADer OFF",),
         constants=MappingProxyType({"byt_nr": "2", "bit_nr": "16", "encdg": "BIN", "bn_fmt": "RI", "byt_or": "LSB",
                                     "wfid": '"hystbench emulation"', "pt_fmt": "Y", "xunit": '"s"',
-                                    "yunit": '"V"'})),
+                                    "yunit": '"V"'}),
+        encoding=("byt_nr", "encdg", "bn_fmt", "byt_or")),
 })
 
 
@@ -157,7 +161,11 @@ class Preamble:
     y_reference: float
 
     def first_index(self, fs_hz: float) -> int:
-        """The common-clock index of the segment's first point (exact: it must be a whole sample)."""
+        """The common-clock index of the segment's first point (exact: it must be a whole sample,
+        and the points one period of the clock apart, not decimated)."""
+        if abs(self.x_increment * fs_hz - 1.0) > 1e-6:  # an instrument prints about 9 digits
+            raise ValueError(f"the points are {self.x_increment!r} s apart, not one period of the {fs_hz:g} Hz "
+                             "clock (a decimated or resampled read)")
         t0 = self.x_origin - self.x_reference * self.x_increment
         k = t0 * fs_hz
         index = int(round(k))
@@ -172,6 +180,10 @@ class Preamble:
         if len(parts) != len(d.preamble_fields):
             raise ValueError(f"preamble has {len(parts)} fields, {len(d.preamble_fields)} expected: {text.strip()!r}")
         got = dict(zip(d.preamble_fields, parts))
+        for f in d.encoding:
+            if got[f].upper() != d.constants[f].upper():
+                raise ValueError(f"preamble says {f} = {got[f]!r}, the driver reads {d.constants[f]!r}: "
+                                 f"{text.strip()!r}")
         try:
             pre = cls(int(float(got["points"])), *(float(got[f]) for f in
                                                    ("x_increment", "x_origin", "x_reference", "y_increment",
