@@ -11,6 +11,8 @@ Exact indices: the task's buffer may overwrite what was not read in time
 ``total_samp_per_chan_acquired`` against the buffer: samples already overwritten are skipped and
 the frame starts later, which the stream reports as an exact gap.  Nothing is read twice or
 filled in.  Index 0 is the task's first sample: the generator's start trigger when one is given.
+Samples overwritten during a read (the reader was behind) are skipped the same way, the task
+running on: a reopened task would count from its own first sample again.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ __all__ = ["DaqmxFrameSource", "INSTALL_HINT"]
 
 INSTALL_HINT = "pip install hystbench[nidaqmx] (NI's nidaqmx package), and NI-DAQmx, NI's driver"
 RANGE_V = 10.0
+#: DAQmx's "samples no longer available": overwritten while being read (the reader was behind)
+SAMPLES_NO_LONGER_AVAILABLE = -200279
 
 
 def _import() -> tuple[Any, Any, Any, Any]:
@@ -122,6 +126,10 @@ class DaqmxFrameSource(FrameSource):
             stream.offset = self._next
             self._reader.read_many_sample(data, number_of_samples_per_channel=n, timeout=self.timeout_s)
         except errors.DaqError as err:
+            if getattr(err, "error_code", None) == SAMPLES_NO_LONGER_AVAILABLE:
+                # the task runs on: the next read skips to what the buffer still holds (an exact gap);
+                # a new task would count from its own first sample, behind what the stream already has
+                return []
             raise ConnectionError(f"{self.name}: NI-DAQmx read at sample {self._next}: {err}") from err
         frame = Frame(0, self._seq, self._next, data, 0)
         self._seq = (self._seq + 1) % (1 << 32)

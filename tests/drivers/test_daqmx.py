@@ -36,7 +36,9 @@ class ReadRelativeTo(Enum):
 
 
 class DaqError(Exception):
-    pass
+    def __init__(self, message: str = "", error_code: int = 0) -> None:
+        super().__init__(message)
+        self.error_code = error_code
 
 
 class DaqNotFoundError(Exception):
@@ -74,6 +76,8 @@ def fake_nidaqmx(card: Card) -> dict[str, types.ModuleType]:
 
         def read_many_sample(self, data, number_of_samples_per_channel, timeout):
             first = card.call("read_many_sample", data.shape, number_of_samples_per_channel)
+            if isinstance(first, Exception):
+                raise first
             data[:] = np.arange(first, first + data.shape[1]) + 1e6 * np.arange(data.shape[0])[:, None]
             return data.shape[1]
 
@@ -162,3 +166,36 @@ def test_the_real_package_without_nis_driver_says_what_to_install():
         pass
     with pytest.raises(ConfigError, match=r"NI-DAQmx \(NI's driver\) is not installed: pip install hystbench\[nidaqmx\]"):
         DaqmxFrameSource(CHANNELS, 1000.0).open()
+
+
+def test_samples_overwritten_while_being_read_are_an_exact_gap_not_a_new_task(monkeypatch):
+    """Review R1: the card overwrites the oldest unread samples while they are read (DAQmx error
+    -200279).  The task keeps running, so the next read skips to what the buffer still holds: an
+    exact gap.  Reopening instead would restart the indices at the new task's first sample, and the
+    stream would drop everything up to the old index as stale."""
+    gone = DaqError("Attempted to read samples that are no longer available.", error_code=-200279)
+    card = Card(OPEN + [
+        (("total_samp_per_chan_acquired",), 300),
+        (("in_stream.offset", 0), None), (("read_many_sample", (4, 300), 300), 0),
+        (("total_samp_per_chan_acquired",), 1200),  # 300..1199 asked for, overwritten during the read
+        (("in_stream.offset", 300), None), (("read_many_sample", (4, 900), 900), gone),
+        (("total_samp_per_chan_acquired",), 1600),  # the buffer holds 600..1599: 300..599 are gone
+        (("in_stream.offset", 600), None), (("read_many_sample", (4, 1000), 1000), 600),
+        (("close",), None),
+    ])
+    for name, mod in fake_nidaqmx(card).items():
+        monkeypatch.setitem(sys.modules, name, mod)
+    src = DaqmxFrameSource(CHANNELS, 1000.0, clock_source="/Dev1/PFI0", trigger_source="/Dev1/PFI1", buffer_s=1.0,
+                           poll_s=0.001)
+    stream = SampleStream("digitiser", src, ["current_A", "force_N", "flux_Wb", "command_V"], 1000.0,
+                          stall_timeout_s=60.0).start()
+    try:
+        a = stream.read(timeout_s=10.0)
+        b = stream.read(timeout_s=10.0)
+    finally:
+        stream.close()
+    assert card.step == len(card.script), f"only {card.step} of {len(card.script)} calls made"
+    assert (a.first_index, a.n, a.gap_samples) == (0, 300, 0)
+    assert (b.first_index, b.n, b.gap_samples) == (600, 1000, 300) and src.skipped == 300
+    assert stream.stats.reconnects == 0
+    np.testing.assert_array_equal(b.channels["current_A"], np.arange(600, 1600))
