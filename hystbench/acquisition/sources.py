@@ -244,6 +244,13 @@ class SyntheticSource:
         pass
 
 
+#: The shortest block the bench source hands on, in seconds of samples (unless a gap, a change of
+#: operating point or a stalled stream ends it sooner).  The streams' runs come in pieces of a few
+#: hundred samples; every block costs the pipeline's stages (publish, ring, estimate, record) their
+#: per-block overhead, so they are gathered; the price is at most this much latency on the raw data.
+MIN_BENCH_BLOCK_S = 0.02
+
+
 class BenchSource:
     """The instruments through the drivers: the bench file's four sample streams, aligned on the
     common clock (``drivers.StreamAligner``; gaps come out exact, as ``GAP`` blocks).  Instruments
@@ -253,8 +260,9 @@ class BenchSource:
 
     def __init__(self, bench_file: str | None = None, *, rig: str | None = None,
                  duration_s: float | None = None, sim: Mapping[str, Any] | None = None,
-                 excitation: tuple[float, float] | None = None, clear_faults: bool = False) -> None:
-        """``sim`` replaces keys of the bench file's [sim] table (the emulated rig, its seed and
+                 excitation: tuple[float, float] | None = None, clear_faults: bool = False,
+                 min_block_s: float = MIN_BENCH_BLOCK_S) -> None:
+        """``min_block_s``: the shortest block handed on (see :data:`MIN_BENCH_BLOCK_S`); ``sim`` replaces keys of the bench file's [sim] table (the emulated rig, its seed and
         effects; refused for hardware); ``excitation`` = (frequency Hz, current A-pp) is set on the
         generator once open (output off); ``clear_faults``: clear latched amplifier faults after
         opening (a restart after a fault; the output stays off)."""
@@ -263,6 +271,8 @@ class BenchSource:
         from ..drivers.bench import Bench
         from ..drivers.protocols.bench_config import load_bench_config
 
+        if not 0 <= min_block_s <= 1.0:  # before anything opens
+            raise ConfigError(f"bench source: min_block_s must be in [0, 1] s, got {min_block_s}")
         cfg = load_bench_config(bench_file or None)
         self.emu = None
         self.bench = None
@@ -286,6 +296,10 @@ class BenchSource:
             self.close()
             raise
         self.fs_hz = cfg.fs_hz
+        self.min_block_samples = max(1, int(round(min_block_s * self.fs_hz)))
+        #: the longest a block's first samples wait for the rest (a stalled stream, a clock running
+        #: behind real time): then what came goes on as it is
+        self.gather_s = max(0.05, 2.5 * min_block_s)
         self.rig = self.emu.rig.name if self.emu is not None else (rig or "ecore_pm")  # hardware: say which
         self.max_current_a = cfg.current_limit_a  # the peak coil current a command may ask
         self.channels = ["current_A", "force_N", "flux_Wb", "command_V"]
@@ -350,7 +364,7 @@ class BenchSource:
             limit = left  # a block ends where settling does, so each has one meta
             if cursor is not None and cursor < settle_until:
                 limit = settle_until - cursor if limit is None else min(limit, settle_until - cursor)
-            if (b := bench.read_aligned(limit)) is None:
+            if (b := bench.read_aligned(limit, min_samples=self.min_block_samples, gather_s=self.gather_s)) is None:
                 continue
             if left is not None:
                 left -= b.n

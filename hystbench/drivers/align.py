@@ -55,6 +55,30 @@ class StreamAligner:
         ends = self.ends()
         return min(self.names, key=lambda n: -(1 << 62) if ends[n] is None else ends[n])
 
+    def contiguous(self) -> tuple[int, bool]:
+        """``(n, ended)``: how many samples from the cursor every stream holds without a break (what
+        the next pops hand out without a gap), and whether a break in the stream that limits them
+        ends that run (it grows no more: what comes next starts with a gap).  ``(0, False)``
+        before the first block (the cursor is set by the first :meth:`pop`)."""
+        if self.cursor is None:
+            return 0, False
+        n, ended = None, False
+        for q in self._q.values():
+            end = self.cursor
+            broken = False
+            for b in q:
+                if b.end_index <= end:
+                    continue
+                if b.first_index > end:
+                    broken = True
+                    break
+                end = b.end_index
+            if n is None or end - self.cursor < n:
+                n, ended = end - self.cursor, broken
+            elif end - self.cursor == n:
+                ended = ended or broken
+        return n or 0, ended
+
     def _drop_before(self, index: int) -> None:
         for q in self._q.values():
             while q and q[0].end_index <= index:
@@ -80,19 +104,43 @@ class StreamAligner:
         n = min(q[0].n for q in self._q.values())
         if max_samples is not None:
             n = min(n, max_samples)
+        return self.take(n)
+
+    def take(self, n: int) -> SampleBlock:
+        """The next ``n`` aligned samples as one block (views where a stream holds them in one
+        piece, else joined), once every stream holds them without a break (``n`` at most
+        :meth:`contiguous`'s count after a :meth:`pop`; anything else raises ValueError).  One call
+        for many pops: the acquisition loop gathers blocks with it."""
+        first, end = self.cursor, self.cursor + n
         channels: dict[str, np.ndarray] = {}
         flags = BlockFlags.NONE
         meta: dict[str, float] = {}
-        for q in self._q.values():
-            b = q[0]
-            channels.update({c: x[:n] for c, x in b.channels.items()})
-            flags |= b.flags & ~BlockFlags.GAP
-            meta.update(b.meta)
+        fs_hz = 0.0
+        for name, q in self._q.items():
+            pieces: dict[str, list[np.ndarray]] = {}
+            pos = first
+            while q and pos < end:
+                b = q[0]
+                if b.end_index <= pos:
+                    q.popleft()
+                    continue
+                if b.first_index > pos:
+                    break
+                lo, hi = pos - b.first_index, min(end, b.end_index) - b.first_index
+                for c, x in b.channels.items():
+                    pieces.setdefault(c, []).append(x[lo:hi])
+                flags |= b.flags & ~BlockFlags.GAP
+                meta.update(b.meta)
+                fs_hz = b.fs_hz
+                pos = b.first_index + hi
+                if b.end_index <= end:
+                    q.popleft()
+            if pos != end:
+                raise ValueError(f"aligner: {name} does not hold samples {pos}..{end} (take {n} from {first})")
+            channels.update({c: v[0] if len(v) == 1 else np.concatenate(v) for c, v in pieces.items()})
         gap, self._pending_gap = self._pending_gap, 0
         if gap:
             flags |= BlockFlags.GAP
             self.gap_samples += gap
-        out = SampleBlock(self.cursor, next(iter(self._q.values()))[0].fs_hz, channels, flags=flags,
-                          gap_samples=gap, meta=meta)
-        self.cursor += n
-        return out
+        self.cursor = end
+        return SampleBlock(first, fs_hz, channels, flags=flags, gap_samples=gap, meta=meta)

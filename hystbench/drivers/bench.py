@@ -267,9 +267,17 @@ class Bench:
             while self._read_stream(name, 0.0):
                 pass
 
-    def read_aligned(self, max_samples: int | None = None, *, timeout_s: float = _STEP_S) -> SampleBlock | None:
+    def read_aligned(self, max_samples: int | None = None, *, timeout_s: float = _STEP_S,
+                     min_samples: int = 1, gather_s: float | None = None) -> SampleBlock | None:
         """One turn of the acquisition loop: the next aligned block of every channel (at most
         ``max_samples``), or None if none came within ``timeout_s``.
+
+        ``min_samples``: the block is gathered until it holds that many (or ``max_samples``, if
+        fewer): every block costs each pipeline stage its per-block overhead, and the streams'
+        runs come in pieces of a few hundred samples.  It ends early where a gap follows (the
+        block stays contiguous; the next one starts with the GAP) or once ``gather_s`` (default
+        ``timeout_s``) passed after its first samples came (a stalled stream holds up what
+        already came no longer).
 
         Every stream is drained into the one aligner first, so nothing piles up in a stream's
         queue however long the caller computed; then, if the aligner has no block yet, the turn
@@ -283,7 +291,27 @@ class Bench:
         if block is None and timeout_s > 0 and self._read_stream(self._aligner.waiting_for(), timeout_s):
             self._drain()
             block = self._aligner.pop(max_samples)
-        return block
+        want = min_samples if max_samples is None else min(min_samples, max_samples)
+        if block is None or block.n >= want:
+            return block
+        return self._gathered(block, want, max_samples, Deadline(timeout_s if gather_s is None else gather_s))
+
+    def _gathered(self, block: SampleBlock, want: int, max_samples: int | None, deadline: Deadline) -> SampleBlock:
+        """``block`` and the samples that follow it without a gap, once there are ``want`` of them in
+        all (or a gap ends the run, or the deadline passes): one contiguous block."""
+        al = self._aligner
+        while True:
+            n, ended = al.contiguous()
+            if block.n + n >= want or ended or deadline.expired:
+                break
+            try:
+                if not self._read_stream(al.waiting_for(), deadline.left()):
+                    break
+                self._drain()
+            except InstrumentError:  # a fault, recorded (output off): what came goes out; the next turn raises
+                break
+        take = n if max_samples is None else min(n, max_samples - block.n)
+        return block if take <= 0 else concatenate([block, al.take(take)])
 
     def discard_backlog(self) -> int:
         """Drop every sample the streams have delivered and not yet handed out: after a change (a new

@@ -1,0 +1,115 @@
+"""The acquisition loop gathers aligned blocks to a minimum size (issue 14: every block costs each
+pipeline stage its per-block overhead, and the streams' runs come in pieces of a few hundred
+samples).  Gathered blocks are contiguous, hold every sample at its own index (checked against the
+rig), lose nothing, and never reach across a gap: the block before a gap ends exactly where the
+samples stop, the next one starts with the GAP and its exact count."""
+
+import threading
+
+import numpy as np
+
+from hystbench.acquisition.sources import MIN_BENCH_BLOCK_S, BenchSource
+from hystbench.blocks import BlockFlags
+from hystbench.deadline import Deadline
+
+from .conftest import HANG_S, STALL_S, bench_file, expected_wire, skip_to, switched_on_at
+
+MIN = 2600  # more than the emulator's clock tick (1000) and the TCP/serial frames (500): gathered
+
+
+def read_gathered(hil, until_index, min_samples=MIN, max_samples=None):
+    """Aligned blocks of at least ``min_samples`` until they reach past ``until_index``; the timeout
+    only turns a hang into a failure (a block is never cut short by the machine's load)."""
+    out = []
+    while not out or out[-1].end_index <= until_index:
+        out.append(read_one(hil, max_samples, min_samples))
+    return out
+
+
+def read_one(hil, max_samples, min_samples):
+    """One block: turns of the loop until one comes (a turn that finds a stream with nothing yet gives None)."""
+    deadline = Deadline(HANG_S)
+    while (b := hil.bench.read_aligned(max_samples, timeout_s=HANG_S, min_samples=min_samples)) is None:
+        assert not deadline.expired, "no samples within the hang bound"
+    return b
+
+
+def check_samples(hil, blocks):
+    for b in blocks:
+        for name in b.channels:
+            np.testing.assert_allclose(b.channels[name], expected_wire(hil, name, b.first_index, b.n),
+                                       rtol=1e-12, atol=0, err_msg=f"{name} at {b.first_index}")
+
+
+def flowing(hil):
+    hil.bench.start_output()
+    streams = hil.bench.open_streams()
+    hil.wait_for(lambda: all(s.stats.frames > 0 for s in streams.values()), "frames on every stream")
+    skip_to(hil, switched_on_at(hil))
+
+
+def test_gathered_blocks_are_at_least_the_minimum_contiguous_and_the_rigs_samples(hil):
+    flowing(hil)
+    start = hil.bench.next_index
+    blocks = read_gathered(hil, start + 10 * MIN)
+    assert all(b.n >= MIN for b in blocks), [b.n for b in blocks]
+    assert blocks[0].first_index == start  # goes on where the last read stopped
+    for a, b in zip(blocks, blocks[1:]):
+        assert b.first_index == a.end_index and not b.flags & BlockFlags.GAP
+    check_samples(hil, blocks)
+
+
+def test_max_samples_still_caps_a_gathered_block(hil):
+    flowing(hil)
+    blocks = [read_one(hil, 1700, 10 * MIN) for _ in range(4)]
+    assert [b.n for b in blocks] == [1700] * 4  # the smaller of the two, exactly
+    for a, b in zip(blocks, blocks[1:]):
+        assert b.first_index == a.end_index
+    check_samples(hil, blocks)
+
+
+def test_a_gap_ends_the_gathered_block_where_the_samples_stop(hil):
+    flowing(hil)
+    faults = hil.emu.charge_amp.faults
+    at = hil.blocks_ahead(3)
+    faults.arm("drop_frames", 3, at_index=at)  # serial frames of 500: 1500 samples missing
+    hil.wait_for(lambda: not faults.drop_frames, "the emulator dropping the frames")
+    blocks = read_gathered(hil, hil.blocks_ahead(1))
+    gapped = [k for k, b in enumerate(blocks) if b.flags & BlockFlags.GAP]
+    assert len(gapped) == 1 and gapped[0] > 0
+    before, after = blocks[gapped[0] - 1], blocks[gapped[0]]
+    assert after.gap_samples == 1500 == after.first_index - before.end_index
+    # the block before the gap was not cut short by anything but the gap: it holds every sample up to it
+    assert before.end_index <= at + 500 and after.first_index == before.end_index + 1500
+    span = blocks[-1].end_index - blocks[0].first_index
+    assert sum(b.n for b in blocks) + 1500 == span  # nothing lost but the dropped frames
+    for a, b in zip(blocks, blocks[1:]):
+        assert b.first_index == a.end_index + b.gap_samples
+    check_samples(hil, blocks)
+
+
+def test_the_bench_source_hands_the_pipeline_blocks_of_at_least_its_minimum_losing_nothing(tmp_path):
+    """What the pipeline receives from the bench source: blocks of ``min_block_s`` or more (a block
+    ends early only where settling does, so each has one operating point), contiguous, no gap."""
+    src = BenchSource(str(bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}"})))
+    src.gather_s = HANG_S  # only a hang cuts a block short (a busy machine runs the emulator slower)
+    stop = threading.Event()
+    try:
+        n_min = round(MIN_BENCH_BLOCK_S * src.fs_hz)
+        assert src.min_block_samples == n_min > src.emu.block_samples  # more than one clock tick: gathered
+        src.set_output(True)
+        blocks = src.blocks(stop)
+        got = []
+        for b in blocks:
+            got.append(b)
+            if sum(1 for g in got if "settling" not in g.meta) >= 8:
+                break
+    finally:
+        stop.set()
+        src.close()
+    assert any(b.meta.get("settling") for b in got)  # the switch-on's settling was seen, and its end
+    for k, b in enumerate(got):
+        ends_settling = "settling" in b.meta and k + 1 < len(got) and "settling" not in got[k + 1].meta
+        assert b.n >= n_min or ends_settling, (k, b.n, b.meta)
+    for a, b in zip(got, got[1:]):
+        assert b.first_index == a.end_index and not b.flags & BlockFlags.GAP  # contiguous, nothing lost
