@@ -185,3 +185,38 @@ def test_a_raw_socket_speaks_scpi_to_the_emulated_digitiser_and_reads_its_error_
             assert ask(b"SYST:ERR?") == b'-224,"Illegal parameter value"'
             assert ask(b"SYST:ERR?") == b'-113,"Undefined header"'
             assert ask(b"SYST:ERR?") == b'0,"No error"'
+
+
+def test_a_hole_in_the_emulated_memory_ends_the_segment_nothing_is_shifted_across_it():
+    """Review R1: while the digitiser is stopped (the stream's reopen sends STOP, then RUN) its
+    memory has a hole.  A segment read across it must end there (the next one starts after it: a
+    gap the driver sees), never carry the later samples at the earlier indices.  Each sample's code
+    is its own index, so a shifted sample shows."""
+    from hystbench.blocks import SampleBlock
+    from hystbench.drivers.digitiser import ScpiDigitiser, VisaLink
+    from hystbench.drivers.protocols import scpi_digitiser as sd
+    from hystbench.sim_backend.emulators.digitiser import Y_INCREMENT, DigitiserEmulator
+
+    emu = DigitiserEmulator(1e5, {s: (k, 1.0) for k, s in enumerate(SCALES, start=1)})
+
+    def clock_block(first: int, n: int = 1000) -> None:
+        volts = np.arange(first, first + n) * Y_INCREMENT  # code = index, exact
+        emu.on_block(SampleBlock(first, 1e5, {s: volts for s in SCALES}))
+
+    dig = ScpiDigitiser(VisaLink(emu.addresses["visa"], HANG_S), sd.dialect("generic"), 1e5)
+    try:
+        dig.open(("CHAN1",))
+        clock_block(0)
+        assert dig.fetch("CHAN1")[0] == 0
+        clock_block(1000)  # not read yet when the acquisition stops
+        dig.send("stop")
+        clock_block(2000)  # not acquired: the hole
+        dig.send("run")
+        clock_block(3000)
+        got = [dig.fetch("CHAN1") for _ in range(2)]
+    finally:
+        dig.close()
+        emu.close()
+    for (first, volts, _), want_first in zip(got, (1000, 3000)):
+        assert first == want_first
+        np.testing.assert_array_equal(np.round(volts / Y_INCREMENT), np.arange(want_first, want_first + 1000))

@@ -85,17 +85,23 @@ class DigitiserEmulator:
                     self._latched.pop(ch, None)
 
     def _segment(self, ch: int) -> tuple[int, np.ndarray]:
-        """The next unread points of channel ``ch`` (at most ``max_points``)."""
+        """The next unread points of channel ``ch`` (at most ``max_points``), contiguous: a hole in
+        the memory (acquisition stopped, blocks lost) ends a segment, and the next one starts after
+        it, so the driver sees the jump (a gap) and no sample is carried to another's index."""
         start = self._read_at[ch]
         if start is None:
             return 0, np.empty(0, sd.CODE_DTYPE)
-        parts, n = [], 0
+        parts, n, at = [], 0, start
         for first, codes in self._memory[ch]:
-            if first + codes.size <= start:
+            if first + codes.size <= at:
                 continue
-            piece = codes[max(0, start - first):]
-            parts.append(piece[:self.max_points - n])
+            if first > at:  # a hole
+                if parts:
+                    break
+                start = at = first
+            parts.append(codes[at - first:][:self.max_points - n])
             n += parts[-1].size
+            at += parts[-1].size
             if n >= self.max_points:
                 break
         return start, (np.concatenate(parts) if parts else np.empty(0, sd.CODE_DTYPE))
