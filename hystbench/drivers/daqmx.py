@@ -38,13 +38,14 @@ RANGE_V = 10.0
 SAMPLES_NO_LONGER_AVAILABLE = -200279
 
 
-def _import() -> tuple[Any, Any, Any, Any]:
-    """(nidaqmx, its constants, stream_readers, errors), or a ConfigError saying what to install."""
+def _import(where: str = "[digitiser]") -> tuple[Any, Any, Any, Any]:
+    """(nidaqmx, its constants, stream_readers, errors), or a ConfigError saying what to install
+    (``where``: the bench file and table that asked for it)."""
     try:
         return tuple(importlib.import_module(m) for m in ("nidaqmx", "nidaqmx.constants", "nidaqmx.stream_readers",
                                                            "nidaqmx.errors"))  # type: ignore[return-value]
     except ImportError as err:
-        raise ConfigError(f'[digitiser] kind = "daqmx" needs the nidaqmx package, which is not installed: '
+        raise ConfigError(f'{where} kind = "daqmx" needs the nidaqmx package, which is not installed: '
                           f"{INSTALL_HINT}") from err
 
 
@@ -54,9 +55,10 @@ class DaqmxFrameSource(FrameSource):
 
     def __init__(self, channels: list[str], fs_hz: float, *, clock_source: str = "", trigger_source: str = "",
                  name: str = "digitiser", buffer_s: float = 10.0, max_read: int = 100_000,
-                 poll_s: float = 0.005, timeout_s: float = 1.0) -> None:
+                 poll_s: float = 0.005, timeout_s: float = 1.0, where: str = "[digitiser]") -> None:
         self.channels, self.fs_hz = list(channels), float(fs_hz)
         self.clock_source, self.trigger_source, self.name = clock_source, trigger_source, name
+        self.where = where  # named in the errors a user can fix: the bench file and its table
         self.buffer = int(round(buffer_s * fs_hz))
         self.max_read, self.poll_s, self.timeout_s = max_read, poll_s, timeout_s
         self.deframer_stats = DeframerStats()
@@ -73,15 +75,16 @@ class DaqmxFrameSource(FrameSource):
         from .digitiser import SIGNALS
 
         return cls([dc.channels[s] for s in SIGNALS], bench.fs_hz, clock_source=dc.clock_source,
-                   trigger_source=dc.trigger_source, timeout_s=dc.timeout_s or bench.timeout_s)
+                   trigger_source=dc.trigger_source, timeout_s=dc.timeout_s or bench.timeout_s,
+                   where=f"{bench.source} [digitiser]")
 
     def open(self) -> None:
-        nidaqmx, const, readers, errors = self._mods = _import()
+        nidaqmx, const, readers, errors = self._mods = _import(self.where)
         self.close()
         try:
             task = nidaqmx.Task()
         except errors.DaqNotFoundError as err:
-            raise ConfigError(f'[digitiser] kind = "daqmx": NI-DAQmx (NI\'s driver) is not installed: {INSTALL_HINT}') \
+            raise ConfigError(f'{self.where} kind = "daqmx": NI-DAQmx (NI\'s driver) is not installed: {INSTALL_HINT}') \
                 from err
         try:
             for ch in self.channels:

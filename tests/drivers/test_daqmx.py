@@ -199,3 +199,20 @@ def test_samples_overwritten_while_being_read_are_an_exact_gap_not_a_new_task(mo
     assert (b.first_index, b.n, b.gap_samples) == (600, 1000, 300) and src.skipped == 300
     assert stream.stats.reconnects == 0
     np.testing.assert_array_equal(b.channels["current_A"], np.arange(600, 1600))
+
+
+def test_the_install_error_names_the_bench_file_that_asked_for_daqmx(monkeypatch, tmp_path):
+    """Review R1: the error a user fixes names the file and table (the project's rule for bad input)."""
+    from hystbench.drivers.digitiser import _source_class
+    from hystbench.drivers.protocols.bench_config import DEFAULT_BENCH, load_bench_config
+
+    text = (DEFAULT_BENCH.parent / "bench_digitiser.toml").read_text()
+    table = ('[digitiser]\nbackend = "hardware"\nkind = "daqmx"\nchannels = { current_A = "Dev1/ai0", '
+             'force_N = "Dev1/ai1", flux_Wb = "Dev1/ai2", command_V = "Dev1/ai3" }\n')
+    path = tmp_path / "my_bench.toml"
+    path.write_text(text.split("\n[digitiser]\n")[0] + "\n" + table)
+    bench = load_bench_config(path)
+    monkeypatch.setitem(sys.modules, "nidaqmx", None)
+    src = _source_class("daqmx").from_config(bench.digitiser, bench)
+    with pytest.raises(ConfigError, match=rf'^{str(path)!s} \[digitiser\] kind = "daqmx" needs the nidaqmx package'):
+        src.open()
