@@ -84,8 +84,8 @@ class DaqmxFrameSource(FrameSource):
         try:
             task = nidaqmx.Task()
         except errors.DaqNotFoundError as err:
-            raise ConfigError(f'{self.where} kind = "daqmx": NI-DAQmx (NI\'s driver) is not installed: {INSTALL_HINT}') \
-                from err
+            raise ConfigError(f'{self.where} kind = "daqmx": NI-DAQmx (NI\'s driver) is not installed: '
+                              f"{INSTALL_HINT}") from err
         try:
             for ch in self.channels:
                 task.ai_channels.add_ai_voltage_chan(ch, min_val=-RANGE_V, max_val=RANGE_V)
