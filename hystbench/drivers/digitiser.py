@@ -276,7 +276,7 @@ class DigitiserFrameSource(FrameSource):
         d = sd.dialect(dc.dialect)
         link = VisaLink(dc.url, dc.timeout_s or bench.timeout_s)
         return cls(ScpiDigitiser(link, d, bench.fs_hz, max_points=dc.max_points),
-                   [dc.channels[s] for s in SIGNALS])
+                   [d.channel(dc.channels[s]) for s in SIGNALS])  # the file's spelling checked at load
 
     def open(self) -> None:
         # what the joiner holds stays: its indices count the digitiser's clock, which a new session keeps

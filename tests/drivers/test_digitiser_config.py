@@ -103,3 +103,25 @@ def test_each_digitiser_variant_of_bench_hardware_loads_when_uncommented(tmp_pat
     d = load_bench_config(p).digitiser
     assert d.kind == kind and d.backend == "hardware" and set(d.channels) == {"current_A", "force_N", "flux_Wb",
                                                                               "command_V"}
+
+
+@pytest.mark.parametrize("spelt", ["chan1", "channel1", "Channel1", "CHANnel1"])
+def test_a_channel_spelt_any_scpi_way_is_selected_as_that_channel(tmp_path, spelt):
+    """Review R1: the file accepts any SCPI spelling of a channel (case-insensitive, short or long),
+    so the driver must send that channel: 'chan1' was sent as 'WAV:SOUR 1' (the short form of a
+    lower-case word is its digits), which the instrument refuses at open."""
+    import dataclasses
+
+    from hystbench.drivers.digitiser import DigitiserFrameSource
+    from hystbench.sim_backend.emulators.digitiser import DigitiserEmulator
+
+    cfg = load(tmp_path, TABLE.replace('"CHAN1"', f'"{spelt}"'))
+    emu = DigitiserEmulator(cfg.fs_hz, {s: (k, 1.0) for k, s in enumerate(
+        ("current_A", "force_N", "flux_Wb", "command_V"), start=1)})
+    src = DigitiserFrameSource.from_config(dataclasses.replace(cfg.digitiser, url=emu.addresses["visa"]), cfg)
+    try:
+        src.open()  # each channel selected with its SYST:ERR? check: a refused one raises here
+        assert b"WAV:SOUR CHAN1" in emu.commands_seen
+    finally:
+        src.close()
+        emu.close()

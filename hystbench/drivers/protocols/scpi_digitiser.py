@@ -105,6 +105,14 @@ class Dialect:
     def command(self, op: str) -> Command | None:
         return self.replaces[op] if op in self.replaces else GENERIC[op]
 
+    def channel(self, name: str) -> str:
+        """The short form of the channel ``name`` names, in any SCPI spelling ('chan1', 'Channel1'
+        -> 'CHAN1'): what the driver sends (the short form of a lower-case word is its digits)."""
+        for canonical in self.channel_names:
+            if header_matches(canonical, name):
+                return short_form(canonical)
+        raise ValueError(f"{name!r} is not a channel of dialect {self.name!r}")
+
     @property
     def commands(self) -> dict[str, Command]:
         return {op: c for op in GENERIC if (c := self.command(op)) is not None}
