@@ -220,12 +220,14 @@ class SegmentJoiner:
 
     Each channel's samples wait here until every channel has them; a channel whose next segment
     starts later than its last one ended (lost memory) drops what the others hold before that
-    index, so the frame after it starts later: the stream reports the exact gap."""
+    index, so the frame after it starts later: the stream reports the exact gap.  A clipped
+    segment flags CLIP on every frame holding any of its span (its part past what the other
+    channels have goes out in a later frame)."""
 
     def __init__(self, n_channels: int) -> None:
         self._first: list[int | None] = [None] * n_channels
         self._data: list[np.ndarray] = [np.empty(0)] * n_channels
-        self._clip = False
+        self._clips: list[tuple[int, int]] = []  # [first, end) of the segments that clipped
         self.seq = 0
 
     def push(self, k: int, first: int, volts: np.ndarray, clipped: bool) -> None:
@@ -236,7 +238,8 @@ class SegmentJoiner:
             self._first[k], self._data[k] = first, volts
         else:
             self._data[k] = np.concatenate([self._data[k], volts])
-        self._clip |= clipped
+        if clipped and volts.size:
+            self._clips.append((first, first + volts.size))
 
     def pop(self) -> Frame | None:
         if any(f is None for f in self._first):
@@ -248,8 +251,8 @@ class SegmentJoiner:
         rows = [d[start - f:end - f] for f, d in zip(self._first, self._data)]
         for k, (f, d) in enumerate(zip(self._first, self._data)):
             self._first[k], self._data[k] = end, d[end - f:]
-        flags = int(BlockFlags.CLIP) if self._clip else 0
-        self._clip = False
+        flags = int(BlockFlags.CLIP) if any(a < end and b > start for a, b in self._clips) else 0
+        self._clips = [(a, b) for a, b in self._clips if b > end]
         frame = Frame(0, self.seq, start, np.vstack(rows), flags)
         self.seq = (self.seq + 1) % (1 << 32)
         return frame

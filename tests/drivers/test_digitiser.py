@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hystbench.blocks import BlockFlags
 from hystbench.drivers.digitiser import DigitiserFrameSource, ScpiDigitiser, SegmentJoiner, VisaLink
 from hystbench.drivers.protocols import scpi_digitiser as sd
 from hystbench.errors import InstrumentTimeout, ProtocolError
@@ -243,3 +244,20 @@ def test_a_tektronix_preamble_whose_encoding_is_not_the_one_read_is_refused(fiel
         sd.Preamble.parse(text, d)
     good = '2;16;BIN;RI;LSB;"Ch1, DC coupling";3;Y;"s";1.0E-5;0;0;"V";5.0E-1;0.0E+0;0.0E+0'
     assert sd.Preamble.parse(good, d).points == 3
+
+
+def test_clip_goes_with_the_samples_of_the_clipped_segment_not_with_whichever_frame_is_next():
+    """Review R1: a channel read later in a round holds more samples than the first; the part of its
+    clipped segment past what every channel has goes out in the next frame, which must be flagged
+    CLIP too (the flag was spent on the earlier frame).  A frame outside every clipped segment is not."""
+    j = SegmentJoiner(2)
+    j.push(0, 0, np.zeros(100), False)
+    j.push(1, 0, np.zeros(150), True)  # clipped somewhere in 0..149
+    assert j.pop().flags == int(BlockFlags.CLIP)
+    j.push(0, 100, np.zeros(100), False)
+    j.push(1, 150, np.zeros(50), False)
+    f = j.pop()
+    assert (f.first_index, f.n) == (100, 100) and f.flags == int(BlockFlags.CLIP)  # 100..149 from the clipped read
+    j.push(0, 200, np.zeros(50), False)
+    j.push(1, 200, np.zeros(50), False)
+    assert j.pop().flags == 0
