@@ -139,6 +139,7 @@ class Bases:
         self.kept = self.floats <= KEEP_FLOATS
         self._bases: list[np.ndarray] = []
         self._grams: dict[int, np.ndarray] = {}
+        self._rates: dict[int, np.ndarray] = {}
 
     def __iter__(self):
         for i, sl in enumerate(self.slices):
@@ -160,6 +161,16 @@ class Bases:
                 g.flags.writeable = False
                 self._grams[i] = g
         return g
+
+    def two_pi_tau(self, i: int) -> np.ndarray:
+        """2 pi times the sample times of block ``i`` (s): d(phase)/df, for the frequency column."""
+        r = self._rates.get(i)
+        if r is None:
+            r = _TWO_PI * times(self.slices[i], self.n, self.fs)
+            if self.kept:
+                r.flags.writeable = False
+                self._rates[i] = r
+        return r
 
 
 _recent = threading.local()  # per thread: the latest Bases, most recent last
@@ -235,20 +246,19 @@ def _residual_sums(x, mask, rows, regs: Bases, coef, grad: bool):
     """Residual sums of squares (b, C) of the fit ``coef`` at the frequencies of ``regs``, block by block;
     with ``grad`` also what the Gauss-Newton step needs of the frequency column g = d(model)/df:
     g's projections on the regressors (b, C, p), g.g and g.residual (b, C)."""
-    n, nc, nr, ks, fs = x.shape[-1], x.shape[1], regs.f.shape[0], regs.ks, regs.fs
+    nc, nr, ks = x.shape[1], regs.f.shape[0], regs.ks
     ssq = np.zeros((nr, nc))
     gb, gg, gr = np.zeros((nr, nc, coef.shape[-1])), np.zeros((nr, nc)), np.zeros((nr, nc))
     kc = coef[..., 2::2] * ks  # sine coefficients times k
     ka = coef[..., 1::2] * ks
-    for sl, basis in regs:
-        tau = times(sl, n, fs)
+    for i, (sl, basis) in enumerate(regs):
         xs, ms = _block(x, mask, rows, sl)
         resid = xs - coef @ basis
         if ms is not None:
             resid[ms] = 0.0
         ssq += np.einsum("bcn,bcn->bc", resid, resid)
         if grad:
-            g = _TWO_PI * tau * (kc @ basis[:, 1::2] - ka @ basis[:, 2::2])  # (b, C, L)
+            g = regs.two_pi_tau(i) * (kc @ basis[:, 1::2] - ka @ basis[:, 2::2])  # (b, C, L)
             if ms is not None:
                 g[ms] = 0.0
             gb += g @ np.swapaxes(basis, -1, -2)
