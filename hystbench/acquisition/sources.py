@@ -364,6 +364,9 @@ class BenchSource:
             limit = left  # a block ends where settling does, so each has one meta
             if cursor is not None and cursor < settle_until:
                 limit = settle_until - cursor if limit is None else min(limit, settle_until - cursor)
+            if cursor is None:  # the first block no longer than the minimum: commands queued before the
+                # streams delivered (the switch-on) apply right after it, not after a whole backlog or burst
+                limit = self.min_block_samples if limit is None else min(limit, self.min_block_samples)
             if (b := bench.read_aligned(limit, min_samples=self.min_block_samples, gather_s=self.gather_s)) is None:
                 continue
             if left is not None:

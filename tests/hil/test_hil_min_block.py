@@ -14,7 +14,8 @@ from hystbench.deadline import Deadline
 
 from .conftest import HANG_S, STALL_S, bench_file, expected_wire, skip_to, switched_on_at
 
-MIN = 2600  # more than the emulator's clock tick (1000) and the TCP/serial frames (500): gathered
+TICK = {"sim.block_samples": "1000"}  # the emulator's clock tick, whatever the shipped default
+MIN = 2600  # more than the clock tick and the TCP/serial frames (500): blocks are gathered
 
 
 def read_gathered(hil, until_index, min_samples=MIN, max_samples=None):
@@ -48,7 +49,8 @@ def flowing(hil):
     skip_to(hil, switched_on_at(hil))
 
 
-def test_gathered_blocks_are_at_least_the_minimum_contiguous_and_the_rigs_samples(hil):
+def test_gathered_blocks_are_at_least_the_minimum_contiguous_and_the_rigs_samples(hil_factory):
+    hil = hil_factory(**TICK)
     flowing(hil)
     start = hil.bench.next_index
     blocks = read_gathered(hil, start + 10 * MIN)
@@ -59,7 +61,8 @@ def test_gathered_blocks_are_at_least_the_minimum_contiguous_and_the_rigs_sample
     check_samples(hil, blocks)
 
 
-def test_max_samples_still_caps_a_gathered_block(hil):
+def test_max_samples_still_caps_a_gathered_block(hil_factory):
+    hil = hil_factory(**TICK)
     flowing(hil)
     blocks = [read_one(hil, 1700, 10 * MIN) for _ in range(4)]
     assert [b.n for b in blocks] == [1700] * 4  # the smaller of the two, exactly
@@ -68,7 +71,8 @@ def test_max_samples_still_caps_a_gathered_block(hil):
     check_samples(hil, blocks)
 
 
-def test_a_gap_ends_the_gathered_block_where_the_samples_stop(hil):
+def test_a_gap_ends_the_gathered_block_where_the_samples_stop(hil_factory):
+    hil = hil_factory(**TICK)
     flowing(hil)
     faults = hil.emu.charge_amp.faults
     at = hil.blocks_ahead(3)
@@ -91,7 +95,7 @@ def test_a_gap_ends_the_gathered_block_where_the_samples_stop(hil):
 def test_the_bench_source_hands_the_pipeline_blocks_of_at_least_its_minimum_losing_nothing(tmp_path):
     """What the pipeline receives from the bench source: blocks of ``min_block_s`` or more (a block
     ends early only where settling does, so each has one operating point), contiguous, no gap."""
-    src = BenchSource(str(bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}"})))
+    src = BenchSource(str(bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}", **TICK})))
     src.gather_s = HANG_S  # only a hang cuts a block short (a busy machine runs the emulator slower)
     stop = threading.Event()
     try:
@@ -113,3 +117,23 @@ def test_the_bench_source_hands_the_pipeline_blocks_of_at_least_its_minimum_losi
         assert b.n >= n_min or ends_settling, (k, b.n, b.meta)
     for a, b in zip(got, got[1:]):
         assert b.first_index == a.end_index and not b.flags & BlockFlags.GAP  # contiguous, nothing lost
+
+
+def test_the_first_block_is_short_so_a_switch_on_given_before_applies_after_it(tmp_path):
+    """Commands apply between blocks, counted from the first sample: the first block is no longer
+    than the minimum, so the switch-on waits for at most that, not for a clock tick's burst or the
+    backlog the streams gathered while the bench opened."""
+    tick = {"sim.block_samples": "5000"}  # 50 ms bursts: longer than the minimum
+    src = BenchSource(str(bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}", **tick})))
+    src.gather_s = HANG_S
+    stop = threading.Event()
+    try:
+        assert src.min_block_samples < src.emu.block_samples
+        src.set_output(True)
+        blocks = src.blocks(stop)
+        first, second = next(blocks), next(blocks)
+    finally:
+        stop.set()
+        src.close()
+    assert first.n <= src.min_block_samples and not first.meta["output_on"]
+    assert second.first_index == first.end_index and second.meta["output_on"] and second.meta["settling"]
