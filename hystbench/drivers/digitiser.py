@@ -273,6 +273,7 @@ class DigitiserFrameSource(FrameSource):
         self.deframer_stats = DeframerStats()
         self._joiner = SegmentJoiner(len(channels))
         self._idle = threading.Event()  # never set: waits between polls are bounded by poll_s
+        self._opened = False  # a refusal at the first open is the user's to fix; on a reopen, a failed attempt
 
     @classmethod
     def from_config(cls, dc: DigitiserConfig, bench: BenchConfig) -> "DigitiserFrameSource":
@@ -288,6 +289,12 @@ class DigitiserFrameSource(FrameSource):
         except (InstrumentTimeout, ConnectionLost, ProtocolError) as err:
             self.digitiser.link.close()
             raise ConnectionError(str(err)) from err
+        except ConfigError as err:  # e.g. its rate no longer the bench's: the stream's reopen catches OSError only
+            self.digitiser.link.close()
+            if not self._opened:
+                raise
+            raise ConnectionError(str(err)) from err
+        self._opened = True
 
     def close(self) -> None:
         self.digitiser.close()

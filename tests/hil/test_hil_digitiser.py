@@ -220,3 +220,36 @@ def test_a_hole_in_the_emulated_memory_ends_the_segment_nothing_is_shifted_acros
     for (first, volts, _), want_first in zip(got, (1000, 3000)):
         assert first == want_first
         np.testing.assert_array_equal(np.round(volts / Y_INCREMENT), np.arange(want_first, want_first + 1000))
+
+
+def test_a_digitiser_whose_rate_changed_ends_the_stream_with_the_reason_not_a_dead_reader():
+    """Review R1: the rate changed on the instrument mid-run (e.g. its timebase turned): the points
+    come 2/fs apart, the read is refused and the stream reopens, where the rate check refuses the
+    session too.  That refusal (a ConfigError at the first open) must be one more failed attempt on
+    a reopen, so the stream ends with the reason; escaping the reader thread it left the stream
+    silent, no error, and a traceback on stderr."""
+    from hystbench.blocks import SampleBlock
+    from hystbench.drivers.base import Backoff
+    from hystbench.drivers.digitiser import DigitiserFrameSource, ScpiDigitiser, VisaLink
+    from hystbench.drivers.protocols import scpi_digitiser as sd
+    from hystbench.drivers.stream import SampleStream
+    from hystbench.errors import ConnectionLost
+    from hystbench.sim_backend.emulators.digitiser import DigitiserEmulator
+
+    emu = DigitiserEmulator(1e5, {s: (k, 1.0) for k, s in enumerate(SCALES, start=1)})
+    link = VisaLink(emu.addresses["visa"], HANG_S)
+    src = DigitiserFrameSource(ScpiDigitiser(link, sd.dialect("generic"), 1e5), ["CHAN1", "CHAN2", "CHAN3", "CHAN4"],
+                               poll_s=0.001)
+    stream = SampleStream("digitiser", src, list(SCALES), 1e5, stall_timeout_s=HANG_S,
+                          backoff=Backoff(initial_s=0.001, factor=1.0, max_s=0.001, attempts=2)).start()
+    try:
+        emu.on_block(SampleBlock(0, 1e5, {s: np.zeros(1000) for s in SCALES}))
+        assert stream.read(timeout_s=HANG_S).first_index == 0
+        emu.fs_hz = 5e4  # the instrument now samples at half the bench's clock
+        emu.on_block(SampleBlock(1000, 1e5, {s: np.zeros(1000) for s in SCALES}))
+        with pytest.raises(ConnectionLost, match=r"not one period of the 100000 Hz clock.*2 reconnection attempts"):
+            while stream.read(timeout_s=HANG_S) is not None:
+                pass
+    finally:
+        stream.close()
+        emu.close()
