@@ -57,7 +57,7 @@ MIN_EXPLAINED_ANYWAY = 0.05
 #: A channel with more outliers than this share of its samples is refused (a broken channel).
 MAX_OUTLIER_FRACTION = 0.01
 #: A channel is called clipped when more of its samples sit at its extreme value than this, and
-#: more than a quantised sine of its amplitude would have there (see :func:`_clipped_fraction`).
+#: more than a quantised sine of its amplitude would have there (see :func:`_unclipped_share`).
 MAX_PINNED_FRACTION = 0.02
 #: Harmonics fitted in every channel: the delay is read at one of them, the others keep the force's
 #: k2 i^2 term and the iron's distortion from leaking into it (records are not whole periods).
@@ -118,24 +118,31 @@ def has_magnet(rec: Recording) -> bool:
     return "magnet" in load_rig(rec.rig)
 
 
-def _clipped_fraction(x: np.ndarray) -> tuple[float, float, float]:
-    """(share of samples at the max or min, that value, the share allowed for an unclipped sine).
-
-    A sine of amplitude A quantised with step q stays on its extreme code for about
-    sqrt(2 q / A) / pi of the samples; clipping pins many more there.  Three times that is
-    allowed; q is the smallest step between distinct values (float data: effectively 0)."""
+def _pinned_fraction(x: np.ndarray) -> tuple[float, float]:
+    """(share of samples at the max or min, that value)."""
     lo, hi = float(x.min()), float(x.max())
     tol = 1e-12 * max(abs(lo), abs(hi), hi - lo)
     at_hi, at_lo = np.mean(x >= hi - tol), np.mean(x <= lo + tol)
-    frac, value = (float(at_hi), hi) if at_hi >= at_lo else (float(at_lo), lo)
+    return (float(at_hi), hi) if at_hi >= at_lo else (float(at_lo), lo)
+
+
+def _unclipped_share(x: np.ndarray) -> float:
+    """The share of samples a quantised sine of ``x``'s amplitude leaves on its extreme code.
+
+    A sine of amplitude A quantised with step q stays there for about sqrt(2 q / A) / pi of the
+    samples; clipping pins many more.  Three times that is allowed; q is the smallest step between
+    distinct values (float data: effectively 0).  A sort of the record: asked only when more than
+    MAX_PINNED_FRACTION sit at an extreme (the live stage checks every channel of every window)."""
     u = np.unique(x)
     q = float(np.min(np.diff(u))) if u.size > 1 else 0.0
-    expected = 3.0 * math.sqrt(2 * q / max((hi - lo) / 2, 1e-300)) / math.pi
-    return frac, value, expected
+    return 3.0 * math.sqrt(2 * q / max(float(np.ptp(x)) / 2, 1e-300)) / math.pi
 
 
 def _check_clipping(where: str, name: str, x: np.ndarray) -> None:
-    frac, value, expected = _clipped_fraction(x)
+    frac, value = _pinned_fraction(x)
+    if frac <= MAX_PINNED_FRACTION:
+        return
+    expected = _unclipped_share(x)
     if frac > max(MAX_PINNED_FRACTION, expected):
         raise EstimationError(f"{where}: channel {name!r} looks clipped: {100 * frac:.1f} % of its samples "
                               f"sit at {value:.6g} (a sine of its amplitude would have < "
