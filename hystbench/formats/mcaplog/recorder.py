@@ -81,6 +81,7 @@ class McapRecorder:
         self.paths: list[Path] = []
         self.messages = 0
         self.bytes_in = 0  # message bytes handed to the writer (before compression)
+        self._size_checked_in = 0  # bytes_in when the part's size was last asked
         self._writer = None
         self._fh = None
         self._channel_ids: dict[str, int] = {}
@@ -133,6 +134,7 @@ class McapRecorder:
         self._writer = w
         self.paths.append(path)
         self._part_started = self._last_flush = time.monotonic()
+        self._size_checked_in = self.bytes_in
 
     def rotate(self) -> Path:
         """Finish the open part and start the next one (e.g. after a fault: one part per run of
@@ -226,7 +228,10 @@ class McapRecorder:
     def _should_rotate(self, now: float) -> bool:
         if self.rotate_s is not None and now - self._part_started >= self.rotate_s:
             return True
-        return self.rotate_bytes is not None and self._fh is not None and self._fh.tell() >= self.rotate_bytes
+        if self.rotate_bytes is None or self._fh is None or self.bytes_in - self._size_checked_in < self.chunk_size // 2:
+            return False  # the part grows a chunk at a time: its size (a system call) is asked once one may be out
+        self._size_checked_in = self.bytes_in
+        return self._fh.tell() >= self.rotate_bytes
 
     @property
     def bytes_written(self) -> int:
