@@ -168,7 +168,7 @@ class ScpiDigitiser:
         self.send("clear_status", check=False)
         for msg in self.dialect.on_open:
             self.send_text(msg)
-        for op in ("clock_source", "trigger_source", "format", "byte_order"):
+        for op in ("clock_source", "trigger_source", "format", "unsigned", "byte_order", "points_mode"):
             self.send(op)
         self.send("points", value=self.max_points)
         for ch in channels:

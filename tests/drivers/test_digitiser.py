@@ -21,7 +21,9 @@ GENERIC_OPEN = [
     (b"ROSC:SOUR EXT\n", None), (b"SYST:ERR?\n", OK),
     (b"TRIG:SOUR EXT\n", None), (b"SYST:ERR?\n", OK),
     (b"WAV:FORM WORD\n", None), (b"SYST:ERR?\n", OK),
+    (b"WAV:UNS OFF\n", None), (b"SYST:ERR?\n", OK),
     (b"WAV:BYT LSBF\n", None), (b"SYST:ERR?\n", OK),
+    (b"WAV:POIN:MODE RAW\n", None), (b"SYST:ERR?\n", OK),
     (b"WAV:POIN 1000\n", None), (b"SYST:ERR?\n", OK),
     (b"ACQ:SRAT?\n", b"100000\n"),
     (b"RUN\n", None), (b"SYST:ERR?\n", OK),
@@ -83,7 +85,7 @@ def test_an_error_in_the_queue_after_a_setting_names_the_command_and_every_error
 def test_a_sample_rate_other_than_the_bench_clock_is_refused(scripted_peer):
     from hystbench.errors import ConfigError
 
-    peer = scripted_peer(GENERIC_OPEN[:12] + [(b"ACQ:SRAT?\n", b"250000\n")])
+    peer = scripted_peer(GENERIC_OPEN[:16] + [(b"ACQ:SRAT?\n", b"250000\n")])
     with pytest.raises(ConfigError, match="samples at 250000 Hz but \\[bench\\] fs_hz = 100000"):
         digitiser(peer).open()
     peer.check()
@@ -261,3 +263,22 @@ def test_clip_goes_with_the_samples_of_the_clipped_segment_not_with_whichever_fr
     j.push(0, 200, np.zeros(50), False)
     j.push(1, 200, np.zeros(50), False)
     assert j.pop().flags == 0
+
+
+# --- review R1 / H8: what the instrument sends after *RST is not what the driver reads -----------------
+def test_the_generic_open_asks_for_signed_codes_and_the_raw_memory_and_the_emulator_understands_both():
+    """InfiniiVision sends unsigned WORD codes after *RST (read as int16: off by half scale, silently)
+    and the decimated screen record unless :WAV:POIN:MODE RAW: the generic table must send both."""
+    from hystbench.sim_backend.emulators.digitiser import DigitiserEmulator
+
+    msgs = [c.message() for c in sd.dialect("generic").commands.values()]
+    assert "WAV:UNS OFF" in msgs and "WAV:POIN:MODE RAW" in msgs
+    emu = DigitiserEmulator(1e5, {"current_A": (1, 1.0)})
+    try:
+        for good in (b"WAV:UNS OFF", b"WAVeform:UNSigned off", b"WAV:POIN:MODE RAW"):
+            emu.handle(good)
+            assert not emu.errors, good
+        emu.handle(b"WAV:UNS ON")  # the emulator sends signed codes only: it refuses what it cannot do
+        assert [c for c, _ in emu.errors] == [-224]
+    finally:
+        emu.close()

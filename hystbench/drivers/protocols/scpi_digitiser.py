@@ -72,7 +72,10 @@ GENERIC: Mapping[str, Command] = MappingProxyType({
     "clock_source": _c("ROSCillator:SOURce", "EXTernal", doc="sample clock from the bench's common clock"),
     "trigger_source": _c("TRIGger:SOURce", "EXTernal", doc="the generator's sync starts the clock's zero"),
     "format": _c("WAVeform:FORMat", "WORD", doc="16-bit signed codes"),
+    "unsigned": _c("WAVeform:UNSigned", "OFF", doc="signed codes (InfiniiVision sends unsigned after *RST: read "
+                   "as int16 they would be off by half scale)"),
     "byte_order": _c("WAVeform:BYTeorder", "LSBFirst", doc="least significant byte first"),
+    "points_mode": _c("WAVeform:POINts:MODE", "RAW", doc="the acquisition memory, not the decimated screen record"),
     "points": _c("WAVeform:POINts", "100000", doc="most points one read returns"),
     "run": _c("RUN", doc="acquire continuously (armed: starts on the trigger)"),
     "stop": _c("STOP", doc="stop acquiring"),
@@ -133,7 +136,9 @@ DIALECTS: Mapping[str, Dialect] = MappingProxyType({
          "clock_source": _c("ROSCillator:SOURce", "EXTernal"),
          "trigger_source": _c("TRIGger:A:EDGE:SOUrce", "AUXiliary"),
          "format": _c("DATa:ENCdg", "SRIbinary", doc="signed, least significant byte first"),
+         "unsigned": None,  # SRIbinary is signed already
          "byte_order": _c("WFMOutpre:BYT_Nr", "2"),
+         "points_mode": None,  # CURVe? reads the record at full resolution
          "points": None,
          "run": _c("ACQuire:STATE", "RUN"), "stop": _c("ACQuire:STATE", "STOP"),
          "source": _c("DATa:SOUrce", "{ch}"),
