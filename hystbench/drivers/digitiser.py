@@ -107,7 +107,7 @@ class VisaLink:
 class ScpiDigitiser:
     """The digitiser's control and waveform reads, every message from its dialect's table.
 
-    ``open`` identifies it, sets it up (each setting followed by ``SYST:ERR?``; an error is a
+    ``open`` identifies it, sets it up (each setting followed by the dialect's error query; an error is a
     ProtocolError naming the command and every queued error), checks its sample rate against the
     bench's and starts it; ``fetch(channel)`` reads the next segment of one channel."""
 
@@ -145,18 +145,41 @@ class ScpiDigitiser:
             self.check_errors(msg)
 
     def check_errors(self, after: str) -> None:
-        """Read the error queue; raise naming ``after`` and every error if it holds any."""
+        """Read the error queue the dialect's way; raise naming ``after`` and every error if it
+        holds any.  SCPI: ``SYST:ERR?`` until 0.  Tektronix: ``*ESR?`` (which moves the events to
+        the queue); if it has an error bit, ``ALLEv?`` gives every event at once."""
+        errors = self._events() if self.dialect.reads_events else self._scpi_errors()
+        if errors:
+            raise ProtocolError(f"{self._where(after)}: the digitiser reports {'; '.join(errors)}")
+
+    def _scpi_errors(self) -> list[str]:
         errors = []
         for _ in range(_MAX_ERRORS):
             try:
                 code, text = scpi.parse_error_reply(self.query("error"))
             except ValueError as err:
-                raise ProtocolError(f"{self._where('SYST:ERR?')}: {err}") from err
+                raise ProtocolError(f"{self._where(self.dialect.cmd('error').message())}: {err}") from err
             if code == 0:
                 break
             errors.append(f"{code},\"{text}\"")
-        if errors:
-            raise ProtocolError(f"{self._where(after)}: the digitiser reports {'; '.join(errors)}")
+        return errors
+
+    def _events(self) -> list[str]:
+        esr_msg, ev_msg = self.dialect.cmd("event_status").message(), self.dialect.cmd("error").message()
+        text = self.query("event_status")
+        try:
+            esr = int(text.strip().split(" ")[-1])  # '32' (headers off) or ':*ESR 32'
+        except ValueError as err:
+            raise ProtocolError(f"{self._where(esr_msg)}: {text.strip()!r} is not a register value") from err
+        bits = [what for bit, what in sd.ESR_ERROR_BITS.items() if esr & bit]
+        if not bits:
+            return []
+        try:
+            events = sd.parse_event_reply(self.query("error"))
+        except ValueError as err:
+            raise ProtocolError(f"{self._where(ev_msg)}: {err}") from err
+        errors = [f"{code},\"{text}\"" for code, text in events if sd.is_error_event(code)]
+        return errors or [f"*ESR? = {esr} ({', '.join(bits)}) with no error in {ev_msg}"]
 
     def open(self, channels: tuple[str, ...] = ()) -> None:
         """Identify, set up and start the digitiser; each of ``channels`` is selected once here

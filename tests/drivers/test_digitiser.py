@@ -28,15 +28,16 @@ GENERIC_OPEN = [
     (b"ACQ:SRAT?\n", b"100000\n"),
     (b"RUN\n", None), (b"SYST:ERR?\n", OK),
 ]
+ESR0 = b"0\n"  # Tektronix: *ESR? with no error bit: the event queue is not read
 TEK_OPEN = [
     (b"*IDN?\n", b"TEKTRONIX,MSO44,C0001,CF:91.1CT FV:1.0\n"), (b"*CLS\n", None),
-    (b"HEADer OFF\n", None), (b"SYST:ERR?\n", OK),
-    (b"ROSC:SOUR EXT\n", None), (b"SYST:ERR?\n", OK),
-    (b"TRIG:A:EDGE:SOU AUX\n", None), (b"SYST:ERR?\n", OK),
-    (b"DAT:ENC SRI\n", None), (b"SYST:ERR?\n", OK),
-    (b"WFMO:BYT_N 2\n", None), (b"SYST:ERR?\n", OK),
+    (b"HEADer OFF\n", None), (b"*ESR?\n", ESR0),
+    (b"ROSC:SOUR EXT\n", None), (b"*ESR?\n", ESR0),
+    (b"TRIG:A:EDGE:SOU AUX\n", None), (b"*ESR?\n", ESR0),
+    (b"DAT:ENC SRI\n", None), (b"*ESR?\n", ESR0),
+    (b"WFMO:BYT_N 2\n", None), (b"*ESR?\n", ESR0),
     (b"HOR:MODE:SAMPLER?\n", b"1.0E+5\n"),
-    (b"ACQ:STATE RUN\n", None), (b"SYST:ERR?\n", OK),
+    (b"ACQ:STATE RUN\n", None), (b"*ESR?\n", ESR0),
 ]
 # a peer left with bytes the driver never read sees its close as a reset: not the driver's business
 pytestmark = pytest.mark.filterwarnings("ignore::pytest.PytestUnhandledThreadExceptionWarning")
@@ -57,7 +58,8 @@ def digitiser(peer, dialect="generic", timeout_s=2.0) -> ScpiDigitiser:
 ])
 def test_transcript_open_arm_and_one_waveform_read(scripted_peer, dialect, opening, fetch):
     ch = "CHAN2" if dialect == "generic" else "CH2"
-    select = [(b"WAV:SOUR CHAN2\n" if dialect == "generic" else b"DAT:SOU CH2\n", None), (b"SYST:ERR?\n", OK)]
+    select = [(b"WAV:SOUR CHAN2\n", None), (b"SYST:ERR?\n", OK)] if dialect == "generic" else \
+        [(b"DAT:SOU CH2\n", None), (b"*ESR?\n", ESR0)]
     opening = opening[:-3] + select + opening[-3:]  # each channel selected once at open, with its check
     peer = scripted_peer(opening + fetch + [(b"STOP\n" if dialect == "generic" else b"ACQ:STATE STOP\n", None)])
     dig = digitiser(peer, dialect)
@@ -280,5 +282,47 @@ def test_the_generic_open_asks_for_signed_codes_and_the_raw_memory_and_the_emula
             assert not emu.errors, good
         emu.handle(b"WAV:UNS ON")  # the emulator sends signed codes only: it refuses what it cannot do
         assert [c for c, _ in emu.errors] == [-224]
+    finally:
+        emu.close()
+
+
+# --- review R1 / H8: a Tektronix scope reads its errors as events, not from SYST:ERR? -----------------
+def test_tektronix_errors_are_read_with_esr_then_allev_and_each_error_event_is_named(scripted_peer):
+    """*ESR? with CME and EXE set (32 + 16): ALLEv? then gives every event at once; the status
+    event 402 (operation complete) is no error and is not reported."""
+    peer = scripted_peer(TEK_OPEN[:4] + [
+        (b"ROSC:SOUR EXT\n", None), (b"*ESR?\n", b"49\n"),
+        (b"ALLE?\n", b'113,"Undefined header; Command not found - ROSC:SOUR",402,"Operation complete",'
+                     b'224,"Illegal parameter value"\n')])
+    dig = digitiser(peer, "tektronix")
+    with pytest.raises(ProtocolError, match=r"'ROSC:SOUR EXT': the digitiser reports 113,\"Undefined header; Command "
+                                            r'not found - ROSC:SOUR\"; 224,"Illegal parameter value"$'):
+        dig.open()
+    dig.link.close()
+    peer.check()
+
+
+def test_allev_replies_parse_with_or_without_header_and_refuse_anything_else():
+    assert sd.parse_event_reply('0,"No events to report - queue empty"') == []
+    assert sd.parse_event_reply(':ALLEV 113,"Undefined header; unrecognized command"') == \
+        [(113, "Undefined header; unrecognized command")]
+    assert sd.parse_event_reply('ALLEV 113,"a ""quoted"" word",224,"b"') == [(113, 'a "quoted" word'), (224, "b")]
+    for bad in ("", '0,"No error" junk', "32", '113,"unterminated'):
+        with pytest.raises(ValueError, match="not an event-queue reply"):
+            sd.parse_event_reply(bad)
+
+
+@pytest.mark.parametrize("dialect, asks, answers", [
+    ("generic", [b"SYST:ERR?", b"SYST:ERR?"], [b'-113,"Undefined header"', b'0,"No error"']),
+    ("tektronix", [b"*ESR?", b"ALLE?", b"*ESR?", b"ALLE?"],
+     [b"32", b'113,"Undefined header"', b"0", b'0,"No events to report - queue empty"']),
+])
+def test_the_emulator_reports_an_undefined_header_in_each_dialects_error_query(dialect, asks, answers):
+    from hystbench.sim_backend.emulators.digitiser import DigitiserEmulator
+
+    emu = DigitiserEmulator(1e5, {"current_A": (1, 1.0)}, dialect=dialect)
+    try:
+        emu.handle(b"NO:SUCH:HEADer 1")
+        assert [emu.handle(a)[:-1] for a in asks] == answers
     finally:
         emu.close()

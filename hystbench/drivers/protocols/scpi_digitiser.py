@@ -17,6 +17,7 @@ clock's zero), so the first sample index is exact, and lost memory shows as a ju
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Callable, Mapping
@@ -27,7 +28,8 @@ from ...errors import InstrumentTimeout, ProtocolError
 from .scpi import encode_block, header_matches, short_form
 
 __all__ = ["Command", "Dialect", "GENERIC", "DIALECTS", "Preamble", "dialect", "read_block", "encode_block",
-           "codes_to_volts", "volts_to_codes", "compound", "split_units", "CODE_DTYPE", "FULL_SCALE_CODE"]
+           "codes_to_volts", "volts_to_codes", "compound", "split_units", "CODE_DTYPE", "FULL_SCALE_CODE",
+           "parse_event_reply", "format_event_reply", "is_error_event", "ESR_ERROR_BITS"]
 
 #: Sample codes on the wire: signed 16-bit, least significant byte first.
 CODE_DTYPE = np.dtype("<i2")
@@ -64,10 +66,11 @@ def _c(header: str, argument: str | None = None, *, query: bool = False, doc: st
 
 
 #: The generic command set: operation -> command.  The one place its SCPI is written.
-GENERIC: Mapping[str, Command] = MappingProxyType({
+GENERIC: Mapping[str, Command | None] = MappingProxyType({
     "identity": _c("*IDN", query=True, doc="maker,model,serial,firmware"),
     "clear_status": _c("*CLS", doc="empties the error queue"),
-    "error": _c("SYSTem:ERRor", query=True, doc='oldest error: <code>,"<text>"'),
+    "event_status": None,  # the SCPI error queue needs no latch: SYSTem:ERRor? reads it directly
+    "error": _c("SYSTem:ERRor", query=True, doc='oldest error: <code>,"<text>" (read until 0)'),
     "sample_rate": _c("ACQuire:SRATe", query=True, doc="samples per second: must equal [bench] fs_hz"),
     "clock_source": _c("ROSCillator:SOURce", "EXTernal", doc="sample clock from the bench's common clock"),
     "trigger_source": _c("TRIGger:SOURce", "EXTernal", doc="the generator's sync starts the clock's zero"),
@@ -108,6 +111,19 @@ class Dialect:
     def command(self, op: str) -> Command | None:
         return self.replaces[op] if op in self.replaces else GENERIC[op]
 
+    def cmd(self, op: str) -> Command:
+        """A command every dialect has (a ValueError naming the dialect, were one to lack it)."""
+        c = self.command(op)
+        if c is None:
+            raise ValueError(f"dialect {self.name!r} has no {op!r} command")
+        return c
+
+    @property
+    def reads_events(self) -> bool:
+        """Errors come from an event queue latched by ``*ESR?`` and read whole (Tektronix's
+        ``*ESR?`` then ``ALLEv?``), not from ``SYSTem:ERRor?`` one entry at a time."""
+        return self.command("event_status") is not None
+
     def channel(self, name: str) -> str:
         """The short form of the channel ``name`` names, in any SCPI spelling ('chan1', 'Channel1'
         -> 'CHAN1'): what the driver sends (the short form of a lower-case word is its digits)."""
@@ -137,6 +153,8 @@ DIALECTS: Mapping[str, Dialect] = MappingProxyType({
          "trigger_source": _c("TRIGger:A:EDGE:SOUrce", "AUXiliary"),
          "format": _c("DATa:ENCdg", "SRIbinary", doc="signed, least significant byte first"),
          "unsigned": None,  # SRIbinary is signed already
+         "event_status": _c("*ESR", query=True, doc="the event status register: moves the events to the queue"),
+         "error": _c("ALLEv", query=True, doc='every queued event: <code>,"<text>"[,<code>,"<text>"...]'),
          "byte_order": _c("WFMOutpre:BYT_Nr", "2"),
          "points_mode": None,  # CURVe? reads the record at full resolution
          "points": None,
@@ -213,6 +231,45 @@ class Preamble:
                                                ("x_increment", "x_origin", "x_reference", "y_increment",
                                                 "y_origin", "y_reference")}}
         return d.separator.join(mine.get(f, d.constants.get(f, "0")) for f in d.preamble_fields)
+
+
+#: *ESR? bits that mean an error: command (CME), execution (EXE), device (DDE), query (QYE).
+ESR_ERROR_BITS = {0x20: "command error", 0x10: "execution error", 0x08: "device error", 0x04: "query error"}
+_EVENT = re.compile(r'\s*(-?\d+)\s*,\s*"((?:[^"]|"")*)"\s*(?:,|$)')
+NO_EVENTS = "No events to report - queue empty"
+
+
+def parse_event_reply(text: str) -> list[tuple[int, str]]:
+    """An ``ALLEv?`` reply (``0,"No events to report - queue empty"``, ``113,"Undefined header; ..."``
+    or several pairs, with or without the ``:ALLEV`` header) as its events, code 0 left out;
+    ValueError if it is not that form."""
+    body = text.strip()
+    head = body.split(" ", 1)
+    if head[0].lstrip(":").upper() in ("ALLEV", "ALLE") and len(head) == 2:
+        body = head[1]
+    events, pos = [], 0
+    while pos < len(body):
+        m = _EVENT.match(body, pos)
+        if m is None or m.end() == pos:
+            raise ValueError(f"not an event-queue reply: {text.strip()!r}")
+        events.append((int(m.group(1)), m.group(2).replace('""', '"')))
+        pos = m.end()
+    if not events:
+        raise ValueError(f"not an event-queue reply: {text.strip()!r}")
+    return [(c, t) for c, t in events if c != 0]
+
+
+def format_event_reply(events: list[tuple[int, str]]) -> str:
+    """The ``ALLEv?`` answer (headers off) to ``events`` (the emulator's side)."""
+    if not events:
+        return f'0,"{NO_EVENTS}"'
+    return ",".join(f'{c},"{t.replace(chr(34), chr(34) * 2)}"' for c, t in events)
+
+
+def is_error_event(code: int) -> bool:
+    """Tektronix event codes 100-399 are command, execution and device errors; 400s are status
+    events (e.g. 402 operation complete), 500-600s warnings."""
+    return 100 <= abs(code) < 400
 
 
 def compound(*messages: str) -> str:

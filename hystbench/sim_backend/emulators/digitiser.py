@@ -8,7 +8,9 @@ received every clock block is kept in the channel's memory (``memory_points`` de
 lost first, and a read then starts later: the gap the driver must report).  A preamble query
 latches the source channel's next segment (at most ``points``) from where its last data read
 stopped; the data query sends that segment as a definite-length block and moves on.  Errors go to
-the queue read by ``SYST:ERR?`` (-113 unknown header, -224 illegal value, -109 missing value).
+the queue read by ``SYST:ERR?`` (-113 unknown header, -224 illegal value, -109 missing value); in a
+dialect that reads events (Tektronix) they set ``*ESR?``'s error bits and ``ALLEv?`` returns them
+all as positive event codes (113, 224, 109).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ class DigitiserEmulator:
         self.max_points = 100_000
         self.source = 1
         self.errors: collections.deque[tuple[int, str]] = collections.deque()
+        self.esr = 0  # the event status register (``*ESR?`` reads and clears it)
         self.commands_seen: list[bytes] = []
         #: faults of the next data replies holding points, in order: "truncate" sends half the block and stops
         self.block_faults: collections.deque[str] = collections.deque()
@@ -113,6 +116,7 @@ class DigitiserEmulator:
                 self.errors[-1] = (-350, scpi.SCPI_ERRORS[-350])
             else:
                 self.errors.append((code, scpi.SCPI_ERRORS.get(code, "Error") if text is None else text))
+            self.esr |= {1: 0x20, 2: 0x10, 3: 0x08, 4: 0x04}.get(abs(code) // 100, 0)
 
     def _channel(self, arg: str) -> int | None:
         for k, name in enumerate(self.dialect.channel_names, start=1):
@@ -163,11 +167,19 @@ class DigitiserEmulator:
                 self.running = False
             elif op == "clear_status":
                 self.errors.clear()
+                self.esr = 0
             return None
 
     def _query(self, op: str) -> bytes:
         if op == "identity":
             return self.identity.encode() + b"\n"
+        if op == "event_status":
+            esr, self.esr = self.esr, 0
+            return f"{esr}".encode() + b"\n"
+        if op == "error" and self.dialect.reads_events:
+            events = [(abs(c), t) for c, t in self.errors]
+            self.errors.clear()
+            return sd.format_event_reply(events).encode() + b"\n"
         if op == "error":
             return scpi.format_error_reply(*(self.errors.popleft() if self.errors else (0, None))).encode() + b"\n"
         if op == "sample_rate":
