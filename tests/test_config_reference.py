@@ -155,11 +155,13 @@ BENCH_CASES = _cases(BENCH)
 @pytest.mark.parametrize("table, name, k", BENCH_CASES, ids=[f"{t}.{n}" for t, n, _ in BENCH_CASES])
 def test_bench_value_outside_documented_range_is_refused_naming_the_key(tmp_path: Path, table, name, k) -> None:
     path = tmp_path / "bench.toml"
+    # [digitiser] requires its channels: its keys are tried on the shipped bench file that has the table
+    base = CONFIG_DIR / "bench_digitiser.toml" if table.startswith("digitiser") else DEFAULT_BENCH
     for bad in _outside(k):
-        data = _with(tomllib.loads(DEFAULT_BENCH.read_text(encoding="utf-8")), table, name, bad)
+        data = _with(tomllib.loads(base.read_text(encoding="utf-8")), table, name, bad)
         _refused_naming(load_bench_config, path, _dump(data), table, name, k)
     for ok in _inclusive_bounds(k):
-        path.write_text(_dump(_with(tomllib.loads(DEFAULT_BENCH.read_text(encoding="utf-8")), table, name, ok)),
+        path.write_text(_dump(_with(tomllib.loads(base.read_text(encoding="utf-8")), table, name, ok)),
                         encoding="utf-8")
         load_bench_config(path)  # the bound itself is legal
 

@@ -22,9 +22,8 @@ def load(tmp_path, table):
 
 def test_the_table_is_optional_and_checked_when_given(tmp_path):
     assert load_bench_config().digitiser is None
-    left_out = load(tmp_path, '\n[digitiser]\n').digitiser  # the generic wiring, 1 V per SI unit
-    assert left_out.channels == {"current_A": "CHAN1", "force_N": "CHAN2", "flux_Wb": "CHAN3", "command_V": "CHAN4"}
-    assert set(left_out.scales.values()) == {1.0}
+    only_channels = TABLE.split("scales")[0]  # scales left out: 1 SI unit per volt
+    assert set(load(tmp_path, only_channels).digitiser.scales.values()) == {1.0}
     d = load(tmp_path, TABLE).digitiser
     assert d.kind == "visa" and d.dialect == "generic" and d.channels["flux_Wb"] == "CHAN3"
     assert d.scales == {"current_A": 0.2, "force_N": 50.0, "flux_Wb": 1e-5, "command_V": 1.0}
@@ -125,3 +124,28 @@ def test_a_channel_spelt_any_scpi_way_is_selected_as_that_channel(tmp_path, spel
     finally:
         src.close()
         emu.close()
+
+
+# --- review R1 / H8: errors quote only what the user wrote; the VISA address is checked at load ------
+def test_a_signal_left_out_of_channels_is_refused_naming_it_not_given_a_default_channel(tmp_path):
+    """A default 'CHANk' would be quoted by a later error (e.g. 'CHAN3': already samples ...) as if
+    the user had written it: each of the four signals must be wired explicitly."""
+    with pytest.raises(ConfigError, match=r"\[digitiser.channels\]: missing key 'flux_Wb'") as info:
+        load(tmp_path, TABLE.replace(', flux_Wb = "CHAN3"', ""))
+    assert str(tmp_path / "bench.toml") in str(info.value)
+    with pytest.raises(ConfigError, match=r"\[digitiser\]: missing section \[digitiser.channels\]"):
+        load(tmp_path, "\n[digitiser]\n")
+
+
+@pytest.mark.parametrize("url, why", [
+    ("socket://192.168.0.30:5025", "unknown interface type"),
+    ("TCPIP::192.168.0.30::SOCKET", "port part is mandatory"),
+    ("192.168.0.30", "unknown interface type"),
+])
+def test_a_url_that_is_no_visa_resource_is_refused_at_load_naming_file_and_key(tmp_path, url, why):
+    table = TABLE.replace('backend = "sim"', f'backend = "hardware"\nurl = "{url}"')
+    with pytest.raises(ConfigError, match=rf"\[digitiser\] url = '{url}': not a VISA resource \(.*{why}") as info:
+        load(tmp_path, table)
+    assert str(tmp_path / "bench.toml") in str(info.value)
+    ok = TABLE.replace('backend = "sim"', 'backend = "hardware"\nurl = "USB0::0x0957::0x1796::MY123::INSTR"')
+    assert load(tmp_path, ok).digitiser.url == "USB0::0x0957::0x1796::MY123::INSTR"

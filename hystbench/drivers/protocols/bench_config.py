@@ -101,8 +101,9 @@ _DIGITISER = {
                "(required with kind = \"visa\", backend = \"hardware\")"),
     "dialect": Key(str, "generic", "the SCPI command set: generic (:WAVeform, Keysight style) or a vendor's",
                    choices=tuple(scpi_digitiser.DIALECTS)),
-    "channels": Key(dict, {}, "the instrument channel sampling each signal", table={
-        s: Key(str, f"CHAN{k}", f"the channel of {s} (visa: e.g. \"CHAN1\"; daqmx: e.g. \"Dev1/ai0\")")
+    # each signal required: a default channel would be quoted in errors as if the user had written it
+    "channels": Key(dict, None, "the instrument channel sampling each signal (all four required)", table={
+        s: Key(str, None, f"the channel of {s} (visa: e.g. \"CHAN{k}\"; daqmx: e.g. \"Dev1/ai{k - 1}\")")
         for k, s in enumerate(_SIGNALS, start=1)}),
     "scales": Key(dict, {}, "SI units per volt at the digitiser's input (1 if left out)", table={
         s: Key(NUM, 1.0, f"{s} per volt") for s in _SIGNALS}),
@@ -226,6 +227,21 @@ class DigitiserConfig:
         return self.backend == "sim"
 
 
+def _check_visa_resource(url: str, where: str) -> None:
+    """A VISA resource string pyvisa can parse (``TCPIP::HOST::PORT::SOCKET``, ``USB0::...::INSTR``,
+    ``ASRL/dev/ttyUSB0::INSTR``): refused at load, not at the first open of a running bench."""
+    try:
+        from pyvisa import rname
+    except ImportError:  # a dependency of the package: without it the open says what to install
+        return
+    try:
+        rname.parse_resource_name(url)
+    except (rname.InvalidResourceName, ValueError) as err:
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise ConfigError(f"{where} url = {url!r}: not a VISA resource ({reason}); e.g. "
+                          "\"TCPIP::192.168.0.30::5025::SOCKET\" or \"USB0::0x0957::0x1796::MY123::INSTR\"") from None
+
+
 def _digitiser(t: dict[str, Any], src: str) -> DigitiserConfig:
     where = f"{src} [digitiser]"
     if t["kind"] == "visa":
@@ -236,6 +252,8 @@ def _digitiser(t: dict[str, Any], src: str) -> DigitiserConfig:
                                   f"({', '.join(scpi.short_form(n) for n in d.channel_names)})")
         if t["backend"] == "hardware" and not t["url"]:
             raise ConfigError(f"{where} url: required with backend = \"hardware\" and kind = \"visa\"")
+        if t["url"]:
+            _check_visa_resource(t["url"], where)
     elif t["backend"] == "sim":
         raise ConfigError(f"{where} kind: the emulated digitiser speaks SCPI: kind = \"daqmx\" needs "
                           "backend = \"hardware\"")
