@@ -234,8 +234,7 @@ class ScpiDigitiser:
             raise ProtocolError(f"{self._where(data_msg)} ({channel}): the block holds {len(raw)} bytes, the preamble "
                                 f"announced {pre.points} points of 2 bytes")
         codes = np.frombuffer(raw, dtype=sd.CODE_DTYPE)
-        clipped = bool(np.any(np.abs(codes.astype(np.int32)) >= sd.FULL_SCALE_CODE))
-        return first, sd.codes_to_volts(codes, pre), clipped
+        return first, sd.codes_to_volts(codes, pre), sd.clipped(codes)
 
 
 class SegmentJoiner:

@@ -326,3 +326,14 @@ def test_the_emulator_reports_an_undefined_header_in_each_dialects_error_query(d
         assert [emu.handle(a)[:-1] for a in asks] == answers
     finally:
         emu.close()
+
+
+def test_clip_is_either_end_of_the_int16_code_range_not_a_symmetric_32767():
+    """int16 codes run from -32768 to 32767: -32767 is an ordinary code one step inside full scale,
+    -32768 the negative end (it was read as clipped at +-32767, the emulator's old full scale)."""
+    assert not sd.clipped(np.array([-32767, 0, 32766], dtype="<i2"))
+    assert sd.clipped(np.array([0, -32768], dtype="<i2")) and sd.clipped(np.array([32767], dtype="<i2"))
+    assert not sd.clipped(np.array([], dtype="<i2"))
+    codes, over = sd.volts_to_codes(np.array([-10.0, 10.0 - 10 / 32768]), 10 / 32768)  # both ends, not beyond
+    assert codes.tolist() == [-32768, 32767] and not over
+    assert sd.volts_to_codes(np.array([-10.001]), 10 / 32768)[1]

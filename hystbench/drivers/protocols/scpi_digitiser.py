@@ -29,11 +29,16 @@ from .scpi import encode_block, header_matches, short_form
 
 __all__ = ["Command", "Dialect", "GENERIC", "DIALECTS", "Preamble", "dialect", "read_block", "encode_block",
            "codes_to_volts", "volts_to_codes", "compound", "split_units", "CODE_DTYPE", "FULL_SCALE_CODE",
+           "FULL_SCALE_CODES", "clipped",
            "parse_event_reply", "format_event_reply", "is_error_event", "ESR_ERROR_BITS"]
 
 #: Sample codes on the wire: signed 16-bit, least significant byte first.
 CODE_DTYPE = np.dtype("<i2")
-FULL_SCALE_CODE = 32767
+#: The ends of the code range (int16: -32768 and 32767): a code at either end is an input at or past
+#: full scale (clipped).  An ADC of fewer bits, left-justified in the word, tops out lower (12 bits:
+#: 32752): such a scope's positive clip is flagged only if it sends the word's end when overranged.
+FULL_SCALE_CODES = (int(np.iinfo(CODE_DTYPE).min), int(np.iinfo(CODE_DTYPE).max))
+FULL_SCALE_CODE = FULL_SCALE_CODES[1]
 MAX_BLOCK_DIGITS = 9  #: IEEE 488.2: the length has 1..9 digits
 
 
@@ -304,9 +309,15 @@ def codes_to_volts(codes: np.ndarray, pre: Preamble) -> np.ndarray:
 
 def volts_to_codes(volts: np.ndarray, y_increment: float) -> tuple[np.ndarray, bool]:
     """Volts as the ADC's codes (rounded, clipped at full scale); True if any clipped."""
+    lo, hi = FULL_SCALE_CODES
     k = np.round(np.asarray(volts, dtype=np.float64) / y_increment)
-    clipped = bool(np.any(np.abs(k) > FULL_SCALE_CODE))
-    return np.clip(k, -FULL_SCALE_CODE, FULL_SCALE_CODE).astype(CODE_DTYPE), clipped
+    return np.clip(k, lo, hi).astype(CODE_DTYPE), bool(np.any((k < lo) | (k > hi)))
+
+
+def clipped(codes: np.ndarray) -> bool:
+    """Whether any code is at an end of the code range (the input at or past full scale)."""
+    lo, hi = FULL_SCALE_CODES
+    return bool(codes.size) and bool(np.any((codes <= lo) | (codes >= hi)))
 
 
 def read_block(read: Callable[[int], bytes], where: str, *, max_bytes: int = 1 << 28) -> bytes:
