@@ -239,7 +239,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {out}: is a file, not a folder")
     # --source digitiser: the samples come from the emulated SCPI digitiser through pyvisa-py (issue 15)
     bench_file = CONFIG_DIR / "bench_digitiser.toml" if args.source == "digitiser" else None
-    console().rule("live: the daemon's pipeline, a sweep through the emulated instruments, estimates over zenoh")
+    from ..reports.demo import sample_source
+
+    console().rule(f"live: the daemon's pipeline, a sweep, samples from {sample_source(bench_file)}, estimates over zenoh")
     live = demo_live(out / "live", seconds=6.0, show=lambda k, msg: print(format_message(k, msg), flush=True),
                      bench_file=bench_file)
     console().print(live["summary"])

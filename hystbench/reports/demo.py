@@ -29,7 +29,7 @@ from ..analysis.method import measure_delays
 from ..analysis.periodic import synchronous_average
 from ..formats.recording import Recording, read_sweep, write_sweep
 
-__all__ = ["run_demo", "demo_sweeps", "SWEEPS"]
+__all__ = ["run_demo", "demo_sweeps", "SWEEPS", "sample_source"]
 
 #: (rig, A-pp, frequencies): the paper's measurement series (Secs. V and VI).
 SWEEPS = (("ecore", 1.27, (40.0, 80.0, 160.0, 320.0)),
@@ -43,6 +43,15 @@ def _loop(rec: Recording, frequency_hz: float, name: str) -> tuple[np.ndarray, n
     avg = synchronous_average(rec, frequency_hz, 1000, ("current_A", name))
     i, x = avg.channels["current_A"], avg.channels[name]
     return np.append(i, i[0]), np.append(x, x[0])
+
+
+def sample_source(bench_file: str | Path | None = None) -> str:
+    """Where the demo's samples come from, for its headers and the recordings' metadata."""
+    dig = load_bench_config(bench_file).digitiser
+    if dig is None:
+        return "the emulated instruments' own streams"
+    return f"the {'emulated ' if dig.is_sim else ''}SCPI digitiser ({dig.dialect} dialect, pyvisa-py)" \
+        if dig.kind == "visa" else "the NI-DAQmx card"
 
 
 def _sweep_through_drivers(rig_name: str, ipp: float, freqs, advance,
@@ -65,7 +74,8 @@ def _sweep_through_drivers(rig_name: str, ipp: float, freqs, advance,
             if len(runs) != 1:  # a gap: the demo would rather stop than hide it
                 raise RecordingError(f"{rig_name} at {f:g} Hz: the streams had gaps: "
                                    f"{[(r.first_index, r.n, r.gap_samples) for r in runs]}")
-            meta = {**emu.rig.metadata(), "source": "emulated bench through the hystbench drivers"}
+            meta = {**emu.rig.metadata(), "source": f"emulated bench through the hystbench drivers, samples from "
+                                                    f"{sample_source(bench_file)}"}
             recs.append(Recording(None, runs[0].fs_hz, dict(runs[0].channels), meta))
             advance()
     return recs

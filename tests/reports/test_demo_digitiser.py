@@ -37,8 +37,15 @@ def test_a_driver_sweep_point_through_the_digitiser(tmp_path: Path) -> None:
     assert abs(np.max(rec.channels["current_A"]) - 0.7) < 0.01 and abs(np.min(rec.channels["current_A"]) + 0.7) < 0.01
     assert np.all(np.abs(rec.channels["current_A"] / (0.2 * 10 / 32768) % 1 - 0.5) > 0.5 - 1e-6)  # whole codes
     assert measure_delays(rec).delays_s["hysteresis"] > 0
+    assert rec.metadata["source"].endswith("samples from the emulated SCPI digitiser (generic dialect, pyvisa-py)")
 
 
 def test_the_demo_command_takes_the_source() -> None:
     assert build_parser().parse_args(["demo", "--source", "digitiser"]).source == "digitiser"
     assert build_parser().parse_args(["demo"]).source == "streams"
+
+
+def test_the_demo_names_the_sample_source_it_runs_on() -> None:
+    """Review R1: the header said 'a sweep through the emulated instruments' with --source digitiser."""
+    assert demo.sample_source(DIGITISER_BENCH) == "the emulated SCPI digitiser (generic dialect, pyvisa-py)"
+    assert demo.sample_source() == "the emulated instruments' own streams"
