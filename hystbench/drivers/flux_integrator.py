@@ -1,7 +1,10 @@
 """Flux integrator over CAN / CAN FD (python-can), protocol from ``protocols.can_integrator``.
 
 Commands and replies use one bus handle; the sample stream another (filtered to the stream's
-identifier), so a reader thread never takes a command's reply.  The stream carries the output
+identifier), so a reader thread never takes a command's reply.  Both are on ``channel`` (one bus
+carries both, the controller or kernel filters each handle's frames) unless ``stream_channel``
+names another: the emulated bench's, because python-can's virtual bus filters in Python, after
+handing every handle every frame.  The stream carries the output
 voltage; the driver divides by the gain it read back, giving ``flux_Wb`` (flux through one turn).
 """
 
@@ -41,11 +44,13 @@ class CanFluxIntegrator(Instrument):
 
     def __init__(self, *, interface: str = "virtual", channel: str = "hystbench", node: int = 0x10,
                  fd: bool = True, bus_kwargs: dict | None = None, name: str | None = None,
-                 timeout_s: float = 1.0, backoff: Backoff | None = None, fs_hz: float = 100_000.0) -> None:
+                 timeout_s: float = 1.0, backoff: Backoff | None = None, fs_hz: float = 100_000.0,
+                 stream_channel: str = "") -> None:
         super().__init__(name, timeout_s=timeout_s, backoff=backoff)
         if not 1 <= node <= 0x7F:
             raise ConfigError(f"{self.name}: node must be 1..127, got {node}")
         self.interface, self.channel, self.node, self.fd = interface, channel, node, fd
+        self.stream_channel = stream_channel or channel
         self.bus_kwargs = dict(bus_kwargs or {})
         self.fs_hz = fs_hz
         self.firmware = ""
@@ -59,18 +64,19 @@ class CanFluxIntegrator(Instrument):
                     budget: CurrentBudget) -> "CanFluxIntegrator":
         o = config.options
         return cls(interface=o["interface"], channel=o["channel"], node=o["node"], fd=o["fd"],
-                   **cls._common(config, bench))
+                   stream_channel=o.get("stream_channel", ""), **cls._common(config, bench))
 
-    def _new_bus(self, *can_ids: int):
-        """A bus handle that takes only ``can_ids`` (all when none are given): the command handle
-        takes replies and heartbeats, so the 10 000 stream frames a second are filtered out by
-        the CAN controller or kernel (socketcan), not drained by the heartbeat in Python."""
+    def _new_bus(self, *can_ids: int, channel: str | None = None):
+        """A bus handle on ``channel`` (default: the command channel) that takes only ``can_ids``
+        (all when none are given): the command handle takes replies and heartbeats, so the 10 000
+        stream frames a second are filtered out by the CAN controller or kernel (socketcan), not
+        drained by the heartbeat in Python."""
         import can
 
         kw = dict(self.bus_kwargs)
         if can_ids:
             kw["can_filters"] = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in can_ids]
-        return can.Bus(interface=self.interface, channel=self.channel, receive_own_messages=False,
+        return can.Bus(interface=self.interface, channel=channel or self.channel, receive_own_messages=False,
                        fd=self.fd, **kw)
 
     # --- hooks -----------------------------------------------------------------------------------
@@ -137,7 +143,7 @@ class CanFluxIntegrator(Instrument):
     def open_stream(self, *, stall_timeout_s: float = 0.5, backoff: Backoff | None = None,
                     skew_s: float = 0.0) -> SampleStream:
         """``flux_Wb`` on the common sample clock from CAN FD frames (wire: volts / gain)."""
-        bus = self._new_bus(ci.stream_id(self.node))
+        bus = self._new_bus(ci.stream_id(self.node), channel=self.stream_channel)
         source = _OwnedCanSource(bus, ci.stream_id(self.node), stream_id=INTEGRATOR_STREAM_ID, channels=1)
         self.call("stream", 1)
         gain = self.call("get_gain")

@@ -56,6 +56,8 @@ _OPTIONS: dict[str, dict[str, Key]] = {
                        "virtual channel)"),
         "node": Key(int, 0x10, "CAN node id (commands on 0x600 + node)", ge=1, le=127),
         "fd": Key(bool, True, "CAN FD (the sample stream needs 64-byte frames)"),
+        "stream_channel": Key(str, "", "CAN channel of the sample stream (\"\": channel, one bus for both; sim: "
+                              "a second virtual channel, as python-can's virtual bus filters in Python)"),
     },
 }
 _COMMON = {
@@ -165,7 +167,8 @@ def _emulated_charge_amp(opts: Mapping[str, Any], a: Mapping[str, Any]) -> dict[
 
 
 def _emulated_integrator(opts: Mapping[str, Any], a: Mapping[str, Any]) -> dict[str, Any]:
-    return {"interface": a["can_interface"], "channel": a["can_channel"], "node": int(a["node"])}
+    return {"interface": a["can_interface"], "channel": a["can_channel"], "node": int(a["node"]),
+            "stream_channel": a.get("can_stream_channel", "")}
 
 
 @dataclass(frozen=True)

@@ -85,8 +85,10 @@ class EmulatedBench:
                                                   samples_per_frame=spf)
         self.charge_amp = ChargeAmplifierEmulator(fs_hz=self.fs_hz, samples_per_frame=spf,
                                                   load_cell_pc_per_n=float(sim["load_cell_pc_per_n"]))
+        # the stream on a channel of its own (virtual bus): see the emulator's docstring
+        stream_channel = integ.get("stream_channel") or (f"{channel}-stream" if integ["interface"] == "virtual" else "")
         self.integrator = FluxIntegratorEmulator(interface=integ["interface"], channel=channel, node=int(integ["node"]),
-                                                 true_turns=self.rig.sense_turns)
+                                                 true_turns=self.rig.sense_turns, stream_channel=stream_channel)
         self.emulators = {"signal_generator": self.generator, "current_amplifier": self.amplifier,
                           "charge_amplifier": self.charge_amp, "flux_integrator": self.integrator}
         dig = self.config.digitiser

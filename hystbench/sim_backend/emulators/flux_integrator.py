@@ -1,6 +1,11 @@
 """Emulated flux integrator on a python-can bus (virtual by default): the commands of
 ``protocols.can_integrator``, a heartbeat, and the output voltage as CAN FD stream frames.
 
+The stream frames go on ``stream_channel`` when one is given (default: the command channel, one
+bus for both): on python-can's virtual bus every handle of a channel is handed every frame and
+filters in Python, so the emulated bench puts the stream on a second virtual channel, sparing the
+driver's command handle the 10 000 frames a second a CAN controller or kernel filter would drop.
+
 U = gain * flux * (rig sense turns / set turns) - U at the last reset; frozen in HOLD; clipped at
 +-10 V with OVERLOAD.  The rig's flux channel already is the integrator's AC-only (and, with
 ``integrator_leak``, lossy) view of the sense-coil voltage.
@@ -102,9 +107,10 @@ class FluxIntegratorEmulator:
     kind = "flux_integrator"
 
     def __init__(self, *, interface: str = "virtual", channel: str = "hystbench", node: int = 0x10,
-                 true_turns: int = 10, firmware: int = 0x0105) -> None:
+                 true_turns: int = 10, firmware: int = 0x0105, stream_channel: str = "") -> None:
         self.faults = Faults()
         self.interface, self.channel, self.node = interface, channel, node
+        self.stream_channel = stream_channel or channel
         self.true_turns = true_turns
         self.firmware = firmware
         self.state = {"gain_v_per_wb": 1e5, "turns": 1, "hold": False, "stream": False}
@@ -115,6 +121,8 @@ class FluxIntegratorEmulator:
         self.emitter = FrameEmitter(INTEGRATOR_STREAM_ID, samples_per_frame_for(ci.STREAM_PAYLOAD, 1), self.faults)
         self._lock = threading.RLock()
         self._bus = emulator_bus(interface, channel)
+        self._stream_bus = (self._bus if self.stream_channel == channel
+                            else emulator_bus(interface, self.stream_channel))
         self._tx_lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="emu-integrator", daemon=True)
@@ -122,7 +130,8 @@ class FluxIntegratorEmulator:
 
     @property
     def addresses(self) -> dict[str, str | int]:
-        return {"can_interface": self.interface, "can_channel": str(self.channel), "node": self.node}
+        return {"can_interface": self.interface, "can_channel": str(self.channel),
+                "can_stream_channel": str(self.stream_channel), "node": self.node}
 
     def disconnect(self) -> None:
         """Bus-off: no replies, no heartbeat, no stream."""
@@ -200,14 +209,14 @@ class FluxIntegratorEmulator:
         can_id = ci.stream_id(self.node)
         msgs = [can.Message(arbitration_id=can_id, data=raw, is_extended_id=False, is_fd=True, bitrate_switch=True)
                 for raw in self.emitter.emit(block.first_index, u[None, :], 4 if clipped else 0)]
-        batch = getattr(self._bus, "send_batch", None)  # the emulator's virtual bus: all at once
+        batch = getattr(self._stream_bus, "send_batch", None)  # the emulator's virtual bus: all at once
         with self._tx_lock:
             for part in [msgs] if batch is not None else [[m] for m in msgs]:
                 try:
                     if batch is not None:
                         batch(part, timeout=0.5)
                     else:
-                        self._bus.send(part[0], timeout=0.5)
+                        self._stream_bus.send(part[0], timeout=0.5)
                 except Exception as err:  # a full receive queue: the frame is lost, the receiver sees the gap
                     log.info("integrator: stream frame not sent: %s", err)
 
@@ -233,3 +242,5 @@ class FluxIntegratorEmulator:
         self._stop.set()
         self._thread.join(timeout=1.0)
         self._bus.shutdown()
+        if self._stream_bus is not self._bus:
+            self._stream_bus.shutdown()
