@@ -167,3 +167,16 @@ def test_a_batch_send_delivers_in_order_and_wakes_a_waiting_receiver():
         reader.join(HANG_S)
         for bus in (tx, bounded, waiting):
             bus.shutdown()
+
+
+def test_a_stream_frame_is_the_message_python_can_would_make():
+    """The emulator's fast stream frame: every slot as ``can.Message``'s own constructor sets it."""
+    from hystbench.sim_backend.emulators.flux_integrator import stream_frame_type
+
+    data = bytes(range(64))
+    fast = stream_frame_type()(0x190, data)
+    ref = can.Message(arbitration_id=0x190, data=data, is_extended_id=False, is_fd=True, bitrate_switch=True)
+    assert isinstance(fast, can.Message)
+    slots = [s for k in type(ref).__mro__ for s in getattr(k, "__slots__", ()) if s != "__weakref__"]
+    assert {s: getattr(fast, s) for s in slots} == {s: getattr(ref, s) for s in slots}
+    assert type(fast.data) is bytearray and fast.equals(ref, timestamp_delta=None)
