@@ -235,6 +235,14 @@ class CanFrameSource(FrameSource):
         return out
 
 
+def _to_si(wire: np.ndarray, scale: float) -> np.ndarray:
+    """Wire samples (float32) times ``scale`` in float64: one pass, the same numbers as
+    ``wire.astype(np.float64) * scale`` (x * 1.0 is x, so a unit scale is only the cast)."""
+    if scale == 1.0:
+        return wire.astype(np.float64)
+    return np.multiply(wire, scale, dtype=np.float64)
+
+
 @dataclass
 class StreamStats:
     """What one stream lost and why, counted, so a gap in the data can be traced to its cause."""
@@ -243,6 +251,8 @@ class StreamStats:
     frames_lost: int = 0  #: frames never seen, from the sequence numbers
     gap_samples: int = 0  #: sample indices never delivered (sum of every block's gap_samples)
     gaps: int = 0  #: blocks delivered with BlockFlags.GAP
+    estimated_gaps: int = 0  #: of those, gaps whose size is an estimate (BlockFlags.GAP_ESTIMATED)
+    estimated_gap_samples: int = 0  #: the part of gap_samples that is estimated
     stale_frames: int = 0  #: frames at or before the last index kept (duplicates), discarded
     reconnects: int = 0
     stalls: int = 0  #: times no frame came within stall_timeout_s
@@ -343,6 +353,10 @@ class SampleStream:
     # --- consumer side ---------------------------------------------------------------------------
     def read(self, timeout_s: float = 1.0, max_samples: int | None = None) -> SampleBlock | None:
         """The next contiguous run (or None after ``timeout_s``); raises the reader's fatal error."""
+        if timeout_s <= 0 and not self._runs:  # a look that finds nothing (the end of every drain):
+            if self._error is not None:  # no deadline, no lock (a run appended meanwhile: the next look)
+                raise self._error
+            return None
         deadline = Deadline(timeout_s)
         with self._cond:
             while not self._runs:
@@ -361,8 +375,11 @@ class SampleStream:
             flags |= BlockFlags.GAP
             self.stats.gaps += 1
             self.stats.gap_samples += gap
+            if flags & BlockFlags.GAP_ESTIMATED:
+                self.stats.estimated_gaps += 1
+                self.stats.estimated_gap_samples += gap
         self._delivered_end = first + data.shape[1]
-        chans = {ch: data[i].astype(np.float64) * self.scale.get(ch, 1.0) for i, ch in enumerate(self.channels)}
+        chans = {ch: _to_si(data[i], self.scale.get(ch, 1.0)) for i, ch in enumerate(self.channels)}
         meta = {f"skew_s.{ch}": self.skew_s for ch in self.channels}
         return SampleBlock(first, self.fs_hz, chans, flags=BlockFlags(flags), gap_samples=max(gap, 0), meta=meta)
 

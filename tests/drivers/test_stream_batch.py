@@ -233,3 +233,29 @@ def test_can_stream_through_a_virtual_bus_counts_damage_and_gaps_exactly():
     finally:
         tx.shutdown()
         rx.shutdown()
+
+
+def test_a_read_converts_to_si_as_float64_wire_times_scale():
+    """The consumer's block: the float32 wire widened to float64 then scaled (a unit scale: the wire
+    as is), checked against that computation done independently on the encoded samples."""
+    s = SampleStream("s", FakeSource([]), ["x", "y"], 1e5, scale={"x": 1.0 / 3e4})
+    f = frame(0, 0, channels=2)
+    f.samples[1] *= -7.5
+    s._accept([f])
+    block = s.read(0.0)
+    wire = f.samples.astype(np.float32)
+    assert block.channels["x"].dtype == np.float64
+    np.testing.assert_array_equal(block.channels["x"], wire[0].astype(np.float64) * (1.0 / 3e4))
+    np.testing.assert_array_equal(block.channels["y"], wire[1].astype(np.float64))
+    assert s.read(0.0) is None
+
+
+def test_an_empty_look_raises_the_readers_error():
+    """``read(0)`` on an empty stream: None while healthy, the reader's fatal error once it gave up."""
+    from hystbench.errors import ConnectionLost
+
+    s = SampleStream("s", FakeSource([]), ["x"], 1e5)
+    assert s.read(0.0) is None
+    s._error = ConnectionLost("s: gone")
+    with pytest.raises(ConnectionLost, match="gone"):
+        s.read(0.0)
