@@ -136,10 +136,17 @@ class SerialFrameSource(FrameSource):
             self._port = None
 
     def read_frames(self, timeout_s: float) -> list[Frame]:
-        if self._port is None:
+        """What came within ``timeout_s``: the bytes waiting, or (none waiting) the first byte to come
+        and the burst that came with it, so a burst is one call, not a byte then the rest."""
+        port = self._port
+        if port is None:
             raise ConnectionError(f"{self.url} is not open")
-        self._port.timeout = timeout_s
-        data = self._port.read(max(1, min(self._port.in_waiting, 1 << 18)))
+        if port.timeout != timeout_s:  # pyserial reconfigures the port (tcgetattr, tcsetattr) on every set
+            port.timeout = timeout_s
+        waiting = port.in_waiting
+        data = port.read(min(waiting, 1 << 18) if waiting else 1)
+        if data and not waiting and (more := port.in_waiting):
+            data += port.read(min(more, 1 << 18))
         return self.deframer.feed(data) if data else []
 
 
