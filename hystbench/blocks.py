@@ -31,6 +31,7 @@ class BlockFlags(enum.IntFlag):
     GAP = 1  #: samples before this block were lost (see ``gap_samples``)
     OVERRUN = 2  #: a reader fell behind and lost samples
     CLIP = 4  #: at least one sample reached an ADC or amplifier limit
+    GAP_ESTIMATED = 8  #: the gap before this block was measured by the host clock, not counted (an estimate)
 
 
 @dataclass(frozen=True)

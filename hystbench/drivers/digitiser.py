@@ -18,8 +18,10 @@ each other, and memory the instrument lost shows as a jump in the first index: a
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import threading
+import time
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
@@ -97,8 +99,18 @@ class VisaLink:
     def write(self, message: str) -> None:
         self._call(lambda: self._inst.write(message))
 
-    def query(self, message: str) -> str:
-        return self._call(lambda: self._inst.query(message))
+    def query(self, message: str, timeout_s: float | None = None) -> str:
+        """A reply line; ``timeout_s``: a longer deadline for this query alone (e.g. ``*OPC?``)."""
+        if timeout_s is None:
+            return self._call(lambda: self._inst.query(message))
+
+        def slow() -> str:
+            self._inst.timeout = max(1, int(timeout_s * 1000))
+            try:
+                return self._inst.query(message)
+            finally:
+                self._inst.timeout = max(1, int(self.timeout_s * 1000))
+        return self._call(slow)
 
     def read_exact(self, n: int) -> bytes:
         return bytes(self._call(lambda: self._inst.read_bytes(n)))
@@ -181,9 +193,10 @@ class ScpiDigitiser:
         errors = [f"{code},\"{text}\"" for code, text in events if sd.is_error_event(code)]
         return errors or [f"*ESR? = {esr} ({', '.join(bits)}) with no error in {ev_msg}"]
 
-    def open(self, channels: tuple[str, ...] = ()) -> None:
+    def open(self, channels: tuple[str, ...] = (), segments: int = 0) -> None:
         """Identify, set up and start the digitiser; each of ``channels`` is selected once here
-        with its error check (a channel the instrument lacks is refused now, not read wrongly)."""
+        with its error check (a channel the instrument lacks is refused now, not read wrongly).
+        ``segments`` > 0: segmented memory of that many segments a batch, armed by :meth:`arm`."""
         self._io("open", self.link.open)
         self.identity = self.query("identity").strip()
         if len(self.identity.split(",")) != len(scpi.IDN_FIELDS):
@@ -205,7 +218,11 @@ class ScpiDigitiser:
         if abs(rate - self.fs_hz) > 1e-9 * self.fs_hz:
             raise ConfigError(f"{self.name}: samples at {rate:g} Hz but [bench] fs_hz = {self.fs_hz:g}: they must "
                               "be the same clock")
-        self.send("run")
+        if segments:
+            self.send("acquire_mode")
+            self.send("segment_count", value=segments)
+        else:
+            self.send("run")
 
     def close(self) -> None:
         try:
@@ -215,16 +232,47 @@ class ScpiDigitiser:
             log.info("%s: stop on close: %s", self.name, err)
         self.link.close()
 
+    def arm_and_wait(self, wait_s: float) -> None:
+        """Arm one batch of segments and wait (at most ``wait_s``) until the digitiser says it is
+        complete; then its error queue is read."""
+        arm = self.dialect.cmd("arm").message()
+        self.send_text(arm, check=False)
+        wait = self.dialect.cmd("wait").message()
+        text = self._io(wait, lambda: self.link.query(wait, timeout_s=wait_s)).strip()
+        if text != "1":
+            raise ProtocolError(f"{self._where(wait)}: answered {text!r}, not 1")
+        self.check_errors(arm)
+
+    def time_tag(self, segment: int) -> float:
+        """Seconds from the batch's first trigger to segment ``segment``'s (1-based); selects it."""
+        msg = sd.compound(self.dialect.cmd("segment_index").message(value=segment),
+                          self.dialect.cmd("time_tag").message())
+        text = self._io(msg, lambda: self.link.query(msg))
+        try:
+            return float(text)
+        except ValueError:
+            raise ProtocolError(f"{self._where(msg)}: {text.strip()!r} is not a time") from None
+
     def fetch(self, channel: str) -> tuple[int, np.ndarray, bool]:
         """The next segment of ``channel``: (first index on the common clock, volts, clipped)."""
+        pre, volts, clipped = self.waveform(channel)
+        try:
+            return pre.first_index(self.fs_hz), volts, clipped
+        except ValueError as err:
+            raise ProtocolError(f"{self._where(self._pre_msg(channel))} ({channel}): {err}") from err
+
+    def _pre_msg(self, channel: str) -> str:
+        return sd.compound(self.dialect.cmd("source").message(channel), self.dialect.cmd("preamble").message())
+
+    def waveform(self, channel: str) -> tuple[sd.Preamble, np.ndarray, bool]:
+        """The next segment of ``channel`` (its preamble checked: one clock period between points)."""
         # source and preamble as one program message (IEEE 488.2 ';'-separated units): as two, the
         # query would wait for the instrument's delayed ACK of the command (Nagle: 40 ms on Linux)
-        pre_msg = sd.compound(self.dialect.command("source").message(channel),
-                              self.dialect.command("preamble").message())
+        pre_msg = self._pre_msg(channel)
         text = self._io(pre_msg, lambda: self.link.query(pre_msg))
         try:
             pre = sd.Preamble.parse(text, self.dialect)
-            first = pre.first_index(self.fs_hz)
+            pre.start_s(self.fs_hz)
         except ValueError as err:
             raise ProtocolError(f"{self._where(pre_msg)} ({channel}): {err}") from err
         data_msg = self.dialect.command("data").message()
@@ -234,7 +282,7 @@ class ScpiDigitiser:
             raise ProtocolError(f"{self._where(data_msg)} ({channel}): the block holds {len(raw)} bytes, the preamble "
                                 f"announced {pre.points} points of 2 bytes")
         codes = np.frombuffer(raw, dtype=sd.CODE_DTYPE)
-        return first, sd.codes_to_volts(codes, pre), sd.clipped(codes)
+        return pre, sd.codes_to_volts(codes, pre), sd.clipped(codes)
 
 
 class SegmentJoiner:
@@ -285,7 +333,8 @@ class DigitiserFrameSource(FrameSource):
     signal, in the stream's order).  An idle digitiser is asked again after ``poll_s``."""
 
     def __init__(self, digitiser: ScpiDigitiser, channels: list[str], *, poll_s: float = 0.02,
-                 min_points: int | None = None) -> None:
+                 min_points: int | None = None, segments: int = 0, clock: Callable[[], float] = time.monotonic
+                 ) -> None:
         self.digitiser, self.instrument_channels = digitiser, list(channels)
         self.name = digitiser.name
         # a read that brought fewer than poll_s of samples per channel waits poll_s before the next:
@@ -296,18 +345,23 @@ class DigitiserFrameSource(FrameSource):
         self._joiner = SegmentJoiner(len(channels))
         self._idle = threading.Event()  # never set: waits between polls are bounded by poll_s
         self._opened = False  # a refusal at the first open is the user's to fix; on a reopen, a failed attempt
+        # segmented (segments > 0): batches armed one at a time; the host clock places each batch
+        self.segments, self._clock = segments, clock
+        self._batch_end: int | None = None  # the index after the last batch's last sample
+        self._batch_done_s = 0.0  # the host clock when that batch was complete
 
     @classmethod
     def from_config(cls, dc: DigitiserConfig, bench: BenchConfig) -> "DigitiserFrameSource":
         d = sd.dialect(dc.dialect)
         link = VisaLink(dc.url, dc.timeout_s or bench.timeout_s)
         return cls(ScpiDigitiser(link, d, bench.fs_hz, max_points=dc.max_points),
-                   [d.channel(dc.channels[s]) for s in SIGNALS])  # the file's spelling checked at load
+                   [d.channel(dc.channels[s]) for s in SIGNALS],  # the file's spelling checked at load
+                   segments=dc.segments if dc.acquisition == "segmented" else 0)
 
     def open(self) -> None:
         # what the joiner holds stays: its indices count the digitiser's clock, which a new session keeps
         try:
-            self.digitiser.open(tuple(self.instrument_channels))
+            self.digitiser.open(tuple(self.instrument_channels), self.segments)
         except (InstrumentTimeout, ConnectionLost, ProtocolError) as err:
             self.digitiser.link.close()
             raise ConnectionError(str(err)) from err
@@ -324,6 +378,8 @@ class DigitiserFrameSource(FrameSource):
     def read_frames(self, timeout_s: float) -> list[Frame]:
         """One segment of every channel (a protocol error drops the session: the stream reopens it
         and the lost segment becomes a gap)."""
+        if self.segments:
+            return self._read_batch()
         got = 0
         try:
             for k, ch in enumerate(self.instrument_channels):
@@ -341,6 +397,60 @@ class DigitiserFrameSource(FrameSource):
             return []
         self.deframer_stats.frames += 1
         return [frame]
+
+
+    def _read_batch(self) -> list[Frame]:
+        """One batch of segmented acquisition: armed, waited for, each segment read with its time
+        tag.  Within the batch the tags place every segment exactly (whole samples, else
+        ProtocolError).  Between batches the instrument says nothing: the host clock measures the
+        gap (from the previous batch's completion to this one's first trigger: this batch's
+        completion less its span), at least one sample, and the batch's first frame is flagged
+        GAP_ESTIMATED so the stream counts that gap as an estimate."""
+        dig, fs = self.digitiser, self.digitiser.fs_hz
+        wait_s = dig.link.timeout_s * (self.segments + 1)  # each segment's trigger within the reply deadline
+        segs: list[tuple[int, list[tuple[np.ndarray, bool]]]] = []
+        try:
+            dig.arm_and_wait(wait_s)
+            done_s = self._clock()
+            t_ref = None
+            for k in range(1, self.segments + 1):
+                tag = dig.time_tag(k)
+                rows, first = [], None
+                for ch in self.instrument_channels:
+                    pre, volts, clipped = dig.waveform(ch)
+                    t = tag + pre.start_s(fs)
+                    t_ref = t if t_ref is None else t_ref
+                    try:
+                        at = sd.whole_samples(t - t_ref, fs, f"segment {k} ({ch}) starts, from the batch's first,")
+                    except ValueError as err:
+                        raise ProtocolError(f"{dig.name} ({dig.link.resource}): {err}") from err
+                    if first is not None and at != first:
+                        raise ProtocolError(f"{dig.name} ({dig.link.resource}): segment {k}: {ch} starts {at - first} "
+                                            "samples from the first channel's")
+                    first = at
+                    rows.append((volts, clipped))
+                segs.append((int(first or 0), rows))
+        except ProtocolError as err:
+            self.deframer_stats.corrupt += 1
+            raise ConnectionError(str(err)) from err
+        span = max((f + r[0][0].size for f, r in segs), default=0)
+        estimated = self._batch_end is not None
+        if self._batch_end is None:
+            base = 0
+        else:
+            gap = int(round((done_s - self._batch_done_s) * fs)) - span
+            base = self._batch_end + max(gap, 1)
+        self._batch_end, self._batch_done_s = base + span, done_s
+        frames: list[Frame] = []
+        for first, rows in segs:
+            for k, (volts, clipped) in enumerate(rows):
+                self._joiner.push(k, base + first, volts, clipped)
+            while (frame := self._joiner.pop()) is not None:
+                frames.append(frame)
+        if estimated and frames:
+            frames[0] = dataclasses.replace(frames[0], flags=frames[0].flags | int(BlockFlags.GAP_ESTIMATED))
+        self.deframer_stats.frames += len(frames)
+        return frames
 
 
 def _source_class(kind: str) -> type[FrameSource]:

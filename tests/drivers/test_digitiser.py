@@ -337,3 +337,66 @@ def test_clip_is_either_end_of_the_int16_code_range_not_a_symmetric_32767():
     codes, over = sd.volts_to_codes(np.array([-10.0, 10.0 - 10 / 32768]), 10 / 32768)  # both ends, not beyond
     assert codes.tolist() == [-32768, 32767] and not over
     assert sd.volts_to_codes(np.array([-10.001]), 10 / 32768)[1]
+
+
+# --- review R1 / H8: segmented (triggered) acquisition of an oscilloscope --------------------------------
+SEG_OPEN = GENERIC_OPEN[:-3] + [(b"WAV:SOUR CHAN1\n", None), (b"SYST:ERR?\n", OK), (b"ACQ:SRAT?\n", b"100000\n"),
+                                (b"ACQ:MODE SEGM\n", None), (b"SYST:ERR?\n", OK),
+                                (b"ACQ:SEGM:COUN 2\n", None), (b"SYST:ERR?\n", OK)]
+# 3 points 10 us apart from 20 us before the trigger; codes 1, 2, 3 of 0.5 V
+SEG_PRE = b"1,0,3,1,1e-05,-2e-05,0,0.5,0,0\n"
+SEG_DATA = b"#16\x01\x00\x02\x00\x03\x00\n"
+
+
+def _batch(tag2: bytes) -> list:
+    return [(b"DIG\n", None), (b"*OPC?\n", b"1\n"), (b"SYST:ERR?\n", OK),
+            (b"ACQ:SEGM:IND 1;:WAV:SEGM:TTAG?\n", b"+0.000000000E+00\n"),
+            (b"WAV:SOUR CHAN1;:WAV:PRE?\n", SEG_PRE), (b"WAV:DATA?\n", SEG_DATA),
+            (b"ACQ:SEGM:IND 2;:WAV:SEGM:TTAG?\n", tag2),
+            (b"WAV:SOUR CHAN1;:WAV:PRE?\n", SEG_PRE), (b"WAV:DATA?\n", SEG_DATA)]
+
+
+def _segmented_source(peer, clock=None) -> DigitiserFrameSource:
+    link = VisaLink(f"TCPIP::127.0.0.1::{peer.port}::SOCKET", 2.0)
+    return DigitiserFrameSource(ScpiDigitiser(link, sd.dialect("generic"), 100_000.0, max_points=1000), ["CHAN1"],
+                                segments=2, **({"clock": clock} if clock else {}))
+
+
+def test_segmented_transcript_one_batch_placed_exactly_by_the_time_tags(scripted_peer):
+    """Armed once (DIGitize), waited for (*OPC?), then per segment its index, time tag, preamble and
+    data.  Segment 2's trigger came 3.12 ms = 312 samples after segment 1's: it starts at index 312."""
+    peer = scripted_peer(SEG_OPEN + _batch(b"+3.120000000E-03\n"), timeout_s=30.0)
+    src = _segmented_source(peer)
+    src.open()
+    frames = src.read_frames(1.0)
+    src.digitiser.link.close()
+    peer.check()
+    assert [(f.first_index, f.n) for f in frames] == [(0, 3), (312, 3)]
+    assert all(f.flags == 0 for f in frames)  # the first batch: no gap before it
+    np.testing.assert_array_equal(frames[1].samples[0], [0.5, 1.0, 1.5])
+
+
+def test_a_time_tag_between_two_samples_is_refused_not_rounded(scripted_peer):
+    peer = scripted_peer(SEG_OPEN + _batch(b"+3.125000000E-03\n"), timeout_s=30.0)  # 312.5 samples
+    src = _segmented_source(peer)
+    src.open()
+    with pytest.raises(ConnectionError, match=r"segment 2 \(CHAN1\) starts, from the batch's first, 0.003125 s, "
+                                              r"between two samples of the 100000 Hz clock"):
+        src.read_frames(1.0)
+    assert src.deframer_stats.corrupt == 1
+    src.digitiser.link.close()
+
+
+def test_the_gap_between_batches_is_measured_by_the_host_clock_and_flagged_estimated(scripted_peer):
+    """Batch 2 completed 0.5 s (host clock) after batch 1; it spans 315 samples, so its first trigger
+    came 50000 - 315 samples after batch 1's end: it starts at 315 + 49685 = 50000, flagged
+    GAP_ESTIMATED (the instrument never said so)."""
+    times = iter([10.0, 10.5])
+    peer = scripted_peer(SEG_OPEN + _batch(b"3.12e-3\n") + _batch(b"3.12e-3\n"), timeout_s=30.0)
+    src = _segmented_source(peer, clock=lambda: next(times))
+    src.open()
+    first, second = src.read_frames(1.0), src.read_frames(1.0)
+    src.digitiser.link.close()
+    peer.check()
+    assert [(f.first_index, f.flags) for f in first] == [(0, 0), (312, 0)]
+    assert [(f.first_index, f.flags) for f in second] == [(50_000, int(BlockFlags.GAP_ESTIMATED)), (50_312, 0)]

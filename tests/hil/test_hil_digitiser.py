@@ -29,9 +29,9 @@ def digitiser_table(dialect: str = "generic") -> str:
 def dig_factory(tmp_path):
     made: list[Hil] = []
 
-    def make(dialect: str = "generic") -> Hil:
+    def make(dialect: str = "generic", extra: str = "") -> Hil:
         path = bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}"})
-        path.write_text(path.read_text() + digitiser_table(dialect))
+        path.write_text(path.read_text() + digitiser_table(dialect) + extra)
         h = Hil(path)
         made.append(h)
         h.bench.open()
@@ -253,3 +253,40 @@ def test_a_digitiser_whose_rate_changed_ends_the_stream_with_the_reason_not_a_de
     finally:
         stream.close()
         emu.close()
+
+
+def test_segmented_acquisition_through_pyvisa_py_places_segments_exactly_and_gives_the_rigs_delays(dig_factory):
+    """Review R1: an oscilloscope's segmented memory (acquisition = "segmented"), one batch of 3
+    segments armed at a time, each triggered at a period start of the generator.  Within a batch
+    every segment is at the index its time tag says (the rig's samples there, the emulator's true
+    triggers apart); between batches the gap is the host clock's estimate, flagged as such; the
+    paper's delays from one segment equal the rig's."""
+    hil = dig_factory(extra='acquisition = "segmented"\nsegments = 3\n')
+    emu, bench = hil.emu.digitiser, hil.bench
+    emu.segment_points = 24_000  # 76.8 periods of 320 Hz: the next trigger comes after a gap (25 000 would be 80)
+    bench.start_output()
+    runs = bench.acquire(1.2, timeout_s=HANG_S)  # 120 000 samples: batch 1 (72 000) and part of batch 2
+    assert len(emu.triggers) >= 2
+    n_seg = emu.segment_points
+    assert [r.n for r in runs[:4]] == [n_seg] * 4
+    batch1, batch2 = emu.triggers[0], emu.triggers[1]
+    assert [r.first_index - runs[0].first_index for r in runs[:3]] == [t - batch1[0] for t in batch1]
+    assert not runs[1].flags & BlockFlags.GAP_ESTIMATED and runs[1].gap_samples == batch1[1] - batch1[0] - n_seg
+    assert runs[3].flags & BlockFlags.GAP and runs[3].flags & BlockFlags.GAP_ESTIMATED and runs[3].gap_samples >= 1
+    stats = bench.stream_stats()["digitiser"]
+    assert stats["estimated_gaps"] >= 1 and 0 < stats["estimated_gap_samples"] < stats["gap_samples"]
+    for r, true_first in zip(runs[:4], batch1 + batch2[:1]):  # the rig's samples, from each true trigger
+        for name in SCALES:
+            np.testing.assert_allclose(r.channels[name], through_the_digitiser(hil, name, true_first, r.n),
+                                       rtol=1e-12, atol=0, err_msg=name)
+
+    seg = runs[3]  # a segment of the second batch: the output has settled
+    got = measure_delays(Recording(None, seg.fs_hz, {k: seg.channels[k] for k in ("current_A", "force_N", "flux_Wb")},
+                                   dict(hil.emu.rig.metadata())))
+    sim = hil.config.sim
+    rig = SimulatedRig(sim["rig"], fs_hz=seg.fs_hz, seed=sim["seed"], effects=dict(sim["effects"]),
+                       frequency_hz=320.0, current_pp_a=1.4)
+    direct = measure_delays(Recording(None, seg.fs_hz, dict(rig.record(1.0).channels), rig.metadata()))
+    for name in ("hysteresis", "instrument", "total"):
+        tol = 5 * np.hypot(got.delays_std_s[name], direct.delays_std_s[name]) + 10e-9
+        assert got.delays_s[name] == pytest.approx(direct.delays_s[name], abs=tol), name

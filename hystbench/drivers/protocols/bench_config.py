@@ -110,6 +110,11 @@ _DIGITISER = {
     "scales": Key(dict, {}, "SI units per volt at the digitiser's input (1 if left out)", table={
         s: Key(NUM, 1.0, f"{s} per volt") for s in _SIGNALS}),
     "max_points": Key(int, 100_000, "visa: most points one waveform read returns", "points", gt=0),
+    "acquisition": Key(str, "stream", "visa: stream (a digitiser acquiring continuously, memory read where the last "
+                       "read stopped) or segmented (an oscilloscope: one segment per trigger, armed once per batch; "
+                       "the gap between batches is measured by the host clock, an estimate)",
+                       choices=("stream", "segmented")),
+    "segments": Key(int, 16, "segmented: segments per batch", gt=0),
     "clock_source": Key(str, "", "daqmx: the sample clock terminal (the generator's clock), \"\": the card's own"),
     "trigger_source": Key(str, "", "daqmx: the start trigger terminal, \"\": start at once"),
     "skew_s": Key(NUM, 0.0, "the digitiser samples this much after the common clock", "s"),
@@ -220,6 +225,8 @@ class DigitiserConfig:
     channels: dict[str, str]
     scales: dict[str, float]
     max_points: int
+    acquisition: str
+    segments: int
     clock_source: str
     trigger_source: str
     skew_s: float
@@ -257,6 +264,11 @@ def _digitiser(t: dict[str, Any], src: str) -> DigitiserConfig:
             raise ConfigError(f"{where} url: required with backend = \"hardware\" and kind = \"visa\"")
         if t["url"]:
             _check_visa_resource(t["url"], where)
+        if t["acquisition"] == "segmented" and not d.segmented:
+            raise ConfigError(f"{where} acquisition = \"segmented\": the {d.name} dialect has no segmented "
+                              "commands here (generic only)")
+    elif t["acquisition"] != "stream":
+        raise ConfigError(f"{where} acquisition = {t['acquisition']!r}: NI-DAQmx acquires continuously (\"stream\")")
     elif t["backend"] == "sim":
         raise ConfigError(f"{where} kind: the emulated digitiser speaks SCPI: kind = \"daqmx\" needs "
                           "backend = \"hardware\"")
@@ -278,7 +290,7 @@ def _digitiser(t: dict[str, Any], src: str) -> DigitiserConfig:
         if v == 0 or v != v or abs(v) == float("inf"):
             raise ConfigError(f"{where} scales.{sig} = {v!r}: must be a finite, non-zero number")
     return DigitiserConfig(t["backend"], t["kind"], t["url"], t["dialect"], dict(t["channels"]), dict(t["scales"]),
-                           t["max_points"], t["clock_source"], t["trigger_source"], t["skew_s"],
+                           t["max_points"], t["acquisition"], t["segments"], t["clock_source"], t["trigger_source"], t["skew_s"],
                            t["timeout_s"] or None)
 
 

@@ -30,7 +30,7 @@ from .scpi import encode_block, header_matches, short_form
 __all__ = ["Command", "Dialect", "GENERIC", "DIALECTS", "Preamble", "dialect", "read_block", "encode_block",
            "codes_to_volts", "volts_to_codes", "compound", "split_units", "CODE_DTYPE", "FULL_SCALE_CODE",
            "FULL_SCALE_CODES", "clipped",
-           "parse_event_reply", "format_event_reply", "is_error_event", "ESR_ERROR_BITS"]
+           "parse_event_reply", "whole_samples", "SEGMENTED_OPS", "format_event_reply", "is_error_event", "ESR_ERROR_BITS"]
 
 #: Sample codes on the wire: signed 16-bit, least significant byte first.
 CODE_DTYPE = np.dtype("<i2")
@@ -88,10 +88,22 @@ GENERIC: Mapping[str, Command | None] = MappingProxyType({
     "run": _c("RUN", doc="acquire continuously (armed: starts on the trigger)"),
     "stop": _c("STOP", doc="stop acquiring"),
     "source": _c("WAVeform:SOURce", "{ch}", doc="the channel the next preamble and data are read from"),
+    # segmented acquisition (an oscilloscope: one segment per trigger, armed once per batch)
+    "acquire_mode": _c("ACQuire:MODE", "SEGMented", doc="segmented memory: one record per trigger"),
+    "segment_count": _c("ACQuire:SEGMented:COUNt", "16", doc="segments per batch ([digitiser] segments)"),
+    "arm": _c("DIGitize", doc="acquire the batch's segments, one per trigger, then stop"),
+    "wait": _c("*OPC", query=True, doc="answers 1 when the armed batch is complete (bounded by the driver)"),
+    "segment_index": _c("ACQuire:SEGMented:INDex", "1", doc="the segment the next preamble, data and tag read"),
+    "time_tag": _c("WAVeform:SEGMented:TTAG", query=True,
+                   doc="seconds from the batch's first trigger to this segment's"),
     "preamble": _c("WAVeform:PREamble", query=True,
                    doc="the next segment of the source (latched until its data is read)"),
     "data": _c("WAVeform:DATA", query=True, doc="the segment the preamble announced, as a definite-length block"),
 })
+
+
+#: The operations of a segmented acquisition (a dialect lacking one cannot run it).
+SEGMENTED_OPS = ("acquire_mode", "segment_count", "arm", "wait", "segment_index", "time_tag")
 
 
 @dataclass(frozen=True)
@@ -122,6 +134,11 @@ class Dialect:
         if c is None:
             raise ValueError(f"dialect {self.name!r} has no {op!r} command")
         return c
+
+    @property
+    def segmented(self) -> bool:
+        """Whether the dialect has the commands of a segmented (triggered) acquisition."""
+        return all(self.command(op) is not None for op in SEGMENTED_OPS)
 
     @property
     def reads_events(self) -> bool:
@@ -163,6 +180,9 @@ DIALECTS: Mapping[str, Dialect] = MappingProxyType({
          "byte_order": _c("WFMOutpre:BYT_Nr", "2"),
          "points_mode": None,  # CURVe? reads the record at full resolution
          "points": None,
+         # FastFrame is Tektronix's segmented memory; not written here: segmented needs the generic dialect
+         "acquire_mode": None, "segment_count": None, "arm": None, "wait": None, "segment_index": None,
+         "time_tag": None,
          "run": _c("ACQuire:STATE", "RUN"), "stop": _c("ACQuire:STATE", "STOP"),
          "source": _c("DATa:SOUrce", "{ch}"),
          "preamble": _c("WFMOutpre", query=True),
@@ -196,18 +216,18 @@ class Preamble:
     y_origin: float
     y_reference: float
 
-    def first_index(self, fs_hz: float) -> int:
-        """The common-clock index of the segment's first point (exact: it must be a whole sample,
-        and the points one period of the clock apart, not decimated)."""
+    def start_s(self, fs_hz: float) -> float:
+        """When the first point was taken (the points checked to be one period of the clock apart,
+        not decimated)."""
         if abs(self.x_increment * fs_hz - 1.0) > 1e-6:  # an instrument prints about 9 digits
             raise ValueError(f"the points are {self.x_increment!r} s apart, not one period of the {fs_hz:g} Hz "
                              "clock (a decimated or resampled read)")
-        t0 = self.x_origin - self.x_reference * self.x_increment
-        k = t0 * fs_hz
-        index = int(round(k))
-        if abs(k - index) > 1e-3:
-            raise ValueError(f"the segment starts at {t0!r} s, between two samples of the {fs_hz:g} Hz clock")
-        return index
+        return self.x_origin - self.x_reference * self.x_increment
+
+    def first_index(self, fs_hz: float) -> int:
+        """The common-clock index of the segment's first point (exact: it must be a whole sample,
+        and the points one period of the clock apart, not decimated)."""
+        return whole_samples(self.start_s(fs_hz), fs_hz, "the segment starts at")
 
     @classmethod
     def parse(cls, text: str, d: Dialect) -> "Preamble":
@@ -275,6 +295,15 @@ def is_error_event(code: int) -> bool:
     """Tektronix event codes 100-399 are command, execution and device errors; 400s are status
     events (e.g. 402 operation complete), 500-600s warnings."""
     return 100 <= abs(code) < 400
+
+
+def whole_samples(t_s: float, fs_hz: float, what: str) -> int:
+    """``t_s`` as a whole number of periods of the clock; ValueError if it falls between two."""
+    k = t_s * fs_hz
+    index = int(round(k))
+    if abs(k - index) > 1e-3:
+        raise ValueError(f"{what} {t_s!r} s, between two samples of the {fs_hz:g} Hz clock")
+    return index
 
 
 def compound(*messages: str) -> str:

@@ -40,7 +40,8 @@ class DigitiserEmulator:
     kind = "digitiser"
 
     def __init__(self, fs_hz: float, wiring: Mapping[str, tuple[int, float]], *, dialect: str = "generic",
-                 memory_points: int = 4_000_000, identity: str = "HYSTBENCH,SIMDIG-4,0001,1.0") -> None:
+                 memory_points: int = 4_000_000, identity: str = "HYSTBENCH,SIMDIG-4,0001,1.0",
+                 segment_points: int = 25_000) -> None:
         self.fs_hz, self.dialect = float(fs_hz), sd.dialect(dialect)
         self.wiring = {s: (int(ch), float(scale)) for s, (ch, scale) in wiring.items()}
         self.memory_points, self.identity = int(memory_points), identity
@@ -61,6 +62,16 @@ class DigitiserEmulator:
         self._latched: dict[int, tuple[int, np.ndarray]] = {}
         self._lock = threading.RLock()
         self.data_replies = threading.Semaphore(0)  # released once per data block sent (tests wait on it)
+        # segmented acquisition: DIGitize arms ``segment_count`` segments of ``segment_points``, each
+        # triggered by a rising zero crossing of command_V (the generator's period starts)
+        self.segmented, self.segment_count, self.segment_points = False, 16, int(segment_points)
+        self.segment_index = 1
+        self._armed = False
+        self._filling: tuple[int, dict[int, list[np.ndarray]], int] | None = None  # trigger, parts, points
+        self._segments: list[tuple[int, dict[int, np.ndarray]]] = []  # (trigger index, channel -> codes)
+        self._last_cmd = 0.0
+        self._batch_done = threading.Event()
+        self.triggers: list[list[int]] = []  #: each batch's trigger indices (the truth tests compare with)
         self.server = TcpServer(self._serve, "digitiser")
 
     @property
@@ -69,6 +80,9 @@ class DigitiserEmulator:
 
     # --- sampling ----------------------------------------------------------------------------------
     def on_block(self, block: SampleBlock) -> None:
+        if self._armed:
+            with self._lock:
+                self._segment_block(block)
         if not self.running:
             return
         with self._lock:
@@ -86,6 +100,35 @@ class DigitiserEmulator:
                         self.lost_points += first + old.size - self._read_at[ch]
                         self._read_at[ch] = first + old.size
                     self._latched.pop(ch, None)
+
+    def _segment_block(self, block: SampleBlock) -> None:
+        """Segmented acquisition: fill segments from their triggers until the batch is complete."""
+        cmd = np.asarray(block.channels["command_V"], dtype=np.float64)
+        codes = {ch: sd.volts_to_codes(np.asarray(block.channels[sig], dtype=np.float64) / scale, Y_INCREMENT)[0]
+                 for sig, (ch, scale) in self.wiring.items()}
+        prev = np.concatenate([[self._last_cmd], cmd[:-1]])
+        self._last_cmd = float(cmd[-1]) if cmd.size else self._last_cmd
+        pos, n = 0, cmd.size
+        while self._armed and pos < n:
+            if self._filling is None:
+                hits = np.flatnonzero((prev[pos:] < 0) & (cmd[pos:] >= 0))
+                if not hits.size:
+                    return
+                pos += int(hits[0])
+                self._filling = (block.first_index + pos, {ch: [] for ch in codes}, 0)
+            trig, parts, got = self._filling
+            take = min(self.segment_points - got, n - pos)
+            for ch, c in codes.items():
+                parts[ch].append(c[pos:pos + take])
+            pos, got = pos + take, got + take
+            self._filling = (trig, parts, got)
+            if got == self.segment_points:
+                self._segments.append((trig, {ch: np.concatenate(p) for ch, p in parts.items()}))
+                self._filling = None
+                if len(self._segments) == self.segment_count:
+                    self._armed = False
+                    self.triggers.append([t for t, _ in self._segments])
+                    self._batch_done.set()
 
     def _segment(self, ch: int) -> tuple[int, np.ndarray]:
         """The next unread points of channel ``ch`` (at most ``max_points``), contiguous: a hole in
@@ -129,16 +172,26 @@ class DigitiserEmulator:
         candidates = [op for op, c in self.dialect.commands.items() if c.query == is_query and c.matches(header)]
         for op in candidates:
             want = self.dialect.command(op).argument
-            if is_query or want is None or op in ("source", "points") or scpi.header_matches(want, arg):
+            if is_query or want is None or op in ("source", "points", "segment_count", "segment_index") \
+                    or scpi.header_matches(want, arg):
                 return op
         self.push_error(-224 if candidates else -113)
         return None
 
     def handle(self, message: bytes) -> bytes | None:
         """Execute one program message; the reply (with terminator) or None."""
+        wait = self.dialect.command("wait")
+        header, is_query, raw = scpi.split_command(message)
+        if is_query and wait is not None and wait.matches(header):  # *OPC?: 1 once the armed batch is complete
+            self.commands_seen.append(message)
+            for _ in range(300):  # at most 30 s, and no longer than the server lives
+                if self._batch_done.wait(0.1):
+                    return b"1\n"
+                if self.server.stopped:
+                    break
+            return None  # no answer: the driver's bounded wait times out
         with self._lock:
             self.commands_seen.append(message)
-            header, is_query, raw = scpi.split_command(message)
             arg = raw.decode("ascii", "replace").strip()
             if not is_query and scpi.header_matches("HEADer", header) and self.dialect.on_open:
                 return None  # the dialect's HEADer OFF: replies carry no headers (the only form emulated)
@@ -161,6 +214,23 @@ class DigitiserEmulator:
                 except ValueError:
                     self.max_points = 100_000
                     self.push_error(-224)
+            elif op in ("segment_count", "segment_index"):
+                try:
+                    value = int(arg)
+                    if value < 1 or (op == "segment_index" and value > len(self._segments)):
+                        raise ValueError(arg)
+                    setattr(self, op, value)
+                except ValueError:
+                    self.push_error(-224)
+            elif op == "acquire_mode":
+                self.segmented, self.running = True, False
+            elif op == "arm":
+                if not self.segmented:
+                    self.push_error(-221)  # settings conflict: armed outside segmented mode (not emulated)
+                else:
+                    self._segments, self._filling, self.segment_index = [], None, 1
+                    self._batch_done.clear()
+                    self._armed = True
             elif op == "run":
                 self.running = True
             elif op == "stop":
@@ -185,12 +255,29 @@ class DigitiserEmulator:
         if op == "sample_rate":
             return f"{self.fs_hz:.10g}".encode() + b"\n"
         ch = self.source
+        if self.segmented and op in ("preamble", "data", "time_tag"):
+            return self._segment_reply(op, ch)
         if op == "preamble":
             self._latched[ch] = seg = self._segment(ch)
             return self._preamble(*seg).format(self.dialect).encode() + b"\n"
         first, codes = self._latched.pop(ch, None) or self._segment(ch)
         if codes.size:
             self._read_at[ch] = first + codes.size
+        return sd.encode_block(codes.astype(sd.CODE_DTYPE, copy=False).tobytes()) + b"\n"
+
+    def _segment_reply(self, op: str, ch: int) -> bytes:
+        """The selected segment (x_origin 0: its first point is its trigger), its tag, or its data."""
+        if not self._segments:
+            self.push_error(-230, "Data corrupt or stale")  # nothing acquired yet
+            codes, trig = np.empty(0, sd.CODE_DTYPE), 0
+        else:
+            trig, by_ch = self._segments[self.segment_index - 1]
+            codes = by_ch[ch]
+        if op == "time_tag":
+            return f"{(trig - self._segments[0][0]) / self.fs_hz if self._segments else 0.0:.12e}".encode() + b"\n"
+        if op == "preamble":
+            return sd.Preamble(int(codes.size), 1.0 / self.fs_hz, 0.0, 0.0, Y_INCREMENT, 0.0, 0.0) \
+                .format(self.dialect).encode() + b"\n"
         return sd.encode_block(codes.astype(sd.CODE_DTYPE, copy=False).tobytes()) + b"\n"
 
     def _preamble(self, first: int, codes: np.ndarray) -> sd.Preamble:
