@@ -12,17 +12,24 @@ Exact indices: the task's buffer may overwrite what was not read in time
 the frame starts later, which the stream reports as an exact gap.  Nothing is read twice or
 filled in.  Index 0 is the task's first sample: the generator's start trigger when one is given.
 Samples overwritten during a read (the reader was behind) are skipped the same way, the task
-running on: a reopened task would count from its own first sample again.
+running on.  Any other read error ends the task; the stream reopens it, and a new task counts from
+its own first sample, whose place on the old count nothing on the card records: it starts a new
+epoch after the old one's last sample plus the time the host clock measured between the last
+read and the new start (at least one sample), and its first frame is flagged GAP_ESTIMATED, so the
+stream reports the gap and counts it as estimated.  (With a start trigger, the new task's first
+sample comes at the next trigger, after the host's start: the estimate is then short of it.)
 """
 
 from __future__ import annotations
 
 import importlib
 import threading
-from typing import TYPE_CHECKING, Any
+import time
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
+from ..blocks import BlockFlags
 from ..errors import ConfigError
 from .protocols.framing import DeframerStats, Frame
 from .stream import FrameSource
@@ -55,7 +62,8 @@ class DaqmxFrameSource(FrameSource):
 
     def __init__(self, channels: list[str], fs_hz: float, *, clock_source: str = "", trigger_source: str = "",
                  name: str = "digitiser", buffer_s: float = 10.0, max_read: int = 100_000,
-                 poll_s: float = 0.005, timeout_s: float = 1.0, where: str = "[digitiser]") -> None:
+                 poll_s: float = 0.005, timeout_s: float = 1.0, where: str = "[digitiser]",
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.channels, self.fs_hz = list(channels), float(fs_hz)
         self.clock_source, self.trigger_source, self.name = clock_source, trigger_source, name
         self.where = where  # named in the errors a user can fix: the bench file and its table
@@ -65,7 +73,11 @@ class DaqmxFrameSource(FrameSource):
         self._task: Any = None
         self._reader: Any = None
         self._mods: tuple[Any, ...] = ()
-        self._next = 0  # the next absolute sample index to read
+        self._next = 0  # the next sample index to read, on the task's own count
+        # the task's count placed on the stream's: epoch base, the end delivered so far and when
+        self._clock, self._base, self._flag = clock, 0, 0
+        self._end: int | None = None
+        self._end_s = 0.0
         self._seq = 0
         self.skipped = 0  # samples overwritten before they were read (each a gap in the stream)
         self._idle = threading.Event()
@@ -101,6 +113,9 @@ class DaqmxFrameSource(FrameSource):
             task.close()
             raise ConnectionError(f"{self.name}: NI-DAQmx refused the task: {err}") from err
         self._task, self._next = task, 0  # a new task counts from its own first sample
+        if self._end is not None:  # a new epoch: after the last sample delivered, by the host clock's measure
+            self._base = self._end + max(1, int(round((self._clock() - self._end_s) * self.fs_hz)))
+            self._flag = int(BlockFlags.GAP_ESTIMATED)
 
     def close(self) -> None:
         task, self._task = self._task, None
@@ -134,8 +149,9 @@ class DaqmxFrameSource(FrameSource):
                 # a new task would count from its own first sample, behind what the stream already has
                 return []
             raise ConnectionError(f"{self.name}: NI-DAQmx read at sample {self._next}: {err}") from err
-        frame = Frame(0, self._seq, self._next, data, 0)
+        frame = Frame(0, self._seq, self._base + self._next, data, self._flag)
         self._seq = (self._seq + 1) % (1 << 32)
         self._next += n
+        self._flag, self._end, self._end_s = 0, self._base + self._next, self._clock()
         self.deframer_stats.frames += 1
         return [frame]

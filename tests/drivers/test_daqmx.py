@@ -216,3 +216,44 @@ def test_the_install_error_names_the_bench_file_that_asked_for_daqmx(monkeypatch
     src = _source_class("daqmx").from_config(bench.digitiser, bench)
     with pytest.raises(ConfigError, match=rf'^{str(path)!s} \[digitiser\] kind = "daqmx" needs the nidaqmx package'):
         src.open()
+
+
+def test_any_other_read_error_starts_a_new_epoch_after_an_estimated_gap_not_indices_from_zero(monkeypatch):
+    """Review R1: a read error other than -200279 reopens the task, which counts from its own first
+    sample again: read as indices from 0, the stream dropped everything as stale, the loss never
+    reported.  The new task's samples now follow the old ones after the gap the host clock measured
+    (last read at t = 1.0 s, new task at t = 1.5 s: 500 samples at 1 kHz), flagged as estimated."""
+    from hystbench.blocks import BlockFlags
+    from hystbench.drivers.base import Backoff
+
+    lost = DaqError("Onboard device memory overflow.", error_code=-200361)
+    card = Card(OPEN + [
+        (("total_samp_per_chan_acquired",), 300),
+        (("in_stream.offset", 0), None), (("read_many_sample", (4, 300), 300), 0),
+        (("total_samp_per_chan_acquired",), 700),
+        (("in_stream.offset", 300), None), (("read_many_sample", (4, 400), 400), lost),
+        (("close",), None),  # the stream reopens: a new task
+        *OPEN,
+        (("total_samp_per_chan_acquired",), 200),
+        (("in_stream.offset", 0), None), (("read_many_sample", (4, 200), 200), 0),
+        (("close",), None),
+    ])
+    for name, mod in fake_nidaqmx(card).items():
+        monkeypatch.setitem(sys.modules, name, mod)
+    times = iter([1.0, 1.5, 2.0])
+    src = DaqmxFrameSource(CHANNELS, 1000.0, clock_source="/Dev1/PFI0", trigger_source="/Dev1/PFI1", buffer_s=1.0,
+                           poll_s=0.001, clock=lambda: next(times))
+    stream = SampleStream("digitiser", src, ["current_A", "force_N", "flux_Wb", "command_V"], 1000.0,
+                          stall_timeout_s=60.0, backoff=Backoff(initial_s=0.001, factor=1.0, max_s=0.001,
+                                                                attempts=2)).start()
+    try:
+        a = stream.read(timeout_s=10.0)
+        b = stream.read(timeout_s=10.0)
+    finally:
+        stream.close()
+    assert card.step == len(card.script), f"only {card.step} of {len(card.script)} calls made"
+    assert (a.first_index, a.n, a.gap_samples) == (0, 300, 0)
+    assert (b.first_index, b.n, b.gap_samples) == (800, 200, 500)
+    assert b.flags & BlockFlags.GAP and b.flags & BlockFlags.GAP_ESTIMATED
+    assert stream.stats.reconnects == 1 and (stream.stats.estimated_gaps, stream.stats.estimated_gap_samples) == (1, 500)
+    np.testing.assert_array_equal(b.channels["current_A"], np.arange(0, 200))  # the new task's own samples
