@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import socket
 import threading
 import time
 from typing import TYPE_CHECKING, Any, Callable, Mapping
@@ -92,9 +93,28 @@ class VisaLink:
         try:
             return fn()
         except pyvisa.errors.VisaIOError as err:
-            if err.error_code == pyvisa.constants.StatusCode.error_timeout:
-                raise TimeoutError(str(err)) from err
-            raise ConnectionError(str(err)) from err
+            if err.error_code != pyvisa.constants.StatusCode.error_timeout:
+                raise ConnectionError(str(err)) from err
+            if self._peer_closed():  # pyvisa-py 0.8 reads an instrument's close as silence until the timeout
+                raise ConnectionError(f"the instrument closed the connection (seen after the {self.timeout_s:g} s "
+                                      "timeout)") from err
+            raise TimeoutError(str(err)) from err
+
+    def _peer_closed(self) -> bool:
+        """Whether a TCPIP SOCKET session's peer has closed (a zero-byte peek); False for any other
+        interface, or when pyvisa-py's session cannot be reached (then a timeout stays a timeout)."""
+        try:
+            sock = self._inst.visalib.sessions[self._inst.session].interface
+        except (AttributeError, KeyError, TypeError):
+            return False
+        if not isinstance(sock, socket.socket):
+            return False
+        try:
+            return sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+        except BlockingIOError:
+            return False
+        except OSError:  # reset by the peer: closed too
+            return True
 
     def write(self, message: str) -> None:
         self._call(lambda: self._inst.write(message))

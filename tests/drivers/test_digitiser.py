@@ -400,3 +400,38 @@ def test_the_gap_between_batches_is_measured_by_the_host_clock_and_flagged_estim
     peer.check()
     assert [(f.first_index, f.flags) for f in first] == [(0, 0), (312, 0)]
     assert [(f.first_index, f.flags) for f in second] == [(50_000, int(BlockFlags.GAP_ESTIMATED)), (50_312, 0)]
+
+
+def test_an_instrument_closing_mid_block_is_a_lost_connection_not_a_timeout():
+    """Review R1: the peer sends 4 of the 10 bytes its block announced and closes.  pyvisa-py reads
+    the close as silence until its timeout; the driver then sees the closed socket and says so."""
+    import socket
+    import threading
+
+    from hystbench.errors import ConnectionLost
+
+    srv = socket.create_server(("127.0.0.1", 0))
+    replies = {b"*IDN?": IDN, b"SYST:ERR?": OK, b"ACQ:SRAT?": b"100000\n", b"WAV:SOUR CHAN1;:WAV:PRE?": PRE5}
+
+    def serve() -> None:
+        conn, _ = srv.accept()
+        with conn, conn.makefile("rb") as f:
+            for line in f:
+                if line.strip() == b"WAV:DATA?":
+                    conn.sendall(b"#210\x01\x00\x02\x00")
+                    return  # and close
+                conn.sendall(replies.get(line.strip(), b""))
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    link = VisaLink(f"TCPIP::127.0.0.1::{srv.getsockname()[1]}::SOCKET", 1.0)
+    dig = ScpiDigitiser(link, sd.dialect("generic"), 100_000.0, max_points=1000)
+    try:
+        dig.open()
+        with pytest.raises(ConnectionLost, match=r"'WAV:DATA\?' \(CHAN1\): the connection closed in the binary block "
+                                                 r"after 4 bytes, waiting for 10 data bytes"):
+            dig.fetch("CHAN1")
+    finally:
+        link.close()
+        srv.close()
+        t.join(5.0)

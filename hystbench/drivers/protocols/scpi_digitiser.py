@@ -24,7 +24,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from ...errors import InstrumentTimeout, ProtocolError
+from ...errors import ConnectionLost, InstrumentTimeout, ProtocolError
 from .scpi import encode_block, header_matches, short_form
 
 __all__ = ["Command", "Dialect", "GENERIC", "DIALECTS", "Preamble", "dialect", "read_block", "encode_block",
@@ -364,6 +364,9 @@ def read_block(read: Callable[[int], bytes], where: str, *, max_bytes: int = 1 <
         except TimeoutError as err:
             raise InstrumentTimeout(f"{where}: timed out in the binary block after {got} bytes, "
                                     f"waiting for {what}") from err
+        except ConnectionError as err:
+            raise ConnectionLost(f"{where}: the connection closed in the binary block after {got} bytes, "
+                                 f"waiting for {what}") from err
         got += len(data)
         return data
 
