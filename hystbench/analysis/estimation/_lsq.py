@@ -195,11 +195,11 @@ def bases(f: np.ndarray, ks: np.ndarray, n: int, fs: float) -> Bases:
         recent.move_to_end(key)
         return hit
     made = Bases(f, ks, n, fs)
-    if made.kept:
+    if made.kept:  # the kept floats are counted as they come and go, not summed over the LRU each call
         recent[key] = made
-        total = sum(b.floats for b in recent.values())
-        while total > RECENT_FLOATS:
-            total -= recent.popitem(last=False)[1].floats
+        _recent.floats = getattr(_recent, "floats", 0) + made.floats
+        while _recent.floats > RECENT_FLOATS:
+            _recent.floats -= recent.popitem(last=False)[1].floats
     return made
 
 
@@ -339,7 +339,10 @@ def solve(
             iterations[active] = it
 
             better = cost <= best[active]
-            keep = active[better]
+            if better.all():  # the usual case: no copies through a mask (same values)
+                better, keep = slice(None), active
+            else:
+                keep = active[better]
             freq[keep] = f_try[better]
             best[keep] = cost[better]
             coef[keep] = c_try[better]
@@ -357,8 +360,8 @@ def solve(
                 new_step = np.where(den > 0.0, num / den, 0.0)
                 f_se[keep] = 1.0 / np.sqrt(np.min(dof[keep], axis=-1) * den)
             step[keep] = np.clip(new_step, -max_step, max_step)
-            worse = active[~better]
-            step[worse] *= 0.5
+            if not isinstance(better, slice):
+                step[active[~better]] *= 0.5
 
             small = np.maximum(tol / (np.pi * ks[-1] * duration), _STAT_TOL * f_se[active])
             done = np.abs(step[active]) < small
