@@ -241,7 +241,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     bench_file = CONFIG_DIR / "bench_digitiser.toml" if args.source == "digitiser" else None
     from ..reports.demo import sample_source
 
-    console().rule(f"live: the daemon's pipeline, a sweep, samples from {sample_source(bench_file)}, estimates over zenoh")
+    console().rule(f"live: the daemon's pipeline, a sweep, samples from {sample_source(bench_file)}, "
+                   "estimates over zenoh")
     live = demo_live(out / "live", seconds=6.0, show=lambda k, msg: print(format_message(k, msg), flush=True),
                      bench_file=bench_file)
     console().print(live["summary"])

@@ -255,5 +255,6 @@ def test_any_other_read_error_starts_a_new_epoch_after_an_estimated_gap_not_indi
     assert (a.first_index, a.n, a.gap_samples) == (0, 300, 0)
     assert (b.first_index, b.n, b.gap_samples) == (800, 200, 500)
     assert b.flags & BlockFlags.GAP and b.flags & BlockFlags.GAP_ESTIMATED
-    assert stream.stats.reconnects == 1 and (stream.stats.estimated_gaps, stream.stats.estimated_gap_samples) == (1, 500)
+    assert stream.stats.reconnects == 1
+    assert (stream.stats.estimated_gaps, stream.stats.estimated_gap_samples) == (1, 500)
     np.testing.assert_array_equal(b.channels["current_A"], np.arange(0, 200))  # the new task's own samples

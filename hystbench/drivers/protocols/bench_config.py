@@ -290,8 +290,8 @@ def _digitiser(t: dict[str, Any], src: str) -> DigitiserConfig:
         if v == 0 or v != v or abs(v) == float("inf"):
             raise ConfigError(f"{where} scales.{sig} = {v!r}: must be a finite, non-zero number")
     return DigitiserConfig(t["backend"], t["kind"], t["url"], t["dialect"], dict(t["channels"]), dict(t["scales"]),
-                           t["max_points"], t["acquisition"], t["segments"], t["clock_source"], t["trigger_source"], t["skew_s"],
-                           t["timeout_s"] or None)
+                           t["max_points"], t["acquisition"], t["segments"], t["clock_source"], t["trigger_source"],
+                           t["skew_s"], t["timeout_s"] or None)
 
 
 @dataclass(frozen=True)

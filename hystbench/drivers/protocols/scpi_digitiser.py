@@ -30,7 +30,8 @@ from .scpi import encode_block, header_matches, short_form
 __all__ = ["Command", "Dialect", "GENERIC", "DIALECTS", "Preamble", "dialect", "read_block", "encode_block",
            "codes_to_volts", "volts_to_codes", "compound", "split_units", "CODE_DTYPE", "FULL_SCALE_CODE",
            "FULL_SCALE_CODES", "clipped",
-           "parse_event_reply", "whole_samples", "SEGMENTED_OPS", "format_event_reply", "is_error_event", "ESR_ERROR_BITS"]
+           "parse_event_reply", "whole_samples", "SEGMENTED_OPS", "format_event_reply", "is_error_event",
+           "ESR_ERROR_BITS"]
 
 #: Sample codes on the wire: signed 16-bit, least significant byte first.
 CODE_DTYPE = np.dtype("<i2")
