@@ -162,8 +162,12 @@ def acquire_through(hil: "Hil", index: int, chunk_s: float = 0.05) -> list[Sampl
 def hil_factory(tmp_path):
     made: list[Hil] = []
 
-    def make(**edits: str) -> Hil:
-        h = Hil(bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}", **edits}))
+    def make(*, extra: str = "", **edits: str) -> Hil:
+        """A bench on the shipped file with ``edits`` (dotted keys) and ``extra`` TOML appended."""
+        path = bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}", **edits})
+        if extra:
+            path.write_text(path.read_text() + extra)
+        h = Hil(path)
         made.append(h)
         h.bench.open()
         return h

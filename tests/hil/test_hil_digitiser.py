@@ -13,7 +13,7 @@ from hystbench.blocks import BlockFlags
 from hystbench.formats.recording import Recording
 from hystbench.sim_backend.rig import SimulatedRig
 
-from .conftest import HANG_S, STALL_S, Hil, acquire_through, bench_file, skip_to, switched_on_at
+from .conftest import HANG_S, STALL_S, Hil, acquire_through, skip_to, switched_on_at
 
 SCALES = {"current_A": 0.2, "force_N": 50.0, "flux_Wb": 1e-5, "command_V": 1.0}  # SI per volt at the inputs
 CHANNELS = {"generic": ("CHAN1", "CHAN2", "CHAN3", "CHAN4"), "tektronix": ("CH1", "CH2", "CH3", "CH4")}
@@ -26,20 +26,11 @@ def digitiser_table(dialect: str = "generic") -> str:
 
 
 @pytest.fixture
-def dig_factory(tmp_path):
-    made: list[Hil] = []
-
+def dig_factory(hil_factory):
     def make(dialect: str = "generic", extra: str = "") -> Hil:
-        path = bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}"})
-        path.write_text(path.read_text() + digitiser_table(dialect) + extra)
-        h = Hil(path)
-        made.append(h)
-        h.bench.open()
-        return h
+        return hil_factory(extra=digitiser_table(dialect) + extra)
 
-    yield make
-    for h in made:
-        h.close()
+    return make
 
 
 def through_the_digitiser(hil: Hil, name: str, first: int, n: int) -> np.ndarray:

@@ -23,14 +23,16 @@ import time
 import tty
 import zlib
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 
 from ...drivers.protocols.framing import (MAGIC, MAX_FRAME_SIZE, OVERHEAD, VERSION, cobs_record, encode_frame,
                                           frames_from_block, length_prefixed)
+from ...drivers.protocols.scpi import ScpiMessageReader
 
-__all__ = ["Faults", "PtyPort", "TcpServer", "FrameEmitter", "TcpStreamServer", "PtyStreamSink", "encode_frames"]
+__all__ = ["Faults", "PtyPort", "TcpServer", "FrameEmitter", "TcpStreamServer", "PtyStreamSink", "encode_frames",
+           "scpi_messages"]
 
 log = logging.getLogger("hystbench.emulators")
 
@@ -442,3 +444,18 @@ class PtyStreamSink:
 
     def close(self) -> None:
         self.port.close()
+
+
+def scpi_messages(conn: socket.socket, stopped: Callable[[], bool]) -> Iterator[bytes]:
+    """The SCPI program messages a client sends on ``conn``, until it closes or ``stopped()``
+    (looked at every 0.2 s): the one receive loop of the SCPI emulators on TCP."""
+    reader = ScpiMessageReader()
+    conn.settimeout(0.2)
+    while not stopped():
+        try:
+            data = conn.recv(65536)
+        except socket.timeout:
+            continue
+        if not data:
+            return
+        yield from reader.feed(data)

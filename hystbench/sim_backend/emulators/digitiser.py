@@ -25,7 +25,7 @@ import numpy as np
 from ...blocks import SampleBlock
 from ...drivers.protocols import scpi
 from ...drivers.protocols import scpi_digitiser as sd
-from .common import Faults, TcpServer
+from .common import Faults, TcpServer, scpi_messages
 
 __all__ = ["DigitiserEmulator", "RANGE_V", "Y_INCREMENT"]
 
@@ -298,26 +298,17 @@ class DigitiserEmulator:
             self.data_replies.release()
 
     def _serve(self, conn: socket.socket) -> None:
-        reader = scpi.ScpiMessageReader()
-        conn.settimeout(0.2)
         data_cmd = self.dialect.command("data")
-        while not self.server.stopped:
-            try:
-                data = conn.recv(65536)
-            except socket.timeout:
+        for msg in scpi_messages(conn, lambda: self.server.stopped):
+            if self.faults.is_silent():
                 continue
-            if not data:
-                return
-            for msg in reader.feed(data):
-                if self.faults.is_silent():
-                    continue
-                replies, is_data = [], False
-                for unit in sd.split_units(msg):  # IEEE 488.2: the replies of one message joined by ';'
-                    header, is_query, _ = scpi.split_command(unit)
-                    is_data |= is_query and data_cmd.matches(header)
-                    if (r := self.handle(unit)) is not None:
-                        replies.append(r[:-1])
-                self._reply(conn.sendall, b";".join(replies) + b"\n" if replies else None, is_data)
+            replies, is_data = [], False
+            for unit in sd.split_units(msg):  # IEEE 488.2: the replies of one message joined by ';'
+                header, is_query, _ = scpi.split_command(unit)
+                is_data |= is_query and data_cmd.matches(header)
+                if (r := self.handle(unit)) is not None:
+                    replies.append(r[:-1])
+            self._reply(conn.sendall, b";".join(replies) + b"\n" if replies else None, is_data)
 
     def disconnect(self) -> None:
         self.faults.silent = True

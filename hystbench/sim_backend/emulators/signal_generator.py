@@ -17,7 +17,7 @@ import numpy as np
 from ...blocks import SampleBlock
 from ...drivers.protocols import scpi
 from ...drivers.protocols.scpi import GENERATOR
-from .common import Faults, FrameEmitter, PtyPort, TcpServer, TcpStreamServer, log
+from .common import Faults, FrameEmitter, PtyPort, TcpServer, TcpStreamServer, log, scpi_messages
 
 __all__ = ["SignalGeneratorEmulator", "GENERATOR_STREAM_ID"]
 
@@ -178,18 +178,9 @@ class SignalGeneratorEmulator:
         self.faults.sent_reply()
 
     def _serve_tcp(self, conn: socket.socket) -> None:
-        reader = scpi.ScpiMessageReader()
-        conn.settimeout(0.2)
-        while not self.scpi.stopped:
-            try:
-                data = conn.recv(65536)
-            except socket.timeout:
-                continue
-            if not data:
-                return
-            for msg in reader.feed(data):
-                if not self.faults.is_silent():
-                    self._reply(conn.sendall, self.handle(msg))
+        for msg in scpi_messages(conn, lambda: self.scpi.stopped):
+            if not self.faults.is_silent():
+                self._reply(conn.sendall, self.handle(msg))
 
     def _serve_pty(self) -> None:
         reader = scpi.ScpiMessageReader()
