@@ -81,7 +81,8 @@ def test_normal_equations_and_residual_sums_equal_numpys(case):
     coef = rng.normal(size=(nb, nc, p))
     tau = (np.arange(n) - (n - 1) / 2.0) / FS
     phase = 2.0 * np.pi * f[:, None, None] * tau
-    x = coef[..., :1] + sum(coef[..., 1 + 2 * j, None] * np.cos(k * phase) + coef[..., 2 + 2 * j, None] * np.sin(k * phase)
+    x = coef[..., :1] + sum(coef[..., 1 + 2 * j, None] * np.cos(k * phase)
+                            + coef[..., 2 + 2 * j, None] * np.sin(k * phase)
                             for j, k in enumerate(ks))
     x = x + noise * rng.normal(size=x.shape)
     mask = rng.random(x.shape) < share if share else None
@@ -169,7 +170,8 @@ def test_gram_solve_equals_numpys(nb, nc, per_channel, p, seed):
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * float(np.max(np.abs(want))))
     # ... and back through the equations themselves: gram x = rhs
     idx = np.minimum(np.arange(nc), gram.shape[1] - 1)
-    np.testing.assert_allclose(np.einsum("bcij,bcj->bci", gram[:, idx], got), rhs, rtol=0, atol=1e-8 * np.max(np.abs(rhs)))
+    np.testing.assert_allclose(np.einsum("bcij,bcj->bci", gram[:, idx], got), rhs,
+                               rtol=0, atol=1e-8 * np.max(np.abs(rhs)))
 
 
 def test_a_singular_gram_matrix_falls_back_to_numpys_error():
