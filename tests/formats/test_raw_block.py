@@ -98,11 +98,16 @@ def replayed(log: Path, out: Path | None = None) -> list[dict]:
     return got
 
 
-def test_a_log_written_before_the_one_codec_reads_and_replays_to_its_own_estimates(tmp_path: Path) -> None:
+def test_a_log_written_before_the_one_codec_reads_and_replays_to_its_own_estimates(tmp_path: Path,
+                                                                                   monkeypatch) -> None:
     """``pre_issue11.mcap`` was written by commit d078bcb (see data/make_pre_issue11_log.py): a
     simulated E-core at 160 Hz, then 320 Hz, then the output off, estimates spelled the old way
     (``nominal_frequency_Hz``, ``frequency_Hz``).  Today's code reads its blocks and replays it to
-    the very estimates it recorded, number for number."""
+    the very estimates it recorded, number for number, on the sine fits' numpy path (the code that
+    wrote it); their compiled regressors (issue 14) give the same estimates to rounding."""
+    from hystbench.analysis.estimation import _lsq
+
+    monkeypatch.setattr(_lsq, "KERNEL", False)
     blocks = list(iter_blocks(OLD_LOG))
     points_ = [OperatingPoint.from_meta(b.meta) for b in blocks]
     # the commands given at blocks 8 and 16, applied from the next block on (table: one sine set)
@@ -119,6 +124,13 @@ def test_a_log_written_before_the_one_codec_reads_and_replays_to_its_own_estimat
         assert [replace(Estimate.from_json(e), t_ns=0) for e in again] == [replace(e, t_ns=0) for e in recorded]
     again = list(iter_blocks(tmp_path / "again.mcap"))
     assert [(b.first_index, b.n, dict(b.meta)) for b in again] == [(b.first_index, b.n, dict(b.meta)) for b in blocks]
+    monkeypatch.setattr(_lsq, "KERNEL", True)
+    compiled = [Estimate.from_json(e) for e in replayed(OLD_LOG)]
+    assert [(e.first_index, e.end_index) for e in compiled] == [(e.first_index, e.end_index) for e in recorded]
+    for got, want in zip(compiled, recorded):
+        assert got.frequency_hz == pytest.approx(want.frequency_hz, rel=1e-8, abs=1e-3 * want.frequency_std_hz)
+        for name, delay in want.delays_s.items():
+            assert got.delays_s[name] == pytest.approx(delay, rel=1e-8, abs=1e-3 * want.delays_std_s[name])
     # the segments, as interchange-format recordings: the sidecar spells the point the old way
     segs = read_mcap_segments(OLD_LOG, include_idle=True)
     assert [(r.frequency_hz, r.metadata.get("output_on", True)) for r in segs if not r.metadata.get("settling")] \

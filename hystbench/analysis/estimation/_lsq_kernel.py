@@ -28,7 +28,8 @@ _TWO_PI = 2.0 * math.pi
 
 
 @njit(cache=True, nogil=True)
-def basis(f, rowk, kmax, p, start, stop, n, fs):
+def basis(f: np.ndarray, rowk: np.ndarray, kmax: int, p: int, start: int, stop: int, n: int,
+          fs: float) -> np.ndarray:
     """Regressors (b, p, stop - start) of samples ``start .. stop`` of ``n``-sample records at
     frequencies ``f`` (b,): a row of ones, then cos, sin of each fitted harmonic k (``rowk[k]`` its
     index, -1 if not fitted) of ``2 pi k f tau``, tau the time from the record's centre."""
@@ -76,7 +77,7 @@ def harmonic_rows(ks: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def gram_solve(gram, rhs):
+def gram_solve(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, bool]:
     """Solutions (b, C, p) of ``gram[:, min(c, G-1)] x = rhs[:, c]`` for Gram matrices (b, G, p, p)
     (G = 1: shared by the channels) by Cholesky, and whether every matrix was positive definite
     (if not, the caller takes numpy's LU, which says what is wrong).  ``np.linalg.solve`` on a
