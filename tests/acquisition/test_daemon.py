@@ -328,16 +328,19 @@ def test_a_second_daemon_of_the_same_bench_is_refused(tmp_path: Path) -> None:
     """Same bench name, only the port changed: refused with the first one's PID and endpoint
     (the lock file in the shared state directory).  Another state directory but connected over
     zenoh: refused too (the liveliness token)."""
-    port1, port2, port3 = free_port(), free_port(), free_port()
+    port1 = free_port()
     first_cfg, second_cfg, third_cfg = tmp_path / "a.toml", tmp_path / "b.toml", tmp_path / "c.toml"
     write_config(first_cfg, port1, tmp_path / "logs")
-    write_config(second_cfg, port2, tmp_path / "logs")
-    write_config(third_cfg, port3, tmp_path / "logs3")
-    third_cfg.write_text(third_cfg.read_text().replace(
-        f'listen = ["tcp/127.0.0.1:{port3}"]', f'listen = ["tcp/127.0.0.1:{port3}"]\nconnect = ["tcp/127.0.0.1:{port1}"]'))
     first = Daemon(tmp_path, first_cfg, name="1")
     try:
         first.wait_for("READY=1")
+        # the other two ports only now: the first daemon's emulators bind ephemeral ports as it starts,
+        # and one of them once took a port chosen before it (the third then failed to listen)
+        port2, port3 = free_port(), free_port()
+        write_config(second_cfg, port2, tmp_path / "logs")
+        write_config(third_cfg, port3, tmp_path / "logs3")
+        third_cfg.write_text(third_cfg.read_text().replace(
+            f'listen = ["tcp/127.0.0.1:{port3}"]', f'listen = ["tcp/127.0.0.1:{port3}"]\nconnect = ["tcp/127.0.0.1:{port1}"]'))
         env = dict(os.environ, STATE_DIRECTORY=str(tmp_path / "state"))
         second = subprocess.run([sys.executable, "-m", "hystbench", "daemon", "--config", str(second_cfg)], cwd=ROOT,
                                 env=env, capture_output=True, text=True, timeout=60)
