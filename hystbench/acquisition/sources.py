@@ -262,7 +262,8 @@ class BenchSource:
                  duration_s: float | None = None, sim: Mapping[str, Any] | None = None,
                  excitation: tuple[float, float] | None = None, clear_faults: bool = False,
                  min_block_s: float = MIN_BENCH_BLOCK_S) -> None:
-        """``min_block_s``: the shortest block handed on (see :data:`MIN_BENCH_BLOCK_S`); ``sim`` replaces keys of the bench file's [sim] table (the emulated rig, its seed and
+        """``min_block_s``: the shortest block handed on (see :data:`MIN_BENCH_BLOCK_S`); ``sim``
+        replaces keys of the bench file's [sim] table (the emulated rig, its seed and
         effects; refused for hardware); ``excitation`` = (frequency Hz, current A-pp) is set on the
         generator once open (output off); ``clear_faults``: clear latched amplifier faults after
         opening (a restart after a fault; the output stays off)."""

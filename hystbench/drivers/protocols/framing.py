@@ -35,7 +35,8 @@ from ...errors import ProtocolError
 
 __all__ = [
     "MAGIC", "VERSION", "HEADER_SIZE", "OVERHEAD", "MAX_FRAME_SIZE", "FrameError", "Frame", "FrameBatch",
-    "encode_frame", "decode_frame", "decode_batch", "batch_verdicts", "batch_verdicts_reference", "BATCH_OK", "BATCH_CORRUPT", "BATCH_OTHER_SHAPE",
+    "encode_frame", "decode_frame", "decode_batch", "batch_verdicts", "batch_verdicts_reference",
+    "BATCH_OK", "BATCH_CORRUPT", "BATCH_OTHER_SHAPE",
     "frames_from_block", "samples_per_frame_for", "cobs_encode", "cobs_decode", "cobs_encode_reference",
     "cobs_decode_reference", "CobsDeframer", "LengthPrefixDeframer", "DeframerStats", "length_prefixed",
     "cobs_record",
