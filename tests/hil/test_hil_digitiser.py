@@ -8,12 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hystbench.analysis.method import measure_delays
 from hystbench.blocks import BlockFlags
-from hystbench.formats.recording import Recording
-from hystbench.sim_backend.rig import SimulatedRig
 
-from .conftest import HANG_S, STALL_S, Hil, acquire_through, skip_to, switched_on_at
+from .conftest import HANG_S, STALL_S, Hil, acquire_through, assert_the_rigs_delays, skip_to, switched_on_at
 
 SCALES = {"current_A": 0.2, "force_N": 50.0, "flux_Wb": 1e-5, "command_V": 1.0}  # SI per volt at the inputs
 CHANNELS = {"generic": ("CHAN1", "CHAN2", "CHAN3", "CHAN4"), "tektronix": ("CH1", "CH2", "CH3", "CH4")}
@@ -58,16 +55,9 @@ def test_one_second_through_the_digitiser_and_the_papers_delays(dig_factory):
         np.testing.assert_allclose(run.channels[name], through_the_digitiser(hil, name, run.first_index, run.n),
                                    rtol=1e-12, atol=0, err_msg=name)
 
-    meta = hil.emu.rig.metadata()
-    got = measure_delays(Recording(None, run.fs_hz, {k: run.channels[k][10_000:] for k in
-                                                     ("current_A", "force_N", "flux_Wb")}, dict(meta)))
     sim = hil.config.sim
-    rig = SimulatedRig(sim["rig"], fs_hz=run.fs_hz, seed=sim["seed"], effects=dict(sim["effects"]),
-                       frequency_hz=320.0, current_pp_a=1.4)
-    direct = measure_delays(Recording(None, run.fs_hz, dict(rig.record(1.0).channels), rig.metadata()))
-    for name in ("hysteresis", "instrument", "total"):
-        tol = 5 * np.hypot(got.delays_std_s[name], direct.delays_std_s[name]) + 10e-9
-        assert got.delays_s[name] == pytest.approx(direct.delays_s[name], abs=tol), name
+    got = assert_the_rigs_delays({k: x[10_000:] for k, x in run.channels.items()}, run.fs_hz, hil.emu.rig.metadata(),
+                                 sim["rig"], sim["seed"], sim["effects"])
     assert got.delays_s["hysteresis"] > 0
 
 
@@ -134,13 +124,7 @@ def test_the_daemons_source_records_and_estimates_from_the_digitiser(tmp_path):
     assert run.end_index - run.first_index == run.n  # one contiguous run
     n = 100_000
     assert run.n >= n, run.n
-    got = measure_delays(Recording(None, run.fs_hz, {k: run.channels[k][-n:] for k in
-                                                     ("current_A", "force_N", "flux_Wb")}, src.metadata()))
-    rig = SimulatedRig("ecore_pm", fs_hz=run.fs_hz, seed=0, frequency_hz=320.0, current_pp_a=1.4)
-    direct = measure_delays(Recording(None, run.fs_hz, dict(rig.record(1.0).channels), rig.metadata()))
-    for name in ("hysteresis", "instrument", "total"):
-        tol = 5 * np.hypot(got.delays_std_s[name], direct.delays_std_s[name]) + 10e-9
-        assert got.delays_s[name] == pytest.approx(direct.delays_s[name], abs=tol), name
+    assert_the_rigs_delays({k: x[-n:] for k, x in run.channels.items()}, run.fs_hz, src.metadata(), "ecore_pm", 0)
 
 
 def test_a_raw_socket_speaks_scpi_to_the_emulated_digitiser_and_reads_its_error_queue():
@@ -272,12 +256,5 @@ def test_segmented_acquisition_through_pyvisa_py_places_segments_exactly_and_giv
                                        rtol=1e-12, atol=0, err_msg=name)
 
     seg = runs[3]  # a segment of the second batch: the output has settled
-    got = measure_delays(Recording(None, seg.fs_hz, {k: seg.channels[k] for k in ("current_A", "force_N", "flux_Wb")},
-                                   dict(hil.emu.rig.metadata())))
     sim = hil.config.sim
-    rig = SimulatedRig(sim["rig"], fs_hz=seg.fs_hz, seed=sim["seed"], effects=dict(sim["effects"]),
-                       frequency_hz=320.0, current_pp_a=1.4)
-    direct = measure_delays(Recording(None, seg.fs_hz, dict(rig.record(1.0).channels), rig.metadata()))
-    for name in ("hysteresis", "instrument", "total"):
-        tol = 5 * np.hypot(got.delays_std_s[name], direct.delays_std_s[name]) + 10e-9
-        assert got.delays_s[name] == pytest.approx(direct.delays_s[name], abs=tol), name
+    assert_the_rigs_delays(seg.channels, seg.fs_hz, hil.emu.rig.metadata(), sim["rig"], sim["seed"], sim["effects"])
