@@ -49,17 +49,24 @@ def test_a_hole_in_a_stream_that_does_not_limit_the_run_does_not_end_it():
     assert al.contiguous() == (15, False)
 
 
+def three_streams(pieces: list[tuple[int, int, int]]) -> StreamAligner:
+    """An aligner fed ``pieces`` (stream, samples, hole): streams start at 0, 2 and 5, and a piece
+    with hole 3 starts 3 samples after the last one ended (the other values: no hole)."""
+    al = StreamAligner(["s0", "s1", "s2"])
+    pos = [0, 2, 5]
+    for which, n, hole in pieces:
+        al.push(f"s{which}", block(pos[which] + (hole if hole == 3 else 0), n, f"c{which}"))
+        pos[which] += (hole if hole == 3 else 0) + n
+    return al
+
+
 @settings(max_examples=80, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 2), st.integers(1, 30), st.integers(0, 3)), min_size=3, max_size=30),
        st.integers(1, 20))
 def test_the_counted_run_pops_without_a_gap(pieces, first_pop):
     """Three streams with arbitrary cuts and holes: the n that ``contiguous`` counts come out of
     the next pops as one gap-free run at the cursor (an independent check: the pops themselves)."""
-    al = StreamAligner(["s0", "s1", "s2"])
-    pos = [0, 2, 5]
-    for which, n, hole in pieces:
-        al.push(f"s{which}", block(pos[which] + (hole if hole == 3 else 0), n, f"c{which}"))
-        pos[which] += (hole if hole == 3 else 0) + n
+    al = three_streams(pieces)
     if al.pop(first_pop) is None:
         return
     n, ended = al.contiguous()
@@ -81,11 +88,7 @@ def test_the_counted_run_pops_without_a_gap(pieces, first_pop):
 @given(st.lists(st.tuples(st.integers(0, 2), st.integers(1, 30), st.integers(0, 3)), min_size=3, max_size=30),
        st.integers(1, 20))
 def test_take_hands_out_the_counted_run_in_one_block_every_sample_at_its_index(pieces, first_pop):
-    al = StreamAligner(["s0", "s1", "s2"])
-    pos = [0, 2, 5]
-    for which, n, hole in pieces:
-        al.push(f"s{which}", block(pos[which] + (hole if hole == 3 else 0), n, f"c{which}"))
-        pos[which] += (hole if hole == 3 else 0) + n
+    al = three_streams(pieces)
     if al.pop(first_pop) is None:
         return
     n, _ = al.contiguous()

@@ -16,6 +16,7 @@ from enum import Enum
 import numpy as np
 import pytest
 
+from hystbench.drivers.base import Backoff
 from hystbench.drivers.daqmx import DaqmxFrameSource
 from hystbench.drivers.stream import SampleStream
 from hystbench.errors import ConfigError
@@ -122,6 +123,25 @@ OPEN = [
 ]
 
 
+def two_blocks(monkeypatch, card: Card, *, scale: dict | None = None, clock=None, backoff: Backoff | None = None):
+    """The transcript ``card`` played through the real source and SampleStream (the fake package in
+    place of nidaqmx): the stream's first two blocks, the source and the stream, every call checked made."""
+    for name, mod in fake_nidaqmx(card).items():
+        monkeypatch.setitem(sys.modules, name, mod)
+    src = DaqmxFrameSource(CHANNELS, 1000.0, clock_source="/Dev1/PFI0", trigger_source="/Dev1/PFI1", buffer_s=1.0,
+                           poll_s=0.001, **({} if clock is None else {"clock": clock}))
+    stream = SampleStream("digitiser", src, ["current_A", "force_N", "flux_Wb", "command_V"], 1000.0,
+                          scale=scale, stall_timeout_s=60.0,
+                          **({} if backoff is None else {"backoff": backoff})).start()
+    try:
+        a = stream.read(timeout_s=30.0)
+        b = stream.read(timeout_s=30.0)
+    finally:
+        stream.close()
+    assert card.step == len(card.script), f"only {card.step} of {len(card.script)} calls made"
+    return a, b, src, stream
+
+
 def test_continuous_acquisition_reads_by_absolute_index_and_skips_overwritten_samples(monkeypatch):
     card = Card(OPEN + [
         (("total_samp_per_chan_acquired",), 300),  # 300 acquired: read them all from index 0
@@ -130,18 +150,7 @@ def test_continuous_acquisition_reads_by_absolute_index_and_skips_overwritten_sa
         (("in_stream.offset", 500), None), (("read_many_sample", (4, 1000), 1000), 500),
         (("close",), None),  # (polls until then answer 1500 again: nothing new, no frame)
     ])
-    for name, mod in fake_nidaqmx(card).items():
-        monkeypatch.setitem(sys.modules, name, mod)
-    src = DaqmxFrameSource(CHANNELS, 1000.0, clock_source="/Dev1/PFI0", trigger_source="/Dev1/PFI1", buffer_s=1.0,
-                           poll_s=0.001)
-    stream = SampleStream("digitiser", src, ["current_A", "force_N", "flux_Wb", "command_V"], 1000.0,
-                          scale={"force_N": 50.0}, stall_timeout_s=60.0).start()
-    try:
-        a = stream.read(timeout_s=30.0)
-        b = stream.read(timeout_s=30.0)
-    finally:
-        stream.close()
-    assert card.step == len(card.script), f"only {card.step} of {len(card.script)} calls made"
+    a, b, src, _ = two_blocks(monkeypatch, card, scale={"force_N": 50.0})
     assert (a.first_index, a.n, a.gap_samples) == (0, 300, 0)
     assert (b.first_index, b.n, b.gap_samples) == (500, 1000, 200) and src.skipped == 200
     np.testing.assert_array_equal(a.channels["current_A"], np.arange(0, 300))
@@ -183,18 +192,7 @@ def test_samples_overwritten_while_being_read_are_an_exact_gap_not_a_new_task(mo
         (("in_stream.offset", 600), None), (("read_many_sample", (4, 1000), 1000), 600),
         (("close",), None),
     ])
-    for name, mod in fake_nidaqmx(card).items():
-        monkeypatch.setitem(sys.modules, name, mod)
-    src = DaqmxFrameSource(CHANNELS, 1000.0, clock_source="/Dev1/PFI0", trigger_source="/Dev1/PFI1", buffer_s=1.0,
-                           poll_s=0.001)
-    stream = SampleStream("digitiser", src, ["current_A", "force_N", "flux_Wb", "command_V"], 1000.0,
-                          stall_timeout_s=60.0).start()
-    try:
-        a = stream.read(timeout_s=10.0)
-        b = stream.read(timeout_s=10.0)
-    finally:
-        stream.close()
-    assert card.step == len(card.script), f"only {card.step} of {len(card.script)} calls made"
+    a, b, src, stream = two_blocks(monkeypatch, card)
     assert (a.first_index, a.n, a.gap_samples) == (0, 300, 0)
     assert (b.first_index, b.n, b.gap_samples) == (600, 1000, 300) and src.skipped == 300
     assert stream.stats.reconnects == 0
@@ -224,7 +222,6 @@ def test_any_other_read_error_starts_a_new_epoch_after_an_estimated_gap_not_indi
     reported.  The new task's samples now follow the old ones after the gap the host clock measured
     (last read at t = 1.0 s, new task at t = 1.5 s: 500 samples at 1 kHz), flagged as estimated."""
     from hystbench.blocks import BlockFlags
-    from hystbench.drivers.base import Backoff
 
     lost = DaqError("Onboard device memory overflow.", error_code=-200361)
     card = Card(OPEN + [
@@ -238,20 +235,9 @@ def test_any_other_read_error_starts_a_new_epoch_after_an_estimated_gap_not_indi
         (("in_stream.offset", 0), None), (("read_many_sample", (4, 200), 200), 0),
         (("close",), None),
     ])
-    for name, mod in fake_nidaqmx(card).items():
-        monkeypatch.setitem(sys.modules, name, mod)
     times = iter([1.0, 1.5, 2.0])
-    src = DaqmxFrameSource(CHANNELS, 1000.0, clock_source="/Dev1/PFI0", trigger_source="/Dev1/PFI1", buffer_s=1.0,
-                           poll_s=0.001, clock=lambda: next(times))
-    stream = SampleStream("digitiser", src, ["current_A", "force_N", "flux_Wb", "command_V"], 1000.0,
-                          stall_timeout_s=60.0, backoff=Backoff(initial_s=0.001, factor=1.0, max_s=0.001,
-                                                                attempts=2)).start()
-    try:
-        a = stream.read(timeout_s=10.0)
-        b = stream.read(timeout_s=10.0)
-    finally:
-        stream.close()
-    assert card.step == len(card.script), f"only {card.step} of {len(card.script)} calls made"
+    a, b, src, stream = two_blocks(monkeypatch, card, clock=lambda: next(times),
+                                   backoff=Backoff(initial_s=0.001, factor=1.0, max_s=0.001, attempts=2))
     assert (a.first_index, a.n, a.gap_samples) == (0, 300, 0)
     assert (b.first_index, b.n, b.gap_samples) == (800, 200, 500)
     assert b.flags & BlockFlags.GAP and b.flags & BlockFlags.GAP_ESTIMATED

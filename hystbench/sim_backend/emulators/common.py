@@ -12,6 +12,7 @@ when a test thread happened to run, so the exact gap a receiver must report is k
 
 from __future__ import annotations
 
+import collections
 import errno
 import functools
 import logging
@@ -29,10 +30,10 @@ import numpy as np
 
 from ...drivers.protocols.framing import (MAGIC, MAX_FRAME_SIZE, OVERHEAD, VERSION, cobs_record, encode_frame,
                                           frames_from_block, length_prefixed)
-from ...drivers.protocols.scpi import ScpiMessageReader
+from ...drivers.protocols.scpi import SCPI_ERRORS, ScpiMessageReader
 
 __all__ = ["Faults", "PtyPort", "TcpServer", "FrameEmitter", "TcpStreamServer", "PtyStreamSink", "encode_frames",
-           "scpi_messages"]
+           "scpi_messages", "queue_scpi_error", "SCPI_QUEUE_MAX"]
 
 log = logging.getLogger("hystbench.emulators")
 
@@ -459,3 +460,16 @@ def scpi_messages(conn: socket.socket, stopped: Callable[[], bool]) -> Iterator[
         if not data:
             return
         yield from reader.feed(data)
+
+
+#: An SCPI instrument's error queue holds this many entries; the last becomes -350 (queue overflow)
+SCPI_QUEUE_MAX = 20
+
+
+def queue_scpi_error(errors: "collections.deque[tuple[int, str]]", code: int, text: str | None = None) -> None:
+    """Append ``code`` (with SCPI's standard text unless ``text``) to an instrument's error queue, as
+    IEEE 488.2 says a full one does: its last entry becomes -350.  The caller holds the queue's lock."""
+    if len(errors) >= SCPI_QUEUE_MAX:
+        errors[-1] = (-350, SCPI_ERRORS[-350])
+    else:
+        errors.append((code, SCPI_ERRORS.get(code, "Error") if text is None else text))

@@ -25,13 +25,12 @@ import numpy as np
 from ...blocks import SampleBlock
 from ...drivers.protocols import scpi
 from ...drivers.protocols import scpi_digitiser as sd
-from .common import Faults, TcpServer, scpi_messages
+from .common import Faults, TcpServer, queue_scpi_error, scpi_messages
 
 __all__ = ["DigitiserEmulator", "RANGE_V", "Y_INCREMENT"]
 
 RANGE_V = 10.0
 Y_INCREMENT = RANGE_V / 32768  #: volts per code: 2**-15 x 10, exact
-_QUEUE_MAX = 20
 
 
 class DigitiserEmulator:
@@ -155,10 +154,7 @@ class DigitiserEmulator:
     # --- the instrument ----------------------------------------------------------------------------
     def push_error(self, code: int, text: str | None = None) -> None:
         with self._lock:
-            if len(self.errors) >= _QUEUE_MAX:
-                self.errors[-1] = (-350, scpi.SCPI_ERRORS[-350])
-            else:
-                self.errors.append((code, scpi.SCPI_ERRORS.get(code, "Error") if text is None else text))
+            queue_scpi_error(self.errors, code, text)
             self.esr |= {1: 0x20, 2: 0x10, 3: 0x08, 4: 0x04}.get(abs(code) // 100, 0)
 
     def _channel(self, arg: str) -> int | None:

@@ -17,12 +17,11 @@ import numpy as np
 from ...blocks import SampleBlock
 from ...drivers.protocols import scpi
 from ...drivers.protocols.scpi import GENERATOR
-from .common import Faults, FrameEmitter, PtyPort, TcpServer, TcpStreamServer, log, scpi_messages
+from .common import Faults, FrameEmitter, PtyPort, TcpServer, TcpStreamServer, log, queue_scpi_error, scpi_messages
 
 __all__ = ["SignalGeneratorEmulator", "GENERATOR_STREAM_ID"]
 
 GENERATOR_STREAM_ID = 1
-_QUEUE_MAX = 20
 
 
 class SignalGeneratorEmulator:
@@ -63,10 +62,7 @@ class SignalGeneratorEmulator:
     def push_error(self, code: int, text: str | None = None) -> None:
         """Put an error in the queue (also how faults 'SCPI errors in the queue' are injected)."""
         with self._lock:
-            if len(self.errors) >= _QUEUE_MAX:
-                self.errors[-1] = (-350, scpi.SCPI_ERRORS[-350])
-            else:
-                self.errors.append((code, scpi.SCPI_ERRORS.get(code, "Error") if text is None else text))
+            queue_scpi_error(self.errors, code, text)
 
     def disconnect(self) -> None:
         """Pull the LAN cable: connections drop, the ports refuse; the serial line goes silent."""
