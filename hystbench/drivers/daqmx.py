@@ -137,6 +137,7 @@ class DaqmxFrameSource(FrameSource):
                 self.skipped += oldest - self._next
                 self._next = oldest
             n = min(acquired - self._next, self.max_read)
+            self.drained = n == acquired - self._next  # every sample acquired so far is read
             if n <= 0:
                 self._idle.wait(min(self.poll_s, timeout_s))
                 return []
@@ -144,6 +145,7 @@ class DaqmxFrameSource(FrameSource):
             stream.offset = self._next
             self._reader.read_many_sample(data, number_of_samples_per_channel=n, timeout=self.timeout_s)
         except errors.DaqError as err:
+            self.drained = False
             if getattr(err, "error_code", None) == SAMPLES_NO_LONGER_AVAILABLE:
                 # the task runs on: the next read skips to what the buffer still holds (an exact gap);
                 # a new task would count from its own first sample, behind what the stream already has

@@ -399,12 +399,14 @@ class DigitiserFrameSource(FrameSource):
         """One segment of every channel (a protocol error drops the session: the stream reopens it
         and the lost segment becomes a gap)."""
         if self.segments:
+            self.drained = True  # a batch is acquired after it is armed: nothing older waits behind it
             return self._read_batch()
-        got = 0
+        got, self.drained = 0, True
         try:
             for k, ch in enumerate(self.instrument_channels):
                 first, volts, clipped = self.digitiser.fetch(ch)
                 got += volts.size
+                self.drained &= volts.size < self.digitiser.max_points  # less than asked: all it held
                 if volts.size:
                     self._joiner.push(k, first, volts, clipped)
         except ProtocolError as err:
@@ -417,7 +419,6 @@ class DigitiserFrameSource(FrameSource):
             return []
         self.deframer_stats.frames += 1
         return [frame]
-
 
     def _read_batch(self) -> list[Frame]:
         """One batch of segmented acquisition: armed, waited for, each segment read with its time

@@ -14,6 +14,7 @@ import abc
 import collections
 import socket
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Iterator, Mapping, Sequence
 
@@ -34,6 +35,9 @@ __all__ = ["FrameSource", "TcpFrameSource", "SerialFrameSource", "CanFrameSource
            "SampleStream", "parse_stream_url"]
 
 _SEQ_MOD = 1 << 32
+_TCP_READ = 1 << 18  # bytes asked of one recv
+_SERIAL_READ = 1 << 18
+_LIVE_HISTORY = 256  # drained reads remembered per stream (a few seconds of them at the live edge)
 
 
 def parse_stream_url(url: str) -> tuple[str, str]:
@@ -52,10 +56,18 @@ def frame_source(url: str, stream_id: int, channels: int = 1) -> "FrameSource":
 
 
 class FrameSource(abc.ABC):
-    """Where frames come from.  ``read_frames`` waits at most ``timeout_s``; transport loss raises."""
+    """Where frames come from.  ``read_frames`` waits at most ``timeout_s``; transport loss raises.
+
+    ``drained`` is True after a read that took everything the transport held when it looked (the
+    reader was at the live edge): samples the instrument made before that moment are all in, bar
+    what was still on the wire.  It is how a command's first sample is bounded when the reader has
+    fallen behind (:meth:`SampleStream.live_index_after`).  A source that cannot tell leaves it
+    False: then no command's first sample is ever known, and what follows a command stays marked
+    settling (safe, not silent)."""
 
     name: str = "stream"
     deframer_stats: DeframerStats
+    drained: bool = False
 
     @abc.abstractmethod
     def open(self) -> None: ...
@@ -98,11 +110,13 @@ class TcpFrameSource(FrameSource):
             raise ConnectionError(f"{self.address} is not open")
         self._sock.settimeout(timeout_s)
         try:
-            data = self._sock.recv(1 << 18)
+            data = self._sock.recv(_TCP_READ)
         except socket.timeout:
+            self.drained = True
             return []
         if not data:
             raise ConnectionError(f"{self.address}: peer closed the stream")
+        self.drained = len(data) < _TCP_READ  # recv hands over what is queued: less than asked is all of it
         return self.deframer.feed(data)
 
 
@@ -144,9 +158,10 @@ class SerialFrameSource(FrameSource):
         if port.timeout != timeout_s:  # pyserial reconfigures the port (tcgetattr, tcsetattr) on every set
             port.timeout = timeout_s
         waiting = port.in_waiting
-        data = port.read(min(waiting, 1 << 18) if waiting else 1)
-        if data and not waiting and (more := port.in_waiting):
-            data += port.read(min(more, 1 << 18))
+        data = port.read(min(waiting, _SERIAL_READ) if waiting else 1)
+        if data and not waiting and (waiting := port.in_waiting):
+            data += port.read(min(waiting, _SERIAL_READ))
+        self.drained = waiting <= _SERIAL_READ  # everything that was waiting when it looked was read
         return self.deframer.feed(data) if data else []
 
 
@@ -186,9 +201,11 @@ class CanFrameSource(FrameSource):
         payloads: list[bytes | bytearray] = []
         recv, can_id, append, limit = self.bus.recv, self.can_id, payloads.append, self.max_batch
         wait = not out  # python-can's recv is the bound here (a Python call per message): keep the rest lean
+        self.drained = False
         while len(payloads) < limit:
             msg = recv(deadline.left() if wait else 0.0)
             if msg is None:
+                self.drained = True  # the bus's queue is empty
                 break
             if msg.arbitration_id != can_id or msg.is_error_frame or msg.is_remote_frame:
                 continue
@@ -319,6 +336,9 @@ class SampleStream:
         self._next_index: int | None = None  # reader side: one past the last index kept
         self._next_seq: int | None = None
         self._delivered_end: int | None = None  # consumer side
+        #: (monotonic time a read began, one past the last index kept after it) of reads that left
+        #: the transport drained: the reader's live edge
+        self._live: collections.deque[tuple[float, int]] = collections.deque(maxlen=_LIVE_HISTORY)
 
     # --- life cycle ------------------------------------------------------------------------------
     def start(self) -> "SampleStream":
@@ -389,6 +409,17 @@ class SampleStream:
         chans = {ch: _to_si(data[i], self.scale.get(ch, 1.0)) for i, ch in enumerate(self.channels)}
         meta = {f"skew_s.{ch}": self.skew_s for ch in self.channels}
         return SampleBlock(first, self.fs_hz, chans, flags=BlockFlags(flags), gap_samples=max(gap, 0), meta=meta)
+
+    def live_index_after(self, t: float) -> int | None:
+        """An index at or past the instrument's sample clock at monotonic time ``t`` (bar what was
+        on the wire then): where the first read that began at or after ``t`` and drained the
+        transport left the stream.  None until such a read has happened.  However far the reader
+        had fallen behind (a backlog in the socket, a starved thread), a sample past this index was
+        made after ``t``."""
+        for started, end in list(self._live):
+            if started >= t:
+                return end
+        return None
 
     # --- reader side -----------------------------------------------------------------------------
     def _accept(self, items: Sequence[Frame | FrameBatch]) -> None:
@@ -495,6 +526,7 @@ class SampleStream:
     def _reader(self) -> None:
         quiet = Deadline(self.stall_timeout_s)  # a stall: no frame before it passes
         while not self._stop.is_set():
+            started = time.monotonic()
             try:
                 frames = self.source.read_frames(0.05)
             except (OSError, ValueError) as err:
@@ -505,7 +537,9 @@ class SampleStream:
             if frames:
                 quiet = Deadline(self.stall_timeout_s)
                 self._accept(frames)
-            elif quiet.expired:
+            if self.source.drained and self._next_index is not None:
+                self._live.append((started, self._next_index))
+            if not frames and quiet.expired:
                 self.stats.stalls += 1
                 if not self._reopen(f"no frame for {self.stall_timeout_s:g} s"):
                     return
