@@ -305,7 +305,9 @@ class BenchSource:
         self.max_current_a = cfg.current_limit_a  # the peak coil current a command may ask
         self.channels = ["current_A", "force_N", "flux_Wb", "command_V"]
         self.duration_s = duration_s
-        self.settle_s = 0.1  # a command takes effect somewhere within the streams' latency
+        #: what a command's effect may still take once the streams' readers have caught up with
+        #: their transports (the wire, the instruments' own buffers and ticks)
+        self.settle_s = 0.1
         self._output = False
         self._tables = 0  # changes of what the generator plays
         self.name = f"bench {cfg.source}" + (" (emulated instruments)" if self.emu else "")
@@ -351,19 +353,29 @@ class BenchSource:
 
     def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]:
         """The bench's aligned blocks (``Bench.read_aligned``, the drivers' one acquisition loop),
-        each with its operating point; commands are applied between blocks."""
+        each with its operating point; commands are applied between blocks.
+
+        A block is marked ``settling`` while it may hold samples made before the last command took
+        effect.  Where that ends is not where the reading stands (the cursor) but where the
+        instruments' clock stood when the command went out: the streams say so once their readers
+        have caught up with the transports (``Bench.live_index_after``); until then everything is
+        settling, however long a backlog (a starved reader, a full socket) takes to drain."""
         bench = self.bench
         bench.open_streams()
         left = None if self.duration_s is None else int(round(self.duration_s * self.fs_hz))
         settle_until = -1  # samples before this index may predate the last command
+        commanded_at: float | None = None  # the last command's time, until its first sample is known
+        settle = int(self.settle_s * self.fs_hz)
         while (stop is None or not stop.is_set()) and (left is None or left > 0):
             cursor = bench.next_index
             # after the first sample (settling is counted from it), every sample the instruments
             # may still hold is marked settling
             if cursor is not None and self._apply_commands():
-                settle_until = cursor + int(self.settle_s * self.fs_hz)
+                commanded_at = time.monotonic()
+            if commanded_at is not None and (live := bench.live_index_after(commanded_at)) is not None:
+                settle_until, commanded_at = max(live, cursor) + settle, None
             limit = left  # a block ends where settling does, so each has one meta
-            if cursor is not None and cursor < settle_until:
+            if commanded_at is None and cursor is not None and cursor < settle_until:
                 limit = settle_until - cursor if limit is None else min(limit, settle_until - cursor)
             if cursor is None:  # the first block no longer than the minimum: commands queued before the
                 # streams delivered (the switch-on) apply right after it, not after a whole backlog or burst
@@ -373,9 +385,9 @@ class BenchSource:
             if left is not None:
                 left -= b.n
             g = bench.generator.state
+            settling = commanded_at is not None or b.first_index < settle_until
             meta = operating_meta(g["frequency_hz"], g["amplitude_vpp"] * self.gain, g["offset_v"] * self.gain,
-                                  bool(g["output"]) and self._output, settling=b.first_index < settle_until,
-                                  table=self._tables)
+                                  bool(g["output"]) and self._output, settling=settling, table=self._tables)
             yield SampleBlock(b.first_index, b.fs_hz, b.channels, flags=b.flags, gap_samples=b.gap_samples,
                               meta={**b.meta, **meta})
 

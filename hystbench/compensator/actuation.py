@@ -90,10 +90,10 @@ class BenchActuation:
     gain`` volts to the generator (SCPI ``DATA:ARB``), ``set_sine`` sets its sine, ``output_off`` is
     the bench's safe-off (output off first), ``read`` acquires from the streams and refuses a gap.
 
-    Consecutive reads are consecutive samples.  A new table or sine first drops what the streams
-    delivered meanwhile (``Bench.discard_backlog``: samples of the old excitation, however long the
-    caller computed), so that, as on the rig directly, the next read starts at the change (within
-    the transports' latency, which the loop's settling read covers)."""
+    Consecutive reads are consecutive samples.  A new table or sine first drops every sample made
+    before it (``Bench.discard_backlog``: samples of the old excitation, however long the caller
+    computed or far behind the reading fell), so that, as on the rig directly, the next read starts
+    at the change (within what was on the wire, which the loop's settling read covers)."""
 
     def __init__(self, bench: Bench, current_limit_a: float) -> None:
         if not current_limit_a > 0:

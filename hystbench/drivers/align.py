@@ -31,6 +31,7 @@ class StreamAligner:
 
     def __init__(self, names: Iterable[str]) -> None:
         self.names = list(names)
+        self._start_at: int | None = None  # before the first block: hand out nothing before this
         self._q: dict[str, collections.deque[SampleBlock]] = {n: collections.deque() for n in self.names}
         self.cursor: int | None = None  # next aligned index to emit
         self.start_index: int | None = None
@@ -79,6 +80,19 @@ class StreamAligner:
                 ended = ended or broken
         return n or 0, ended
 
+    def skip_to(self, index: int) -> int:
+        """Hand out nothing before ``index``: dropped on purpose (samples of a bench as it was before
+        a change), not a gap.  Returns how many indices that skips past the cursor (0 before the
+        first block, when the start simply moves there)."""
+        if self.cursor is None:
+            self._start_at = max(index, self._start_at if self._start_at is not None else index)
+            return 0
+        skipped = max(0, index - self.cursor)
+        if skipped:
+            self.cursor = index
+            self._drop_before(index)
+        return skipped
+
     def _drop_before(self, index: int) -> None:
         for q in self._q.values():
             while q and q[0].end_index <= index:
@@ -91,7 +105,8 @@ class StreamAligner:
         if any(not q for q in self._q.values()):
             return None
         if self.cursor is None:
-            self.cursor = self.start_index = max(q[0].first_index for q in self._q.values())
+            self.cursor = self.start_index = max([q[0].first_index for q in self._q.values()]
+                                                 + ([] if self._start_at is None else [self._start_at]))
         while True:
             self._drop_before(self.cursor)
             if any(not q for q in self._q.values()):

@@ -45,6 +45,8 @@ if TYPE_CHECKING:
 __all__ = ["Bench", "BenchFault", "build_instruments", "timeout_reason"]
 
 _STEP_S = 0.05  # the longest one turn of the acquisition loop waits for a stream
+#: the longest ``discard_backlog`` waits for the streams' readers to catch up with the instruments
+CATCH_UP_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -247,6 +249,15 @@ class Bench:
         """The sample index the next aligned block starts at (None before the first one)."""
         return None if self._aligner is None else self._aligner.cursor
 
+    def live_index_after(self, t: float) -> int | None:
+        """A sample index at or past the common clock at monotonic time ``t``, bar what was on the
+        wire then (the streams' :meth:`~.stream.SampleStream.live_index_after`; every stream's
+        bounds the one clock, the smallest is kept); None until a stream's reader has caught up
+        with its transport since ``t``.  After a command sent at ``t``, samples past it show the
+        command's effect however far behind the reading was."""
+        found = [i for s in self.streams.values() if (i := s.live_index_after(t)) is not None]
+        return min(found) if found else None
+
     def _read_stream(self, name: str, timeout_s: float) -> bool:
         """Move one block of stream ``name`` into the aligner, waiting up to ``timeout_s``; False if
         none came.  A stream that is lost is a fault: the output goes off first, then it raises."""
@@ -313,16 +324,28 @@ class Bench:
         take = n if max_samples is None else min(n, max_samples - block.n)
         return block if take <= 0 else concatenate([block, al.take(take)])
 
-    def discard_backlog(self) -> int:
-        """Drop every sample the streams have delivered and not yet handed out: after a change (a new
-        waveform, a new frequency) they show the bench as it was.  The next ``acquire`` starts with
-        what arrives from now on (where all streams have begun again: no gap).  Samples still in
-        flight in the transports are not known here; a settling read after the change covers them.
-        Returns how many samples of the common clock were dropped."""
+    def discard_backlog(self, timeout_s: float | None = None) -> int:
+        """Drop every sample made before now: after a change (a new waveform, a new frequency) they
+        show the bench as it was.  Not only what the streams delivered: what was still queued in
+        the transports (a reader that fell behind) is dropped too, up to where the streams'
+        readers, once caught up, place the instruments' clock at the call
+        (:meth:`live_index_after`).  The next ``acquire`` starts there, consecutive with the last
+        sample handed out but for the dropped ones (a gap only if a stream really lost samples);
+        samples still on the wire then, a settling read after the change covers.  Raises
+        ``InstrumentTimeout`` if no reader catches up within ``timeout_s`` (default
+        :data:`CATCH_UP_S`): what follows could not be told from the old.  Returns how many
+        samples of the common clock were dropped."""
+        asked = time.monotonic()
         self.open_streams()
+        deadline = Deadline(CATCH_UP_S if timeout_s is None else timeout_s)
+        while (live := self.live_index_after(asked)) is None:
+            if deadline.expired:
+                raise InstrumentTimeout(f"bench: after a change, no stream's reader caught up with its "
+                                        f"instrument within {deadline.elapsed:.2g} s: the samples that follow "
+                                        "cannot be told from the old ones (is the machine overloaded?)")
+            self._read_stream(self._aligner.waiting_for(), deadline.left(_STEP_S))
         self._drain()
-        dropped = max(self._aligner.queued().values(), default=0)
-        self._aligner = StreamAligner(self.streams)
+        dropped = self._aligner.skip_to(live)
         self.discarded_samples += dropped
         return dropped
 

@@ -8,8 +8,9 @@ has run on twice the settling time since it was asked for.
 
 What each recording must skip is the bench's own settling (``analysis.settling``: 10 time constants
 of the measurement chain, 30 ms for ecore_pm), not the demo's whole ``SETTLE_S``: samples made before
-the change but still in flight in the transports when the backlog is dropped count in the settling
-read (``Bench.discard_backlog``), and ``SETTLE_S`` leaves room for them (under load: about 10 ms).
+the change are dropped up to where the streams' readers, caught up, placed the clock at the change
+(``Bench.discard_backlog``); what was on the wire then counts in the settling read, and ``SETTLE_S``
+leaves room for it.
 """
 
 import threading
