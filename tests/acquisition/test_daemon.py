@@ -248,7 +248,8 @@ def test_daemon_default_source_is_the_emulated_bench(tmp_path: Path) -> None:
         # eight estimates, however long they take (the emulated bench runs slower than real time on a
         # busy machine: a wall-clock window would see fewer); the timeout only turns a hang into a failure
         got = [json.loads(p) for _, p, _ in est.iter(count=8, seconds=HANG_S)]
-        assert len(got) == 8 and sum(1 for e in got if not e["error"]) >= 3
+        errors = [e["error"] for e in got if e["error"]]
+        assert len(got) == 8 and len(errors) <= 5, errors
         d.proc.send_signal(signal.SIGTERM)
         assert d.proc.wait(timeout=20) == 0
     finally:
