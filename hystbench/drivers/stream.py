@@ -26,7 +26,7 @@ from ..errors import ConnectionLost, InstrumentError
 from .base import Backoff, log
 from .protocols.framing import (
     BATCH_CORRUPT, BATCH_OTHER_SHAPE, OVERHEAD, CobsDeframer, DeframerStats, Frame, FrameBatch, FrameError,
-    LengthPrefixDeframer, decode_batch, decode_frame)
+    LengthPrefixDeframer, decode_batch, decode_frame, warm_batch_decode, warm_cobs)
 
 if TYPE_CHECKING:
     import can
@@ -77,6 +77,10 @@ class FrameSource(abc.ABC):
 
     @abc.abstractmethod
     def read_frames(self, timeout_s: float) -> list[Frame | FrameBatch]: ...
+
+    def warm(self) -> None:
+        """Make ready what ``read_frames`` compiles on first use (before the transport opens, so no
+        backlog builds meanwhile)."""
 
 
 class TcpFrameSource(FrameSource):
@@ -131,6 +135,9 @@ class SerialFrameSource(FrameSource):
         self.deframer = CobsDeframer(stream_id, channels)
         self.deframer_stats = self.deframer.stats
 
+    def warm(self) -> None:
+        warm_cobs()
+
     def open(self) -> None:
         """The first open drops what the line held before (another session's bytes); a reopen
         (after a stall or a lost port) keeps the bytes waiting and the deframer's place, so that a
@@ -179,6 +186,9 @@ class CanFrameSource(FrameSource):
         self.deframer_stats = DeframerStats()
         self._pending: list[Frame | FrameBatch] = []
         self._opened = False
+
+    def warm(self) -> None:
+        warm_batch_decode()
 
     def open(self) -> None:
         """A CAN bus has no connection: reopening means frames of this stream are on the bus again."""
@@ -344,6 +354,7 @@ class SampleStream:
     def start(self) -> "SampleStream":
         if self._thread is not None:
             return self
+        self.source.warm()
         try:
             self.source.open()
         except OSError as err:

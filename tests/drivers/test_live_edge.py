@@ -136,3 +136,28 @@ def test_a_source_that_never_drains_bounds_nothing():
     with SampleStream("s", source, ["x"], 1e5, stall_timeout_s=HANG_S) as stream:
         assert source.done.wait(HANG_S)
         assert stream.live_index_after(0.0) is None
+
+
+def test_a_stream_compiles_its_decoders_before_it_opens_the_transport():
+    """The first COBS or CAN FD decode in a process compiles (3.4 s cold): on the reader thread,
+    that was a backlog of seconds before the first sample.  ``start`` warms the source first."""
+    pytest.importorskip("serial")
+    from hystbench import jit
+    from hystbench.drivers.protocols import framing
+
+    if not jit.enabled():
+        pytest.skip("numba is off: nothing to compile")
+    compiled_at_open: list = []
+
+    class Watched(SerialFrameSource):
+        def open(self):
+            compiled_at_open.append(bool(framing._cobs_kernels()[1].signatures))
+            super().open()
+
+    framing._cobs_kernels.cache_clear()
+    with SampleStream("s", Watched("loop://", stream_id=3, channels=1), ["x"], 1e5, stall_timeout_s=HANG_S):
+        pass
+    assert compiled_at_open == [True]
+    framing._verdict_kernel.cache_clear()
+    CanFrameSource(None, 0x184, stream_id=3, channels=1).warm()
+    assert framing._verdict_kernel.cache_info().currsize == 1
