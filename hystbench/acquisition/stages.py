@@ -80,9 +80,26 @@ class WindowEstimator:
         from ..analysis.method import measure_window
 
         self._phase_delay, self._measure_window = phase_delay, measure_window
+        self._warm()
         self.errors = 0
         self._out: list[tuple[Estimate, SampleBlock | None]] = []
         self.reset()
+
+    def _warm(self) -> None:
+        """Fit one synthetic window now, so numba compiles (or loads from its cache) the fits'
+        kernels here and not at the first window: 0.5 s cached, seconds cold, while the stream
+        fills the ring behind a stage that then drops samples."""
+        n = 4000
+        t = np.arange(n) / 1e5
+        noise = np.random.default_rng(0).normal(0.0, 1e-3, (3, n))
+        x = {c: np.cos(2 * np.pi * 320.0 * (t - d)) + e for c, d, e in zip(_METHOD_CHANNELS, (0.0, 1e-5, 2e-5), noise)}
+        try:
+            if self.method:
+                self._measure_window(x, 1e5, 320.0, magnet=self.magnet, where="warm-up window")
+            else:
+                self._phase_delay(x["current_A"], x["force_N"], 1e5, 320.0)
+        except (BenchError, ValueError):  # only the compiling matters here
+            pass
 
     def reset(self) -> None:
         """Forget the run in progress (after torn or lost samples)."""

@@ -408,3 +408,20 @@ def test_the_estimator_reads_the_rig_preset_when_made_not_for_each_window(monkey
     assert len(out) >= 10 and not any(e.error for e in out)
     assert reads == []
     assert out == WindowEstimator(_STREAM.fs_hz, _src.metadata(), periods=4, min_hop_s=0).push(_STREAM)
+
+
+def test_the_estimator_compiles_its_fits_when_made_not_at_the_first_window() -> None:
+    """In a fresh process (numba compiles per process: 0.5 s from its cache, seconds cold) the fits'
+    kernels are ready once the stage exists, so the stream does not fill the ring behind a first
+    window that compiles them."""
+    import subprocess
+    import sys
+
+    code = ("from hystbench import jit\n"
+            "from hystbench.acquisition.stages import WindowEstimator\n"
+            "from hystbench.analysis.estimation import _lsq_kernel as k\n"
+            "WindowEstimator(1e5, {'rig': 'ecore_pm', 'frequency_Hz': 320.0, 'current_pp_A': 1.0})\n"
+            "print(jit.enabled(), bool(k.basis.signatures), bool(k.gram_solve.signatures))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    enabled, basis, solve = out.stdout.split()
+    assert enabled == "False" or (basis, solve) == ("True", "True")
