@@ -11,25 +11,15 @@ in a fresh thread (nothing kept) against one in a thread that has fitted other r
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 import pytest
 
 from hystbench.analysis.estimation import _lsq, phase_delay, sine_fit
 from hystbench.jit import enabled
 
+from .conftest import in_fresh_thread
+
 FS = 100_000.0
-
-
-def _in_fresh_thread(fn):
-    """``fn()`` run in a new thread, whose kept regressors start empty."""
-    out: list = []
-    t = threading.Thread(target=lambda: out.append(fn()))
-    t.start()
-    t.join(timeout=600)
-    assert out, "the fit in the fresh thread did not finish"
-    return out[0]
 
 
 def _record(n: int, seed: int, f: float = 40.0013, chans: int = 2, batch: int = 1) -> np.ndarray:
@@ -126,7 +116,7 @@ def test_fits_do_not_depend_on_what_the_thread_kept(n):
     records of the same length and frequency (regressors kept and reused) agree bit for bit; the
     200 000-sample record is too long to keep (made again on each pass)."""
     x = _record(n, seed=3)
-    cold = _in_fresh_thread(lambda: _fits(x))
+    cold = in_fresh_thread(lambda: _fits(x))
 
     def warm():
         for seed in (4, 5):
@@ -134,7 +124,7 @@ def test_fits_do_not_depend_on_what_the_thread_kept(n):
         first = _fits(x)
         return first, _fits(x)
 
-    first, second = _in_fresh_thread(warm)
+    first, second = in_fresh_thread(warm)
     assert cold[6].tolist() == [n // 3]  # the glitch was found and left out
     for c, a, b in zip(cold, first, second):
         assert np.array_equal(c, a) and np.array_equal(c, b)
@@ -155,7 +145,7 @@ def test_kept_regressors_are_shared_bounded_and_read_only():
         c = _lsq.bases(f, ks, 25_000, FS)
         return a is b, all(o is not a for o in other), kept, c is a, next(iter(c))[1], basis
 
-    same, distinct, kept, still, basis, first = _in_fresh_thread(run)
+    same, distinct, kept, still, basis, first = in_fresh_thread(run)
     assert same and distinct
     assert 0 < kept <= _lsq.RECENT_FLOATS
     assert not still  # evicted long ago, made again: the same numbers

@@ -8,26 +8,17 @@ reference is :func:`_outliers._mad` on the same rows, and an independent sort-ba
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 
 from hystbench.analysis.estimation import _outliers, gross_outliers
+
+from .conftest import in_fresh_thread
 
 
 def _sorted_median(v: np.ndarray) -> float:
     s = np.sort(v)
     m = s.size // 2
     return float(s[m]) if s.size % 2 else 0.5 * (float(s[m - 1]) + float(s[m]))
-
-
-def _in_fresh_thread(fn):
-    out: list = []
-    t = threading.Thread(target=lambda: out.append(fn()))
-    t.start()
-    t.join(timeout=600)
-    assert out, "the fresh thread did not finish"
-    return out[0]
 
 
 def test_remembered_rows_give_the_medians_computed_afresh():
@@ -46,7 +37,7 @@ def test_remembered_rows_give_the_medians_computed_afresh():
         evicted = len(_outliers._recent.rows) <= _outliers.RECENT_ROWS
         return first, hit, again, odd, evicted
 
-    first, hit, again, odd, evicted = _in_fresh_thread(run)
+    first, hit, again, odd, evicted = in_fresh_thread(run)
     assert evicted
     for i, row in enumerate(rows):
         med = _sorted_median(row)
@@ -61,13 +52,13 @@ def test_gross_outliers_the_same_in_a_fresh_and_a_busy_thread():
     rng = np.random.default_rng(3)
     x = np.sin(np.linspace(0, 60, 25_000)) + rng.normal(0, 1e-3, 25_000)
     x[[10, 20_000]] = 1e308, -400.0  # 100 MADs of a unit sine: ~70
-    cold = _in_fresh_thread(lambda: gross_outliers(x))
+    cold = in_fresh_thread(lambda: gross_outliers(x))
 
     def busy():
         gross_outliers(x)
         _outliers.initial_mask(np.stack([x, -x])[None], None, 9.0)
         return gross_outliers(x)
 
-    warm = _in_fresh_thread(busy)
+    warm = in_fresh_thread(busy)
     assert np.flatnonzero(cold).tolist() == [10, 20_000]
     assert np.array_equal(cold, warm)
