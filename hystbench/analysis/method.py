@@ -9,9 +9,11 @@ The flux is seen by no force instrument, which is what separates the two lags (p
 Each delay is the equivalent time delay of the signal's dominant component (f with magnet, 2f
 without) and, for display, the phase that delay is at the excitation frequency.
 
-The delays come from joint least-squares sine fits (at the Cramer-Rao bound); the paper's own
-covariance-maximum delays (Eq. 3, one-sample resolution) are given beside them by
-:func:`covariance_delays`.  Before any number is returned the recording is checked: an E-core rig,
+The delays come from least-squares sine fits (at the Cramer-Rao bound), each channel fitted once:
+current and flux jointly with the frequency, the force (and without magnet i^2 and phi^2) at that
+frequency; every delay is read off those fits, so all three are at one frequency and, with magnet,
+total = hysteresis + instrument to rounding.  The paper's own covariance-maximum delays (Eq. 3,
+one-sample resolution) are given beside them by :func:`covariance_delays`.  Before any number is returned the recording is checked: an E-core rig,
 the three channels present, finite, not flat, not clipped, at least two periods long, and the
 nominal frequency really in the data (the fitted frequency near the sidecar's; each channel's
 fitted component carrying at least half its variance, or its spectrum peaking there, and never
@@ -35,7 +37,8 @@ import numpy as np
 from ..config import load_rig
 from ..errors import EstimationError
 from ..physics import presets
-from .estimation import OUTLIER_SIGMAS, covariance_delay, estimation_errors, gross_outliers, phase_delay, sine_fit
+from .estimation import (OUTLIER_SIGMAS, covariance_delay, delay_between, estimation_errors, gross_outliers, phase_delay,
+                         sine_fit)
 from .estimation import find_outliers as estimation_find_outliers
 from ..formats.recording import Recording
 
@@ -263,6 +266,15 @@ def _drives(current: np.ndarray, flux: np.ndarray, magnet: bool) -> tuple[np.nda
     return (current - current.mean()) ** 2, (flux - flux.mean()) ** 2
 
 
+def _drive_fits(current: np.ndarray, flux: np.ndarray, m_i: np.ndarray, m_phi: np.ndarray, fs: float,
+                f_true: float):
+    """Without magnet the force follows i^2 and phi^2 (its 2f component): their fits at the
+    frequency found (``.x``: i^2, ``.y``: phi^2), the outliers found in i and phi left out."""
+    drive_i, drive_phi = _drives(_filled(current, m_i), _filled(flux, m_phi), magnet=False)
+    return phase_delay(drive_i, drive_phi, fs, f_true, harmonic=2, harmonics=HARMONICS, fit_freq=False,
+                       exclude=(m_i, m_phi), outlier_sigmas=None)
+
+
 def find_outliers(rec: Recording, names: tuple[str, ...], *, sigmas: float = OUTLIER_SIGMAS) -> dict[str, np.ndarray]:
     """Each named channel's gross outliers (a boolean mask per channel): samples more than
     ``sigmas`` robust standard deviations off the channel's fitted waveform (DC and
@@ -337,18 +349,16 @@ def _measure(rec: Recording | _Window, magnet: bool) -> MethodDelays:
     with estimation_errors(where):
         hyst = phase_delay(current, flux, fs, f0, harmonic=1, harmonics=HARMONICS)
         f_true = float(hyst.freq_hz)
-        m_f = sine_fit(force, fs, f_true, harmonics=HARMONICS, fit_freq=False).excluded
-    m_i, m_phi = hyst.x.excluded, hyst.y.excluded
+        force_fit = sine_fit(force, fs, f_true, harmonics=HARMONICS, fit_freq=False)
+    m_i, m_phi, m_f = hyst.x.excluded, hyst.y.excluded, force_fit.excluded
     masks = {"current_A": m_i, "flux_Wb": m_phi, "force_N": m_f}
     _check_outlier_share(rec, masks)
     with estimation_errors(where):
-        drive_i, drive_phi = _drives(_filled(current, m_i), _filled(flux, m_phi), magnet)
-        instr = phase_delay(drive_phi, force, fs, f_true, harmonic=k, harmonics=HARMONICS, exclude=(m_phi, m_f),
-                            outlier_sigmas=None)
-        total = phase_delay(drive_i, force, fs, f_true, harmonic=k, harmonics=HARMONICS, exclude=(m_i, m_f),
-                            outlier_sigmas=None)
+        refs = hyst if magnet else _drive_fits(current, flux, m_i, m_phi, fs, f_true)
+        instr = delay_between(refs.y, force_fit, k)  # every channel fitted once, at one frequency
+        total = delay_between(refs.x, force_fit, k)
     explained = check_fit_quality(rec, f_true, {"current_A": (hyst.x, 1), "flux_Wb": (hyst.y, 1),
-                                                "force_N": (instr.y, k)})
+                                                "force_N": (force_fit, k)})
     delays = {"hysteresis": float(hyst.delay_s), "instrument": float(instr.delay_s), "total": float(total.delay_s)}
     stds = {"hysteresis": float(hyst.delay_se_s), "instrument": float(instr.delay_se_s),
             "total": float(total.delay_se_s)}

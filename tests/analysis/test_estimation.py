@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from hystbench.analysis import estimation
 from hystbench.analysis.estimation import (
     covariance_delay,
+    delay_between,
     delay_crlb,
     estimation_errors,
     phase_delay,
@@ -301,6 +302,30 @@ def test_sine_fit_rejects_bad_options(kwargs, name):
 def test_phase_delay_rejects_a_harmonic_it_does_not_fit(kwargs):
     with pytest.raises(ValueError, match=r"^harmonic\b"):
         phase_delay(GOOD, GOOD, FS, F0, **kwargs)
+
+
+@pytest.mark.parametrize("harmonic", [1, 2])
+def test_delay_between_two_fits_is_the_joint_fits_delay_at_that_frequency(harmonic):
+    # at a given frequency two channels share no parameter: fitting them apart and reading the
+    # delay off both fits must give the joint fit's delay and standard error
+    rng = np.random.default_rng(3)
+    t = np.arange(3001) / FS
+    d = 37e-6
+    x = np.cos(2 * np.pi * F0 * t) + 0.3 * np.cos(4 * np.pi * F0 * t + 0.4) + 0.01 * rng.standard_normal(t.size)
+    y = 2 * np.cos(2 * np.pi * F0 * (t - d)) + 0.5 * np.cos(4 * np.pi * F0 * (t - d) + 0.4) + 0.02 * rng.standard_normal(t.size)
+    hs = (1, 2, 3)
+    joint = phase_delay(x, y, FS, F0, harmonic=harmonic, harmonics=hs, fit_freq=False)
+    apart = delay_between(sine_fit(x, FS, F0, harmonics=hs, fit_freq=False),
+                          sine_fit(y, FS, F0, harmonics=hs, fit_freq=False), harmonic)
+    assert apart.delay_s == pytest.approx(joint.delay_s, rel=1e-10)
+    assert apart.delay_se_s == pytest.approx(joint.delay_se_s, rel=1e-9)
+    assert apart.phase_rad == pytest.approx(joint.phase_rad, rel=1e-10)
+    assert apart.delay_s == pytest.approx(d, abs=5 * apart.delay_se_s)
+
+
+def test_delay_between_refuses_fits_at_different_frequencies():
+    with pytest.raises(ValueError, match="different frequencies"):
+        delay_between(sine_fit(GOOD, FS, F0, fit_freq=False), sine_fit(GOOD, FS, F0 * 1.0001, fit_freq=False), 1)
 
 
 def test_component_rejects_an_unfitted_harmonic():

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from hystbench.analysis.method import covariance_delays, estimate, measure_delays
+from hystbench.analysis.estimation import phase_delay
+from hystbench.analysis.method import HARMONICS, covariance_delays, estimate, measure_delays
 from hystbench.formats.recording import Recording
 from hystbench.physics import presets
 from hystbench.config import load_rig
@@ -49,6 +50,28 @@ def test_delays_add_up_and_eddy_currents_lag_the_flux():
     assert d.delays_s["hysteresis"] > 20 * d.delays_std_s["hysteresis"]
     assert d.delays_s["total"] == pytest.approx(d.delays_s["hysteresis"] + d.delays_s["instrument"], rel=0.02)
     assert d.phase_deg("hysteresis") == pytest.approx(np.degrees(d.theta_hyst_rad))
+
+
+@pytest.mark.parametrize("effects", [None, {"static_hysteresis": False}, {"iron_saturation": False}])
+def test_with_magnet_every_delay_is_read_at_one_frequency_so_they_add_up(effects):
+    # each channel is fitted once, at the frequency its current and flux found: total is the sum
+    d = measure_delays(simulate("ecore_pm", 320.0, effects=effects))
+    assert d.delays_s["total"] == pytest.approx(d.delays_s["hysteresis"] + d.delays_s["instrument"], rel=1e-9)
+
+
+@pytest.mark.parametrize("rig,f", [("ecore_pm", 160.0), ("ecore_pm", 40.0), ("ecore", 160.0), ("ecore", 480.0)])
+def test_delays_read_off_one_fit_per_channel_agree_with_fitting_each_pair_on_its_own(rig, f):
+    # the independent way: each pair (its drive and the force) fitted jointly with a frequency of
+    # its own, as the method did before it read every delay off one fit per channel
+    rec = simulate(rig, f, seconds=0.2)
+    d = measure_delays(rec)
+    i, phi, force = (rec.channels[c] for c in ("current_A", "flux_Wb", "force_N"))
+    if d.harmonic == 2:
+        i, phi = (i - i.mean()) ** 2, (phi - phi.mean()) ** 2
+    for name, ref in (("instrument", phi), ("total", i)):
+        pair = phase_delay(ref, force, rec.fs_hz, d.frequency_hz, harmonic=d.harmonic, harmonics=HARMONICS)
+        assert d.delays_s[name] == pytest.approx(float(pair.delay_s), abs=0.1 * float(pair.delay_se_s)), name
+        assert d.delays_std_s[name] == pytest.approx(float(pair.delay_se_s), rel=0.05), name
 
 
 def test_covariance_method_agrees_to_one_sample():

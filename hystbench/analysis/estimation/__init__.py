@@ -1,7 +1,8 @@
 """Delay and phase estimators for two channels excited by one sine (offline, on arrays).
 
 - :func:`phase_delay` — delay of y behind x from a joint least-squares sine fit (IEEE Std
-  1057/1241, frequency estimated); reaches the Cramer-Rao bound.
+  1057/1241, frequency estimated); reaches the Cramer-Rao bound.  :func:`delay_between` reads
+  the same delay off two fits already made at one frequency.
 - :func:`sine_fit` — the single-channel fit: DC + chosen harmonics, three- or four-parameter.
   Both fits leave gross outliers out (``outlier_sigmas``, default :data:`OUTLIER_SIGMAS` robust
   standard deviations off the fit) and say which (``excluded``); :func:`find_outliers` finds those
@@ -24,12 +25,13 @@ from hystbench.errors import EstimationError
 
 from .covariance import CovarianceDelay, covariance_delay
 from .crlb import delay_crlb, phase_difference_crlb, sine_snr
-from .sinefit import (OUTLIER_SIGMAS, Harmonic, PhaseDelay, SineFit, find_outliers, gross_outliers, phase_delay,
-                      sine_fit)
+from .sinefit import (OUTLIER_SIGMAS, Harmonic, PhaseDelay, SineFit, delay_between, find_outliers, gross_outliers,
+                      phase_delay, sine_fit)
 
 __all__ = [
     "sine_fit",
     "phase_delay",
+    "delay_between",
     "find_outliers",
     "gross_outliers",
     "covariance_delay",
