@@ -164,7 +164,7 @@ class PtyPort:
     def _drain(self) -> None:
         """Push the backlog whenever the line takes more (a UART's transmit side)."""
         while not self._closed:
-            self._wake.wait(0.05)
+            self._wake.wait()  # set by a write that left a backlog, and by close: an idle port sleeps
             self._wake.clear()
             while not self._closed and self._pending:
                 try:
@@ -247,7 +247,7 @@ class TcpServer:
 
     def _listen(self, port: int) -> None:
         sock = socket.create_server(("127.0.0.1", port))  # SO_REUSEADDR: the same port after a pause
-        sock.settimeout(0.05)
+        sock.settimeout(0.5)  # pause() and close() wake accept() by shutting the socket down; this is a backstop
         self._sock = sock
 
     def _accept(self) -> None:
