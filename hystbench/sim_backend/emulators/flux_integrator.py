@@ -23,7 +23,7 @@ import numpy as np
 
 from ...blocks import SampleBlock
 from ...drivers.protocols import can_integrator as ci
-from ...drivers.protocols.framing import samples_per_frame_for
+from ...drivers.protocols.framing import samples_per_frame_for, warm_crc_rows
 from .common import Faults, FrameEmitter, log
 
 if TYPE_CHECKING:
@@ -141,6 +141,7 @@ class FluxIntegratorEmulator:
         self._last_u = 0.0  # newest output, before the reset offset
         self._reset_pending = False
         self.emitter = FrameEmitter(INTEGRATOR_STREAM_ID, samples_per_frame_for(ci.STREAM_PAYLOAD, 1), self.faults)
+        warm_crc_rows()  # compiled now, not on the emulator clock's first block
         self._lock = threading.RLock()
         self._bus = emulator_bus(interface, channel)
         self._stream_bus = (self._bus if self.stream_channel == channel
