@@ -19,7 +19,7 @@ from hystbench.acquisition.stages import WindowEstimator
 from hystbench.blocks import BlockFlags, SampleBlock
 from hystbench.errors import RecordingError
 from hystbench.analysis.log_recordings import read_mcap_segments
-from hystbench.formats.mcaplog import ESTIMATE, McapRecorder, McapSource, iter_blocks, iter_log, log_metadata
+from hystbench.formats.mcaplog import ESTIMATE, RAW, McapRecorder, McapSource, iter_blocks, iter_log, log_metadata
 from hystbench.formats.raw_block import decode, encode_binary, encode_json
 from hystbench.messages import Estimate, OperatingPoint
 
@@ -98,13 +98,27 @@ def replayed(log: Path, out: Path | None = None) -> list[dict]:
     return got
 
 
+def _current_and_flux(e: Estimate) -> Estimate:
+    """What of an estimate comes of the current and flux alone (the force's delays left out), t_ns
+    0: a replay's log time is its own."""
+    keep = ("hysteresis",)
+    return replace(e, t_ns=0, delays_s={k: e.delays_s[k] for k in keep if k in e.delays_s},
+                   delays_std_s={k: e.delays_std_s[k] for k in keep if k in e.delays_std_s},
+                   phases_deg={k: e.phases_deg[k] for k in keep if k in e.phases_deg},
+                   phases_std_deg={k: e.phases_std_deg[k] for k in keep if k in e.phases_std_deg})
+
+
 def test_a_log_written_before_the_one_codec_reads_and_replays_to_its_own_estimates(tmp_path: Path,
                                                                                    monkeypatch) -> None:
     """``pre_issue11.mcap`` was written by commit d078bcb (see data/make_pre_issue11_log.py): a
     simulated E-core at 160 Hz, then 320 Hz, then the output off, estimates spelled the old way
-    (``nominal_frequency_Hz``, ``frequency_Hz``).  Today's code reads its blocks and replays it to
-    the very estimates it recorded, number for number, on the sine fits' numpy path (the code that
-    wrote it); their compiled regressors (issue 14) give the same estimates to rounding."""
+    (``nominal_frequency_Hz``, ``frequency_Hz``).  Today's code reads its blocks sample for sample
+    (against the log's bytes decoded here, base64 and JSON, without the codec) and replays it to the
+    estimates it recorded, on the sine fits' numpy path (the code that wrote it): number for number
+    what comes of the current and flux (frequency, hysteresis delay); the instrument and total delays
+    within a tenth of their standard error, as the method now reads them off one fit per channel
+    where that code fitted each pair again (aa81c54).  The compiled regressors (issue 14) give the
+    same estimates to rounding."""
     from hystbench.analysis.estimation import _lsq
 
     monkeypatch.setattr(_lsq, "KERNEL", False)
@@ -114,20 +128,33 @@ def test_a_log_written_before_the_one_codec_reads_and_replays_to_its_own_estimat
     assert [(p.frequency_hz, p.table) for p in points_] == [(160.0, 0)] * 9 + [(320.0, 1)] * 15
     assert [p.output_on for p in points_] == [True] * 17 + [False] * 7
     assert all(b.first_index == a.end_index for a, b in zip(blocks, blocks[1:]))
+    raw = [m.json() for m in iter_log(OLD_LOG, [RAW])]
+    assert len(raw) == len(blocks)
+    for msg, block in zip(raw, blocks):
+        for ch in msg["channels"]:
+            sent = np.frombuffer(base64.b64decode(ch["data"]), dtype={"float32": "<f4", "float64": "<f8"}[ch["dtype"]])
+            assert block.channels[ch["name"]].tobytes() == sent.tobytes(), (msg["first_index"], ch["name"])
     old = [m.json() for m in iter_log(OLD_LOG, [ESTIMATE])]
     renamed = {"nominal_frequency_Hz": "nominal_frequency_hz", "current_pp_A": "current_pp_a",
                "frequency_Hz": "frequency_hz", "frequency_std_Hz": "frequency_std_hz"}
     recorded = [Estimate.from_json({renamed.get(k, k): v for k, v in e.items()}) for e in old]
     assert len(recorded) >= 10 and {e.nominal_frequency_hz for e in recorded} == {160.0, 320.0}
-    for again in (replayed(OLD_LOG), replayed(OLD_LOG, out=tmp_path / "again.mcap")):
-        # equal but for t_ns, the log time: a replay has its own clock (or none)
-        assert [replace(Estimate.from_json(e), t_ns=0) for e in again] == [replace(e, t_ns=0) for e in recorded]
+    numpy_path = [Estimate.from_json(e) for e in replayed(OLD_LOG)]
+    for got in (numpy_path, [Estimate.from_json(e) for e in replayed(OLD_LOG, out=tmp_path / "again.mcap")]):
+        # equal but for t_ns, the log time (a replay has its own clock, or none), and the two delays
+        # read off the force's fit
+        assert [_current_and_flux(e) for e in got] == [_current_and_flux(e) for e in recorded]
+        for e, want in zip(got, recorded):
+            for name in ("instrument", "total"):
+                se = want.delays_std_s[name]
+                assert e.delays_s[name] == pytest.approx(want.delays_s[name], abs=0.1 * se), (e.first_index, name)
+                assert e.delays_std_s[name] == pytest.approx(se, rel=0.05), (e.first_index, name)
     again = list(iter_blocks(tmp_path / "again.mcap"))
     assert [(b.first_index, b.n, dict(b.meta)) for b in again] == [(b.first_index, b.n, dict(b.meta)) for b in blocks]
     monkeypatch.setattr(_lsq, "KERNEL", True)
     compiled = [Estimate.from_json(e) for e in replayed(OLD_LOG)]
-    assert [(e.first_index, e.end_index) for e in compiled] == [(e.first_index, e.end_index) for e in recorded]
-    for got, want in zip(compiled, recorded):
+    assert [(e.first_index, e.end_index) for e in compiled] == [(e.first_index, e.end_index) for e in numpy_path]
+    for got, want in zip(compiled, numpy_path):
         assert got.frequency_hz == pytest.approx(want.frequency_hz, rel=1e-8, abs=1e-3 * want.frequency_std_hz)
         for name, delay in want.delays_s.items():
             assert got.delays_s[name] == pytest.approx(delay, rel=1e-8, abs=1e-3 * want.delays_std_s[name])
