@@ -13,11 +13,11 @@ The delays come from least-squares sine fits (at the Cramer-Rao bound), each cha
 current and flux jointly with the frequency, the force (and without magnet i^2 and phi^2) at that
 frequency; every delay is read off those fits, so all three are at one frequency and, with magnet,
 total = hysteresis + instrument to rounding.  The paper's own covariance-maximum delays (Eq. 3,
-one-sample resolution) are given beside them by :func:`covariance_delays`.  Before any number is returned the recording is checked: an E-core rig,
-the three channels present, finite, not flat, not clipped, at least two periods long, and the
-nominal frequency really in the data (the fitted frequency near the sidecar's; each channel's
-fitted component carrying at least half its variance, or its spectrum peaking there, and never
-less than ``MIN_EXPLAINED_ANYWAY``).  Anything else is an :class:`EstimationError` naming the
+one-sample resolution) are given beside them by :func:`covariance_delays`.  Before any number is
+returned the recording is checked: an E-core rig, the three channels present, finite, not flat,
+not clipped, at least two periods long, and the nominal frequency really in the data (the fitted
+frequency near the sidecar's; each channel's fitted component carrying at least half its variance,
+or its spectrum peaking there, and never less than ``MIN_EXPLAINED_ANYWAY``).  Anything else is an :class:`EstimationError` naming the
 recording and the reason.
 
 Gross outliers (a glitch: a sample ``OUTLIER_SIGMAS`` robust standard deviations off its channel's
@@ -37,8 +37,8 @@ import numpy as np
 from ..config import load_rig
 from ..errors import EstimationError
 from ..physics import presets
-from .estimation import (OUTLIER_SIGMAS, covariance_delay, delay_between, estimation_errors, gross_outliers, phase_delay,
-                         sine_fit)
+from .estimation import (OUTLIER_SIGMAS, PhaseDelay, covariance_delay, delay_between, estimation_errors, gross_outliers,
+                         phase_delay, sine_fit)
 from .estimation import find_outliers as estimation_find_outliers
 from ..formats.recording import Recording
 
@@ -267,7 +267,7 @@ def _drives(current: np.ndarray, flux: np.ndarray, magnet: bool) -> tuple[np.nda
 
 
 def _drive_fits(current: np.ndarray, flux: np.ndarray, m_i: np.ndarray, m_phi: np.ndarray, fs: float,
-                f_true: float):
+                f_true: float) -> PhaseDelay:
     """Without magnet the force follows i^2 and phi^2 (its 2f component): their fits at the
     frequency found (``.x``: i^2, ``.y``: phi^2), the outliers found in i and phi left out."""
     drive_i, drive_phi = _drives(_filled(current, m_i), _filled(flux, m_phi), magnet=False)

@@ -311,8 +311,11 @@ def test_delay_between_two_fits_is_the_joint_fits_delay_at_that_frequency(harmon
     rng = np.random.default_rng(3)
     t = np.arange(3001) / FS
     d = 37e-6
-    x = np.cos(2 * np.pi * F0 * t) + 0.3 * np.cos(4 * np.pi * F0 * t + 0.4) + 0.01 * rng.standard_normal(t.size)
-    y = 2 * np.cos(2 * np.pi * F0 * (t - d)) + 0.5 * np.cos(4 * np.pi * F0 * (t - d) + 0.4) + 0.02 * rng.standard_normal(t.size)
+    def wave(a1, a2, delay):
+        return a1 * np.cos(2 * np.pi * F0 * (t - delay)) + a2 * np.cos(4 * np.pi * F0 * (t - delay) + 0.4)
+
+    x = wave(1.0, 0.3, 0.0) + 0.01 * rng.standard_normal(t.size)
+    y = wave(2.0, 0.5, d) + 0.02 * rng.standard_normal(t.size)
     hs = (1, 2, 3)
     joint = phase_delay(x, y, FS, F0, harmonic=harmonic, harmonics=hs, fit_freq=False)
     apart = delay_between(sine_fit(x, FS, F0, harmonics=hs, fit_freq=False),
