@@ -272,15 +272,6 @@ class Bench:
         self._delivered[name] += block.n
         return True
 
-    def _wait_stream(self, name: str, end: int, timeout_s: float) -> bool:
-        """Wait until stream ``name`` holds samples up to ``end``; False if they did not come within
-        ``timeout_s``.  A stream that is lost is a fault, as in :meth:`_read_stream`."""
-        try:
-            return self.streams[name].wait_until(end, timeout_s)
-        except InstrumentError as err:
-            self._fault(name, str(err))
-            raise
-
     def _drain(self) -> None:
         """Move every block the streams hold into the aligner."""
         for name in self.streams:
@@ -324,8 +315,8 @@ class Bench:
             n, ended = al.contiguous()
             if block.n + n >= want or ended or deadline.expired:
                 break
-            try:  # sleep until the stream the aligner waits for has the rest, not once per run it gets
-                if not self._wait_stream(al.waiting_for(), al.cursor + want - block.n, deadline.left()):
+            try:
+                if not self._read_stream(al.waiting_for(), deadline.left()):
                     break
                 self._drain()
             except InstrumentError:  # a fault, recorded (output off): what came goes out; the next turn raises

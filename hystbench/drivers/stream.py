@@ -346,7 +346,6 @@ class SampleStream:
         self._next_index: int | None = None  # reader side: one past the last index kept
         self._next_seq: int | None = None
         self._delivered_end: int | None = None  # consumer side
-        self._wake_at: int | None = None  # while wait_until waits: wake the consumer once runs reach this
         #: (monotonic time a read began, one past the last index kept after it) of reads that left
         #: the transport drained: the reader's live edge
         self._live: collections.deque[tuple[float, int]] = collections.deque(maxlen=_LIVE_HISTORY)
@@ -422,32 +421,6 @@ class SampleStream:
         meta = {f"skew_s.{ch}": self.skew_s for ch in self.channels}
         return SampleBlock(first, self.fs_hz, chans, flags=BlockFlags(flags), gap_samples=max(gap, 0), meta=meta)
 
-    def wait_until(self, end: int, timeout_s: float) -> bool:
-        """Wait until the runs queued here reach index ``end``; False after ``timeout_s``.  The
-        acquisition loop gathering a block sleeps through the many short runs a transport hands
-        on (a pty's 4 kB reads, a CAN drain) and wakes once, not once a run.  One consumer per
-        stream, as for :meth:`read`; raises the reader's fatal error."""
-        deadline = Deadline(timeout_s)
-        with self._cond:
-            self._wake_at = end
-            try:
-                while self._queued_end() < end:
-                    if self._error is not None:
-                        raise self._error
-                    if deadline.expired:
-                        return False
-                    self._cond.wait(deadline.left())
-                return True
-            finally:
-                self._wake_at = None
-
-    def _queued_end(self) -> int:
-        """One past the newest index queued or delivered (under ``_cond``)."""
-        if self._runs:
-            first, data, _ = self._runs[-1]
-            return first + data.shape[1]
-        return -(1 << 62) if self._delivered_end is None else self._delivered_end
-
     def live_index_after(self, t: float) -> int | None:
         """An index at or past the instrument's sample clock at monotonic time ``t`` (bar what was
         on the wire then): where the first read that began at or after ``t`` and drained the
@@ -480,8 +453,7 @@ class SampleStream:
                 _, dropped, _ = self._runs.popleft()  # the consumer will see the exact gap
                 self._queued -= dropped.shape[1]
                 self.stats.overruns += 1
-            if self._wake_at is None or self._queued_end() >= self._wake_at:
-                self._cond.notify_all()
+            self._cond.notify_all()
 
     def _accept_frame(self, f: Frame, runs: "_Runs") -> None:
         """One frame: the rule :meth:`_accept_batch` vectorises (and must equal)."""
