@@ -311,6 +311,7 @@ def test_delay_between_two_fits_is_the_joint_fits_delay_at_that_frequency(harmon
     rng = np.random.default_rng(3)
     t = np.arange(3001) / FS
     d = 37e-6
+
     def wave(a1, a2, delay):
         return a1 * np.cos(2 * np.pi * F0 * (t - delay)) + a2 * np.cos(4 * np.pi * F0 * (t - delay) + 0.4)
 
