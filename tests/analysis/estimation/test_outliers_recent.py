@@ -43,9 +43,10 @@ def test_remembered_rows_give_the_medians_computed_afresh():
         med = _sorted_median(row)
         mad = _sorted_median(np.abs(row - med))
         got = [odd] if i == 2 else ([first, again] + ([hit] if i == 1 else []))
-        for m, d in got:
+        for m, d, top in got:  # top: the largest deviation (+inf when numpy took the median: unknown)
             j = 0 if i == 2 else (i if m.shape[0] == 2 else 0)
             assert m[j, 0] == med and d[j, 0] == mad
+            assert top[j, 0] in (np.max(np.abs(row - med)), np.inf)
 
 
 def test_gross_outliers_the_same_in_a_fresh_and_a_busy_thread():
@@ -62,3 +63,23 @@ def test_gross_outliers_the_same_in_a_fresh_and_a_busy_thread():
     warm = in_fresh_thread(busy)
     assert np.flatnonzero(cold).tolist() == [10, 20_000]
     assert np.array_equal(cold, warm)
+
+
+def test_rows_alike_at_the_sampled_points_are_told_apart():
+    """A row is looked up by a few of its samples, then compared whole: a row equal to a remembered
+    one at those samples but not elsewhere gets its own median."""
+    rng = np.random.default_rng(11)
+    a = rng.normal(size=3_000)
+    b = a.copy()
+    sampled = np.zeros(a.size, dtype=bool)
+    sampled[:: a.size // 64] = True
+    b[~sampled] += 10.0  # the same key, another median
+    assert _outliers._row_key(a) == _outliers._row_key(b)
+
+    def run():
+        return _outliers._raw_mad(a[None]), _outliers._raw_mad(b[None]), _outliers._raw_mad(a[None])
+
+    got_a, got_b, again_a = in_fresh_thread(run)
+    for row, (m, d, _) in ((a, got_a), (b, got_b), (a, again_a)):
+        med = _sorted_median(row)
+        assert m[0, 0] == med and d[0, 0] == _sorted_median(np.abs(row - med))

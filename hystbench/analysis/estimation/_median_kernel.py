@@ -1,0 +1,154 @@
+"""Compiled median and median absolute deviation of one row (private; see :mod:`._outliers`).
+
+The outlier screen takes a median and a MAD of every channel of a live window twice (the raw
+samples, then the first fit's residuals): twelve ``np.median`` calls a window, a fifth of the
+estimation stage's time on 25 000-sample windows, and on short windows mostly median's Python
+wrapping.  This kernel takes both in one call (on its own copies), with the largest deviation
+(free in that pass): Floyd and Rivest's selection for the upper middle, the lower middle of an
+even count as the largest value below it, then the same on the absolute deviations.
+
+Order statistics are exact, so the numbers are numpy's (:func:`numpy.median`) bit for bit,
+whatever the order of the work; the mean of the two middles is ``(a + b) / 2``, numpy's own
+operations.  A row holding a NaN gives NaN, as numpy does.  A selection that has not narrowed
+after ``MAX_ROUNDS`` partitions (an adversarial order) sorts what is left: the worst case stays
+O(n log n).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hystbench.jit import njit
+
+MAX_ROUNDS = 256  # partitions before the rest is sorted (a row of 1e6 samples needs ~20)
+SAMPLED = 600  # a range longer than this is narrowed by a selection in a sample of it first
+DEPTH = 16  # levels of that narrowing at most (n, ~n^(2/3), ...: 1e12 samples need 5)
+
+
+@njit(cache=True, nogil=True)
+def _select(a: np.ndarray, k: int) -> float:
+    """Reorder ``a`` (no NaN) so that ``a[k]`` is its k-th smallest value, nothing larger before
+    it and nothing smaller after it; return that value.
+
+    Floyd and Rivest's selection (CACM 18, 1975): a range of more than ``SAMPLED`` values is
+    first narrowed by selecting k within a subrange around where the k-th value should be (about
+    n^(2/3) values: the same selection, one level down), so the partition's pivot ``a[k]`` lands
+    close to it (~1.5 n comparisons, a quickselect's ~3.4 n).  The levels are an explicit stack,
+    not recursion (numba's cache does not keep recursive functions)."""
+    lo = np.empty(DEPTH, dtype=np.int64)  # the range of each level, outermost first
+    hi = np.empty(DEPTH, dtype=np.int64)
+    narrowed = np.zeros(DEPTH, dtype=np.bool_)  # its subrange's selection done: partition it now
+    lo[0], hi[0] = 0, a.size - 1
+    d = 0
+    rounds = 0
+    while d >= 0:
+        left, right = lo[d], hi[d]
+        if right <= left:
+            d -= 1
+            continue
+        if rounds == MAX_ROUNDS:  # an adversarial order: sort what the outermost level has left
+            a[lo[0]:hi[0] + 1].sort()
+            break
+        if right - left > SAMPLED and not narrowed[d] and d + 1 < DEPTH:
+            narrowed[d] = True
+            n = right - left + 1
+            i = k - left + 1
+            z = math.log(n)
+            s = 0.5 * math.exp(2.0 * z / 3.0)
+            sd = 0.5 * math.sqrt(z * s * (n - s) / n) * (-1.0 if i < n / 2 else 1.0)
+            d += 1
+            lo[d] = max(left, int(k - i * s / n + sd))
+            hi[d] = min(right, int(k + (n - i) * s / n + sd))
+            narrowed[d] = False
+            continue
+        rounds += 1
+        t = a[k]  # partition the range around it (a[left] and a[right] end up sentinels)
+        i = left
+        j = right
+        a[left], a[k] = a[k], a[left]
+        if a[right] > t:
+            a[right], a[left] = a[left], a[right]
+        while i < j:
+            a[i], a[j] = a[j], a[i]
+            i += 1
+            j -= 1
+            while a[i] < t:
+                i += 1
+            while a[j] > t:
+                j -= 1
+        if a[left] == t:
+            a[left], a[j] = a[j], a[left]
+        else:
+            j += 1
+            a[j], a[right] = a[right], a[j]
+        if j <= k:
+            lo[d] = j + 1
+        if k <= j:
+            hi[d] = j - 1
+        narrowed[d] = False
+    return a[k]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _middle(a: np.ndarray) -> float:
+    """The median of ``a`` (no NaN, size > 0), as numpy takes it, reordering ``a``."""
+    n = a.size
+    h = n // 2
+    upper = _select(a, h)
+    if n % 2:
+        return upper
+    lower = a[0]  # everything before a[h] is <= it: the lower middle is their largest
+    for i in range(1, h):
+        if a[i] > lower:
+            lower = a[i]
+    return (lower + upper) / 2.0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _stride(n: int) -> int:
+    """A step near n / golden ratio with no common factor with ``n``: ``i * step % n`` visits every
+    index once, and neighbours land far apart."""
+    step = int(n * 0.6180339887498949)
+    while True:
+        p, q = step, n
+        while q:
+            p, q = q, p % q
+        if p == 1:
+            return step
+        step += 1
+
+
+@njit(cache=True, nogil=True)
+def median_mad(x: np.ndarray) -> tuple[float, float, float]:
+    """(median, median absolute deviation, largest absolute deviation) of ``x`` (1-D float64, size
+    > 0, left as it is); NaN for all three if ``x`` holds a NaN, and for the MAD and the largest
+    if a deviation is NaN (infinite samples), as numpy gives.  The largest deviation lets a caller
+    see that no sample is beyond k MADs without comparing every one: it is the largest of the
+    very numbers numpy would compare.
+
+    The deviations are written in a scattered order (:func:`_stride`): the selection narrows on a
+    contiguous part of its range, and the order the first selection leaves makes those pivots
+    poor (85 us instead of 40 on a 25 000-sample window's)."""
+    n = x.size
+    a = np.empty(n)
+    for i in range(n):
+        if math.isnan(x[i]):
+            return math.nan, math.nan, math.nan
+        a[i] = x[i]
+    med = _middle(a)
+    if not math.isfinite(med):  # infinite middle samples: one's deviation is inf - inf
+        return med, math.nan, math.nan
+    step = _stride(n)
+    dev = np.empty(n)
+    top = 0.0
+    j = 0
+    for i in range(n):
+        d = abs(a[i] - med)
+        dev[j] = d
+        top = max(top, d)
+        j += step
+        if j >= n:
+            j -= n
+    return med, _middle(dev), top
