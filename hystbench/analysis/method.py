@@ -121,12 +121,11 @@ def has_magnet(rec: Recording) -> bool:
     return "magnet" in load_rig(rec.rig)
 
 
-def _pinned_fraction(x: np.ndarray) -> tuple[float, float]:
-    """(share of samples at the max or min, that value)."""
-    lo, hi = float(x.min()), float(x.max())
+def _pinned_fraction(x: np.ndarray, lo: float, hi: float) -> tuple[float, float]:
+    """(share of samples at the max ``hi`` or the min ``lo``, that value)."""
     tol = 1e-12 * max(abs(lo), abs(hi), hi - lo)
-    at_hi, at_lo = np.mean(x >= hi - tol), np.mean(x <= lo + tol)
-    return (float(at_hi), hi) if at_hi >= at_lo else (float(at_lo), lo)
+    at_hi, at_lo = np.count_nonzero(x >= hi - tol) / x.size, np.count_nonzero(x <= lo + tol) / x.size
+    return (at_hi, hi) if at_hi >= at_lo else (at_lo, lo)
 
 
 def _unclipped_share(x: np.ndarray) -> float:
@@ -141,8 +140,9 @@ def _unclipped_share(x: np.ndarray) -> float:
     return 3.0 * math.sqrt(2 * q / max(float(np.ptp(x)) / 2, 1e-300)) / math.pi
 
 
-def _check_clipping(where: str, name: str, x: np.ndarray) -> None:
-    frac, value = _pinned_fraction(x)
+def _check_clipping(where: str, name: str, x: np.ndarray, lo: float, hi: float) -> None:
+    """Refuse a channel ``x`` (its min ``lo``, max ``hi``) that looks clipped."""
+    frac, value = _pinned_fraction(x, lo, hi)
     if frac <= MAX_PINNED_FRACTION:
         return
     expected = _unclipped_share(x)
@@ -165,18 +165,24 @@ def check_channels(rec: Recording, names: tuple[str, ...]) -> dict[str, np.ndarr
         if name not in rec.channels:
             raise EstimationError(f"{where}: the method needs a {name!r} column; it has {sorted(rec.channels)}")
         x = np.asarray(rec.channels[name], dtype=float)
-        bad = ~np.isfinite(x)
-        if bad.any():
+        if x.size == 0:
+            raise EstimationError(f"{where}: channel {name!r} has no samples")
+        lo, hi = float(x.min()), float(x.max())  # the live stage checks every window: each pass counts
+        if not (math.isfinite(lo) and math.isfinite(hi)):  # a NaN or an infinity shows in one of them
+            bad = ~np.isfinite(x)
             raise EstimationError(f"{where}: channel {name!r} has {int(bad.sum())} NaN or infinite "
                                   f"sample(s), the first at sample {int(np.argmax(bad))}")
-        if x.size and np.ptp(x) == 0.0:
-            raise EstimationError(f"{where}: channel {name!r} is flat (every sample {x[0]!r}): it carries no phase")
+        if hi - lo == 0.0:
+            raise EstimationError(f"{where}: channel {name!r} is flat (every sample {float(x[0])!r}): it carries no phase")
         gross = gross_outliers(x)
-        kept = x[~gross] if gross.any() else x
-        if np.ptp(kept) == 0.0:
-            raise EstimationError(f"{where}: channel {name!r} is flat apart from {int(gross.sum())} outlier "
-                                  f"sample(s) (first at {int(np.argmax(gross))}): it carries no phase")
-        _check_clipping(where, name, kept)
+        kept = x
+        if gross.any():
+            kept = x[~gross]
+            lo, hi = float(kept.min()), float(kept.max())
+            if hi - lo == 0.0:
+                raise EstimationError(f"{where}: channel {name!r} is flat apart from {int(gross.sum())} outlier "
+                                      f"sample(s) (first at {int(np.argmax(gross))}): it carries no phase")
+        _check_clipping(where, name, kept, lo, hi)
         out[name] = x
     f = rec.frequency_hz
     periods = rec.n * f / rec.fs_hz
