@@ -30,22 +30,24 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from hystbench import jit  # noqa: E402
+from hystbench.drivers.protocols import can_stream  # noqa: E402
 from hystbench.drivers.protocols import framing as fr  # noqa: E402
 from hystbench.drivers.stream import CanFrameSource, FrameSource, SampleStream  # noqa: E402
 
 TARGET_X = 50.0  #: times the instruments' rate
 FS_HZ = 100_000.0  #: the instruments' sample rate per channel
 CAN_ID = 0x184  #: any standard id: the benchmark's bus is its own
+CAN_SPF = can_stream.SAMPLES_PER_FRAME  #: 17 samples of 24 bits a 64-byte CAN FD frame
 TCP_READ, SERIAL_READ = 1 << 18, 1 << 12  #: bytes per transport read (TcpFrameSource's; a pty's page)
 
 BOUNDS = {
     "tcp": "per-frame Python in the deframer (length and header checks, a copy, the CRC call, a Frame)",
     "serial_cobs": "per-frame Python as TCP plus the compiled COBS pass over every byte; 4 kB reads "
                    "make short runs, so read()'s per-block cost shows",
-    "canfd": "per drain of 256 records, numpy's per-call cost (header checks, the accept's running "
-             "maximum, the run's copy) and the compiled CRC, about 0.1 us a record",
-    "canfd_bus": "python-can's recv, one Python call per 10-sample message (canfd_recv_only): "
-                 "no receiver that takes one message at a time can pass it",
+    "canfd": "per drain of 256 records, numpy's per-call cost (the 24-bit unpacking, field checks, the "
+             "accept's running maximum, the run's copy) and the compiled CRC, about 0.1 us a record",
+    "canfd_bus": "python-can's recv, one Python call per 17-sample message (canfd_recv_only), about "
+                 "60 % of the path",
     "canfd_recv_only": "python-can VirtualBus.recv with the driver's filter: a queue get, a software "
                        "filter and a Python call per message",
 }
@@ -63,6 +65,11 @@ def _signal(n: int) -> np.ndarray:
 def _records(stream_id: int, n: int, samples_per_frame: int) -> list[bytes]:
     frames = fr.frames_from_block(stream_id, 0, 0, _signal(n), samples_per_frame)
     return [fr.encode_frame(f) for f in frames]
+
+
+def _can_payloads(n: int) -> list[bytes]:
+    """The integrator's CAN FD frames (``can_stream``) of ``n`` samples of the signal."""
+    return can_stream.encode_frames(0, 0, _signal(n))
 
 
 def _chunks(data: bytes, size: int) -> list[bytes]:
@@ -130,11 +137,11 @@ def _byte_stream(kind: str, n: int, repeats: int) -> tuple[tuple[float, float], 
 
 def _canfd(n: int, repeats: int) -> tuple[tuple[float, float], tuple[float, float]]:
     """(decode + accept + read, decode alone) of CAN FD payloads, a drain of 256 at a time."""
-    payloads = _records(1, n, fr.samples_per_frame_for(64, 1))
+    payloads = _can_payloads(n)
     drains = [payloads[i:i + CanFrameSource.max_batch] for i in range(0, len(payloads), CanFrameSource.max_batch)]
 
     def step() -> int:
-        source = CanFrameSource(None, CAN_ID, stream_id=1, channels=1)  # type: ignore[arg-type]
+        source = CanFrameSource(None, CAN_ID, stream_id=1)  # type: ignore[arg-type]
         stream, delivered = SampleStream("canfd", source, ["x"], FS_HZ), 0
         for drain in drains:
             stream._accept(source.decode(drain))
@@ -142,8 +149,9 @@ def _canfd(n: int, repeats: int) -> tuple[tuple[float, float], tuple[float, floa
         return delivered
 
     def deframe() -> int:
-        source = CanFrameSource(None, CAN_ID, stream_id=1, channels=1)  # type: ignore[arg-type]
-        return sum(len(item) * 10 for drain in drains for item in source.decode(drain))
+        source = CanFrameSource(None, CAN_ID, stream_id=1)  # type: ignore[arg-type]
+        return sum(item.samples.shape[-1] * (len(item) if isinstance(item, fr.FrameBatch) else 1)
+                   for drain in drains for item in source.decode(drain))
 
     return _time(step, n, repeats), _time(deframe, n, repeats)
 
@@ -153,7 +161,7 @@ def _canfd_bus(n: int, repeats: int) -> tuple[tuple[float, float], tuple[float, 
     queued beforehand on a channel of the benchmark's own."""
     import can
 
-    payloads = _records(1, n, fr.samples_per_frame_for(64, 1))
+    payloads = _can_payloads(n)
     channel = f"bench-receive-{uuid.uuid4().hex[:8]}"
     tx = can.Bus(interface="virtual", channel=channel, fd=True, receive_own_messages=False)
     rx = can.Bus(interface="virtual", channel=channel, fd=True, receive_own_messages=False,
@@ -172,7 +180,7 @@ def _canfd_bus(n: int, repeats: int) -> tuple[tuple[float, float], tuple[float, 
             best[name] = (min(best[name][0], cpu), min(best[name][1], wall))
 
         def through_bus() -> int:
-            source = CanFrameSource(rx, CAN_ID, stream_id=1, channels=1)
+            source = CanFrameSource(rx, CAN_ID, stream_id=1)
             stream, delivered = SampleStream("canfd", source, ["x"], FS_HZ), 0
             while items := source.read_frames(0.0):
                 stream._accept(items)
@@ -183,7 +191,7 @@ def _canfd_bus(n: int, repeats: int) -> tuple[tuple[float, float], tuple[float, 
             count = 0
             while rx.recv(0.0) is not None:
                 count += 1
-            return count * fr.samples_per_frame_for(64, 1)
+            return count * CAN_SPF
 
         for _ in range(repeats):  # interleaved, so a neighbour's load falls on both alike
             timed("bus", through_bus)
@@ -196,16 +204,16 @@ def _canfd_bus(n: int, repeats: int) -> tuple[tuple[float, float], tuple[float, 
 
 def run(seconds: float = 0.5, repeats: int = 5) -> dict:
     n = int(round(seconds * FS_HZ))
-    n_bus = min(n, 20_000)  # queued python-can Messages cost memory: 2000 of them per repeat
-    n_bus -= n_bus % 10
-    n -= n % 500
+    n_bus = min(n, 20_000)  # queued python-can Messages cost memory: about 1200 of them per repeat
+    n_bus -= n_bus % CAN_SPF
+    n -= n % 500  # whole 500-sample frames on the byte streams (CAN FD ends on a short frame)
     nan = (float("nan"), float("nan"))
     timed = {"tcp": (*_byte_stream("tcp", n, repeats), n, 500),
              "serial_cobs": (*_byte_stream("cobs", n, repeats), n, 500),
-             "canfd": (*_canfd(n, repeats), n, 10)}
+             "canfd": (*_canfd(n, repeats), n, CAN_SPF)}
     bus, recv = _canfd_bus(n_bus, repeats)
-    timed["canfd_bus"] = (bus, nan, n_bus, 10)
-    timed["canfd_recv_only"] = (recv, nan, n_bus, 10)
+    timed["canfd_bus"] = (bus, nan, n_bus, CAN_SPF)
+    timed["canfd_recv_only"] = (recv, nan, n_bus, CAN_SPF)
     kinds = []
     for kind, ((cpu, wall), (deframe_cpu, _), samples, per_frame) in timed.items():
         rate = samples / cpu

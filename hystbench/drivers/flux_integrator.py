@@ -144,7 +144,7 @@ class CanFluxIntegrator(Instrument):
                     skew_s: float = 0.0) -> SampleStream:
         """``flux_Wb`` on the common sample clock from CAN FD frames (wire: volts / gain)."""
         bus = self._new_bus(ci.stream_id(self.node), channel=self.stream_channel)
-        source = _OwnedCanSource(bus, ci.stream_id(self.node), stream_id=INTEGRATOR_STREAM_ID, channels=1)
+        source = _OwnedCanSource(bus, ci.stream_id(self.node), stream_id=INTEGRATOR_STREAM_ID)
         self.call("stream", 1)
         gain = self.call("get_gain")
         self.settings["gain_v_per_wb"] = gain

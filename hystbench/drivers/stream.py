@@ -24,9 +24,9 @@ from ..blocks import BlockFlags, SampleBlock
 from ..deadline import Deadline
 from ..errors import ConnectionLost, InstrumentError
 from .base import Backoff, log
+from .protocols import can_stream
 from .protocols.framing import (
-    BATCH_CORRUPT, BATCH_OTHER_SHAPE, OVERHEAD, CobsDeframer, DeframerStats, Frame, FrameBatch, FrameError,
-    LengthPrefixDeframer, decode_batch, decode_frame, warm_batch_decode, warm_cobs)
+    CobsDeframer, DeframerStats, Frame, FrameBatch, FrameError, LengthPrefixDeframer, warm_cobs, warm_crc_rows)
 
 if TYPE_CHECKING:
     import can
@@ -34,7 +34,6 @@ if TYPE_CHECKING:
 __all__ = ["FrameSource", "TcpFrameSource", "SerialFrameSource", "CanFrameSource", "StreamStats",
            "SampleStream", "parse_stream_url"]
 
-_SEQ_MOD = 1 << 32
 _TCP_READ = 1 << 18  # bytes asked of one recv
 _SERIAL_READ = 1 << 18
 _LIVE_HISTORY = 256  # drained reads remembered per stream (a few seconds of them at the live edge)
@@ -68,6 +67,7 @@ class FrameSource(abc.ABC):
     name: str = "stream"
     deframer_stats: DeframerStats
     drained: bool = False
+    seq_modulus: int = 1 << 32  #: where the frames' sequence numbers wrap
 
     @abc.abstractmethod
     def open(self) -> None: ...
@@ -173,22 +173,21 @@ class SerialFrameSource(FrameSource):
 
 
 class CanFrameSource(FrameSource):
-    """CAN FD: one frame per CAN message with the stream's arbitration id; others are ignored."""
+    """CAN FD: one stream frame (``protocols.can_stream``: 17 samples of 24 bits) per CAN message
+    with the stream's arbitration id; other messages are ignored."""
 
     max_batch = 256  #: messages drained per read: one decode amortised over them, the reader never starved
-    min_batch = 8  #: shorter drains are decoded one by one: below this a batch's fixed cost loses (bench receive)
+    seq_modulus = can_stream.SEQ_MODULUS
 
-    def __init__(self, bus: can.BusABC, can_id: int, *, stream_id: int | None = None, channels: int | None = None,
-                 open_timeout_s: float = 0.2) -> None:
-        self.bus, self.can_id = bus, can_id
-        self._ids = (stream_id, channels)
+    def __init__(self, bus: can.BusABC, can_id: int, *, stream_id: int, open_timeout_s: float = 0.2) -> None:
+        self.bus, self.can_id, self.stream_id = bus, can_id, stream_id
         self.open_timeout_s = open_timeout_s
         self.deframer_stats = DeframerStats()
         self._pending: list[Frame | FrameBatch] = []
         self._opened = False
 
     def warm(self) -> None:
-        warm_batch_decode()
+        warm_crc_rows()
 
     def open(self) -> None:
         """A CAN bus has no connection: reopening means frames of this stream are on the bus again."""
@@ -224,48 +223,28 @@ class CanFrameSource(FrameSource):
         return out + self.decode(payloads)
 
     def decode(self, payloads: Sequence[bytes | bytearray]) -> list[Frame | FrameBatch]:
-        """Message payloads (in arrival order) to what the stream accepts, damage counted: one
-        :class:`FrameBatch` when there are at least ``min_batch`` and all have the stream's size (the
-        case on a healthy bus; checks and CRCs in one compiled pass), else frame by frame
-        (:meth:`decode_each`, the reference it must equal)."""
-        sid, ch = self._ids
-        if len(payloads) < self.min_batch or ch is None:
-            return self.decode_each(payloads)
-        size = len(payloads[0])
-        n = (size - OVERHEAD) // (4 * ch)
-        if n < 1 or OVERHEAD + 4 * ch * n != size or set(map(len, payloads)) != {size}:
-            return self.decode_each(payloads)
-        batch, verdict = decode_batch(payloads, ch, n)
-        if (verdict == BATCH_OTHER_SHAPE).any():  # valid frames of another shape: rare, keep the order
-            return self.decode_each(payloads)
+        """Message payloads (in arrival order) to what the stream accepts, damage counted: runs of
+        full frames as :class:`FrameBatch` es, decoded together (:func:`can_stream.decode_frames`)."""
+        out, refused = can_stream.decode_frames(payloads, self.stream_id)
+        accepted = sum(len(x) if isinstance(x, FrameBatch) else 1 for x in out)
         stats = self.deframer_stats
-        bad = int(np.count_nonzero(verdict == BATCH_CORRUPT))
-        stats.corrupt += bad
-        stats.discarded_bytes += bad * size
-        if sid is not None:
-            mine = batch.stream_id == sid
-            if not mine.all():
-                stats.foreign += len(batch) - int(np.count_nonzero(mine))
-                batch = batch.take(mine)
-        stats.frames += len(batch)
-        return [batch] if len(batch) else []
+        stats.frames += accepted
+        if refused:
+            stats.corrupt += refused
+            stats.discarded_bytes += sum(map(len, payloads)) - accepted * can_stream.FRAME_BYTES
+        return out
 
-    def decode_each(self, payloads: Sequence[bytes | bytearray]) -> list[Frame | FrameBatch]:
+    def decode_each(self, payloads: Sequence[bytes | bytearray]) -> list[Frame]:
         """Message payloads to frames one by one: the reference :meth:`decode` equals."""
-        out: list[Frame | FrameBatch] = []
-        sid, ch = self._ids
+        out: list[Frame] = []
         for data in payloads:
             try:
-                frame = decode_frame(bytes(data))
+                out.append(can_stream.decode_frame(data, self.stream_id))
             except FrameError:
                 self.deframer_stats.corrupt += 1
                 self.deframer_stats.discarded_bytes += len(data)
                 continue
-            if (sid is not None and frame.stream_id != sid) or (ch is not None and frame.samples.shape[0] != ch):
-                self.deframer_stats.foreign += 1
-                continue
             self.deframer_stats.frames += 1
-            out.append(frame)
         return out
 
 
@@ -467,10 +446,11 @@ class SampleStream:
         if data.shape[0] != len(self.channels):
             self.stats.deframer.foreign += 1
             return
+        mod = self.source.seq_modulus
         if self._next_seq is not None:  # frames never seen (informative; gaps come from indices)
-            step = (f.seq - self._next_seq) % _SEQ_MOD
-            self.stats.frames_lost += step if step < _SEQ_MOD // 2 else 0
-        self._next_seq = (f.seq + 1) % _SEQ_MOD
+            step = (f.seq - self._next_seq) % mod
+            self.stats.frames_lost += step if step < mod // 2 else 0
+        self._next_seq = (f.seq + 1) % mod
         self.stats.frames += 1
         self._next_index = first + data.shape[1]
         runs.add(first, data, f.flags)
@@ -489,14 +469,14 @@ class SampleStream:
             self.stats.stale_frames += stale
             self.stats.deframer.foreign += k - stale
             return
-        first, seq, flags = b.first_index, b.seq, b.flags
+        first, seq, flags, mod = b.first_index, b.seq, b.flags, self.source.seq_modulus
         if ((prev is None or first[0] >= prev) and np.array_equal(first[1:], first[:-1] + n)
-                and np.array_equal(seq[1:], (seq[:-1] + 1) % _SEQ_MOD) and not (flags != flags[0]).any()):
+                and np.array_equal(seq[1:], (seq[:-1] + 1) % mod) and not (flags != flags[0]).any()):
             # a healthy drain (what a bus that loses nothing gives): one run, nothing stale or overlapping
             if self._next_seq is not None:
-                step = (int(seq[0]) - self._next_seq) % _SEQ_MOD
-                self.stats.frames_lost += step if step < _SEQ_MOD // 2 else 0
-            self._next_seq = (int(seq[-1]) + 1) % _SEQ_MOD
+                step = (int(seq[0]) - self._next_seq) % mod
+                self.stats.frames_lost += step if step < mod // 2 else 0
+            self._next_seq = (int(seq[-1]) + 1) % mod
             self.stats.frames += k
             self._next_index = int(end[-1])
             runs.add(int(first[0]), b.samples.transpose(1, 0, 2).reshape(c, k * n), int(flags[0]))
@@ -513,14 +493,14 @@ class SampleStream:
             return
         seq = b.seq[rows]
         expected = np.empty_like(seq)
-        expected[1:] = (seq[:-1] + 1) % _SEQ_MOD
-        step = (seq - expected) % _SEQ_MOD
+        expected[1:] = (seq[:-1] + 1) % mod
+        step = (seq - expected) % mod
         if self._next_seq is None:
             step = step[1:]
         else:
-            step[0] = (seq[0] - self._next_seq) % _SEQ_MOD
-        self.stats.frames_lost += int(step[step < _SEQ_MOD // 2].sum())
-        self._next_seq = int(seq[-1] + 1) % _SEQ_MOD
+            step[0] = (seq[0] - self._next_seq) % mod
+        self.stats.frames_lost += int(step[step < mod // 2].sum())
+        self._next_seq = int(seq[-1] + 1) % mod
         self.stats.frames += rows.size
         self._next_index = int(end[rows[-1]])
         first, start, flags = first[rows], np.maximum(first[rows], before[rows]), flags[rows]

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from hystbench.drivers.flux_integrator import CanFluxIntegrator, IntegratorError
-from hystbench.drivers.protocols import can_integrator as ci
-from hystbench.drivers.protocols.framing import encode_frame, frames_from_block
+from hystbench.drivers.protocols import can_integrator as ci, can_stream
 from hystbench.errors import ConfigError, InstrumentTimeout
 
 h = bytes.fromhex
@@ -92,8 +91,9 @@ def test_refusal_and_timeout(channel):
 
 
 def test_can_fd_stream_frames_become_flux_samples(channel):
-    data = (np.arange(40, dtype=np.float32) / 10)[None, :]
-    frames = [encode_frame(f) for f in frames_from_block(4, 0, 500, data, 10)]
+    codes = np.arange(40) * 100_003 - 2_000_000  # 24-bit codes, both signs
+    frames = can_stream.encode_frames(0, 500, codes * (10.0 / 2 ** 23))  # 17 + 17 + 6 samples
+    assert len(frames) == 3
     stream_frames = [(ci.stream_id(NODE), raw, True) for raw in frames]
     peer = CanPeer(channel, OPEN + [
         ((CMD, h("09000000 01000000")), [(REPLY, h("09000000 00000000"), False)]),
@@ -106,5 +106,6 @@ def test_can_fd_stream_frames_become_flux_samples(channel):
                 got.append(s.read(HANG_S))
     assert None not in got, "the stream stopped delivering"
     assert got[0].first_index == 500 and sum(b.n for b in got) == 40
-    np.testing.assert_allclose(np.concatenate([b.channels["flux_Wb"] for b in got]), data[0] / 10.0, rtol=1e-7)
+    want = np.float32(codes * (10.0 / 2 ** 23)).astype(np.float64) * (1 / 10.0)  # the wire's float32 / gain
+    np.testing.assert_array_equal(np.concatenate([b.channels["flux_Wb"] for b in got]), want)
     peer.check()

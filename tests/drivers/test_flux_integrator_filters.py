@@ -1,5 +1,5 @@
 """The integrator driver's command handle takes only replies and heartbeats: the CAN FD stream
-(10 000 frames a second) is left to the stream handle, so on socketcan the kernel filters it out
+(5 900 frames a second) is left to the stream handle, so on socketcan the kernel filters it out
 instead of the heartbeat thread draining every frame in Python."""
 
 import uuid

@@ -12,6 +12,7 @@ import uuid
 import numpy as np
 import pytest
 
+from hystbench.drivers.protocols import can_stream
 from hystbench.drivers.protocols.framing import Frame, cobs_record, encode_frame, length_prefixed
 from hystbench.drivers.stream import CanFrameSource, FrameSource, SampleStream, SerialFrameSource, TcpFrameSource
 from hystbench.drivers.protocols.framing import DeframerStats
@@ -81,10 +82,10 @@ def test_can_a_drain_cut_at_its_batch_limit_is_not_the_edge():
     tx = can.Bus(interface="virtual", channel=channel, fd=True, receive_own_messages=False)
     rx = can.Bus(interface="virtual", channel=channel, fd=True, receive_own_messages=False)
     try:
-        small = [Frame(3, k, 8 * k, np.full((1, 8), k, np.float32)) for k in range(CanFrameSource.max_batch + 10)]
-        for f in small:
-            tx.send(can.Message(arbitration_id=0x184, data=encode_frame(f), is_extended_id=False, is_fd=True))
-        source = CanFrameSource(rx, 0x184, stream_id=3, channels=1)
+        small = can_stream.encode_frames(0, 0, np.zeros(17 * (CanFrameSource.max_batch + 10)))
+        for raw in small:
+            tx.send(can.Message(arbitration_id=0x184, data=raw, is_extended_id=False, is_fd=True))
+        source = CanFrameSource(rx, 0x184, stream_id=3)
         first = source.read_frames(HANG_S)
         assert not source.drained  # max_batch messages taken, ten still queued
         rest = source.read_frames(HANG_S)
@@ -158,6 +159,6 @@ def test_a_stream_compiles_its_decoders_before_it_opens_the_transport():
     with SampleStream("s", Watched("loop://", stream_id=3, channels=1), ["x"], 1e5, stall_timeout_s=HANG_S):
         pass
     assert compiled_at_open == [True]
-    framing._verdict_kernel.cache_clear()
-    CanFrameSource(None, 0x184, stream_id=3, channels=1).warm()
-    assert framing._verdict_kernel.cache_info().currsize == 1
+    framing._crc_rows_kernel.cache_clear()
+    CanFrameSource(None, 0x184, stream_id=3).warm()
+    assert framing._crc_rows_kernel.cache_info().currsize == 1

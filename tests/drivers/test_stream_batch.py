@@ -1,7 +1,7 @@
-"""CAN FD's batch receive path equals the frame-by-frame one: the batch decoder (damaged, foreign and
-other-shaped records among good ones) and the vectorised accept (gaps, lost frames, stale and
-overlapping frames, flag changes), down to every counter; and through a real python-can virtual bus.
-The compiled CRC-32 of many short records (the CAN FD emulator's) is zlib's."""
+"""CAN FD's batch receive path equals the frame-by-frame one: the source's decode (damaged and short
+frames among good ones; the codec itself: test_can_stream.py) and the vectorised accept (gaps, lost
+frames, stale and overlapping frames, flag changes), down to every counter; and through a real
+python-can virtual bus.  The compiled CRC-32 of many short records (the CAN FD frames') is zlib's."""
 
 import uuid
 import zlib
@@ -12,8 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hystbench.blocks import BlockFlags
-from hystbench.drivers.protocols.framing import (
-    BATCH_CORRUPT, BATCH_OK, BATCH_OTHER_SHAPE, Frame, FrameBatch, crc32_rows, decode_batch, encode_frame)
+from hystbench.drivers.protocols import can_stream as cs
+from hystbench.drivers.protocols.framing import Frame, FrameBatch, crc32_rows
 from hystbench.drivers.stream import CanFrameSource, SampleStream
 
 from .test_stream import FakeSource
@@ -28,9 +28,12 @@ def frame(first, seq, sid=4, n=10, flags=0, channels=1):
 
 
 def batch_of(frames):
-    batch, verdict = decode_batch([encode_frame(f) for f in frames], *frames[0].samples.shape)
-    assert (verdict == BATCH_OK).all()
-    return batch
+    """Frames of one shape as the batch a drain hands on (built field by field, no codec)."""
+    def column(name):
+        return np.array([getattr(f, name) for f in frames], dtype=np.int64)
+
+    return FrameBatch(column("stream_id"), column("seq"), column("first_index"), column("flags"),
+                      np.stack([f.samples for f in frames]))
 
 
 def as_tuples(items):
@@ -48,59 +51,31 @@ def corrupt(raw, at):
     return bytes(b)
 
 
-# --- the batch decoder ---------------------------------------------------------------------------
-def test_batch_decode_flags_a_corrupt_record_in_the_middle_and_keeps_the_others():
-    raws = [encode_frame(frame(10 * i, i)) for i in range(7)]
-    raws[3] = corrupt(raws[3], 30)  # a sample bit: the CRC no longer matches
-    raws[5] = corrupt(raws[5], 0)  # the magic byte
-    batch, verdict = decode_batch(raws, 1, 10)
-    assert verdict.tolist() == [BATCH_OK, BATCH_OK, BATCH_OK, BATCH_CORRUPT, BATCH_OK, BATCH_CORRUPT, BATCH_OK]
-    assert batch.seq.tolist() == [0, 1, 2, 4, 6] and batch.first_index.tolist() == [0, 10, 20, 40, 60]
-    np.testing.assert_array_equal(batch.samples[3, 0], np.arange(40, 50) + 0.25)
-
-
-def test_batch_decode_tells_another_shape_of_the_same_size_from_damage():
-    other = encode_frame(frame(0, 0, n=5, channels=2))  # 2 x 5 samples: 64 bytes too
-    batch, verdict = decode_batch([encode_frame(frame(0, 0)), other], 1, 10)
-    assert verdict.tolist() == [BATCH_OK, BATCH_OTHER_SHAPE] and len(batch) == 1
-    with pytest.raises(ValueError, match="64 bytes"):
-        decode_batch([other[:-1]], 1, 10)
-
-
-def can_source(stream_id=4, min_batch=1):
-    source = CanFrameSource(None, 0x184, stream_id=stream_id, channels=1)
-    source.min_batch = min_batch  # the batch path even for a drain of one message
-    return source
-
-
-payload_kinds = st.sampled_from(["good", "crc", "magic", "foreign_sid", "other_shape", "short"])
+# --- the CAN source's decode ------------------------------------------------------------------------
+def can_payloads(count, first=0, seq=0):
+    """``count`` full CAN FD stream frames whose samples are codes first.. (each says its index)."""
+    return cs.encode_frames(seq, first, (first + np.arange(17 * count)) * cs.LSB_V)
 
 
 @FAST
-@given(st.lists(payload_kinds, min_size=1, max_size=40))
-def test_batch_decode_equals_frame_by_frame_decode(kinds):
-    """Whatever mix of damaged, foreign, other-shaped and short payloads: the same frames in the
-    same order, and the same counters, as decoding one message at a time."""
-    payloads = []
+@given(st.lists(st.sampled_from(["good", "good", "crc", "short_frame", "truncated"]), min_size=1, max_size=40))
+def test_source_decode_equals_frame_by_frame_decode(kinds):
+    """Whatever mix of damaged, short and truncated payloads: the same frames in the same order,
+    and the same counters, as decoding one message at a time."""
+    payloads, first = [], 0
     for i, kind in enumerate(kinds):
-        raw = encode_frame(frame(10 * i, i, sid=9 if kind == "foreign_sid" else 4))
-        raw = {"crc": lambda r: corrupt(r, 40), "magic": lambda r: corrupt(r, 0),
-               "other_shape": lambda r: encode_frame(frame(10 * i, i, n=5, channels=2)),
-               "short": lambda r: r[:33]}.get(kind, lambda r: r)(raw)
+        n = 4 if kind == "short_frame" else 17
+        raw = cs.encode_frames(i, first, (first + np.arange(n)) * cs.LSB_V)[0]
+        first += n
+        raw = {"crc": lambda r: corrupt(r, 40), "truncated": lambda r: r[:33]}.get(kind, lambda r: r)(raw)
         payloads.append(raw)
-    batched, each = can_source(), can_source()
+    batched = CanFrameSource(None, 0x184, stream_id=4)
+    each = CanFrameSource(None, 0x184, stream_id=4)
     assert as_tuples(batched.decode(payloads)) == as_tuples(each.decode_each(payloads))
     assert batched.deframer_stats == each.deframer_stats
-    assert batched.deframer_stats.frames == kinds.count("good")
-    assert batched.deframer_stats.foreign == kinds.count("foreign_sid") + kinds.count("other_shape")
-
-
-def test_all_good_payloads_come_out_as_one_batch_and_a_short_drain_frame_by_frame():
-    payloads = [encode_frame(frame(10 * i, i)) for i in range(12)]
-    items = can_source(min_batch=8).decode(payloads)
-    assert len(items) == 1 and isinstance(items[0], FrameBatch) and len(items[0]) == 12
-    items = can_source(min_batch=8).decode(payloads[:7])
-    assert [type(i) for i in items] == [Frame] * 7
+    assert batched.deframer_stats.frames == kinds.count("good") + kinds.count("short_frame")
+    assert batched.deframer_stats.corrupt == kinds.count("crc") + kinds.count("truncated")
+    assert batched.deframer_stats.discarded_bytes == 64 * kinds.count("crc") + 33 * kinds.count("truncated")
 
 
 # --- the vectorised accept -------------------------------------------------------------------------
@@ -196,8 +171,8 @@ def test_frames_and_a_batch_in_one_accept_merge_into_one_run():
 
 # --- through a python-can virtual bus ----------------------------------------------------------------
 def test_can_stream_through_a_virtual_bus_counts_damage_and_gaps_exactly():
-    """A real stream over python-can: a corrupt message, a foreign stream id, a lost frame and a
-    message of another CAN id among 30 good ones; the samples delivered are the ones sent."""
+    """A real stream over python-can: a corrupt message, a lost frame and a message of another CAN
+    id among 31 good ones; the samples delivered are the ones sent (each sample's code is its index)."""
     can = pytest.importorskip("can")
     channel = f"test-batch-{uuid.uuid4().hex[:8]}"
     tx = can.Bus(interface="virtual", channel=channel, fd=True, receive_own_messages=False)
@@ -206,35 +181,42 @@ def test_can_stream_through_a_virtual_bus_counts_damage_and_gaps_exactly():
         def send(raw, can_id=0x184):
             tx.send(can.Message(arbitration_id=can_id, data=raw, is_extended_id=False, is_fd=True))
 
-        for i in range(34):
-            raw = encode_frame(frame(10 * i, i))
+        for i, raw in enumerate(can_payloads(34)):
             if i == 7:
                 raw = corrupt(raw, 44)
-            elif i == 12:
-                raw = encode_frame(frame(10 * i, i, sid=5))
             elif i == 20:
                 continue  # lost on the way
             elif i == 25:
                 send(raw, can_id=0x185)  # another node's stream: not ours
                 continue
             send(raw)
-        source = CanFrameSource(rx, 0x184, stream_id=4, channels=1)
+        source = CanFrameSource(rx, 0x184, stream_id=4)
         with SampleStream("flux", source, ["x"], 1e5, stall_timeout_s=5.0) as s:
             blocks = []
-            while sum(b.n for b in blocks) < 300:
+            while sum(b.n for b in blocks) < 31 * 17:
                 b = s.read(HANG_S)
                 assert b is not None, "stream stopped delivering"
                 blocks.append(b)
         x = np.concatenate([b.channels["x"] for b in blocks])
         idx = np.concatenate([b.first_index + np.arange(b.n) for b in blocks])
-        np.testing.assert_array_equal(x, idx + 0.25)
-        missing = [i for k in (7, 12, 20, 25) for i in range(10 * k, 10 * k + 10)]
-        assert sorted(set(range(340)) - set(idx.tolist())) == missing
-        assert s.stats.gap_samples == 40 and s.stats.frames == 30 and s.stats.frames_lost == 4
-        assert source.deframer_stats.corrupt == 1 and source.deframer_stats.foreign == 1
+        np.testing.assert_array_equal(x, (idx * (10.0 / 2 ** 23)).astype(np.float32))
+        missing = [i for k in (7, 20, 25) for i in range(17 * k, 17 * k + 17)]
+        assert sorted(set(range(34 * 17)) - set(idx.tolist())) == missing
+        assert s.stats.gap_samples == 3 * 17 and s.stats.frames == 31 and s.stats.frames_lost == 3
+        assert source.deframer_stats.corrupt == 1 and source.deframer_stats.foreign == 0
     finally:
         tx.shutdown()
         rx.shutdown()
+
+
+def test_sequence_numbers_that_wrap_at_16_bits_count_losses_across_the_wrap():
+    """The CAN frame's u16 sequence wraps: 65535 then 2 is two frames lost (a 32-bit wrap would read
+    the jump back as a reordering and count none)."""
+    s = SampleStream("s", CanFrameSource(None, 0x184, stream_id=4), ["x"], 1e5)
+    s._accept(s.source.decode(can_payloads(6, seq=65530)))  # 65530 .. 65535
+    s._accept(s.source.decode(can_payloads(3, first=8 * 17, seq=2)))  # 0 and 1 never came
+    assert s.stats.frames == 9 and s.stats.frames_lost == 2
+    assert [(b.first_index, b.gap_samples) for b in (s.read(0.0), s.read(0.0))] == [(0, 0), (8 * 17, 2 * 17)]
 
 
 def test_a_read_converts_to_si_as_float64_wire_times_scale():

@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hystbench.blocks import SampleBlock
-from hystbench.drivers.protocols import can_integrator as ci
-from hystbench.drivers.protocols.framing import FrameError, decode_frame, encode_frame, frames_from_block
+from hystbench.drivers.protocols import can_integrator as ci, can_stream
+from hystbench.drivers.protocols.framing import FrameError, encode_frame, frames_from_block
 from hystbench.sim_backend.emulators.common import Faults, FrameEmitter, encode_frames
 from hystbench.sim_backend.emulators.flux_integrator import FluxIntegratorEmulator, emulator_bus
 
@@ -56,36 +56,44 @@ def can_blocks(first, count, block=1000):
     return [x[k * block:(k + 1) * block] for k in range(count)]
 
 
+def can_emitter(faults):
+    """The integrator emulator's emitter: 17 samples a CAN FD frame (``can_stream``), u16 sequence."""
+    return FrameEmitter(4, can_stream.SAMPLES_PER_FRAME, faults, encode=can_stream.encode_frames,
+                        seq_modulus=can_stream.SEQ_MODULUS)
+
+
 def test_can_fd_faults_at_a_sample_index_hit_exactly_those_frames_in_a_batch():
-    """10 samples per CAN FD frame, 1000-sample blocks: faults armed mid-block land on the first
-    frame that starts at or after their index, not on the block's first frame."""
+    """17 samples per CAN FD frame, 1000-sample blocks (58 frames and a short one of 14 each):
+    faults armed mid-block land on the first frame that starts at or after their index, not on
+    the block's first frame."""
     faults = Faults()
-    em = FrameEmitter(4, 10, faults)
-    faults.arm("drop_frames", 3, at_index=1234)  # frames 1240, 1250, 1260
-    faults.arm("corrupt_frames", 2, at_index=2005)  # frames 2010, 2020
-    faults.silence(2995, 20)  # frames 3000, 3010 (2990 starts before the span)
+    em = can_emitter(faults)
+    faults.arm("drop_frames", 3, at_index=1234)  # frames 1238, 1255, 1272
+    faults.arm("corrupt_frames", 2, at_index=2005)  # frames 2017, 2034
+    faults.silence(2995, 30)  # frames 3000, 3017 (2986 starts before the span, 3034 after it)
     got = []
     for k, data in enumerate(can_blocks(0, 4)):
         for raw in em.emit(1000 * k, data[None, :]):
             try:
-                got.append(decode_frame(raw).first_index)
+                got.append(can_stream.decode_frame(raw, 4).first_index)
             except FrameError:
                 got.append(-1)
-    expected = [i for i in range(0, 4000, 10) if i not in (1240, 1250, 1260, 3000, 3010)]
-    expected = [-1 if i in (2010, 2020) else i for i in expected]
+    starts = [1000 * k + 17 * j for k in range(4) for j in range(59)]
+    expected = [-1 if i in (2017, 2034) else i for i in starts if i not in (1238, 1255, 1272, 3000, 3017)]
     assert got == expected
-    assert (em.dropped, em.corrupted, em.sent) == (5, 2, 395)
+    assert (em.dropped, em.corrupted, em.sent) == (5, 2, 4 * 59 - 5)
     assert faults.drop_frames == 0 and faults.corrupt_frames == 0
-    assert em.seq == 400  # dropped frames use their sequence numbers: the receiver sees the gap
+    assert em.seq == 4 * 59  # dropped frames use their sequence numbers: the receiver sees the gap
 
 
 def test_a_fault_armed_for_a_later_block_leaves_the_earlier_frames_alone():
     faults = Faults()
-    em = FrameEmitter(4, 10, faults)
+    em = can_emitter(faults)
+    em.seq = 65530  # and the sequence wraps at 16 bits
     faults.arm("drop_frames", 1, at_index=5000)
-    frames = [decode_frame(r) for r in em.emit(0, can_blocks(0, 1)[0][None, :])]
-    assert [f.first_index for f in frames] == list(range(0, 1000, 10))
-    assert [f.seq for f in frames] == list(range(100))
+    frames = [can_stream.decode_frame(r, 4) for r in em.emit(0, can_blocks(0, 1)[0][None, :])]
+    assert [f.first_index for f in frames] == list(range(0, 1000, 17))
+    assert [f.seq for f in frames] == [(65530 + j) % 65536 for j in range(59)]
     assert faults.drop_frames == 1  # still armed for its own frame
 
 
@@ -130,12 +138,14 @@ def test_integrator_stream_reaches_both_driver_handles_intact():
         emu.state["stream"] = True
         flux = np.linspace(-8e-6, 8e-6, 1000)  # within the +-10 V output
         emu.on_block(SampleBlock(3000, FS, {"flux_Wb": flux}))
-        volts = (flux * 1e5 * 10 / 1).astype(np.float32)  # gain 1e5 V/Wb, 10 true turns, 1 set turn
+        volts = flux * 1e5 * 10 / 1  # gain 1e5 V/Wb, 10 true turns, 1 set turn
+        codes = np.round(volts / (10.0 / 2 ** 23))  # the 24-bit ADC's codes: +-10 V over 2**23
         for r in rx:
-            frames = [decode_frame(bytes(m.data)) for m in drain(r, ci.stream_id(emu.node), 100)]
-            assert [f.first_index for f in frames] == list(range(3000, 4000, 10))
-            assert [f.seq for f in frames] == list(range(100))
-            np.testing.assert_array_equal(np.concatenate([f.samples[0] for f in frames]), volts)
+            frames = [can_stream.decode_frame(bytes(m.data), 4) for m in drain(r, ci.stream_id(emu.node), 59)]
+            assert [f.first_index for f in frames] == list(range(3000, 4000, 17))
+            assert [f.seq for f in frames] == list(range(59))
+            np.testing.assert_array_equal(np.concatenate([f.samples[0] for f in frames]),
+                                          np.float32(codes * (10.0 / 2 ** 23)))
     finally:
         emu.close()
         for bus in rx:

@@ -2,8 +2,8 @@
 
     host -> integrator  0x600 + node  classic CAN, 8 bytes: opcode, 0, 0, 0, value (u32 or f32 LE)
     integrator -> host  0x580 + node  8 bytes: opcode, result, 0, 0, value
-    sample stream       0x180 + node  CAN FD, 64 bytes, bit-rate switch: one frame of the
-                                      framing codec (10 samples of the output voltage)
+    sample stream       0x180 + node  CAN FD, 64 bytes, bit-rate switch: one ``can_stream``
+                                      frame (17 samples of the output voltage, 24 bits each)
     heartbeat           0x700 + node  every 100 ms, 2 bytes: 0x05 (operational), status bits
 
 The integrator digitises its output U = gain * (integral of the sense-coil voltage) / turns, so
@@ -19,12 +19,11 @@ from typing import Mapping
 
 __all__ = ["Op", "OPS", "RESULTS", "STATUS", "FULL_SCALE_V", "DEVICE_TYPE", "command_id", "reply_id",
            "stream_id", "heartbeat_id", "encode_command", "decode_command", "encode_reply", "decode_reply",
-           "HEARTBEAT_PERIOD_S", "STREAM_PAYLOAD"]
+           "HEARTBEAT_PERIOD_S"]
 
 FULL_SCALE_V = 10.0
 DEVICE_TYPE = 0x4649  # 'FI'
 HEARTBEAT_PERIOD_S = 0.1
-STREAM_PAYLOAD = 64  # bytes per CAN FD data field
 
 
 def command_id(node: int) -> int:

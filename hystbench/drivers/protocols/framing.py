@@ -15,7 +15,8 @@ A frame carries a run of samples of one instrument on the bench's common sample 
     20+4CN  4     CRC-32 (zlib/IEEE 802.3) of every byte before it
 
 Over serial each frame is COBS-encoded and ends with 0x00; over TCP each frame is preceded by its
-length (u32); a CAN FD frame carries one frame in its data field.  The first-sample index, not the
+length (u32).  (CAN FD's 64-byte data field has a denser frame of its own, ``can_stream``: this
+header and float32 samples would leave room for 10.)  The first-sample index, not the
 sequence number, is what makes gaps exact: a receiver knows how many samples it did not get no
 matter how many frames were lost, merged by corruption or cut short.
 """
@@ -26,7 +27,7 @@ import functools
 import struct
 import zlib
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 
@@ -35,9 +36,8 @@ from ...errors import ProtocolError
 
 __all__ = [
     "MAGIC", "VERSION", "HEADER_SIZE", "OVERHEAD", "MAX_FRAME_SIZE", "FrameError", "Frame", "FrameBatch",
-    "encode_frame", "decode_frame", "decode_batch", "batch_verdicts", "batch_verdicts_reference", "crc32_rows",
-    "BATCH_OK", "BATCH_CORRUPT", "BATCH_OTHER_SHAPE",
-    "frames_from_block", "samples_per_frame_for", "cobs_encode", "cobs_decode", "cobs_encode_reference",
+    "encode_frame", "decode_frame", "crc32_rows", "warm_crc_rows",
+    "frames_from_block", "cobs_encode", "cobs_decode", "cobs_encode_reference",
     "cobs_decode_reference", "CobsDeframer", "LengthPrefixDeframer", "DeframerStats", "length_prefixed",
     "cobs_record",
 ]
@@ -121,9 +121,9 @@ def decode_frame(buf: bytes | memoryview) -> Frame:
 @dataclass(frozen=True, eq=False)
 class FrameBatch:
     """Frames of one shape decoded together, in arrival order: frame i is ``samples[i]`` (C, N)
-    from ``first_index[i]``.  What a CAN FD receiver hands on from one drain of the bus: with ten
-    samples a message, a :class:`Frame` object and a Python pass per message would cost more than
-    the samples themselves."""
+    from ``first_index[i]``.  What a CAN FD receiver hands on from one drain of the bus
+    (``can_stream``): with 17 samples a message, a :class:`Frame` object and a Python pass per
+    message would cost more than the samples themselves."""
 
     stream_id: np.ndarray  # (k,) int64
     seq: np.ndarray  # (k,) int64
@@ -143,24 +143,6 @@ class FrameBatch:
         """One :class:`Frame` per row: the per-frame view every batch result must equal."""
         return [Frame(int(s), int(q), int(f), x, int(g)) for s, q, f, g, x in
                 zip(self.stream_id, self.seq, self.first_index, self.flags, self.samples)]
-
-
-#: :func:`decode_batch`'s verdict per record
-BATCH_OK, BATCH_CORRUPT, BATCH_OTHER_SHAPE = 0, 1, 2
-
-
-def batch_verdicts_reference(rows: np.ndarray, channels: int) -> np.ndarray:
-    """The verdict on each row of a (k, size) uint8 array of records, in numpy with zlib's CRC: the
-    reference :func:`batch_verdicts` equals, and its implementation when numba is off."""
-    k, size = rows.shape
-    head = rows[:, :HEADER_SIZE]
-    c = head[:, 3].astype(np.int64)
-    n = head[:, 4].astype(np.int64) | (head[:, 5].astype(np.int64) << 8)
-    crc = np.fromiter((zlib.crc32(row[:size - 4]) for row in rows), dtype=np.uint32, count=k)
-    valid = ((head[:, 0] == MAGIC) & (head[:, 1] == VERSION) & (c != 0) & (OVERHEAD + 4 * c * n == size)
-             & (crc == np.ascontiguousarray(rows[:, size - 4:]).view("<u4")[:, 0]))
-    ok = valid & (c == channels)  # same size and channels: the same samples count too
-    return np.where(ok, BATCH_OK, np.where(valid, BATCH_OTHER_SHAPE, BATCH_CORRUPT)).astype(np.int8)
 
 
 def _crc32_table() -> np.ndarray:
@@ -196,78 +178,12 @@ def _crc_rows_kernel() -> Callable | None:
 
 def crc32_rows(rows: np.ndarray, length: int) -> np.ndarray:
     """``zlib.crc32`` of the first ``length`` bytes of each row of a (k, size) uint8 array, in one
-    compiled pass when numba runs.  For short records (a CAN FD frame: 64 bytes, 10 000 a second)
+    compiled pass when numba runs.  For short records (a CAN FD frame: 64 bytes, 5 900 a second)
     a zlib call and its slice per record cost more than the CRC; for long ones zlib is quicker."""
     kernel = _crc_rows_kernel()
     if kernel is None:
         return np.fromiter((zlib.crc32(row[:length]) for row in rows), dtype=np.uint32, count=len(rows))
     return kernel(np.ascontiguousarray(rows, dtype=np.uint8), int(length))
-
-
-@functools.cache
-def _verdict_kernel() -> Callable | None:
-    """:func:`batch_verdicts_reference` compiled (the CRCs by :func:`crc32_rows`, the header checks
-    in one pass), or None when numba is off: a drain's dozen numpy calls and a zlib call per 64-byte
-    record cost more than the records' samples."""
-    if not jit.enabled():
-        return None
-
-    @jit.njit(cache=True, nogil=True)
-    def verdicts(rows: np.ndarray, crc: np.ndarray, channels: int, magic: int, version: int,
-                 overhead: int) -> np.ndarray:
-        k, size = rows.shape
-        out = np.empty(k, dtype=np.int8)
-        for r in range(k):
-            c, n = np.int64(rows[r, 3]), np.int64(rows[r, 4]) | (np.int64(rows[r, 5]) << 8)
-            sent = (np.uint32(rows[r, size - 4]) | (np.uint32(rows[r, size - 3]) << np.uint32(8))
-                    | (np.uint32(rows[r, size - 2]) << np.uint32(16)) | (np.uint32(rows[r, size - 1]) << np.uint32(24)))
-            valid = (rows[r, 0] == magic and rows[r, 1] == version and c != 0
-                     and overhead + 4 * c * n == size and crc[r] == sent)
-            out[r] = (0 if c == channels else 2) if valid else 1  # BATCH_OK, BATCH_OTHER_SHAPE, BATCH_CORRUPT
-        return out
-
-    return lambda rows, channels: verdicts(rows, crc32_rows(rows, rows.shape[1] - 4), channels, MAGIC, VERSION,
-                                           OVERHEAD)
-
-
-def batch_verdicts(rows: np.ndarray, channels: int) -> np.ndarray:
-    """Per record (a row of a (k, size) uint8 array): BATCH_OK (a valid frame of ``channels``
-    rows), BATCH_CORRUPT (what :func:`decode_frame` refuses: magic, version, shape, length, CRC) or
-    BATCH_OTHER_SHAPE (a valid frame of another channel count).  Compiled when numba runs."""
-    kernel = _verdict_kernel()
-    return batch_verdicts_reference(rows, channels) if kernel is None else kernel(rows, channels)
-
-
-@functools.cache
-def _record_dtype(channels: int, samples: int) -> np.dtype:
-    return np.dtype([("magic", "u1"), ("version", "u1"), ("stream_id", "u1"), ("channels", "u1"), ("n", "<u2"),
-                     ("flags", "<u2"), ("seq", "<u4"), ("first", "<i8"), ("samples", "<f4", (channels, samples)),
-                     ("crc", "<u4")])
-
-
-def decode_batch(records: Sequence[bytes | bytearray], channels: int, samples: int) -> tuple[FrameBatch, np.ndarray]:
-    """Records of ``OVERHEAD + 4 * channels * samples`` bytes each, decoded at once: the batch of
-    those that are valid frames of shape (channels, samples), and :func:`batch_verdicts` on each
-    (BATCH_OTHER_SHAPE ones are left for the caller to decode one by one)."""
-    size = OVERHEAD + 4 * channels * samples
-    if not 1 <= channels <= 255 or samples < 1 or not set(map(len, records)) <= {size}:
-        raise ValueError(f"decode_batch: every record must be {size} bytes ({channels} x {samples} samples)")
-    raw = b"".join(records)
-    verdict = batch_verdicts(np.frombuffer(raw, dtype=np.uint8).reshape(len(records), size), channels)
-    good = np.frombuffer(raw, dtype=_record_dtype(channels, samples))
-    if verdict.any():
-        good = good[verdict == BATCH_OK]
-    batch = FrameBatch(good["stream_id"].astype(np.int64), good["seq"].astype(np.int64),
-                       good["first"].astype(np.int64), good["flags"].astype(np.int64), good["samples"])
-    return batch, verdict
-
-
-def samples_per_frame_for(payload_bytes: int, channels: int) -> int:
-    """How many samples per channel fit a frame of at most ``payload_bytes`` (e.g. 64 for CAN FD)."""
-    n = (payload_bytes - OVERHEAD) // (4 * channels)
-    if n < 1:
-        raise ValueError(f"{payload_bytes} bytes cannot hold one sample of {channels} channels")
-    return n
 
 
 def frames_from_block(stream_id: int, seq0: int, first_index: int, data: np.ndarray,
@@ -403,14 +319,8 @@ def warm_cobs() -> None:
     cobs_decode(cobs_encode(b"\x01\x00\x02"))
 
 
-def warm_batch_decode() -> None:
-    """:func:`warm_cobs` for :func:`decode_batch` (the CAN FD drains' CRC pass)."""
-    frame = encode_frame(Frame(0, 0, 0, np.zeros((1, 1), dtype=np.float32)))
-    decode_batch([frame], 1, 1)
-
-
 def warm_crc_rows() -> None:
-    """:func:`warm_cobs` for :func:`crc32_rows` (the CAN FD emulator's frames)."""
+    """:func:`warm_cobs` for :func:`crc32_rows` (the CAN FD stream frames' checks, both ends)."""
     crc32_rows(np.zeros((1, 1), dtype=np.uint8), 1)
 
 

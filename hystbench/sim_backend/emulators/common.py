@@ -364,16 +364,30 @@ def encode_frames(stream_id: int, seq0: int, first_index: int, data: np.ndarray,
 
 
 class FrameEmitter:
-    """Cuts sample blocks into frames with running sequence numbers, applying stream faults."""
+    """Cuts sample blocks into frames with running sequence numbers, applying stream faults.
 
-    def __init__(self, stream_id: int, samples_per_frame: int, faults: Faults) -> None:
+    Frames are the framing codec's (:func:`encode_frames`) unless ``encode`` gives another one
+    (``encode(seq0, first_index, data, flags) -> frames``, sequence numbers wrapping at
+    ``seq_modulus``): the CAN FD integrator's ``can_stream``."""
+
+    def __init__(self, stream_id: int, samples_per_frame: int, faults: Faults, *,
+                 encode: Callable[[int, int, np.ndarray, int], list[bytes]] | None = None,
+                 seq_modulus: int = 1 << 32) -> None:
         self.stream_id, self.samples_per_frame, self.faults = stream_id, samples_per_frame, faults
+        self._encode = encode or (lambda seq0, first, data, flags: encode_frames(
+            stream_id, seq0, first, data, samples_per_frame, flags))
+        self.seq_modulus = seq_modulus
         self.seq = 0
         self.sent = self.dropped = self.corrupted = 0
 
+    def skip(self, samples: int) -> None:
+        """Count the frames of ``samples`` samples not sent (the stream is off), as an instrument's
+        sequence counter runs on with its ADC."""
+        self.seq = (self.seq + -(-samples // self.samples_per_frame)) % self.seq_modulus
+
     def emit(self, first_index: int, data: np.ndarray, flags: int = 0) -> list[bytes]:
-        raws = encode_frames(self.stream_id, self.seq, first_index, data, self.samples_per_frame, flags)
-        self.seq = (self.seq + len(raws)) % (1 << 32)
+        raws = self._encode(self.seq, first_index, data, flags)
+        self.seq = (self.seq + len(raws)) % self.seq_modulus
         if not self.faults.stream_armed(first_index):
             self.sent += len(raws)
             return raws

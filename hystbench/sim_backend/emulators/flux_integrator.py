@@ -1,10 +1,11 @@
 """Emulated flux integrator on a python-can bus (virtual by default): the commands of
-``protocols.can_integrator``, a heartbeat, and the output voltage as CAN FD stream frames.
+``protocols.can_integrator``, a heartbeat, and the output voltage as CAN FD stream frames
+(``protocols.can_stream``: 24-bit codes, 17 to a frame).
 
 The stream frames go on ``stream_channel`` when one is given (default: the command channel, one
 bus for both): on python-can's virtual bus every handle of a channel is handed every frame and
 filters in Python, so the emulated bench puts the stream on a second virtual channel, sparing the
-driver's command handle the 10 000 frames a second a CAN controller or kernel filter would drop.
+driver's command handle the 5 900 frames a second a CAN controller or kernel filter would drop.
 
 U = gain * flux * (rig sense turns / set turns) - U at the last reset; frozen in HOLD; clipped at
 +-10 V with OVERLOAD.  The rig's flux channel already is the integrator's AC-only (and, with
@@ -23,7 +24,8 @@ import numpy as np
 
 from ...blocks import SampleBlock
 from ...drivers.protocols import can_integrator as ci
-from ...drivers.protocols.framing import samples_per_frame_for, warm_crc_rows
+from ...drivers.protocols import can_stream
+from ...drivers.protocols.framing import warm_crc_rows
 from .common import Faults, FrameEmitter, log
 
 if TYPE_CHECKING:
@@ -59,7 +61,7 @@ def _shared_message_virtual_bus() -> type:
 
         def send_batch(self, msgs: list[can.Message], timeout: float | None = None) -> None:
             """``send`` of each message in turn, but one lock round per receiving queue instead of
-            one per message (a block's 100 stream frames); an unbounded queue (python-can's default,
+            one per message (a 5000-sample tick's 295 stream frames); an unbounded queue (python-can's default,
             the drivers') takes them all at once, as ``Queue.put`` would one by one."""
             self._check_if_open()
             now = time.time()
@@ -91,7 +93,7 @@ def stream_frame_type() -> type:
     """``can.Message`` for the emulator's CAN FD stream frames, made as
     ``StreamFrame(can_id, data)``: the same slots as ``can.Message(arbitration_id=can_id,
     data=data, is_extended_id=False, is_fd=True, bitrate_switch=True)``, set directly (python-can's
-    keyword handling and checks cost half of the 500 frames a 5000-sample tick makes; the emulator
+    keyword handling and checks cost half of the 295 frames a 5000-sample tick makes; the emulator
     gives 64 valid bytes).  A subclass: receivers see a ``can.Message``."""
     import can
 
@@ -111,7 +113,7 @@ def stream_frame_type() -> type:
 def emulator_bus(interface: str, channel: str) -> can.BusABC:
     """The emulator's own bus handle.  On python-can's virtual bus, a handle whose ``send`` hands
     every other handle of the channel the same Message instead of a deep copy each (python-can
-    copies once per receiver: at 10 000 stream frames a second to the driver's two handles, that
+    copies once per receiver: at 5 900 stream frames a second to the driver's two handles, that
     copying was the emulator's largest cost).  Safe because a sent Message is never touched again
     (the emulator builds a new one per frame) and receivers only read theirs.  Other interfaces:
     the stock bus.  The drivers always use stock python-can."""
@@ -140,7 +142,8 @@ class FluxIntegratorEmulator:
         self._offset_v = 0.0  # output at the last reset
         self._last_u = 0.0  # newest output, before the reset offset
         self._reset_pending = False
-        self.emitter = FrameEmitter(INTEGRATOR_STREAM_ID, samples_per_frame_for(ci.STREAM_PAYLOAD, 1), self.faults)
+        self.emitter = FrameEmitter(INTEGRATOR_STREAM_ID, can_stream.SAMPLES_PER_FRAME, self.faults,
+                                    encode=can_stream.encode_frames, seq_modulus=can_stream.SEQ_MODULUS)
         warm_crc_rows()  # compiled now, not on the emulator clock's first block
         self._lock = threading.RLock()
         self._bus = emulator_bus(interface, channel)
@@ -225,7 +228,7 @@ class FluxIntegratorEmulator:
     def on_block(self, block: SampleBlock) -> None:
         u, clipped = self.output_volts(block.channels["flux_Wb"])
         if not self.state["stream"]:
-            self.emitter.seq = (self.emitter.seq + -(-u.size // self.emitter.samples_per_frame)) % (1 << 32)
+            self.emitter.skip(u.size)
             return
         msgs = list(map(functools.partial(stream_frame_type(), ci.stream_id(self.node)),
                         self.emitter.emit(block.first_index, u[None, :], 4 if clipped else 0)))
