@@ -89,7 +89,7 @@ _SIM = {
                 choices=("realtime", "max")),
     "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false }"),
     "load_cell_pc_per_n": Key(NUM, 3.5, "the emulated load cell's true sensitivity", "pC/N", gt=0),
-    "samples_per_frame": Key(int, 500, "TCP/serial stream frames (CAN FD frames hold 10)", "samples", gt=0),
+    "samples_per_frame": Key(int, 500, "TCP/serial stream frames (CAN FD frames hold 17)", "samples", gt=0),
 }
 
 
