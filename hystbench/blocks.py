@@ -46,15 +46,18 @@ class SampleBlock:
     meta: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        lengths = {name: np.shape(x) for name, x in self.channels.items()}
-        if len({s for s in lengths.values()}) > 1:
+        shapes = {np.shape(x) for x in self.channels.values()}
+        if len(shapes) > 1:
+            lengths = {name: np.shape(x) for name, x in self.channels.items()}
             raise ValueError(f"channels of one block must have the same length, got {lengths}")
         if self.fs_hz <= 0:
             raise ValueError(f"fs_hz must be positive, got {self.fs_hz}")
+        # counted once: the aligner and the stages ask every block's n and end_index many times over
+        object.__setattr__(self, "_n", len(next(iter(self.channels.values()))) if self.channels else 0)
 
     @property
     def n(self) -> int:
-        return len(next(iter(self.channels.values()))) if self.channels else 0
+        return self._n  # type: ignore[attr-defined]
 
     @property
     def end_index(self) -> int:

@@ -247,7 +247,7 @@ class FluxIntegratorEmulator:
     def _serve(self) -> None:
         next_beat = time.monotonic()
         while not self._stop.is_set():
-            msg = self._bus.recv(0.02)
+            msg = self._bus.recv(max(0.0, next_beat - time.monotonic()))  # a command, or the next beat's time
             now = time.monotonic()
             if now >= next_beat:
                 next_beat = now + ci.HEARTBEAT_PERIOD_S
