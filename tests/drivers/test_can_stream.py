@@ -12,16 +12,10 @@ from hypothesis import strategies as st
 from hystbench.drivers.protocols import can_stream as cs
 from hystbench.drivers.protocols.framing import Frame, FrameBatch, FrameError
 
+from .test_stream_batch import as_tuples
+
 FAST = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 LSB = 10.0 / 2 ** 23  # the integrator's +-10 V full scale over a 24-bit ADC's 2**23 codes
-
-
-def as_tuples(items):
-    out = []
-    for item in items:
-        for f in item.frames() if isinstance(item, FrameBatch) else [item]:
-            out.append((f.stream_id, f.seq, f.first_index, f.flags, f.samples.tobytes()))
-    return out
 
 
 def test_a_frame_built_by_hand_byte_by_byte_decodes_to_its_fields():
