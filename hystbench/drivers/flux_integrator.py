@@ -5,7 +5,8 @@ identifier), so a reader thread never takes a command's reply.  Both are on ``ch
 carries both, the controller or kernel filters each handle's frames) unless ``stream_channel``
 names another: the emulated bench's, because python-can's virtual bus filters in Python, after
 handing every handle every frame.  The stream carries the output
-voltage; the driver divides by the gain it read back, giving ``flux_Wb`` (flux through one turn).
+voltage as 24-bit codes, 17 to a CAN FD frame (``protocols.can_stream``); the driver divides by
+the gain it read back, giving ``flux_Wb`` (flux through one turn).
 """
 
 from __future__ import annotations
