@@ -254,22 +254,27 @@ def _sum_squares(x: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
     return out
 
 
+def _add(total: np.ndarray | None, part: np.ndarray) -> np.ndarray:
+    """``total + part``, the first block's ``part`` as it is (``0 + part`` is ``part``: a record of
+    one block, every live window but the longest, makes and adds no zeros)."""
+    return part if total is None else total + part
+
+
 def _normal(x, mask, rows, regs: Bases):
     """Normal equations at the frequencies of ``regs`` for records ``rows``, summed block by
     block: Gram matrices (b, 1, p, p), or (b, C, p, p) per channel when samples are left out, and
     the projections (b, C, p) of the data on the regressors."""
-    nc, nr = x.shape[1], regs.f.shape[0]
-    p = 1 + 2 * regs.ks.size
-    gram = np.zeros((nr, 1 if mask is None else nc, p, p))
-    proj = np.zeros((nr, nc, p))
+    gram = proj = None
     for i, (sl, basis) in enumerate(regs):
         bt = np.swapaxes(basis, -1, -2)
         xs, ms = _block(x, mask, rows, sl)
         if ms is None:
-            gram += regs.gram(i, basis)[:, None]
+            gram = _add(gram, regs.gram(i, basis)[:, None])
         else:  # a left-out sample weighs nothing in its channel's Gram matrix
-            gram += (basis[:, None] * ~ms[:, :, None, :]) @ bt[:, None]
-        proj += xs @ bt
+            gram = _add(gram, (basis[:, None] * ~ms[:, :, None, :]) @ bt[:, None])
+        proj = _add(proj, xs @ bt)
+    if gram.shape[1] == 1 and mask is not None and x.shape[1] > 1:
+        gram = np.broadcast_to(gram, (gram.shape[0], x.shape[1]) + gram.shape[2:])
     return gram, proj
 
 
@@ -277,9 +282,8 @@ def _residual_sums(x, mask, rows, regs: Bases, coef, grad: bool):
     """Residual sums of squares (b, C) of the fit ``coef`` at the frequencies of ``regs``, block by block;
     with ``grad`` also what the Gauss-Newton step needs of the frequency column g = d(model)/df:
     g's projections on the regressors (b, C, p), g.g and g.residual (b, C)."""
-    nc, nr, ks = x.shape[1], regs.f.shape[0], regs.ks
-    ssq = np.zeros((nr, nc))
-    gb, gg, gr = np.zeros((nr, nc, coef.shape[-1])), np.zeros((nr, nc)), np.zeros((nr, nc))
+    ks = regs.ks
+    ssq = gb = gg = gr = None
     kc = coef[..., 2::2] * ks  # sine coefficients times k
     ka = coef[..., 1::2] * ks
     for i, (sl, basis) in enumerate(regs):
@@ -287,14 +291,17 @@ def _residual_sums(x, mask, rows, regs: Bases, coef, grad: bool):
         resid = xs - coef @ basis
         if ms is not None:
             resid[ms] = 0.0
-        ssq += np.einsum("bcn,bcn->bc", resid, resid)
+        ssq = _add(ssq, np.einsum("bcn,bcn->bc", resid, resid))
         if grad:
             g = regs.two_pi_tau(i) * (kc @ basis[:, 1::2] - ka @ basis[:, 2::2])  # (b, C, L)
             if ms is not None:
                 g[ms] = 0.0
-            gb += g @ np.swapaxes(basis, -1, -2)
-            gg += np.einsum("bcn,bcn->bc", g, g)
-            gr += np.einsum("bcn,bcn->bc", g, resid)
+            gb = _add(gb, g @ np.swapaxes(basis, -1, -2))
+            gg = _add(gg, np.einsum("bcn,bcn->bc", g, g))
+            gr = _add(gr, np.einsum("bcn,bcn->bc", g, resid))
+    if not grad:
+        nr, nc = ssq.shape
+        gb, gg, gr = np.zeros((nr, nc, coef.shape[-1])), np.zeros((nr, nc)), np.zeros((nr, nc))
     return ssq, gb, gg, gr
 
 
@@ -358,20 +365,24 @@ def solve(
         best = np.full(nb, np.inf)
         step = np.zeros(nb)
         f_se = np.zeros(nb)  # standard error of the frequency, for the stopping rule
+        dof_min = np.min(dof, axis=-1)
+        step_tol = tol / (np.pi * ks[-1] * duration)  # the step that moves the phase at the ends by tol
         active = np.arange(nb)
         for it in range(1, max_iter + 1):
+            # the records still searching: all (a slice, so no copies through an index: the usual
+            # case, and always for a single record) or some
             rows = slice(None) if active.size == nb else active
-            f_try = freq[active] + step[active]
+            f_try = freq[rows] + step[rows]
             bases_f = bases(f_try, ks, n, fs)
             g_try, proj = _normal(x, mask, rows, bases_f)
             c_try = _gram_solve(g_try, proj)
             s_try, g_b, g_g, g_r = _residual_sums(x, mask, rows, bases_f, c_try, grad=True)
-            cost = np.sum(np.log(s_try + floor[active]), axis=-1)
-            iterations[active] = it
+            cost = np.sum(np.log(s_try + floor[rows]), axis=-1)
+            iterations[rows] = it
 
-            better = cost <= best[active]
+            better = cost <= best[rows]
             if better.all():  # the usual case: no copies through a mask (same values)
-                better, keep = slice(None), active
+                better, keep = slice(None), rows
             else:
                 keep = active[better]
             freq[keep] = f_try[better]
@@ -389,13 +400,14 @@ def solve(
             den = np.sum(weight * np.maximum(g_g - proj_g, 0.0), axis=-1)
             with np.errstate(divide="ignore", invalid="ignore"):
                 new_step = np.where(den > 0.0, num / den, 0.0)
-                f_se[keep] = 1.0 / np.sqrt(np.min(dof[keep], axis=-1) * den)
+                f_se[keep] = 1.0 / np.sqrt(dof_min[keep] * den)
             step[keep] = np.clip(new_step, -max_step, max_step)
             if not isinstance(better, slice):
                 step[active[~better]] *= 0.5
 
-            small = np.maximum(tol / (np.pi * ks[-1] * duration), _STAT_TOL * f_se[active])
-            done = np.abs(step[active]) < small
+            done = np.abs(step[rows]) < np.maximum(step_tol, _STAT_TOL * f_se[rows])
+            if not done.any():
+                continue
             converged[active[done]] = True
             active = active[~done]
             if active.size == 0:
