@@ -131,3 +131,69 @@ def median_mad(x: np.ndarray) -> tuple[float, float, float]:
         a[i] = d
         top = max(top, d)
     return med, _middle(a), top
+
+
+BINS = 256  # histogram bins of :func:`within_mads` over a row's range
+_EPS = 2.0 ** -52
+
+
+@njit(cache=True, nogil=True)
+def within_mads(x: np.ndarray, k: float) -> bool:
+    """True if no sample of ``x`` (1-D float64) can lie more than ``k`` MADs from the median, as
+    :func:`median_mad` gives them (so a screen comparing each deviation with ``k`` times the MAD
+    would flag none); False: unknown, take the median and MAD.  One histogram of the row instead
+    of two selections (~4 ns a sample against ~16): most rows of a clean recording are settled by it.
+
+    The proof, in units of a bin's width ``w`` (``BINS`` bins over [min, max]; a sample's computed
+    bin is off its true one by at most one, rounding): (1) the median lies between the bins of the
+    two middle order statistics, +-1, so every deviation is at most ``dev`` bins; (2) if no
+    ``win + 3`` consecutive bins hold more than (n - 1) // 2 samples, fewer than half the samples
+    lie within ``win / 2`` bins of any point, so the MAD (the mean of the two middle deviations,
+    or the middle one) is at least ``win / 2`` bins.  ``dev <= k win / 2`` then settles it; the
+    margins cover the roundings of the median, the deviations and ``k`` times the MAD (a few eps
+    of the largest magnitude).  Not finite, flat, or too concentrated (quantised) rows: False."""
+    n = x.size
+    if n < 3:
+        return False
+    lo = x[0]
+    hi = x[0]
+    for i in range(n):
+        v = x[i]
+        if not (v >= lo):  # also a NaN
+            if math.isnan(v):
+                return False
+            lo = v
+        if v > hi:
+            hi = v
+    span = hi - lo
+    if not (span > 0.0 and math.isfinite(span)):
+        return False
+    scale = BINS / span  # bins per signal unit
+    counts = np.zeros(BINS, dtype=np.int64)
+    for i in range(n):
+        b = int((x[i] - lo) * scale)
+        counts[min(b, BINS - 1)] += 1
+    m1, m2 = (n - 1) // 2, n // 2  # the middle order statistics (0-based)
+    b1 = b2 = -1
+    below = 0
+    for b in range(BINS):
+        below += counts[b]
+        if b1 < 0 and below > m1:
+            b1 = b
+        if below > m2:
+            b2 = b
+            break
+    slack = 8.0 * _EPS * max(abs(lo), abs(hi)) * scale  # roundings of the median and deviations, in bins
+    dev = max(BINS - b1 + 1.0, b2 + 2.0) + 0.01 + slack  # every deviation from the median is within
+    win = math.ceil(2.0 * dev / (k * (1.0 - 1e-9)) + 2.0 * slack)
+    width = win + 3
+    if width > BINS:
+        return False
+    inside = 0
+    for b in range(width):
+        inside += counts[b]
+    most = inside
+    for b in range(width, BINS):
+        inside += counts[b] - counts[b - width]
+        most = max(most, inside)
+    return most <= m1
