@@ -14,6 +14,9 @@ Samples so far off that they would swamp the fit itself (1e308 squares to infini
 before the first fit: those more than ``GROSS_MADS`` MADs of the raw samples from their median (a
 sine's samples stay within 1.5 of its MAD, a distorted one's within a few).
 
+Most rows have no sample anywhere near the threshold: one histogram of the row proves that
+(:func:`._median_kernel.within_mads`) and the row's median and MAD are then not taken at all.
+
 Memory: residuals are made one channel at a time, block by block, and a median needs one copy of
 the samples it is taken over; nothing of N x (fitted parameters) size is ever built.
 """
