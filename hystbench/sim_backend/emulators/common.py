@@ -330,8 +330,8 @@ def _frame_dtype(channels: int, samples: int) -> np.dtype:
 def encode_frames(stream_id: int, seq0: int, first_index: int, data: np.ndarray, samples_per_frame: int,
                   flags: int = 0) -> list[bytes]:
     """The frames of a (C, n) block as bytes, the same bytes as :func:`frames_from_block` then
-    :func:`encode_frame` per frame, built as one numpy record array (the CAN FD stream sends 10 000
-    frames a second: per-frame Python encoding was most of the emulator's time)."""
+    :func:`encode_frame` per frame, built as one numpy record array (short frames, many a second,
+    cost more in per-frame Python than in their bytes)."""
     data = np.asarray(data, dtype=np.float32)
     spf = int(samples_per_frame)
     if (data.ndim != 2 or not 1 <= data.shape[0] <= 255 or not 1 <= spf <= 0xFFFF
@@ -350,7 +350,7 @@ def encode_frames(stream_id: int, seq0: int, first_index: int, data: np.ndarray,
         rec["first_index"] = first_index + k * spf
         rec["data"] = data[:, :full * spf].reshape(c, full, spf).transpose(1, 0, 2)
         size = rec.dtype.itemsize
-        if size <= _SHORT_FRAME_BYTES:  # CAN FD's 64-byte frames: one compiled pass over them all
+        if size <= _SHORT_FRAME_BYTES:  # short frames: one compiled pass over them all
             rec["crc"] = crc32_rows(rec.view(np.uint8).reshape(full, size), size - 4)
         else:
             flat, crc = memoryview(rec.view(np.uint8).reshape(-1)), zlib.crc32
