@@ -17,8 +17,8 @@ one-sample resolution) are given beside them by :func:`covariance_delays`.  Befo
 returned the recording is checked: an E-core rig, the three channels present, finite, not flat,
 not clipped, at least two periods long, and the nominal frequency really in the data (the fitted
 frequency near the sidecar's; each channel's fitted component carrying at least half its variance,
-or its spectrum peaking there, and never less than ``MIN_EXPLAINED_ANYWAY``).  Anything else is an :class:`EstimationError` naming the
-recording and the reason.
+or its spectrum peaking there, and never less than ``MIN_EXPLAINED_ANYWAY``).  Anything else is an
+:class:`EstimationError` naming the recording and the reason.
 
 Gross outliers (a glitch: a sample ``OUTLIER_SIGMAS`` robust standard deviations off its channel's
 fitted waveform) are found per channel, reported by sample index (``outliers``) and left out of
