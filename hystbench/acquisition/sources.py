@@ -283,7 +283,8 @@ class BenchSource:
         if cfg.any_sim:
             from ..sim_backend.emulators.bench import EmulatedBench
 
-            self.emu = EmulatedBench(replace(cfg, sim={**cfg.sim, **dict(sim or {})})).start()
+            cfg = replace(cfg, sim={**cfg.sim, **dict(sim or {})})  # the tick sets latency_s too
+            self.emu = EmulatedBench(cfg).start()
             cfg = cfg.resolved(self.emu.addresses)
         try:
             self.bench = Bench(cfg).open()
@@ -306,8 +307,9 @@ class BenchSource:
         self.channels = ["current_A", "force_N", "flux_Wb", "command_V"]
         self.duration_s = duration_s
         #: what a command's effect may still take once the streams' readers have caught up with
-        #: their transports (the wire, the instruments' own buffers and ticks)
-        self.settle_s = 0.1
+        #: their transports: the samples still on their way (the instruments' buffers, the emulated
+        #: rig's tick: ``BenchConfig.latency_s``) and 50 ms of the instruments' own response
+        self.settle_s = max(0.1, 0.05 + cfg.latency_s)
         self._output = False
         self._tables = 0  # changes of what the generator plays
         self.name = f"bench {cfg.source}" + (" (emulated instruments)" if self.emu else "")

@@ -92,8 +92,8 @@ class BenchActuation:
 
     Consecutive reads are consecutive samples.  A new table or sine first drops every sample made
     before it (``Bench.discard_backlog``: samples of the old excitation, however long the caller
-    computed or far behind the reading fell), so that, as on the rig directly, the next read starts
-    at the change (within what was on the wire, which the loop's settling read covers)."""
+    computed or far behind the reading fell, and what was still on its way then), so that, as on
+    the rig directly, the next read starts at the change."""
 
     def __init__(self, bench: Bench, current_limit_a: float) -> None:
         if not current_limit_a > 0:

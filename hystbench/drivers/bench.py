@@ -21,6 +21,7 @@ ever, with the operating point) both turn it, so consecutive calls hand out cons
 from __future__ import annotations
 
 import contextlib
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -83,6 +84,8 @@ class Bench:
         self._aligner: StreamAligner | None = None  # the streams' samples on the common clock
         self._delivered = dict.fromkeys([*self.instruments, "digitiser"], 0)  # samples each stream gave, ever
         self.discarded_samples = 0  # dropped by discard_backlog (samples of the common clock)
+        #: samples made before a moment that may still arrive after the readers caught up then
+        self.latency_samples = math.ceil(config.latency_s * config.fs_hz - 1e-9)
         self._fault_lock = threading.Lock()
         self._stop = threading.Event()
         self._heartbeats: list[threading.Thread] = []
@@ -224,7 +227,8 @@ class Bench:
         """Start the four sample streams (generator command_V, amplifier current_A, charge amplifier
         force_N, integrator flux_Wb)."""
         if not self.streams:
-            kw = dict(stall_timeout_s=self.config.stall_timeout_s)
+            # a silence as long as a burst's spacing (an emulated clock tick) is no stall
+            kw = dict(stall_timeout_s=self.config.stall_timeout_s + self.config.latency_s)
             if self.config.digitiser is not None:  # one digitiser samples the four signals (issue 15)
                 from .digitiser import open_digitiser_stream
 
@@ -329,9 +333,10 @@ class Bench:
         show the bench as it was.  Not only what the streams delivered: what was still queued in
         the transports (a reader that fell behind) is dropped too, up to where the streams'
         readers, once caught up, place the instruments' clock at the call
-        (:meth:`live_index_after`).  The next ``acquire`` starts there, consecutive with the last
-        sample handed out but for the dropped ones (a gap only if a stream really lost samples);
-        samples still on the wire then, a settling read after the change covers.  Raises
+        (:meth:`live_index_after`), and past that what may still have been on its way then
+        (``BenchConfig.latency_s``: the instruments' buffers, the emulated rig's tick).  The next
+        ``acquire`` starts there, consecutive with the last sample handed out but for the dropped
+        ones (a gap only if a stream really lost samples).  Raises
         ``InstrumentTimeout`` if no reader catches up within ``timeout_s`` (default
         :data:`CATCH_UP_S`): what follows could not be told from the old.  Returns how many
         samples of the common clock were dropped."""
@@ -345,7 +350,7 @@ class Bench:
                                         "cannot be told from the old ones (is the machine overloaded?)")
             self._read_stream(self._aligner.waiting_for(), deadline.left(_STEP_S))
         self._drain()
-        dropped = self._aligner.skip_to(live)
+        dropped = self._aligner.skip_to(live + self.latency_samples)
         self.discarded_samples += dropped
         return dropped
 

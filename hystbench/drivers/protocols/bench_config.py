@@ -72,8 +72,12 @@ _BENCH = {
                          "A", gt=0),
     "fs_hz": Key(NUM, 100_000.0, "the common sample clock of every stream", "Hz", gt=0),
     "timeout_s": Key(NUM, 1.0, "reply deadline of every command", "s", gt=0),
-    "stall_timeout_s": Key(NUM, 0.5, "a stream silent this long is reconnected", "s", gt=0),
+    "stall_timeout_s": Key(NUM, 0.5, "a stream silent this long (beyond in_flight_s) is reconnected", "s",
+                           gt=0),
     "heartbeat_s": Key(NUM, 0.1, "status poll period (feeds the amplifier's watchdog, detects faults)", "s", gt=0),
+    "in_flight_s": Key(NUM, 0.02, "the longest a sample may still be on its way to the drivers once their readers have "
+                       "caught up (the instruments' transmit buffers and frames); with emulated instruments at "
+                       "least one tick of [sim] block_samples", "s", ge=0),
 }
 _BACKOFF = {
     "initial_s": Key(NUM, 0.05, "first wait before reconnecting", "s", gt=0),
@@ -326,6 +330,16 @@ class BenchConfig:
     sim: dict[str, Any]
     instruments: dict[str, InstrumentConfig] = field(default_factory=dict)
     digitiser: DigitiserConfig | None = None  #: samples the four signals when given
+    in_flight_s: float = 0.02  #: ``[bench] in_flight_s`` as written (see :attr:`latency_s`)
+
+    @property
+    def latency_s(self) -> float:
+        """The longest a sample made before some moment may still arrive after the streams' readers
+        caught up with their transports then: ``[bench] in_flight_s``, and with emulated
+        instruments at least one clock tick (the emulated rig makes a tick's samples at once, up to
+        a tick ahead of real time, and the instruments send them as a burst)."""
+        tick = self.sim.get("block_samples", 0) / self.fs_hz if self.any_sim else 0.0
+        return max(self.in_flight_s, tick)
 
     @property
     def any_sim(self) -> bool:
@@ -386,4 +400,4 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
     instruments = {n: _instrument(n, cfg[n], data[n], src) for n in INSTRUMENTS}
     return BenchConfig(src, bench["max_current_a"], bench["fs_hz"], bench["timeout_s"], bench["stall_timeout_s"],
                        bench["heartbeat_s"], backoff, cfg["sim"], instruments,
-                       _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None)
+                       _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None, bench["in_flight_s"])
