@@ -265,8 +265,9 @@ def test_safety_limits_are_refused_before_anything_is_sent(hil):
     assert not bench.faults  # a refusal changes nothing, so it is not a fault
 
 
-def test_serial_instrument_silent_for_a_moment_gives_an_exact_gap_and_no_stop(hil):
-    hil.bench.start_output()
+def test_serial_instrument_silent_for_a_moment_gives_an_exact_gap_and_no_stop(hil_factory):
+    hil = hil_factory(**{"sim.block_samples": "1000"})  # 10 ms ticks: the silence is 10 of them, shorter
+    hil.bench.start_output()  # than two of the heartbeat's 1 s reply deadlines (then it is a fault)
     streams = streams_flowing(hil)
     at, span = hil.blocks_ahead(2), 10 * hil.emu.block_samples
     hil.emu.charge_amp.faults.silence(at, span)  # serial cable out for 0.1 s: no replies, no frames

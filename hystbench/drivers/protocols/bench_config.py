@@ -88,7 +88,8 @@ _BACKOFF = {
 _SIM = {
     "rig": Key(str, "ecore_pm", "the simulated rig preset behind the emulated instruments"),
     "seed": Key(int, 0, "random seed of the simulated noise", ge=0),
-    "block_samples": Key(int, 1000, "samples per clock tick (10 ms at 100 kS/s)", "samples", gt=0),
+    "block_samples": Key(int, 20_000, "samples per clock tick (200 ms at 100 kS/s), made at once and sent as a "
+                         "burst", "samples", gt=0),
     "pace": Key(str, "realtime", "realtime: at the sample clock; max: as fast as computed",
                 choices=("realtime", "max")),
     "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false }"),
