@@ -8,7 +8,8 @@ the windows and wall time are the other columns.  The other rigs are reported, a
 at 1000-sample blocks (the emulated bench's block), where per-block overhead shows.  Then where the time goes (ms of CPU
 per 10 000 samples: command, actuator, measurement, of which noise generation) and the floor: five
 ``standard_normal(10000)`` (each channel keeps its own generator, so that cost stays) plus one pass
-over each sample.  Exit status 1 when the target is missed.
+over each sample; and the Preisach operator alone on 100 000 samples (budget 5 ms, reported, not judged).
+Exit status 1 when the target is missed.
 Run: ``hystbench bench sim [--seconds N] [--block-size N] [--repeats N] [--json]``.
 """
 
@@ -37,6 +38,8 @@ TARGET_RIG = "ecore_pm"
 EMULATED_BLOCK = 1000
 #: ms per 10 000 samples: the unit of the profile (x real time = 100 / this, at 100 kS/s).
 PER = 10_000
+#: The Preisach operator's budget for 100 000 samples of a 320 Hz sine (640 reversals), CPU ms.
+FIELD_TARGET_MS = 5.0
 
 
 def _timed_run(rig: SimulatedRig, block_size: int, seconds: float, repeats: int = 1) -> dict[str, float]:
@@ -133,6 +136,26 @@ def floor(channels: int = 5, n: int = PER, repeats: int = 30) -> dict[str, float
             "ceiling_realtime_factor": 100.0 / (1e3 * best_total * PER / n) if best_total > 0 else float("inf")}
 
 
+def preisach_field(material: str = "M330-50A", n: int = 100_000, repeats: int = 5) -> dict[str, float]:
+    """The Preisach operator alone (``PreisachHysteresis.field``, the iron's inner loop): ``n``
+    samples of a 320 Hz sine about a bias, 2 reversals a period, CPU ms, best of ``repeats``.
+    Target: <= :data:`FIELD_TARGET_MS` (a per-sample Python loop takes over 100 ms)."""
+    from hystbench.config import load_material
+    from hystbench.physics.hysteresis import PreisachHysteresis
+
+    iron = PreisachHysteresis.from_config(load_material(material))
+    b = 0.81 + 0.13 * np.sin(2 * np.pi * 320 * np.arange(n) / 100e3)
+    s0 = iron.field(np.array([0.81]), iron.initial_state())[1]
+    iron.field(b, s0)  # compiled and warm
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.process_time()
+        iron.field(b, s0)
+        best = min(best, time.process_time() - t0)
+    return {"material": material, "samples": n, "ms": 1e3 * best, "target_ms": FIELD_TARGET_MS,
+            "passed": 1e3 * best <= FIELD_TARGET_MS}
+
+
 def run(seconds: float = 5.0, fs_hz: float = 100_000.0, block_size: int = 10_000,
         rigs: tuple[str, ...] = (TARGET_RIG, "ecore", "voicecoil_ndfeb"), repeats: int = 5) -> dict:
     results = [rig_row(name, fs_hz, block_size, seconds, repeats) for name in rigs]
@@ -156,6 +179,7 @@ def run(seconds: float = 5.0, fs_hz: float = 100_000.0, block_size: int = 10_000
         "emulated_block": small,
         "stages_ms_per_10k": stages(head["rig"], fs_hz, block_size, min(seconds, 2.0)),
         "floor": floor(),
+        "preisach_field": preisach_field(),
         "jit": jit.enabled(),
         "python": platform.python_version(),
         "numpy": np.__version__,
@@ -217,6 +241,9 @@ def main(argv: list[str] | None = None) -> int:
     console().print(where)
     print(f"floor {fl['ms_per_10k']:.3f} ms/10k (noise {fl['noise_ms_per_10k']:.3f}): "
           f"at most {fl['ceiling_realtime_factor']:.0f}x real time")
+    pf = result["preisach_field"]
+    print(f"Preisach field() alone ({pf['material']}): {pf['ms']:.2f} ms CPU for {pf['samples']} samples of a "
+          f"320 Hz sine ({'within' if pf['passed'] else 'OVER'} its {pf['target_ms']:g} ms budget)")
     verdict = "meets" if result["passed"] else "MISSES"
     print(f"{result['rig']}: {result['realtime_factor']:.1f}x real time (CPU, best window; mean "
           f"{result['realtime_factor_mean']:.1f}x; wall {result['realtime_factor_wall']:.1f}x) "

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import doctest
 import math
-import time
 
 import numpy as np
 import pytest
@@ -366,15 +365,11 @@ def test_delay_is_invariant_under_gain_and_offset(scale_x, scale_y, dc_x, dc_y):
     assert moved.phase_se_rad == pytest.approx(base.phase_se_rad, rel=1e-6)
 
 
-def test_fitting_100k_samples_takes_milliseconds():
+def test_a_100k_sample_record_fits_to_its_delay():
+    """How fast: ``hystbench bench estimation_stage`` (CI times nothing)."""
     x = signal(100_000, parts=((1, 1.0, 0.3),)) + 0.01 * np.random.default_rng(3).standard_normal(100_000)
     y = signal(100_000, delay_s=1e-4, parts=((1, 1.0, 0.3),))
-    phase_delay(x, y, FS, F0)  # warm-up
-    start = time.perf_counter()
-    r = phase_delay(x, y, FS, F0)
-    elapsed = time.perf_counter() - start
-    assert r.delay_s == pytest.approx(1e-4, abs=1e-8)
-    assert elapsed < 0.5  # ~30 ms measured; generous for a shared machine
+    assert phase_delay(x, y, FS, F0).delay_s == pytest.approx(1e-4, abs=1e-8)
 
 
 @pytest.mark.parametrize("module", [estimation, sinefit_module, covariance_module, crlb_module], ids=lambda m: m.__name__)
