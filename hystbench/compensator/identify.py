@@ -244,7 +244,7 @@ def fit_best(points: Sequence[PeriodData], cal: SweepCalibration, scaling: IronS
     model.report["choice"] = {
         "chosen": chosen,
         "why": (f"lowest held-out force error: rms max|dF| {score[chosen]:.3f} % of the rms force range"
-                + (f" (against {others})" if others else "") + f"; folds held out: "
+                + (f" (against {others})" if others else "") + "; folds held out: "
                 + ", ".join(n for n, _ in folds)),
         "held_out_max_error_N": held, "score_pct": score, "failed": failed,
     }

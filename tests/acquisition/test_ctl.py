@@ -3,7 +3,6 @@ endpoint: commands take effect, a refusal exits 1 with the daemon's reason, no d
 naming the key expression and endpoint, and a silent `watch` says that nobody publishes."""
 
 import json
-import queue
 from pathlib import Path
 
 import pytest

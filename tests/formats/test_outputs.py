@@ -1,7 +1,5 @@
 """All-or-nothing outputs (issue 10): a command that fails leaves no partial file or folder."""
 
-from pathlib import Path
-
 import pytest
 
 from hystbench.formats.outputs import output_file, output_folder

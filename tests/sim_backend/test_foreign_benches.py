@@ -8,7 +8,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy.constants import mu_0
 
 from hystbench.config import load_material, load_rig
 from hystbench.errors import ConfigError
