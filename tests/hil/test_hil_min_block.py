@@ -7,10 +7,12 @@ samples stop, the next one starts with the GAP and its exact count."""
 import threading
 
 import numpy as np
+import pytest
 
 from hystbench.acquisition.sources import MIN_BENCH_BLOCK_S, BenchSource
 from hystbench.blocks import BlockFlags
 from hystbench.deadline import Deadline
+from hystbench.errors import ConfigError
 
 from .conftest import HANG_S, STALL_S, bench_file, expected_wire, skip_to, switched_on_at
 
@@ -117,6 +119,16 @@ def test_the_bench_source_hands_the_pipeline_blocks_of_at_least_its_minimum_losi
         assert b.n >= n_min or ends_settling, (k, b.n, b.meta)
     for a, b in zip(got, got[1:]):
         assert b.first_index == a.end_index and not b.flags & BlockFlags.GAP  # contiguous, nothing lost
+
+
+def test_a_minimum_given_is_taken_and_one_out_of_range_refused(tmp_path):
+    src = BenchSource(str(bench_file(tmp_path)), min_block_s=0.005)
+    try:
+        assert src.min_block_samples == 500
+    finally:
+        src.close()
+    with pytest.raises(ConfigError, match="min_block_s must be in"):
+        BenchSource(str(bench_file(tmp_path)), min_block_s=2.0)
 
 
 def test_the_first_block_is_short_so_a_switch_on_given_before_applies_after_it(tmp_path):
