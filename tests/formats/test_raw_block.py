@@ -147,9 +147,8 @@ def test_a_log_written_before_the_one_codec_reads_and_replays_to_its_own_estimat
     numpy_path = [Estimate.from_json(e) for e in replayed(OLD_LOG)]
     for got in (numpy_path, [Estimate.from_json(e) for e in replayed(OLD_LOG, out=tmp_path / "again.mcap")]):
         # equal but for t_ns, the log time (a replay has its own clock, or none), and the two delays
-        # read off the force's fit
-        # number for number, to rounding: another numpy or BLAS build sums in another order (the
-        # last two digits of a float64); every other field, and which fields there are, exactly
+        # read off the force's fit; the numbers to rounding, as another numpy or BLAS build sums in
+        # another order (the last two digits of a float64); every other field, and which fields there are, exactly
         for e, want in zip(got, recorded, strict=True):
             a, b = _current_and_flux(e), _current_and_flux(want)
             assert a.keys() == b.keys()
