@@ -10,12 +10,13 @@ Two layouts, told apart by the header:
 
 The sidecar says where the numbers came from; a table whose source, licence or units are unknown
 cannot be quoted, so those keys are required.  Reading is strict as for recordings: every defect is
-a :class:`RecordingError` naming the file, line and column; nothing is dropped or guessed.
+a :class:`RecordingError` naming the file, line and column; nothing is dropped or guessed.  A table
+is read whole, so its size is bounded first (:data:`~hystbench.formats.small_files.MAX_TABLE_BYTES`,
+the sidecar's by ``MAX_SIDECAR_BYTES``).
 """
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RecordingError
-from .recording import _no_constant, _read_text, _unique_keys
+from .small_files import MAX_TABLE_BYTES, excerpt, read_json, read_text
 
 __all__ = ["LossTable", "LAYOUTS", "REQUIRED_SIDECAR_KEYS", "read_material_table"]
 
@@ -82,12 +83,7 @@ def read_material_table(path: str | Path) -> LossTable:
 def _read_sidecar(path: Path) -> dict:
     if not path.is_file():
         raise RecordingError(f"{path}: missing sidecar (a material table needs its source, licence and units)")
-    try:
-        meta = json.loads(_read_text(path), object_pairs_hook=_unique_keys, parse_constant=_no_constant)
-    except json.JSONDecodeError as err:
-        raise RecordingError(f"{path}:{err.lineno}: column {err.colno}: not valid JSON ({err.msg})") from err
-    except RecordingError as err:
-        raise RecordingError(f"{path}: {err}") from None
+    meta = read_json(path)
     if not isinstance(meta, dict):
         raise RecordingError(f"{path}: the sidecar must be a JSON object, got {type(meta).__name__}")
     for key in REQUIRED_SIDECAR_KEYS:
@@ -102,10 +98,10 @@ def _read_sidecar(path: Path) -> dict:
 
 def _read_rows(path: Path, layout: tuple[str, ...], kind: str) -> tuple[list[str], np.ndarray]:
     """The header (checked against ``layout``) and the (rows, columns) array."""
-    lines = _read_text(path).rstrip("\n").split("\n")
+    lines = read_text(path, MAX_TABLE_BYTES, "material table", "MAX_TABLE_BYTES").rstrip("\n").split("\n")
     names = [n.strip() for n in lines[0].split(",")]
     if tuple(names) != layout:
-        raise RecordingError(f"{path}:1: header {lines[0].strip()!r} is not the {kind} layout "
+        raise RecordingError(f"{path}:1: header {excerpt(lines[0].strip(), 120)} is not the {kind} layout "
                              f"{','.join(layout)!r} its sidecar declares")
     if len(lines) < 2:
         raise RecordingError(f"{path}: no rows after the header")
@@ -121,7 +117,7 @@ def _read_rows(path: Path, layout: tuple[str, ...], kind: str) -> tuple[list[str
                 raise RecordingError(f"{path}:{lineno}: {len(fields)} fields, the header has {len(names)}")
             for j, field in enumerate(fields):
                 if not _NUMBER.fullmatch(field):
-                    what = "empty field" if not field.strip() else f"{field.strip()!r} is not a finite number"
+                    what = "empty field" if not field.strip() else f"{excerpt(field.strip())} is not a finite number"
                     raise RecordingError(f"{path}:{lineno}: column {j + 1} ({names[j]}): {what}")
     return names, data
 

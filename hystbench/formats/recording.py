@@ -5,7 +5,10 @@ DAQ software and spreadsheets: every defect is a :class:`RecordingError` naming 
 line and column where there is one; nothing is dropped, rescaled or guessed.  The numbers go
 through numpy in bulk, a chunk of lines at a time into one array, so memory is the samples' float64
 size plus a chunk, not a multiple of the text; a pass per line runs only on the error path, to
-say where the defect is.
+say where the defect is.  Nothing is read unbounded: a line longer than
+:data:`~hystbench.formats.text_chunks.MAX_LINE_BYTES`, a column name longer than
+:data:`MAX_COLUMN_NAME_CHARS` or a sidecar larger than
+:data:`~hystbench.formats.small_files.MAX_SIDECAR_BYTES` is refused by name.
 Writing is lossless (shortest round-trip float text) and replaces files atomically.
 """
 
@@ -30,9 +33,10 @@ from ..blocks import CHANNEL_UNITS, BlockFlags, SampleBlock, concatenate
 from ..config import rig_names
 from ..errors import RecordingError
 from ..messages import OperatingPoint
+from .small_files import MAX_SIDECAR_BYTES, excerpt, read_json
 from .text_chunks import count_line_ends, text_chunks
 
-__all__ = ["REQUIRED_KEYS", "TIME_TOL_PERIODS", "Recording", "read_recording", "write_recording",
+__all__ = ["REQUIRED_KEYS", "TIME_TOL_PERIODS", "MAX_COLUMN_NAME_CHARS", "MAX_SIDECAR_BYTES", "Recording", "read_recording", "write_recording",
            "read_sweep", "write_sweep", "sweep_stem", "sidecar_point", "with_point"]
 
 #: Sidecar keys every recording must have.
@@ -46,6 +50,10 @@ REQUIRED_KEYS = ("rig", "frequency_Hz", "sample_rate_Hz", "current_pp_A")
 #: round-off of an hour-long recording is < 1e-7 periods.  Even at 10 kS/s, 1e-3 periods is
 #: 0.017 deg at 480 Hz, far under the delays this bench measures.
 TIME_TOL_PERIODS = 1e-3
+
+#: The longest column name in a header.  A name is ``<channel>_<unit>`` (``force_N``): 200
+#: characters is ten times the longest a tool writes, and keeps a refused name's message short.
+MAX_COLUMN_NAME_CHARS = 200
 
 _SUFFIXES = (".csv", ".json")
 _ROWS_PER_CHUNK = 65536  # bounds the text held in memory while writing
@@ -212,50 +220,29 @@ def _check_sidecar(meta: Any, where: str) -> None:
         raise RecordingError(f"{where}: key 'start_time_s' must be a finite number of seconds, got {start!r}")
 
 
-def _read_text(path: Path) -> str:
-    """UTF-8 text with '\n' line ends, for the sidecar (the samples are read by :func:`text_chunks`)."""
-    try:
-        raw = path.read_bytes()
-    except OSError as err:
-        raise RecordingError(f"{path}: cannot read: {err.strerror}") from err
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as err:
-        line = raw.count(b"\n", 0, err.start) + 1
-        raise RecordingError(f"{path}:{line}: not UTF-8 (byte {err.start})") from err
-    return text.replace("\r\n", "\n").replace("\r", "\n")
-
-
-def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    """json.loads keeps the last of two equal keys; here that is an error."""
-    out: dict[str, Any] = {}
-    for key, value in pairs:
-        if key in out:
-            raise RecordingError(f"key {key!r} appears twice")
-        out[key] = value
-    return out
-
-
-def _no_constant(name: str) -> None:
-    """json.loads accepts NaN and Infinity, which are not JSON and could not be written back."""
-    raise RecordingError(f"{name} is not valid JSON; write a number or null")
-
-
 def _read_sidecar(path: Path) -> dict:
-    try:
-        meta = json.loads(_read_text(path), object_pairs_hook=_unique_keys, parse_constant=_no_constant)
-    except json.JSONDecodeError as err:
-        raise RecordingError(f"{path}:{err.lineno}: column {err.colno}: not valid JSON ({err.msg})") from err
-    except RecordingError as err:
-        raise RecordingError(f"{path}: {err}") from None
+    meta = read_json(path)
     _check_sidecar(meta, str(path))
     return meta
+
+
+def _check_name_lengths(names: list[str], where: str) -> None:
+    for j, name in enumerate(names, start=1):
+        if len(name.strip()) > MAX_COLUMN_NAME_CHARS:
+            raise RecordingError(f"{where}:1: column {j}: a name of {len(name.strip())} characters (at most "
+                                 f"{MAX_COLUMN_NAME_CHARS}), starting {name.strip()[:40]!r}; a column is named "
+                                 "<channel>_<unit> (e.g. force_N)")
 
 
 def _parse_header(line: str, where: str) -> list[str]:
     if not line.strip():
         raise RecordingError(f"{where}:1: empty header line; expected 'time_s,<channel>_<unit>,...'")
-    names = [n.strip() for n in next(csv.reader([line]))]
+    _check_name_lengths(line.split(","), where)  # before csv, whose field limit raises its own error
+    try:
+        names = [n.strip() for n in next(csv.reader([line]))]
+    except csv.Error as err:
+        raise RecordingError(f"{where}:1: the header is not a CSV line of column names ({err})") from err
+    _check_name_lengths(names, where)  # a quoted name may hold commas
     for j, name in enumerate(names):
         if not name:
             raise RecordingError(f"{where}:1: column {j + 1} has no name")
@@ -284,7 +271,7 @@ def _locate_bad_line(body: str, names: list[str], where: str, first_line: int) -
             return RecordingError(f"{where}:{lineno}: {len(fields)} fields, the header has {len(names)}")
         for j, f in enumerate(fields):
             if not _NUMBER.fullmatch(f):
-                what = "empty field" if not f.strip() else f"not a number: {f.strip()!r}"
+                what = "empty field" if not f.strip() else f"not a number: {excerpt(f.strip())}"
                 return RecordingError(f"{where}:{lineno}: column {j + 1} ({names[j]}): {what}")
     return None
 
@@ -306,7 +293,7 @@ def _parse_rows(body: str, names: list[str], where: str, first_line: int) -> np.
         r, c = divmod(int(np.argmax(bad)), data.shape[1])
         field = body.split("\n", r + 1)[r].split(",")[c].strip()
         raise RecordingError(f"{where}:{first_line + r}: column {c + 1} ({names[c]}): "
-                             f"{field!r} is not a finite number")
+                             f"{excerpt(field)} is not a finite number")
     return data
 
 
@@ -323,10 +310,14 @@ def _parse_samples(fh: BinaryIO, where: str) -> tuple[list[str], np.ndarray]:
     """Header names and the (columns, rows) float64 array of the CSV ``fh``, read a chunk of
     lines at a time into one array sized by a first pass that counts the lines: the memory is
     that array plus a chunk, not a multiple of the text.  The first defect in the file is named."""
-    capacity = count_line_ends(fh) + 1
+    lines = count_line_ends(fh) + 1
+    size = fh.tell()
     fh.seek(0)
     chunks = text_chunks(fh, where)
     names, rest = _read_header(chunks, where)
+    # A row of k fields takes >= 2k bytes (a digit and a comma or line end each), so the rows the
+    # file can hold bound the array too: many columns over many short lines must not size it.
+    capacity = min(lines, (size + 1) // (2 * len(names)) + 1)
     out = np.empty((len(names), capacity), dtype=np.float64)
     n = 0
     blank: int | None = None  # the first of the whitespace-only lines after the last sample so far
@@ -367,7 +358,11 @@ def _check_time(t: np.ndarray, fs: float, where: str, sidecar: str) -> None:
     dev = t - (t[0] + np.arange(t.size) * period)  # the error path: whole-column temporaries are fine
     steps = np.diff(t)
     step = float(np.median(steps))
-    off = (steps <= 0) | (np.abs(steps - step) > 2 * tol)  # one rounded value moves two steps
+    # Uniformity is judged on the column's own step when it is the longer one: with a sidecar rate
+    # far off (1e308 Hz), a tolerance of its period falls below the float resolution of time_s and
+    # every step would look non-uniform; the rate is then what is wrong, and the message says so.
+    step_tol = TIME_TOL_PERIODS * max(period, step) if step > 0 else tol
+    off = (steps <= 0) | (np.abs(steps - step) > 2 * step_tol)  # one rounded value moves two steps
     if off.any():
         i = int(np.argmax(off))
         what = "does not increase" if steps[i] <= 0 else "is non-uniform"
@@ -377,7 +372,8 @@ def _check_time(t: np.ndarray, fs: float, where: str, sidecar: str) -> None:
     i = int(np.argmax(np.abs(dev) > tol))
     rate = (t.size - 1) / (t[-1] - t[0])
     raise RecordingError(f"{where}:{i + 2}: time_s is sampled at {rate:.9g} Hz but {sidecar} says "
-                         f"sample_rate_Hz {fs:.9g}; here time_s is {dev[i] / period:+.3g} periods off")
+                         f"sample_rate_Hz {fs:.9g}; here time_s is {dev[i] / period:+.3g} periods of "
+                         f"1/sample_rate_Hz off (steps of {step:.9g} s, not {period:.9g} s)")
 
 
 def read_recording(path: str | Path) -> Recording:

@@ -5,6 +5,10 @@ that decoding, line-end conversion and parsing make) costs several times that.  
 lines a bounded block at a time keeps the text in memory to about one block, and line numbers
 stay exact, so an error can still name the line.
 
+A line longer than :data:`MAX_LINE_BYTES` is refused before more of it is read: without a
+bound, a file with no line end (a 2 GB header field) was held whole, three times over, only to be
+refused by the CSV parser.
+
 Line ends are LF, CR LF or a lone CR (old spreadsheets), all given as LF; a UTF-8 BOM at the
 start of the file is dropped.  A block is cut only after a line end, and no UTF-8 sequence
 contains the bytes of CR or LF, so every chunk decodes on its own.
@@ -16,10 +20,14 @@ from typing import BinaryIO, Iterator
 
 from ..errors import RecordingError
 
-__all__ = ["BLOCK_BYTES", "count_line_ends", "text_chunks"]
+__all__ = ["BLOCK_BYTES", "MAX_LINE_BYTES", "count_line_ends", "text_chunks"]
 
 #: Bytes read at a time; a chunk is at most this plus the rest of the line it cuts.
 BLOCK_BYTES = 1 << 20
+#: The longest line (bytes, line end excluded) a text file may have.  A recording's row is a few
+#: numbers of at most ~25 characters, its header a few column names: 1 MiB is ~40 000 columns, far
+#: beyond any instrument, and bounds the text held for one line.
+MAX_LINE_BYTES = 1 << 20
 _BOM = b"\xef\xbb\xbf"
 
 
@@ -49,27 +57,42 @@ def _decode(raw: bytes, line: int, offset: int, where: str) -> str:
     return text.replace("\r\n", "\n").replace("\r", "\n") if "\r" in text else text
 
 
-def text_chunks(fh: BinaryIO, where: str, block_bytes: int | None = None) -> Iterator[tuple[int, str]]:
+def _first_line_end(block: bytes) -> int:
+    """The index of the first CR or LF in ``block``, or -1."""
+    ends = [i for i in (block.find(b"\n"), block.find(b"\r")) if i >= 0]
+    return min(ends) if ends else -1
+
+
+def text_chunks(fh: BinaryIO, where: str, block_bytes: int | None = None,
+                max_line_bytes: int | None = None) -> Iterator[tuple[int, str]]:
     """``(number of the chunk's first line, text)`` for the whole file ``fh`` (opened in binary
     mode, at its start): every chunk is whole lines, each ending in LF except perhaps the file's
-    last; concatenated they are the file's text.  Invalid UTF-8 is a :class:`RecordingError`
-    naming ``where``, the line and the byte.  ``block_bytes`` defaults to :data:`BLOCK_BYTES`."""
-    line, offset, pending, size = 1, 0, [], block_bytes or BLOCK_BYTES
+    last; concatenated they are the file's text.  Invalid UTF-8, or a line longer than
+    ``max_line_bytes`` (default :data:`MAX_LINE_BYTES`), is a :class:`RecordingError` naming
+    ``where``, the line and the byte.  ``block_bytes`` defaults to :data:`BLOCK_BYTES`."""
+    cap = MAX_LINE_BYTES if max_line_bytes is None else max_line_bytes
+    # read at most ``cap`` bytes at a time, a line inside one block is shorter than the cap: only
+    # the line that spans blocks (``pending``, ``partial`` bytes of it so far) needs measuring
+    size = max(1, min(block_bytes or BLOCK_BYTES, cap))
+    line, pending, partial = 1, [], 0
     head = fh.read(len(_BOM))
-    if head == _BOM:
-        offset = len(_BOM)
-    else:
-        pending.append(head)
+    carry, offset = (b"", len(_BOM)) if head == _BOM else (head, 0)
     while True:
-        block = fh.read(size)
+        block = carry + fh.read(max(1, size - len(carry)))
+        carry = b""
         if block:
+            first = _first_line_end(block)
+            if (first if first >= 0 else len(block)) + partial > cap:
+                raise RecordingError(f"{where}:{line}: a line longer than {cap} bytes (from byte {offset}); "
+                                     "a recording's header and rows are short lines (MAX_LINE_BYTES)")
             # the last line end; a CR at the very end may be the first half of a CR LF: keep it
             cut = max(block.rfind(b"\n"), block.rfind(b"\r", 0, len(block) - 1)) + 1
             if cut == 0:
                 pending.append(block)
+                partial += len(block)
                 continue
             raw = b"".join([*pending, block[:cut]])
-            pending = [block[cut:]]
+            pending, partial = [block[cut:]], len(block) - cut
         else:
             raw = b"".join(pending)
         if raw:
