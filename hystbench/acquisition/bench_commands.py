@@ -7,7 +7,10 @@ one validator of every TOML file; a number is first a finite one, as JSON may ca
 the rules no single argument can say: the excitation frequency inside ``[MIN_FREQUENCY_HZ, fs / 10]``
 (and the generator's range), at most ``MAX_SWEEP_POINTS`` frequencies in a sweep, and the peak coil
 current ``|offset| + I_pp / 2`` within the bench's limit.  The limit is checked on the operating point the command leads to (the last one commanded,
-with this command's changes), so two commands that are each fine cannot add up to too much.
+with this command's changes), so two commands that are each fine cannot add up to too much; the
+service checks a sweep's every point again when it applies it (``set_excitation`` may have moved
+the offset meanwhile).  The limit is the bench's command limit: the trip level less its margin
+(:mod:`hystbench.drivers.safety`), so an accepted command cannot trip the amplifier.
 
 That point is a :class:`hystbench.messages.OperatingPoint`, the type the blocks carry: the commands
 set its frequency, current and offset (what the generator plays once they are applied); its
@@ -57,6 +60,7 @@ ARGUMENTS: Mapping[str, Mapping[str, Key]] = {
         "offset_a": Key(NUM, OPTIONAL, "DC offset of the current", "A"),
     },
     "output": {"on": Key(bool, None, "the amplifier's output on")},
+    "clear_fault": {},  # the operator has seen why the excitation tripped the bench: output on may follow
 }
 #: The verbs, with the arguments each takes.
 COMMANDS: Mapping[str, tuple[str, ...]] = {verb: tuple(args) for verb, args in ARGUMENTS.items()}
@@ -123,7 +127,7 @@ def check_command(verb: Any, args: Any, limits: Limits, point: OperatingPoint,
     if unknown:
         known = ", ".join(COMMANDS[verb]) or "none"
         raise ConfigError(f"{verb}: unknown argument(s) {_show(unknown)}; it takes: {known}")
-    if verb == "stop_sweep":
+    if verb in ("stop_sweep", "clear_fault"):
         return {}, point
     keys = ARGUMENTS[verb]
     if verb == "output":

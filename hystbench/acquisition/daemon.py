@@ -131,7 +131,8 @@ DEFAULTS: dict[str, dict[str, Key]] = {
         "model": Key(str, "", "a file from `hystbench model fit SWEEP_DIR --out MODEL.json`"),
         "kind": Key(str, "best", "which model of the file", choices=("nonhysteretic", "paper", "best")),
         "force": Key(str, "", "the force reference, e.g. \"offset=170,amp=40,freq=320\""),
-        "current_limit_a": Key(_NUM, 1.8, "the compensator never commands more than this", "A", gt=0),
+        "current_limit_a": Key(_NUM, 0.0, "the compensator never commands more than this (0: the bench's command "
+                               "limit, its trip level less [bench] current_margin)", "A", ge=0),
         "learn": Key(bool, False, "repetitive control on each estimate window's period-averaged force"),
         "learning_gain": Key(_NUM, 0.8, "gain of the learning loop; it stops itself, output off, if it diverges",
                              gt=0, le=1.5),

@@ -1,11 +1,17 @@
 """One daemon configuration running: source -> pipeline -> MCAP log + zenoh, sweeps and commands.
 
-Nothing a command asks can end the service: every command is checked against the bench's limits
-before it is answered (:mod:`.bench_commands`), and a fault in a stage (an instrument fault, a
-lost connection, an error in the source thread) is met by :meth:`BenchService.recover`: the
+Nothing a command asks can end the service.  Every current put on the amplifier, whoever asked
+for it (``set_excitation``, a sweep's next point), is checked with the operating point it will
+really produce, offset included, when it is applied (:meth:`BenchService._apply`, and again by the
+drivers' :class:`~hystbench.drivers.safety.CurrentBudget` when the source applies it), against the
+bench's command limit (the trip level less its margin).  A fault in a stage (an instrument fault,
+a lost connection, an error in the source thread) is met by :meth:`BenchService.recover`: the
 output goes off, the fault is published on ``status`` and written to the log, the source and
-pipeline start again (output off) in a new log part.  Only faults in quick succession
-(``MAX_FAULTS`` within ``FAULT_WINDOW_S``) or a source that cannot be opened again end it.
+pipeline start again (output off) in a new log part.  A fault the excitation caused (the amplifier
+tripped OVERCURRENT or OVERTEMP, a driver refused a current) is a *trip*: it never counts towards
+giving up; instead ``output on`` and ``start_sweep`` are refused until ``clear_fault``.  Only
+faults the service cannot control, in quick succession (``MAX_FAULTS`` within
+``FAULT_WINDOW_S``), or a source that cannot be opened again end it.
 """
 
 from __future__ import annotations
@@ -20,9 +26,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import __version__
+from ..drivers.base import FaultLatched
+from ..drivers.safety import SafetyLimitError
 from ..errors import BenchError, CommandRefused, ConfigError
 from ..messages import OperatingPoint
-from .bench_commands import MIN_FREQUENCY_HZ, Limits, check_command
+from .bench_commands import MIN_FREQUENCY_HZ, Limits, check_command, check_current
 from .source_config import build_source
 
 if TYPE_CHECKING:
@@ -30,7 +38,7 @@ if TYPE_CHECKING:
 
     from .daemon import DaemonConfig
 
-__all__ = ["BenchService", "TooManyFaults", "MAX_FAULTS", "FAULT_WINDOW_S"]
+__all__ = ["BenchService", "TooManyFaults", "MAX_FAULTS", "FAULT_WINDOW_S", "COMMAND_FAULTS", "caused_by_command"]
 
 log = logging.getLogger("hystbench.daemon")
 
@@ -42,6 +50,22 @@ FAULT_WINDOW_S = 60.0
 DWELL_STALL_S = 30.0
 #: How often a dwell looks at the stop request and the source's progress.
 DWELL_POLL_S = 0.05
+#: Latched amplifier faults that the excitation causes (too much current, or for too long).
+COMMAND_FAULTS = frozenset({"OVERCURRENT", "OVERTEMP"})
+
+
+def caused_by_command(err: BaseException | None) -> str:
+    """Why ``err`` came from what the bench was told to drive ('' if it did not): a driver that
+    refused a current, or an amplifier trip in :data:`COMMAND_FAULTS`, anywhere in its chain of
+    causes.  Such a fault is the commander's to clear, not a reason to stop the service."""
+    seen: set[int] = set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        if isinstance(err, SafetyLimitError) or (
+                isinstance(err, FaultLatched) and err.faults and set(err.faults) <= COMMAND_FAULTS):
+            return str(err)
+        err = err.__cause__ or err.__context__
+    return ""
 
 
 class TooManyFaults(BenchError):
@@ -84,7 +108,10 @@ def _load_compensator(c: dict, source):
             learning = LearningConfig(gain=c["learning_gain"]) if c["learn"] else None
         except ValueError as err:
             raise ConfigError(f"[compensator] learning_gain: {err}") from err
-        stage = CompensatorStage(models[c["kind"]], reference, current_limit_a=c["current_limit_a"],
+        limit_a = c["current_limit_a"] or getattr(source, "max_current_a", None)  # 0: the bench's command limit
+        if not limit_a:
+            raise ConfigError(f"[compensator] current_limit_a: give one; {source.name} states no current limit")
+        stage = CompensatorStage(models[c["kind"]], reference, current_limit_a=limit_a,
                                  learning=learning, instrument=models.instrument)
         return CompensatorHook(stage, source)
     mod, _, attr = factory.partition(":")
@@ -114,8 +141,12 @@ class BenchService:
         self.state = "starting"
         self.estimates = 0
         self.last_error = ""
+        #: faults the service cannot control (time, message): too many in a row end the service
         self.faults: deque[tuple[float, str]] = deque(maxlen=100)
         self.last_fault = ""
+        self.trips = 0  # faults the excitation caused (caused_by_command): never end the service
+        #: why the output may not be switched on until ``clear_fault`` ('' : it may)
+        self.tripped = ""
         self.retention_deleted = 0
         self.log_dir = Path(cfg["daemon"]["log_dir"])
         self._reset_point()
@@ -230,10 +261,16 @@ class BenchService:
         if self._sweep is not None:
             self._sweep.join(timeout=2.0)
         now = time.monotonic()
-        self.faults.append((now, message))
         self.last_fault = message
+        if caused_by_command(err):
+            self.trips += 1
+            self.tripped = (f"the excitation tripped the bench at {time.strftime('%H:%M:%S')} ({message}); check the "
+                            "excitation, then send clear_fault")
+        else:
+            self.faults.append((now, message))
         recent = sum(1 for t, _ in self.faults if now - t <= FAULT_WINDOW_S)
         fault = {"t_ns": time.time_ns(), "level": "error", "event": "fault", "faults": len(self.faults),
+                 "trips": self.trips, "by_command": bool(self.tripped),
                  "message": f"{message}; output switched off, restarting the source and pipeline"}
         log.error("fault: %s", fault["message"])
         if self.bus is not None:
@@ -280,6 +317,20 @@ class BenchService:
         """Why the compensator switched the output off, or ''."""
         return str(getattr(getattr(self.pipeline, "compensator", None), "tripped", "") or "")
 
+    def why_output_off(self) -> str:
+        """Why ``output on`` and ``start_sweep`` are refused now, and how to clear it ('' : they are not)."""
+        if self._tripped():
+            return (f"the compensator switched the output off ({self._tripped()}); reload the configuration "
+                    "(SIGHUP) to start again")
+        return self.tripped
+
+    def _apply(self, src, point: OperatingPoint, who: str) -> None:
+        """Put ``point`` on the amplifier, checked as it will really be played (offset included);
+        the caller holds ``_lock``, so no other command moves the point in between."""
+        check_current(who, point, self.limits)
+        src.set_excitation(point.frequency_hz, point.current_pp_a, point.offset_a)
+        self.point = point
+
     def command(self, verb: str, args: dict) -> dict:
         """Run a command; a refusal (answered ``ok: false``) says why: a ConfigError for what the
         command asks (checked before anything is applied), a CommandRefused for what the bench
@@ -289,12 +340,15 @@ class BenchService:
         src = self._controllable()
         with self._lock:
             ok, point = check_command(verb, args, self.limits, self.point, self.cfg["sweep"])
-            if (verb == "start_sweep" or verb == "output" and ok["on"]) and self._tripped():
-                raise CommandRefused(f"{verb}: refused, the compensator switched the output off ({self._tripped()}); "
-                                  "reload the configuration (SIGHUP) to start again")
+            if (verb == "start_sweep" or verb == "output" and ok["on"]) and (why := self.why_output_off()):
+                raise CommandRefused(f"{verb}: refused, {why}")
+            if verb == "clear_fault":
+                cleared, self.tripped = self.tripped, ""
+                if cleared:
+                    self.pipeline.status("info", "fault_cleared", f"cleared: {cleared}")
+                return {"cleared": cleared or None, "still_refused": self.why_output_off() or None}
             if verb == "set_excitation":
-                src.set_excitation(point.frequency_hz, point.current_pp_a, point.offset_a)
-                self.point = point
+                self._apply(src, point, "set_excitation")
                 return {"applied": ok}
             if verb == "output":
                 src.set_output(ok["on"])
@@ -322,14 +376,19 @@ class BenchService:
         p.status("info", "sweep_started", f"{len(freqs)} points at {ipp:g} A-pp, {dwell:g} s each")
         try:
             for k, f in enumerate(freqs):
-                if self._tripped():
-                    p.status("warning", "sweep_stopped", f"stopped at point {k}: {self._tripped()}")
+                if why := self.why_output_off():
+                    p.status("warning", "sweep_stopped", f"stopped at point {k}: {why}")
                     return
                 with self._lock:
                     if stop.is_set():
                         break
-                    self.point = replace(self.point, frequency_hz=f, current_pp_a=ipp)
-                    src.set_excitation(f, ipp, self.point.offset_a)
+                    try:  # the point as it will be played: with the offset set_excitation left
+                        self._apply(src, replace(self.point, frequency_hz=f, current_pp_a=ipp), f"start_sweep point {k}")
+                    except ConfigError as err:
+                        src.set_output(False)
+                        p.status("error", "sweep_stopped", f"stopped before point {k} ({f:g} Hz): {err}; output off",
+                                 point=k, frequency_hz=f, current_pp_a=ipp, offset_a=self.point.offset_a)
+                        return
                     src.set_output(True)
                     reached = p.after_samples(round(dwell * src.fs_hz))  # from the command on
                 p.status("info", "sweep_point", f"{f:g} Hz, {ipp:g} A-pp", point=k, frequency_hz=f, current_pp_a=ipp)
@@ -381,5 +440,6 @@ class BenchService:
                 "limits": {"max_current_a": self.limits.max_current_a,
                            "frequency_hz": [MIN_FREQUENCY_HZ, self.limits.max_frequency_hz]},
                 "samples": p.stats["source"].samples if p else 0, "estimates": self.estimates,
-                "faults": len(self.faults), "last_fault": self.last_fault,
+                "faults": len(self.faults), "trips": self.trips, "last_fault": self.last_fault,
+                "output_refused": self.why_output_off() or None,
                 "pipeline_error": repr(p.error) if p and p.error else None, "last_estimate_error": self.last_error}

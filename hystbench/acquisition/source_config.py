@@ -95,7 +95,8 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
     c = values["compensator"]
     if c["enabled"] and c["current_limit_a"] > limits.max_current_a:
         raise ConfigError(f"{where} [compensator] current_limit_a = {c['current_limit_a']:g} A exceeds the bench's "
-                          f"limit of {limits.max_current_a:g} A")
+                          f"command limit of {limits.max_current_a:g} A (its trip level less [bench] current_margin; "
+                          "0 takes it)")
     return limits
 
 

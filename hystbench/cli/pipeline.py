@@ -148,7 +148,8 @@ def _format_reply(bench: str, verb: str, reply: dict) -> str:
             parts.append(f"up {reply['uptime_s']:.0f} s")
         parts += [f"{reply.get('samples', 0)} samples", f"{reply.get('estimates', 0)} estimates",
                   f"log {reply.get('log') or '(none)'}"]
-        parts += [f"{k} {reply[k]}" for k in ("last_fault", "pipeline_error", "last_estimate_error") if reply.get(k)]
+        parts += [f"{k} {reply[k]}" for k in ("output_refused", "last_fault", "pipeline_error", "last_estimate_error")
+                  if reply.get(k)]
         return f"{bench}: " + "; ".join(parts)
     rest = ", ".join(f"{k} {json.dumps(v)}" for k, v in reply.items() if k != "ok")
     return f"{bench}: {verb} ok" + (f" ({rest})" if rest else "")
@@ -220,6 +221,8 @@ def _register_ctl(subparsers) -> None:
     v.add_argument("--ipp", type=nonnegative_float, help="peak-to-peak current, A")
     v.add_argument("--dwell", type=positive_float, metavar="S", help="seconds at each frequency")
     verbs.add_parser("stop_sweep", parents=[shared], help="stop the sweep, output off")
+    verbs.add_parser("clear_fault", parents=[shared], help="after the excitation tripped the bench: allow output on "
+                                                           "again (status says why it is refused)")
     v = verbs.add_parser("set_excitation", parents=[shared], help="change the excitation (any of its parts)")
     v.add_argument("--freq", type=positive_float, help="frequency, Hz")
     v.add_argument("--ipp", type=nonnegative_float, help="peak-to-peak current, A")

@@ -101,7 +101,7 @@ class BenchActuation:
         self.bench = bench
         self.gain_a_per_v = float(bench.budget.gain_a_per_v)
         self.fs_hz = float(bench.config.fs_hz)
-        self.current_limit_a = min(float(current_limit_a), float(bench.budget.max_current_a))
+        self.current_limit_a = min(float(current_limit_a), float(bench.budget.command_limit_a))
         self.name = f"bench {bench.config.source} through the drivers"
         self.output_on = False
 

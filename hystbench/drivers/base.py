@@ -66,7 +66,13 @@ class InstrumentStatus:
 
 
 class FaultLatched(InstrumentError):
-    """An instrument reports a latched fault: the bench acts on it at once, not after a second poll."""
+    """An instrument reports a latched fault: the bench acts on it at once, not after a second poll.
+    ``faults`` names the latched bits (``OVERCURRENT``, ``INTERLOCK`` ...), so the service can tell
+    a trip its own excitation caused from one it cannot control."""
+
+    def __init__(self, message: str, faults: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.faults = tuple(faults)
 
 
 def _is_timeout(err: BaseException) -> bool:

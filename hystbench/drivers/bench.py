@@ -58,6 +58,7 @@ class BenchFault:
     instrument: str
     message: str
     output_off: bool  # whether switching the output off was confirmed
+    error: BaseException | None = None  # what was raised, kept as the cause of what the bench raises later
 
 
 def build_instruments(config: BenchConfig, budget: CurrentBudget) -> dict[str, Instrument]:
@@ -73,7 +74,7 @@ class Bench:
     def __init__(self, config: BenchConfig) -> None:
         self.config = config
         gain = float(config.instruments["current_amplifier"].settings.get("gain_a_per_v", 0.5))
-        self.budget = CurrentBudget(config.max_current_a, gain)
+        self.budget = CurrentBudget(config.max_current_a, gain, margin=config.current_margin)
         self.instruments = build_instruments(config, self.budget)
         self.generator: ScpiSignalGenerator = self.instruments["signal_generator"]  # type: ignore[assignment]
         self.amplifier: ModbusCurrentAmplifier = self.instruments["current_amplifier"]  # type: ignore[assignment]
@@ -138,9 +139,9 @@ class Bench:
         ok_amp = self.amplifier.safe_off() if self.amplifier.is_open else False
         return ok_gen or ok_amp  # either one stops the coil current
 
-    def _fault(self, instrument: str, message: str) -> BenchFault:
+    def _fault(self, instrument: str, message: str, error: BaseException | None = None) -> BenchFault:
         off = self.safe_off()  # before anything else
-        fault = BenchFault(time.monotonic(), instrument, message, off)
+        fault = BenchFault(time.monotonic(), instrument, message, off, error)
         with self._fault_lock:
             self.faults.append(fault)
         log.error("bench fault on %s: %s (output off: %s)", instrument, message, off)
@@ -151,7 +152,7 @@ class Bench:
             fault = self.faults[-1] if self.faults else None
         if fault is not None:
             raise InstrumentError(f"bench stopped: {fault.instrument}: {fault.message} "
-                                  f"(output switched off: {fault.output_off}); clear_faults() to go on")
+                                  f"(output switched off: {fault.output_off}); clear_faults() to go on") from fault.error
 
     def clear_faults(self) -> None:
         self.amplifier.clear_faults()
@@ -166,7 +167,7 @@ class Bench:
         except SafetyLimitError:
             raise  # refused before anything was sent: the bench is as it was
         except InstrumentError as err:
-            self._fault(instrument, str(err))
+            self._fault(instrument, str(err), err)
             raise
 
     def start_output(self) -> None:
@@ -199,12 +200,12 @@ class Bench:
                     inst.heartbeat()
                     failures = 0
                 except ConnectionLost as err:
-                    self._fault(name, str(err))
+                    self._fault(name, str(err), err)
                     self._try_reconnect(name)
                 except InstrumentError as err:
                     failures += 1
                     if failures >= 2 or isinstance(err, FaultLatched):  # one missed poll may be noise
-                        self._fault(name, str(err))
+                        self._fault(name, str(err), err)
                         failures = 0
 
     def pause_heartbeat(self) -> None:
@@ -268,7 +269,7 @@ class Bench:
         try:
             block = self.streams[name].read(timeout_s=timeout_s)
         except InstrumentError as err:
-            self._fault(name, str(err))
+            self._fault(name, str(err), err)
             raise
         if block is None:
             return False

@@ -73,7 +73,8 @@ class ModbusCurrentAmplifier(Instrument):
         """Read the status (which feeds the watchdog); a latched fault has already disabled the output."""
         st = self.read_status()
         if st.faults:
-            raise FaultLatched(f"{self.name}: fault {', '.join(st.faults)}; output disabled by the amplifier")
+            raise FaultLatched(f"{self.name}: fault {', '.join(st.faults)}; output disabled by the amplifier",
+                               tuple(st.faults))
 
     def _make_client(self):
         from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -143,6 +144,8 @@ class ModbusCurrentAmplifier(Instrument):
         self.budget.check_limit(self.name, f"write current_limit (register {REGISTERS['current_limit'].address})"
                                 f" = {limit_a:g} A", limit_a)
         self.write("current_limit", limit_a)
+        reg = REGISTERS["current_limit"]
+        self.budget.commit_limit(reg.to_si(reg.to_raw(limit_a)))  # the trip level, as the register holds it
 
     def set_watchdog(self, timeout_s: float) -> None:
         self.write("watchdog", timeout_s)

@@ -194,7 +194,7 @@ class ScpiSignalGenerator(Instrument):
 
     def _safe_order(self, amplitude_vpp: float, offset_v: float) -> list[tuple[str, float]]:
         """Amplitude first unless that intermediate state would exceed the budget's peak."""
-        limit = self.budget.max_current_a / self.budget.gain_a_per_v
+        limit = self.budget.command_limit_a / self.budget.gain_a_per_v
         if self._peak_v(amplitude_vpp, self.state["offset_v"]) <= limit:
             return [("amplitude_vpp", amplitude_vpp), ("offset_v", offset_v)]
         return [("offset_v", offset_v), ("amplitude_vpp", amplitude_vpp)]

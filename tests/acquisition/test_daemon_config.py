@@ -51,10 +51,10 @@ def hardware_bench_file(tmp_path: Path) -> Path:
     ('[source]\nkind = "sim"\neffects = { bogus = true }\n', r"\[source\] effects.*bogus"),
     ('[source]\nkind = "sim"\nbench_file = "x.toml"\n', r'\[source\] bench_file: only kind = "bench" reads a bench file'),
     ('[source]\nkind = "synthetic"\neffects = { sensor_noise = false }\n', r"\[source\] effects: synthetic sines"),
-    ('[source]\ncurrent_pp_a = 50.0\n', r"\[source\].*25 A exceeds the bench's limit of 1\.8 A"),
+    ('[source]\ncurrent_pp_a = 50.0\n', r"\[source\].*25 A exceeds the bench's limit of 1\.71 A"),
     ('[source]\nfrequency_hz = 60000.0\n', r"\[source\] frequency_hz = 60000 Hz is outside \[1, 10000\] Hz"),
     ('[sweep]\nfrequencies_hz = [40.0, 90000.0]\n', r"\[sweep\] frequencies_hz\[1\]"),
-    ('[sweep]\ncurrent_pp_a = 4.0\n', r"\[sweep\].*2 A exceeds the bench's limit of 1\.8 A"),
+    ('[sweep]\ncurrent_pp_a = 4.0\n', r"\[sweep\].*2 A exceeds the bench's limit of 1\.71 A"),
     ('[source]\nkind = "synthetic"\n[sweep]\nautostart = true\n', r"\[sweep\] autostart: kind = \"synthetic\""),
 ])
 def test_source_keys_are_honoured_or_refused_naming_why(tmp_path: Path, text: str, match: str) -> None:

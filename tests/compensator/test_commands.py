@@ -64,7 +64,7 @@ def test_compensate_learns_and_reports_each_iteration(model_file, capsys):
 
 @pytest.mark.parametrize("argv, message", [
     (["--rig", "ecore", "--force", "offset=0.5,amp=1,freq=320"], "only attracts"),
-    (["--rig", "ecore_pm", "--force", "offset=170,amp=150,freq=320"], "above the 1.8 A limit; reachable"),
+    (["--rig", "ecore_pm", "--force", "offset=170,amp=150,freq=320"], "above the 1.71 A limit; reachable"),
     (["--rig", "ecore_pm", "--force", "offset=170,amp=40"], "missing freq="),
     (["--rig", "ecore_pm"], "give --force"),
     (["--rig", "ecore_pm", "--force-file", "x.csv"], "--force-file needs --freq"),

@@ -84,7 +84,7 @@ def test_budget_and_range_refusals_send_nothing(scripted_peer):
     budget = CurrentBudget(1.0, 0.5)
     budget.commit_command(1.5)  # the generator peaks at 1.5 V
     with amp(peer, budget=budget) as a:
-        with pytest.raises(SafetyLimitError, match=r"1.5 V x 0.8 A/V = 1.2 A exceeds max_current_a = 1 A"):
+        with pytest.raises(SafetyLimitError, match=r"1.5 V x 0.8 A/V = 1.2 A exceeds the command limit 0.95 A"):
             a.set_gain(0.8)
         with pytest.raises(SafetyLimitError, match="current limit 1.5 A exceeds"):
             a.set_current_limit(1.5)

@@ -72,7 +72,7 @@ def test_amplitude_order_keeps_every_intermediate_state_in_budget(scripted_peer)
 def test_budget_refusal_sends_nothing(scripted_peer):
     peer = scripted_peer(OPEN + CLOSE)
     with gen(peer, max_a=1.0, gain=0.5) as g:  # 1 A / 0.5 A/V = 2 V peak
-        with pytest.raises(SafetyLimitError, match="exceeds max_current_a = 1 A"):
+        with pytest.raises(SafetyLimitError, match=r"1.05 A exceeds the command limit 0.95 A \(max_current_a 1 A, less 5 %"):
             g.set_sine(320.0, 4.2, 0.0)
         with pytest.raises(SafetyLimitError):
             g.set("offset_v", 2.5)

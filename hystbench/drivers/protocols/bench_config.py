@@ -18,6 +18,7 @@ from typing import Any, Callable, Mapping
 from ...config import CONFIG_DIR, read_toml
 from ...config.schema import NUM, OPTIONAL, Key, check_table
 from ...errors import ConfigError
+from ..safety import DEFAULT_MARGIN, command_limit
 from . import can_integrator, charge_amp, modbus_map, scpi, scpi_digitiser
 
 __all__ = ["InstrumentConfig", "BenchConfig", "DigitiserConfig", "load_bench_config", "INSTRUMENTS", "DEFAULT_BENCH",
@@ -78,6 +79,9 @@ _BENCH = {
     "in_flight_s": Key(NUM, 0.02, "the longest a sample may still be on its way to the drivers once their readers have "
                        "caught up (the instruments' transmit buffers and frames); with emulated instruments at "
                        "least one tick of [sim] block_samples", "s", ge=0),
+    "current_margin": Key(NUM, DEFAULT_MARGIN, "share of the trip level (the smaller of max_current_a and the "
+                          "amplifier's current_limit_a) no command may use: the measured current's noise, "
+                          "distortion and overshoot above the commanded peak", ge=0, lt=0.5),
 }
 _BACKOFF = {
     "initial_s": Key(NUM, 0.05, "first wait before reconnecting", "s", gt=0),
@@ -332,6 +336,7 @@ class BenchConfig:
     instruments: dict[str, InstrumentConfig] = field(default_factory=dict)
     digitiser: DigitiserConfig | None = None  #: samples the four signals when given
     in_flight_s: float = 0.02  #: ``[bench] in_flight_s`` as written (see :attr:`latency_s`)
+    current_margin: float = DEFAULT_MARGIN  #: ``[bench] current_margin`` (see :attr:`current_limit_a`)
 
     @property
     def latency_s(self) -> float:
@@ -349,12 +354,13 @@ class BenchConfig:
 
     @property
     def current_limit_a(self) -> float:
-        """The peak coil current a command may ask: ``[bench] max_current_a`` (what the drivers
-        enforce) or the amplifier's ``current_limit_a`` setting (beyond it the amplifier trips),
-        whichever is smaller."""
+        """The peak coil current a command may ask: ``[bench] max_current_a`` or the amplifier's
+        ``current_limit_a`` setting (beyond it the amplifier trips), whichever is smaller, less
+        ``current_margin`` of it (what the drivers' :class:`~hystbench.drivers.safety.CurrentBudget`
+        enforces when each command is applied)."""
         amp = self.instruments.get("current_amplifier")
         limit = amp.settings.get("current_limit_a") if amp is not None else None
-        return min(self.max_current_a, float(limit)) if limit is not None else self.max_current_a
+        return command_limit(self.max_current_a, None if limit is None else float(limit), self.current_margin)
 
     def resolved(self, addresses: Mapping[str, Mapping[str, Any]]) -> "BenchConfig":
         """A copy in which every ``backend = "sim"`` instrument points at the emulator's addresses
@@ -401,4 +407,5 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
     instruments = {n: _instrument(n, cfg[n], data[n], src) for n in INSTRUMENTS}
     return BenchConfig(src, bench["max_current_a"], bench["fs_hz"], bench["timeout_s"], bench["stall_timeout_s"],
                        bench["heartbeat_s"], backoff, cfg["sim"], instruments,
-                       _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None, bench["in_flight_s"])
+                       _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None, bench["in_flight_s"],
+                       bench["current_margin"])
