@@ -119,5 +119,6 @@ def decode(data: bytes | bytearray | memoryview, where: str = "raw block") -> Sa
         if len(buf) > 4 and buf[4] == 0x7B:  # "{" after the u32 length: binary
             return _decode_binary(buf)
         return _decode_json(data)
-    except (ValueError, KeyError, TypeError, struct.error) as err:  # JSONDecodeError is a ValueError
-        raise RecordingError(f"{where}: not a hystbench.RawBlock: {err}") from err
+    except (ValueError, KeyError, TypeError, struct.error, RecursionError) as err:  # JSONDecodeError is a
+        # ValueError; RecursionError: JSON nested deeper than the parser's stack (damaged or hostile bytes)
+        raise RecordingError(f"{where}: not a hystbench.RawBlock: {type(err).__name__}: {str(err)[:200]}") from err

@@ -211,14 +211,21 @@ def finished_log(tmp_path_factory) -> tuple[Path, bytes, list, list[tuple[int, i
 @given(frac=st.floats(0.0, 1.0))
 def test_recover_any_cut_keeps_every_complete_chunk(finished_log, tmp_path: Path, frac: float) -> None:
     """Cut the file at any byte: the recovered log holds exactly the messages of the chunks that
-    are whole before the cut, byte for byte and in order, and nothing else."""
+    are whole before the cut, byte for byte and in order, and nothing else; a cut before the first
+    whole chunk leaves nothing to salvage, which is an error, not an empty log."""
     path, data, msgs, chunks = finished_log
     cut = max(8, int(frac * len(data)))
     src = tmp_path / f"cut-{cut}.mcap"
     src.write_bytes(data[:cut])
+    whole = sum(n for end, n in chunks if end <= cut)
+    if whole == 0:
+        with pytest.raises(RecordingError, match=rf"^{src}: nothing to salvage"):
+            recover(src, tmp_path / f"rec-{cut}.mcap", overwrite=True)
+        assert not (tmp_path / f"rec-{cut}.mcap").exists()
+        return
     rep = recover(src, tmp_path / f"rec-{cut}.mcap", overwrite=True)
     got = _messages(rep.out)
-    assert got == msgs[:sum(n for end, n in chunks if end <= cut)]
+    assert got == msgs[:whole]
     if cut == len(data):
         assert rep.complete
     if rep.complete:  # the data section was whole (only the summary may have been cut)

@@ -6,13 +6,19 @@ and :meth:`Segment.recording` gives one as an interchange-format :class:`Recordi
 point in its sidecar.  Which samples of a segment the live estimator skipped as settling is the
 analysis' business: :mod:`hystbench.analysis.log_recordings` gives a log's segments as the
 estimator saw them (``hystbench estimate LOG.mcap``, ``export``).
-A log that was not finished (the writer was killed) is refused with a pointer to ``recover``.
+A log that was not finished (the writer was killed) is refused with a pointer to ``recover``, a
+file that is not MCAP as such.  Chunks are decoded by :mod:`.chunks` (sizes capped before any
+decompression) and records longer than ``MAX_RECORD_BYTES`` are refused, so a damaged or hostile
+log costs at most one bounded chunk of memory.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
+import os
+import struct
 import threading
 import time
 from dataclasses import dataclass
@@ -24,6 +30,7 @@ from ...errors import RecordingError
 from ...messages import OperatingPoint
 from ..raw_block import decode
 from ..recording import Recording, with_point
+from .chunks import MAGIC, MAX_RECORD_BYTES, chunk_records
 from .schemas import RAW
 
 __all__ = ["LogMessage", "iter_log", "iter_blocks", "log_metadata", "segments", "McapSource", "Segment"]
@@ -53,35 +60,94 @@ def _damaged(path: Path, err: Exception) -> RecordingError:
                           f"was killed, `hystbench recover {path}` salvages its complete chunks")
 
 
+def check_magic(fh: Any, path: Path) -> int:
+    """The size of the open file ``fh``, once it is known to start as an MCAP file does; else a
+    :class:`RecordingError` that says it is not one (``recover`` cannot help then)."""
+    size = os.fstat(fh.fileno()).st_size
+    head = fh.read(len(MAGIC))
+    fh.seek(0)
+    if head != MAGIC:
+        what = "an empty file" if not head else f"{size} bytes starting {head[:8]!r}"
+        raise RecordingError(f"{path}: not an MCAP file (bad magic: {what}, where an MCAP log "
+                             f"starts with {MAGIC!r})")
+    return size
+
+
+def _records(fh: Any) -> Iterator[Any]:
+    """The top-level records of the data section, chunks as :class:`mcap.records.Chunk` (not
+    decompressed here), up to and including the DataEnd record."""
+    from mcap.records import DataEnd
+    from mcap.stream_reader import StreamReader
+
+    for record in StreamReader(fh, emit_chunks=True, record_size_limit=MAX_RECORD_BYTES).records:
+        yield record
+        if isinstance(record, DataEnd):
+            return
+
+
 def iter_log(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[LogMessage]:
     """Messages in file order (which is time order for a hystbench log)."""
-    from mcap.reader import make_reader
+    from mcap.reader import SeekingReader
+    from mcap.records import Channel, Chunk, Message
 
     path = Path(path)
+    wanted = None if topics is None else set(topics)
     with _open(path) as fh:
+        check_magic(fh, path)
         try:
-            reader = make_reader(fh)
-            summary = reader.get_summary()
-            if summary is None:
+            # an unfinished log is refused before any message is given, not where it is cut
+            if SeekingReader(fh, record_size_limit=MAX_RECORD_BYTES).get_summary() is None:
                 raise ValueError("no summary section")
-            for _, channel, msg in reader.iter_messages(topics=list(topics) if topics else None,
-                                                        log_time_order=False):
-                yield LogMessage(channel.topic, msg.log_time, msg.data)
-        except RecordingError:
-            raise
-        except Exception as err:  # the mcap reader raises many kinds on a damaged file
+            fh.seek(0)
+            topic_of: dict[int, str] = {}
+            for record in _records(fh):
+                # CRCs unchecked, as mcap's seeking reader does by default: a replay meets damage
+                # where a message fails to decode (``recover`` checks them)
+                for rec in chunk_records(record, check_crc=False) if isinstance(record, Chunk) else (record,):
+                    if isinstance(rec, Channel):
+                        topic_of[rec.id] = rec.topic
+                    elif isinstance(rec, Message):
+                        if rec.channel_id not in topic_of:
+                            raise ValueError(f"a message on channel {rec.channel_id}, which no record defines")
+                        if wanted is None or topic_of[rec.channel_id] in wanted:
+                            yield LogMessage(topic_of[rec.channel_id], rec.log_time, rec.data)
+        except Exception as err:  # the mcap reader raises many kinds on a damaged file (chunks: RecordingError)
             raise _damaged(path, err) from err
+
+
+def _metadata_at(fh: Any, offset: int, size: int) -> Any:
+    """The metadata record a summary's index points at, read without trusting the index further."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.opcode import Opcode
+    from mcap.records import Metadata
+
+    fh.seek(offset)
+    head = fh.read(9)
+    if len(head) < 9:
+        raise ValueError(f"metadata index points past the end of the file ({offset})")
+    opcode, length = struct.unpack("<BQ", head)
+    if opcode != Opcode.METADATA or length > min(MAX_RECORD_BYTES, size - offset - 9):
+        raise ValueError(f"metadata index points at offset {offset}, which holds no metadata record")
+    return Metadata.read(ReadDataStream(io.BytesIO(fh.read(length))))
 
 
 def log_metadata(path: str | Path) -> dict[str, dict]:
     """Metadata records by name, each the JSON object it was written from."""
-    from mcap.reader import make_reader
+    from mcap.reader import SeekingReader
+    from mcap.records import Metadata
 
     path = Path(path)
     out: dict[str, dict] = {}
     with _open(path) as fh:
+        size = check_magic(fh, path)
         try:
-            for rec in make_reader(fh).iter_metadata():
+            summary = SeekingReader(fh, record_size_limit=MAX_RECORD_BYTES).get_summary()
+            if summary is not None:
+                found = [_metadata_at(fh, ix.offset, size) for ix in summary.metadata_indexes]
+            else:  # no index: walk the data section (chunks are skipped, not decompressed)
+                fh.seek(0)
+                found = [r for r in _records(fh) if isinstance(r, Metadata)]
+            for rec in found:
                 text = rec.metadata.get("json")
                 out[rec.name] = json.loads(text) if text is not None else dict(rec.metadata)
         except Exception as err:  # the mcap reader raises many kinds on a damaged file
