@@ -340,19 +340,26 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
-    """`hystbench recover`: the complete chunks of a log whose writer was killed, salvaged into a new
-    log, with what was lost."""
+    """`hystbench recover`: the complete chunks of a log whose writer was killed, or whose bytes were
+    damaged, salvaged into a new log, with what was lost: which byte ranges were skipped and why,
+    how many chunks and messages."""
     from ..formats.mcaplog import recover
 
     rep = recover(args.log, args.out, overwrite=args.overwrite)
     if args.json:
         print(json.dumps(rep.as_dict(), indent=2))
-    else:
-        d = rep.as_dict()
-        why = "the log was complete" if rep.complete else f"stopped: {rep.stopped}"
-        print(f"wrote {rep.out}: {rep.messages} messages from {rep.chunks} chunks "
-              f"({', '.join(f'{k} {v}' for k, v in sorted(d['by_topic'].items()))}); "
-              f"{d['bytes_lost']} of {d['bytes_total']} bytes not salvaged ({why})")
+        return 0
+    d = rep.as_dict()
+    why = "the log was complete" if rep.complete and not rep.skipped else \
+        f"{len(rep.skipped)} damaged or cut region(s)" + (f"; stopped: {rep.stopped}" if rep.stopped else "")
+    print(f"wrote {rep.out}: {rep.messages} messages from {rep.chunks} chunks "
+          f"({', '.join(f'{k} {v}' for k, v in sorted(d['by_topic'].items()))}); "
+          f"{d['bytes_lost']} of {d['bytes_total']} bytes not salvaged ({why})")
+    for s in rep.skipped:
+        print(f"  skipped bytes {s.start}-{s.end} ({s.bytes} bytes): {s.why}")
+    if rep.skipped or rep.chunks_lost or rep.messages_lost:
+        messages = "" if rep.messages_lost is None else f", {rep.messages_lost} messages"
+        print(f"  lost: {rep.chunks_lost} chunk(s){messages} ({rep.lost_counted_from})")
     return 0
 
 
@@ -424,7 +431,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=cmd_export)
 
-    p = subparsers.add_parser("recover", help="salvage the complete chunks of a log whose writer was killed")
+    p = subparsers.add_parser("recover", help="salvage the complete chunks of a log whose writer was killed or "
+                                               "whose bytes were damaged (says what was lost)")
     p.add_argument("log", type=path_arg)
     p.add_argument("--out", type=path_arg, help="the salvaged log (default LOG-recovered.mcap)")
     p.add_argument("--overwrite", action="store_true")
