@@ -512,6 +512,13 @@ class PreisachHysteresis:
         step, t = self._inverse["anhyst"]
         return float((t[1] - t[0]) / step)
 
+    @cached_property
+    def max_flux_density_t(self) -> float:
+        """B at the end of the model's field range, H = h_max, every relay switched (T).  Beyond it
+        the model goes on straight with the slope it has there, which no material does (the
+        reversible part bends on towards mu0): a simulation past it would invent the iron."""
+        return float(self.b_rev(self.params.h_max_a_per_m)) + self.params.j_irr_t
+
     def anhysteretic_field(self, b: ArrayLike) -> np.ndarray:
         """H_an(B) (A/m): the single-valued curve with static hysteresis switched off."""
         return self._read_uniform(self._inverse["anhyst"], np.asarray(b, float))

@@ -5,8 +5,9 @@ The iron is the one its material file's ``model`` names (:mod:`hystbench.physics
 operator or Rayleigh's law is the nonlinear remainder the fixed point iterates; a complex
 permeability is linear and goes into the exactly solved linear part (nu' into N, nu''/omega with
 the eddy currents into D, rebuilt whenever the excitation's period changes).  A block whose passes
-do not converge is refused as saturated beyond the iron's knee, and below it settled with tied
-minor loops closed (:meth:`ECoreActuator._settle_tie`).
+do not converge (the iron is steep: at a reversal deep in saturation, or where a loop whose extrema
+tie is wiped out and the tabulated branches leave a small step in H) is solved sample by sample
+instead, which converges over the whole current range (:meth:`ECoreActuator._solve_sequential`).
 
 The same step runs as numba kernels (:mod:`.ecore_kernel`) when :func:`hystbench.jit.enabled`:
 the numpy code here is the reference they are tested against, and the fallback (``KERNEL``)."""
@@ -44,17 +45,13 @@ IRON_ITERATIONS = 4
 #: Passes when the fixed point starts from the iron's remainder one period earlier (interpolated
 #: at the exact fractional period): in steady state two passes reach the same residual.
 WARM_PASSES = 2
-#: Plain passes before the rig refuses a block beyond the iron's knee or settles a tie below it
-#: (ECoreActuator._settle_tie, as many passes again), and the step that counts as converged
-#: (relative to the iron's remainder field).
+#: Plain passes before the block is solved sample by sample (ECoreActuator._solve_sequential), and
+#: the step that counts as converged (relative to the iron's remainder field).
 MAX_PASSES = 30
 CONVERGED = 1e-3
 #: The saturation knee of a material (IEC 61869-2's knee point, on the anhysteretic curve): the
 #: flux density beyond which 10 % more B costs 50 % more H.  M330-50A: 1.00 T, M130-27S: 1.43 T.
 KNEE_B_RATIO, KNEE_H_RATIO = 1.1, 1.5
-#: When the plain passes cycle: an extremum of the Preisach iron's B within this of the turning point
-#: it returns to closes that loop (sampled extrema of a periodic B tie to < 1 uT period to period).
-TIE_T = 1e-6
 
 
 def _minor_loop_reluctivity(hysteresis, amplitude_t: float = 0.1) -> float:
@@ -101,7 +98,6 @@ class ECoreActuator:
         iron = preset["iron"]
 
         self.hysteresis = None
-        self._tie: dict[str, float] = {}  # how the iron closes tied loops when the passes cycle
         self._irreversible = "static_hysteresis" in effects
         self._saturation = "iron_saturation" in effects
         material = load_material(iron["material"])
@@ -125,7 +121,6 @@ class ECoreActuator:
 
             self.hysteresis = PreisachHysteresis.from_config(material)
             self._h_state = self.hysteresis.initial_state()
-            self._tie = {"close_t": TIE_T}
         self._eddy_coef = 0.0
         if "lamination_eddy_currents" in effects:
             self._eddy_coef = lamination_eddy_coefficient(iron["conductivity_s_per_m"],
@@ -151,9 +146,13 @@ class ECoreActuator:
             grid = np.linspace(0.0, 2.6, 1041)
             steep = np.gradient(self.hysteresis.anhysteretic_field(grid), grid) > self._nu0
             self._b_knee = float(grid[np.argmax(steep)]) if steep.any() else np.inf
-        #: beyond it the refusal says saturation (inf: the iron's model does not saturate here)
+        #: where the iron's saturation knee is (inf: the iron's model does not saturate here)
         self.saturation_knee_t = (_saturation_knee_t(self.hysteresis)
                                   if self.hysteresis is not None and self._saturation else np.inf)
+        #: the largest |B| the saturating iron is modelled to (PreisachHysteresis.max_flux_density_t):
+        #: a block beyond it is refused, not invented
+        self.max_flux_density_t = (float(self.hysteresis.max_flux_density_t)
+                                   if self._saturation and hasattr(self.hysteresis, "max_flux_density_t") else np.inf)
         self._material = str(iron["material"])
         self.name = str(preset.get("name"))
         self._where = where(preset)
@@ -162,6 +161,7 @@ class ECoreActuator:
         comp = effects.get("load_cell_compliance")
         self._compliance = 0.0 if comp is None else 1.0 / float(comp["stiffness_n_per_m"])
         self._prev_drop: np.ndarray | None = None
+        self._rest_tail = np.full(2, np.nan)  # the iron's remainder at the last two samples (NaN: none yet)
         # the kernels cover the Preisach iron and every linear iron; Rayleigh's loops stay in numpy
         self._kernel_ok = self.hysteresis is None or hasattr(self.hysteresis, "kernel_tables")
         self._kernel_lag: tuple[_LinearPart, np.ndarray, np.ndarray] | None = None  # lag it was built for
@@ -188,6 +188,7 @@ class ECoreActuator:
         change of excitation, which also forgets the last period's iron field."""
         self._period = None if samples is None else float(samples)
         self._history = np.zeros(0)
+        self._by_sample = False  # the passes first: they converge below saturation
         if self._nu_loss and self._period is not None:
             omega = 2.0 * np.pi * self.fs_hz / self._period
             if omega != self._omega:
@@ -207,9 +208,17 @@ class ECoreActuator:
         return np.interp(pos, np.arange(hist.size), hist), None, WARM_PASSES
 
     def _remember(self, h_rest: np.ndarray) -> None:
-        if self.hysteresis is not None and self._period is not None:
-            keep = int(np.ceil(self._period)) + 2
-            self._history = np.concatenate((self._history, h_rest))[-keep:]
+        """The block's remainder: the last period's (the next first guess) and the last two samples'
+        (where the sample-by-sample solve starts: one sample before the block's last, in _rest_before)."""
+        if self.hysteresis is not None:
+            self._rest_tail = np.concatenate((self._rest_tail, h_rest[-2:]))[-2:]
+            if self._period is not None:
+                keep = int(np.ceil(self._period)) + 2
+                self._history = np.concatenate((self._history, h_rest))[-keep:]
+
+    @property
+    def _rest_before(self) -> float:
+        return float(self._rest_tail[0])
 
     def _newton_step(self, b: np.ndarray, residual: np.ndarray) -> np.ndarray:
         """Fixed-point step on the iron's remainder, damped by the Newton factor where the iron is
@@ -224,62 +233,95 @@ class ECoreActuator:
         nu_d[steep] = np.maximum(self._nu0, (an(bs + 1e-3) - an(bs - 1e-3)) / 2e-3)
         return residual / (1.0 + (nu_d - self._nu0) * self._lag.instantaneous_gain * self.iron_length_m)
 
-    def _static_field(self, b: np.ndarray, **tie: float):
+    def _static_field(self, b: np.ndarray):
         """The iron's rate-independent H for the trajectory b, and the state it ends in."""
         return self.hysteresis.field(b, self._h_state, irreversible=self._irreversible,
-                                     saturation=self._saturation, **tie)
+                                     saturation=self._saturation)
 
-    def _pass(self, fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, **tie: float):
+    def _pass(self, fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray):
         """One fixed-point pass on the iron's remainder: (B in the coil leg, the new remainder, the
         iron's state at the block's end, whether the step was below CONVERGED)."""
         x, _ = self._lag.run(np.stack([fc - h_rest * self.iron_length_m, fm]))
-        h, h_state = self._static_field(x[0], **tie)
+        h, h_state = self._static_field(x[0])
         step = self._newton_step(x[0], h - self._nu0 * x[0] - h_rest)
         h_rest = h_rest + step
         return x[0], h_rest, h_state, bool(np.max(np.abs(step)) <= CONVERGED * (np.max(np.abs(h_rest)) + 1.0))
 
-    def _settle_tie(self, fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, b: np.ndarray,
-                    current_a: np.ndarray):
-        """The fixed point when MAX_PASSES plain passes did not converge (every block that converged
-        before is untouched, sample for sample).
+    def _solve_sequential(self, fc: np.ndarray, fm: np.ndarray, current_a: np.ndarray):
+        """The block's fixed point when MAX_PASSES passes did not converge (every block that
+        converged before is untouched, sample for sample): solved sample by sample
+        (:func:`.ecore_kernel.solve_sequential`: each sample's B is bracketed and found, whatever
+        the iron's slope), from the committed states, so it does not depend on the passes' iterate.
 
-        Below the iron's knee the plain step cycles at a tie: the Preisach iron's tabulated branches
-        close a minor loop to ~1e-3 A/m, not exactly, so loops nested between extrema that tie
-        (B sampled at a whole number of samples per period: 250 at 400 Hz) drift apart level by
-        level, and where the latest extremum wipes the nest out H jumps by the drift (~0.05 A/m on
-        M130-27S after a 20-period warm-up).  Which side the extremum falls on moves with the last
-        pass's uT, so the plain step flips between the two for ever, and there is no fixed point.
-        The passes go on with tied loops closed (TIE_T: return-point memory at the model's
-        resolution): no nest, no jump, and the plain step converges.
+        The passes stall in two places.  Deep in saturation, right after a reversal the branch's
+        dH/dB is the reversible one, 1/mu_rev(H) (1e4 A/m per T at 5 kA/m; 1/mu0 in the limit):
+        the loop gain (dH/dB - nu0) G L passes 1, and the step damped with the anhysteretic slope
+        does not hold it.  Below and around the knee, loops whose extrema tie (a periodic B) nest,
+        and the tabulated branches close a loop only to ~1e-3 A/m at 0.3 T, 1-5 A/m at 1-1.4 T:
+        where an extremum wipes a nest out, H steps by that much, which side the extremum falls
+        on moves with the last pass's uT, and the passes flip between the two for ever.
 
-        Beyond the knee the block is refused as saturated, as before.  Returns (h_rest, the iron's
-        state at the end of the block); raises SimulationError when it does not converge either."""
-        peak_b = float(np.max(np.abs(b)))
-        if peak_b > self.saturation_knee_t or not self._tie:  # Rayleigh's branches close exactly
-            raise self._refusal(peak_b, current_a)
-        for _ in range(MAX_PASSES):
-            b, h_rest, h_state, converged = self._pass(fc, fm, h_rest, **self._tie)
-            if converged:
-                return h_rest, h_state
-        raise self._refusal(float(np.max(np.abs(b))), current_a)
+        One compiled function serves both paths (the numpy step has no vectorised form of a
+        causal per-sample solve; without numba it runs as Python, slowly, and only for such
+        blocks).  Returns (h_rest, the iron's state at the block's end, max |B|); raises
+        SimulationError only if the solve itself fails (never seen; the refusal names the
+        operating point)."""
+        from . import ecore_kernel as kern
 
-    def _refusal(self, peak_b_t: float, current_a: np.ndarray) -> SimulationError:
-        """The error for a block whose iron field did not converge: saturation only when the iron
-        is beyond its knee; else the fixed point's own failure.  Both name the preset's source and
-        the operating point."""
+        f64 = np.float64
+        fc = np.ascontiguousarray(fc, dtype=f64)
+        fm = np.ascontiguousarray(fm, dtype=f64)
+        n = fc.size
+        coef, _ = self._kernel_constants()
+        lag = self._lag
+        cold = lag.state is None
+        y_start = np.zeros(2) if cold else np.ascontiguousarray(lag.state[0], dtype=f64)
+        st = self._h_state
+        turns = np.array(st.turns, dtype=f64).reshape(len(st.turns), 2)
+        tin, tout = np.empty(turns.shape[0] + n + 2), np.empty(turns.shape[0] + n + 2)
+        end, out, h_rest = np.empty(4), np.empty(4), np.empty(n)
+        kern.solve_sequential(fc, fm, h_rest, coef, y_start, cold, np.ascontiguousarray(turns[:, 0]),
+                              np.ascontiguousarray(turns[:, 1]), np.array([st.b_t, st.h_a_per_m, float(st.direction)]),
+                              tin, tout, end, *self._tables(), self._kernel_mode, float(self._nu0),
+                              float(self.iron_length_m), self._rest_before, out)
+        if out[3] or not np.all(np.isfinite(h_rest)):
+            raise self._refusal(float(out[2]), current_a, f"solving sample by sample ({int(out[3])} samples unsolved)")
+        m = int(end[3])
+        h_state = HysteresisState(float(end[0]), float(end[1]), int(end[2]),
+                                  tuple(zip(tin[:m].tolist(), tout[:m].tolist())))
+        return h_rest, h_state, float(out[2])
+
+    def _unconverged(self, fc: np.ndarray, fm: np.ndarray, peak_b_t: float, current_a: np.ndarray):
+        """What a block whose passes did not converge becomes: solved sample by sample (a Preisach
+        iron), as the blocks after it are until the excitation changes (set_period: the passes
+        would only stall again, 30 of them a block), or refused (Rayleigh's iron, whose loops the
+        compiled solve does not know).  Returns (h_rest, the iron's state at the block's end, max |B|)."""
+        if self._kernel_ok:
+            self._by_sample = True
+            return self._solve_sequential(fc, fm, current_a)
+        raise self._refusal(peak_b_t, current_a, f"{MAX_PASSES} passes")
+
+    def _check_range(self, peak_b_t: float, current_a: np.ndarray) -> None:
+        """Refuse a block whose iron goes beyond the field range of its material model (checked
+        before anything is committed, so the rig may go on with less current)."""
+        if peak_b_t > self.max_flux_density_t:
+            f_hz = self._preset_frequency_hz if self._period is None else self.fs_hz / self._period
+            raise SimulationError(
+                f"{self.name} ({self._where}): |B| up to {peak_b_t:.2f} T at {f_hz:.4g} Hz, coil current up to "
+                f"{np.max(np.abs(current_a)):.3g} A: saturation beyond the {self.max_flux_density_t:.2f} T to which "
+                f"{self._material} is modelled (its field range, h_max = {self.hysteresis.params.h_max_a_per_m:g} "
+                "A/m); lower the current")
+
+    def _refusal(self, peak_b_t: float, current_a: np.ndarray, after: str) -> SimulationError:
+        """The error for a block whose iron field did not converge: it names the preset's source,
+        the operating point, the iron and what was tried (the rig's clock thread passes it on)."""
         f_hz = self._preset_frequency_hz if self._period is None else self.fs_hz / self._period
-        point = (f"at {f_hz:.4g} Hz, coil current up to {np.max(np.abs(current_a)):.3g} A: |B| up to "
-                 f"{peak_b_t:.2f} T")
-        if peak_b_t > self.saturation_knee_t:
-            return SimulationError(
-                f"{self.name} ({self._where}): the iron's field does not converge {point}, beyond the "
-                f"{self.saturation_knee_t:.2f} T knee of {self._material}: the actuator is driven into "
-                "saturation; lower the current")
-        knee = (f"below the {self.saturation_knee_t:.2f} T knee of {self._material}"
-                if np.isfinite(self.saturation_knee_t) else f"{self._material} has no knee in this model")
+        knee = (f"beyond the {self.saturation_knee_t:.2f} T knee of {self._material}"
+                if peak_b_t > self.saturation_knee_t else f"iron {self._material}")
         return SimulationError(
-            f"{self.name} ({self._where}): the iron's fixed point did not converge {point} ({knee}): "
-            "a limit of the simulator, not of the bench; try a slightly different frequency")
+            f"{self.name} ({self._where}): the iron's field did not converge at {f_hz:.4g} Hz, coil current up to "
+            f"{np.max(np.abs(current_a)):.3g} A, |B| up to {peak_b_t:.2f} T ({knee}) after {after}: a limit of the "
+            "simulator, not of the bench")
 
     def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
         if self._kernel_ok and current_a.size and (jit_enabled() if KERNEL is None else KERNEL):
@@ -292,14 +334,20 @@ class ECoreActuator:
             fm, dfm = fm * (1.0 + rate * t_s), self.magnet_mmf_a * rate
         # The linear part of the iron and the eddy currents are solved exactly by the recursion;
         # only the iron's nonlinear remainder h(B) - nu0 B is iterated (a small loop gain).
-        h_rest, h_state, passes = self._first_guess(fc.size)
-        for n_pass in range(1, MAX_PASSES + 1 if self.hysteresis is not None else 1):
-            b, h_rest, h_state, converged = self._pass(fc, fm, h_rest)
-            if n_pass >= passes and converged:
-                break
+        if self.hysteresis is not None and self._by_sample:
+            h_rest, h_state, peak_b = self._solve_sequential(fc, fm, current_a)
         else:
-            if self.hysteresis is not None:
-                h_rest, h_state = self._settle_tie(fc, fm, h_rest, b, current_a)
+            h_rest, h_state, passes = self._first_guess(fc.size)
+            for n_pass in range(1, MAX_PASSES + 1 if self.hysteresis is not None else 1):
+                b, h_rest, h_state, converged = self._pass(fc, fm, h_rest)
+                if n_pass >= passes and converged:
+                    peak_b = float(np.max(np.abs(b)))
+                    break
+            else:
+                if self.hysteresis is not None:
+                    h_rest, h_state, peak_b = self._unconverged(fc, fm, float(np.max(np.abs(b))), current_a)
+        if self.hysteresis is not None:
+            self._check_range(peak_b, current_a)
         self._remember(h_rest)
         u = np.stack([fc - h_rest * self.iron_length_m, fm])
         x, lag_state = self._lag.run(u)
@@ -359,6 +407,11 @@ class ECoreActuator:
         y_start = np.zeros(2) if cold else np.ascontiguousarray(lag.state[0], dtype=f64)
         if self.hysteresis is None:
             h_rest = np.zeros(n)
+        elif self._by_sample:
+            h_rest, h_state, peak_b = self._solve_sequential(fc, fm, current_a)
+            self._check_range(peak_b, current_a)
+            self._remember(h_rest)
+            self._h_state = h_state
         else:
             p, hist = self._period, self._history
             if p is None or hist.size < int(np.ceil(p)) + 2:
@@ -379,8 +432,10 @@ class ECoreActuator:
                 m = int(end[3])
                 h_state = HysteresisState(float(end[0]), float(end[1]), int(end[2]),
                                           tuple(zip(tin[:m].tolist(), tout[:m].tolist())))
-            else:  # as step: tied loops closed below the knee, refused beyond it (numpy, rare)
-                h_rest, h_state = self._settle_tie(fc, fm, h_rest, np.array([out[2]]), current_a)
+                peak_b = float(out[2])
+            else:  # as step: solved sample by sample
+                h_rest, h_state, peak_b = self._unconverged(fc, fm, float(out[2]), current_a)
+            self._check_range(peak_b, current_a)
             self._remember(h_rest)
             self._h_state = h_state
         force, flux, dflux, iron_b = np.empty(n), np.empty(n), np.empty(n), np.empty(n)

@@ -271,3 +271,193 @@ def final_run(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, length: float,
         pd0, pd1 = r0, r1
     prev_drop[0], prev_drop[1] = pd0, pd1
     lag_end[0], lag_end[1], lag_end[2], lag_end[3] = ya, yb, xa, xb
+
+
+#: solve_sequential's bounds: F evaluations for one sample (the Illinois steps at least halve a
+#: bracket every third step: 300 close any bracket to neighbouring doubles), and the residual at
+#: which a sample counts as solved (tesla of B, relative to the sample's B without remainder, at
+#: least 1 T: ~2e-7 A/m of the iron's remainder, where the passes leave ~1e-3 of it)
+MAX_EVALS, RESIDUAL_T = 300, 1e-11
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _iron_at(b, u_prev, y_prev, d, nst, tin, tout, s, c1, tr, base, edge, shift, tabs, psi, virg, an,
+             irreversible, saturation):
+    """The iron's H at input ``b`` for the next sample, from the committed state (the turning-point
+    rule of :func:`_one_pass`, one sample), committing nothing: a reversal writes ``u_prev`` at
+    ``tin[nst]``, beyond the committed stack.  Returns (H of the full model, H as the effects ask,
+    direction, turning points, branch direction and the branch constants)."""
+    h0, x0, inv_dx, nrow, ncol, hmax = tabs[0], tabs[1], tabs[2], int(tabs[3]), int(tabs[4]), tabs[5]
+    s_end, dmax, kcol, v_step, a_step, ss = tabs[6], tabs[7], tabs[8], tabs[9], tabs[10], tabs[11]
+    diff = b - u_prev
+    ds = 1.0 if diff > 0.0 else (-1.0 if diff < 0.0 else d)
+    m = nst
+    reset = False
+    if ds != d:
+        if d != 0.0:
+            tin[m] = u_prev
+            tout[m] = y_prev
+            m += 1
+        reset = True
+    while m > 0:
+        thr = tin[m - 2] if m > 1 else -tin[0]
+        if (b < thr) if ds > 0.0 else (b > thr):
+            break
+        m = max(m - 2, 0)
+        reset = True
+    if reset:
+        s = ds
+        if m > 0:
+            c1, tr, base, edge, shift = _branch_consts(s, tin[m - 1], tout[m - 1], h0, x0, inv_dx, nrow, ncol,
+                                                       hmax, s_end)
+    if m == 0:
+        y = _read_uniform(v_step, virg, s_end, b)
+    else:
+        y = _branch_at(s, c1, tr, base, edge, shift, b, psi, ncol, dmax, kcol, s_end)
+    h = y
+    if not (irreversible and saturation):
+        h_an = _read_uniform(a_step, an, s_end, b)
+        single = h_an if saturation else ss * b
+        h = single + (y - h_an) if irreversible else single
+    return y, h, ds, m, s, c1, tr, base, edge, shift
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _anhysteretic_slope(b, tabs, an):
+    """dH/dB of the anhysteretic table at b: its segment's slope (1/s_end beyond its end)."""
+    step = tabs[10]
+    x = abs(b) / step
+    i = int(min(x, an.size - 1.0))
+    if i >= an.size - 1:
+        return 1.0 / tabs[6]
+    return (an[i + 1] - an[i]) / step
+
+
+@njit(cache=True, nogil=True)
+def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np.ndarray, y_start: np.ndarray,
+                     cold: bool, c_in: np.ndarray, c_out: np.ndarray, state0: np.ndarray, tin: np.ndarray,
+                     tout: np.ndarray, end: np.ndarray, tabs: np.ndarray, psi: np.ndarray, virg: np.ndarray,
+                     an: np.ndarray, mode: np.ndarray, nu0: float, length: float, rest_before: float,
+                     out: np.ndarray) -> None:
+    """The block's iron remainder solved sample by sample, for blocks whose passes do not converge.
+
+    Why it converges where the passes do not: given everything before it, a sample's B is one
+    unknown.  The linear part (nu0, eddy currents, magnet) makes B affine in this sample's
+    remainder, B = c - G L h_rest (G: this sample's dB/dMMF), so the sample solves
+
+        F(B) = (1 - G L nu0) B + G L H(B) - c = 0,
+
+    where H is the iron's operator from its committed state: continuous and non-decreasing in B on
+    each branch (a reversal starts a branch at the last point; the inverse table's return-point
+    error may leave a small step where a loop is wiped out).  alpha = 1 - G L nu0 > 0, so F rises
+    at least alpha per tesla: a step of -F/alpha reaches or passes the root, which brackets it
+    however steep the iron (saturation: dH/dB -> 1/mu0) and however far the current jumped.  The
+    first trial is B with the remainder extrapolated from the last two samples (``rest_before``: the
+    one before the block's last, NaN if unknown), the second the secant through it and the last
+    sample (the branch's own chord, a reversal's too); regula falsi with the Illinois halving
+    closes the bracket.  Every trial follows from the samples before it, never from the passes'
+    iterate, so any cut of the stream into blocks gives the same samples (to the residual).
+
+    Writes h_rest (the remainder per sample, as the final run takes it), the iron's state at the
+    block's end as :func:`passes` does (end, tin/tout), and out = (F evaluations, largest residual
+    |F| / (G L) in A/m, max |B| in T, samples left unsolved).  The residual is ~1e-9 A/m, but where
+    a wiped-out loop's step of H holds the root: then it is that step (below ~20 A/m); a sample is
+    unsolved only if its bracket did not close within MAX_EVALS (never seen)."""
+    n = fc.size
+    lam0, lam1, q00, q01, q10, q11, v00, v01 = lag[0], lag[1], lag[2], lag[3], lag[4], lag[5], lag[6], lag[7]
+    h0, x0, inv_dx, nrow, ncol, hmax, s_end = tabs[0], tabs[1], tabs[2], int(tabs[3]), int(tabs[4]), tabs[5], tabs[6]
+    irreversible, saturation = mode[0] != 0, mode[1] != 0
+    nst = c_in.size
+    for i in range(nst):
+        tin[i] = c_in[i]
+        tout[i] = c_out[i]
+    u_prev, y_prev, d = state0[0], state0[1], state0[2]
+    s = d
+    c1, tr, base, edge, shift = 0.0, 0.0, 0, False, 0.0
+    if nst > 0:
+        c1, tr, base, edge, shift = _branch_consts(s, tin[nst - 1], tout[nst - 1], h0, x0, inv_dx, nrow, ncol, hmax,
+                                                   s_end)
+    # the committed point as this sample's operator gives it (no reversal, nothing wiped out)
+    committed = _iron_at(u_prev, u_prev, y_prev, d, nst, tin, tout, s, c1, tr, base, edge, shift, tabs, psi, virg,
+                         an, irreversible, saturation)
+    h_prev = committed[1]
+    rest2 = rest_before  # the remainder two samples back
+    ya, yb = y_start[0], y_start[1]
+    evals, worst, peak, unsolved = 0, 0.0, 0.0, 0
+    for k in range(n):
+        u1 = fm[k]
+        if k == 0 and cold:  # final_run's start: y[-1] = w[0] / (1 - lam), so y[0] = w[0] / (1 - lam)
+            pa, ga = q01 * u1 / (1.0 - lam0), q00 / (1.0 - lam0)
+            pb, gb = q11 * u1 / (1.0 - lam1), q10 / (1.0 - lam1)
+        else:
+            pa, ga = lam0 * ya + q01 * u1, q00
+            pb, gb = lam1 * yb + q11 * u1, q10
+        g = v00 * ga + v01 * gb  # dB / d(coil MMF) at this sample
+        gl = g * length
+        alpha = 1.0 - gl * nu0
+        c = v00 * pa + v01 * pb + g * fc[k]  # B with no remainder
+        tol = RESIDUAL_T * max(1.0, abs(c))
+        best = committed
+        b_best = u_prev
+        f_best = alpha * u_prev + gl * h_prev - c
+        # the bracket: lo (F < 0) and hi (F > 0), with F as Illinois scales it
+        has_lo, has_hi = f_best < 0.0, f_best > 0.0
+        lo, flo, hi, fhi = u_prev, f_best, u_prev, f_best
+        rest1 = h_prev - nu0 * u_prev  # the last sample's remainder
+        x = c - gl * (2.0 * rest1 - rest2 if rest2 == rest2 else rest1)  # extrapolated (NaN: none)
+        side, trial, closed = 0, 0, abs(f_best) <= tol
+        while not closed and trial < MAX_EVALS:
+            res = _iron_at(x, u_prev, y_prev, d, nst, tin, tout, s, c1, tr, base, edge, shift, tabs, psi, virg,
+                           an, irreversible, saturation)
+            fx = alpha * x + gl * res[1] - c
+            trial += 1
+            if abs(fx) < abs(f_best):
+                b_best, f_best, best = x, fx, res
+            if abs(fx) <= tol:
+                break
+            if fx < 0.0:  # Illinois: the side kept twice in a row has its F halved
+                if side == -1 and has_hi:
+                    fhi *= 0.5
+                lo, flo, has_lo, side = x, fx, True, -1
+            else:
+                if side == 1 and has_lo:
+                    flo *= 0.5
+                hi, fhi, has_hi, side = x, fx, True, 1
+            if trial == 1:  # the secant through the committed point: the branch's own chord
+                f0 = alpha * u_prev + gl * h_prev - c
+                if fx != f0 and x != u_prev:
+                    nxt = x - fx * (x - u_prev) / (fx - f0)
+                else:  # (a standstill) a Newton step with the anhysteretic slope
+                    nxt = x - fx / (alpha + gl * _anhysteretic_slope(x, tabs, an))
+                if not (has_lo and has_hi) or min(lo, hi) < nxt < max(lo, hi):
+                    x = nxt
+                    continue
+            if not (has_lo and has_hi):  # F rises at least alpha per tesla: -F/alpha reaches the root
+                x = x - fx / alpha * (1.0 if trial < 8 else 2.0 ** (trial - 7))  # (more if H steps down)
+                continue
+            x = (lo * fhi - hi * flo) / (fhi - flo)
+            if not min(lo, hi) < x < max(lo, hi):  # rounding in a tiny bracket: its middle
+                x = 0.5 * (lo + hi)
+                if not min(lo, hi) < x < max(lo, hi):
+                    # neighbouring doubles: the root is a step of H (a loop wiped out where the
+                    # table's branches do not quite meet); the residual is that step
+                    closed = True
+        if not closed and abs(f_best) > tol:
+            unsolved += 1
+        evals += trial
+        worst = max(worst, abs(f_best) / gl)
+        peak = max(peak, abs(b_best))
+        y, h, d, nst, s, c1, tr, base, edge, shift = best
+        committed = best
+        u_prev, y_prev, h_prev = b_best, y, h
+        rest2 = rest1
+        hr = h - nu0 * b_best
+        h_rest[k] = hr
+        u0 = fc[k] - hr * length
+        if k == 0 and cold:
+            ya = (q00 * u0 + q01 * u1) / (1.0 - lam0)
+            yb = (q10 * u0 + q11 * u1) / (1.0 - lam1)
+        ya = lam0 * ya + (q00 * u0 + q01 * u1)
+        yb = lam1 * yb + (q10 * u0 + q11 * u1)
+    end[0], end[1], end[2], end[3] = u_prev, y_prev, d, nst
+    out[0], out[1], out[2], out[3] = evals, worst, peak, unsolved
