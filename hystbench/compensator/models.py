@@ -50,6 +50,8 @@ __all__ = ["ForceModel", "NonHysteretic", "PaperModel", "ModelSet", "MODEL_KINDS
 FORMAT = "hystbench-force-models/2"
 #: Earlier formats this version reads (their entries are a subset of this one's).
 READABLE_FORMATS = (FORMAT, "hystbench-force-models/1")
+#: The largest model file read (16 MiB): a fitted model set is a few kB of JSON.
+MAX_MODEL_BYTES = 16 << 20
 MODEL_KINDS = ("nonhysteretic", "paper", "best")
 #: The best model's iron descriptions, by the ``name`` a model file gives them (format 1: always Preisach).
 BEST_DESCRIPTIONS = {cls.name: cls for cls in (HysteresisEddyModel, DescribingFunctionModel, RayleighLoopModel)}
@@ -211,13 +213,20 @@ class ModelSet:
     def load(cls, path: str | Path) -> "ModelSet":
         path = Path(path)
         try:
-            d = json.loads(path.read_text())
+            with open(path, "rb") as fh:
+                raw = fh.read(MAX_MODEL_BYTES + 1)  # bounded: whatever file is given, it is read whole
         except OSError as err:
             raise ConfigError(f"{path}: cannot read the model file: {err}") from err
+        if len(raw) > MAX_MODEL_BYTES:
+            raise ConfigError(f"{path}: larger than {MAX_MODEL_BYTES} bytes, not a model file (MAX_MODEL_BYTES)")
+        try:
+            d = json.loads(raw.decode("utf-8"))
         except json.JSONDecodeError as err:
             raise ConfigError(f"{path}: not JSON: {err}") from err
         except UnicodeDecodeError as err:  # a binary file given as the model
             raise ConfigError(f"{path}: not a model file (not UTF-8 text: {err.reason} at byte {err.start})") from err
+        except (RecursionError, ValueError) as err:  # nesting past the parser's stack; an int of 5000 digits
+            raise ConfigError(f"{path}: not a model file ({type(err).__name__}: {str(err)[:200]})") from err
         if not isinstance(d, dict) or not str(d.get("format", "")).startswith("hystbench-force-models/"):
             raise ConfigError(f"{path}: not a hystbench model file (format {FORMAT!r} expected)")
         if d["format"] not in READABLE_FORMATS:
