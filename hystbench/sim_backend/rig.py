@@ -165,11 +165,14 @@ class SimulatedRig:
         return self.offset_a + amp * np.sin(2 * np.pi * cycles), amp * w * np.cos(2 * np.pi * cycles)
 
     def _generate(self, n: int) -> SampleBlock:
+        """The next n samples.  A block the actuator refuses (SimulationError) changes nothing: the
+        generator's phase and the sample index move on only once the block is made, so the same
+        samples can be asked for again (the emulated bench does, with the output off)."""
         k0 = self._next_index
         t = np.arange(k0, k0 + n, dtype=float) / self.fs_hz  # whole numbers: exact, as (k0 + arange(n)) / fs
         step = self.generator_frequency_hz / self.fs_hz
         i_cmd, di_cmd = self._command_current(self._cycle, step, n)
-        self._cycle = (self._cycle + step * n) % 1.0  # >= 0: exact, as np.mod
+        cycle = (self._cycle + step * n) % 1.0  # >= 0: exact, as np.mod
         command_v = i_cmd / self.amplifier_gain_a_per_v
         if not self.output_enabled:
             i_cmd, di_cmd = np.zeros(n), np.zeros(n)
@@ -188,7 +191,7 @@ class SimulatedRig:
             truth["sense_V"] = -self.sense_turns * out.dflux_dt
         # t + 0.0 is t: the shifted clock only costs a pass when a bench day shifts it
         channels, flags = self.chain.measure(t + self.clock_offset_s if self.clock_offset_s else t, truth)
-        self._next_index = k0 + n
+        self._next_index, self._cycle = k0 + n, cycle
         return SampleBlock(k0, self.fs_hz, channels, flags=flags)
 
     # --- streaming ---------------------------------------------------------------------------------

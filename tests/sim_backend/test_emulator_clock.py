@@ -78,3 +78,45 @@ def test_stream_faults_armed_at_a_sample_index_hit_exactly_those_frames():
     assert emitter.corrupted == 1
     assert emitter.dropped == 4 and faults.drop_frames == 0 and faults.corrupt_frames == 0
     assert not faults.is_silent(6000) and faults.is_silent(5999)
+
+
+def test_a_rig_that_fails_trips_the_amplifier_and_says_why_without_stopping_the_clock(monkeypatch, caplog):
+    """The rig refuses a block: the clock does not stop (which the drivers would report seconds
+    later as a lost stream, with no cause); the amplifier latches INTERLOCK (its driver's next poll
+    raises FaultLatched) and the rig's output goes off; the same samples come with no current, to
+    every instrument; the cause (rig, sample, error) is logged once and kept in ``failure``."""
+    import logging
+
+    from hystbench.errors import SimulationError
+    from hystbench.sim_backend.emulators.bench import EmulatedBench
+
+    emu = EmulatedBench()
+    try:
+        emu.amplifier.enabled = True
+        emu.rig.output_enabled = True
+        emu.rig.set_excitation(320.0, 1.0, 0.0)
+        real = emu.rig.actuator.step
+        cause = "ecore_pm (rigs/ecore_pm.toml): the iron's field did not converge at 320 Hz"
+
+        def refuse_with_current(t_s, current_a, dcurrent_dt):
+            if np.any(current_a != 0.0):
+                raise SimulationError(cause)
+            return real(t_s, current_a, dcurrent_dt)
+
+        monkeypatch.setattr(emu.rig.actuator, "step", refuse_with_current)
+        first = emu.rig.next_index
+        with caplog.at_level(logging.ERROR, logger="hystbench.emulators"):
+            block = emu.tick()
+        assert block.first_index == first and block.n == emu.block_samples  # no gap: the same samples
+        assert np.max(np.abs(block.channels["current_A"])) < 0.01 and not emu.rig.output_enabled  # (noise: 1 A-pp asked)
+        assert emu.amplifier.latched == mb.FAULTS["INTERLOCK"] and not emu.amplifier.output_on
+        assert emu.amplifier._clock_end == block.end_index  # the instruments had the block
+        assert emu.failure is not None and "ecore_pm" in emu.failure and cause in emu.failure
+        assert f"sample {first}" in emu.failure
+        said = [r.getMessage() for r in caplog.records if cause in r.getMessage()]
+        assert len(said) == 1 and "INTERLOCK" in said[0]
+        caplog.clear()
+        assert emu.tick().first_index == block.end_index  # and on it goes, quietly
+        assert not [r for r in caplog.records if r.levelno >= logging.ERROR]
+    finally:
+        emu.close()

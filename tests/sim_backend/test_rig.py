@@ -147,3 +147,27 @@ def test_block_cut_with_preisach_iron_changes_nothing_measurable(ecore_path):
         for name in a.channels:
             scale = np.ptp(a.channels[name])
             np.testing.assert_allclose(a.channels[name], b.channels[name], rtol=0, atol=1e-4 * scale)
+
+
+def test_a_refused_block_leaves_the_rig_as_it_was(monkeypatch):
+    """The actuator refuses a block (SimulationError): asked again, the rig gives the very samples a
+    rig that never failed gives (the generator's phase and the sample index did not move on)."""
+    from hystbench.errors import SimulationError
+
+    kw = dict(seed=4, effects=QUIET, frequency_hz=320.0, warmup_s=0.0)
+    clean, failing = SimulatedRig("ecore_pm", **kw), SimulatedRig("ecore_pm", **kw)
+    first = clean.read(700)
+    assert np.array_equal(failing.read(700).channels["force_N"], first.channels["force_N"])
+    real = failing.actuator.step
+
+    def refuse_once(*args):
+        monkeypatch.setattr(failing.actuator, "step", real)
+        raise SimulationError("ecore_pm: refused once")
+
+    monkeypatch.setattr(failing.actuator, "step", refuse_once)
+    with pytest.raises(SimulationError, match="refused once"):
+        failing.read(900)
+    again, reference = failing.read(900), clean.read(900)
+    assert again.first_index == reference.first_index == 700
+    for name, x in reference.channels.items():
+        assert np.array_equal(again.channels[name], x), name

@@ -12,6 +12,11 @@ is not (a burst of seconds of frames would overflow the transports and starve th
 no stream is ever dropped or stalled because the emulator was late; it only runs slower than real
 time (``pacer.slipped_s`` says by how much).  Everything an emulator times (the amplifier's
 watchdog, stream faults armed at a sample index) counts on this clock.
+
+If the rig cannot make a block (a SimulationError names the rig, the operating point and why),
+the clock does not stop, which the drivers would only report as a lost stream seconds later: the
+amplifier trips (INTERLOCK, so its driver reports a latched fault at its next poll), the cause is
+logged once and kept in ``failure``, and the same samples are made again with no current.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import threading
 import time
 from typing import Any
 
+from ...blocks import SampleBlock
 from ...drivers.protocols.bench_config import BenchConfig, load_bench_config
 from ..rig import SimulatedRig
 from .charge_amplifier import ChargeAmplifierEmulator
@@ -107,6 +113,8 @@ class EmulatedBench:
         self.blocks = 0
         self.pacer: Pacer | None = None  # paces the clock (pace = "realtime"); its late_s, slipped_s
         self.taps: list = []  # callables given every rig block (the truth), e.g. by tests
+        #: why the rig last failed to make a block (rig, sample index, error), None if it never did
+        self.failure: str | None = None
 
     @property
     def addresses(self) -> dict[str, Any]:
@@ -155,20 +163,44 @@ class EmulatedBench:
         if self.pace == "realtime":
             self.pacer = Pacer(self.fs_hz, time.monotonic(), self.next_index)
         while not self._stop.is_set():
-            with self._rig_lock:
-                block = self.rig.read(self.block_samples)
-                self.next_index = block.end_index
-            for tap in list(self.taps):
-                tap(block)
-            for emu in self.emulators.values():
-                emu.faults.clock_index = block.first_index
-                try:
-                    emu.on_block(block)
-                except Exception as err:  # one emulator's trouble must not stop the clock
-                    log.error("%s: block %d: %s", emu.kind, block.first_index, err)
-            self.blocks += 1
+            try:
+                block = self.tick()
+            except Exception:  # the rig fails even with no current: nothing left to stream
+                log.exception("emulated bench: the simulated rig %s cannot go on; the sample clock stops", self.rig.name)
+                return
             if self.pacer is not None and (wait := self.pacer.wait_s(block.end_index, time.monotonic())) > 0:
                 self._stop.wait(wait)
+
+    def tick(self) -> SampleBlock:
+        """One block of the sample clock: the rig's next samples, to every tap and instrument."""
+        with self._rig_lock:
+            try:
+                block = self.rig.read(self.block_samples)
+            except Exception as err:  # the rig's trouble must not stop the clock: output off, say why
+                block = self._rig_failed(err)
+            self.next_index = block.end_index
+        for tap in list(self.taps):
+            tap(block)
+        for emu in self.emulators.values():
+            emu.faults.clock_index = block.first_index
+            try:
+                emu.on_block(block)
+            except Exception as err:  # one emulator's trouble must not stop the clock
+                log.error("%s: block %d: %s", emu.kind, block.first_index, err)
+        self.blocks += 1
+        return block
+
+    def _rig_failed(self, err: Exception) -> SampleBlock:
+        """The rig refused the next block (it is left as it was): the amplifier trips, which switches
+        the rig's output off, and the same samples are made again with no current.  Its driver
+        sees a latched fault at the next poll (``heartbeat_s``) and the output goes off at once,
+        where a silent stream would only be reported after its stall timeout and reconnection
+        attempts, as "sample stream lost", with no word of why."""
+        self.failure = f"simulated rig {self.rig.name}, sample {self.rig.next_index}: {type(err).__name__}: {err}"
+        log.error("emulated bench: %s; the amplifier trips (INTERLOCK), output off", self.failure)
+        self.amplifier.trip("INTERLOCK")  # on_change -> _update: the rig's output off (the lock is re-entrant)
+        self.rig.output_enabled = False  # whatever the amplifier was doing
+        return self.rig.read(self.block_samples)
 
     def close(self) -> None:
         self._stop.set()
