@@ -7,8 +7,10 @@
      │                                   presets, sim_backend/, acquisition/ (bench_commands, daemon,
      │                                   sources, stages), cli/   (also a ValueError)
      ├── RecordingError                  a recording or log cannot be read or written (names file/line/
-     │                                   column); formats/, analysis/identification, acquisition/record (a
-     │                                   record or replay whose pipeline failed), cli/   (also ValueError)
+     │    │                              column); formats/, analysis/identification, acquisition/record (a
+     │    │                              record or replay whose pipeline failed), cli/   (also ValueError)
+     │    └── LogWriteError              formats/mcaplog/recorder: the disk refused a write (full, I/O
+     │                                   error, read-only); names the part, the folder and its free space
      ├── EstimationError                 the data cannot give the asked-for estimate (names the recording);
      │                                   analysis/   (also a ValueError)
      ├── DiagnosisError                  a bench day the diagnosis cannot take: one recording, mixed sample
@@ -73,6 +75,15 @@ class RecordingError(BenchError, ValueError):
     """A recording (CSV+JSON, MCAP) is missing, malformed or inconsistent."""
 
 
+class LogWriteError(RecordingError):
+    """The log's folder refused a write (ENOSPC, EIO, EROFS ...): not the data's fault, and over
+    once space is back.  ``errno`` is the OS's; ``folder`` where the log was going."""
+
+    def __init__(self, message: str, *, errno: int | None = None, folder: str = "") -> None:
+        super().__init__(message)
+        self.errno, self.folder = errno, folder
+
+
 class EstimationError(BenchError, ValueError):
     """The data cannot support the requested estimate."""
 
@@ -119,6 +130,7 @@ __all__ = [
     "BenchError",
     "ConfigError",
     "RecordingError",
+    "LogWriteError",
     "EstimationError",
     "SimulationError",
     "CommandRefused",

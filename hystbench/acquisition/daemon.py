@@ -9,10 +9,13 @@ bench file (recognised by its ``[bench]`` table): the daemon's defaults with tha
 One daemon per bench (:mod:`.instance`: a lock file in the state directory and a zenoh
 liveliness token); logs in ``[daemon] log_dir`` or the state directory's ``logs`` folder.
 Commands are checked before they are answered and a fault restarts the source and pipeline,
-output off (:mod:`.service`).  SIGTERM/SIGINT: output off, pipeline drained, log finished,
-exit 0.  SIGHUP: the file is read again; a bad one is refused and the running configuration
-stays; a good one restarts the pipeline (a new log part) and, if its [zenoh] section changed,
-the zenoh session.  Exit 2: a bad configuration (systemd does not restart into it); exit 1: a
+output off (:mod:`.service`); a log folder that refuses writes pauses the log, not the service
+(:mod:`.service_log`).  SIGTERM/SIGINT: output off, pipeline drained, log finished, exit 0,
+within ``STOP_S`` in every state (past it the process ends at once: the amplifier's watchdog
+switches the output off when the heartbeat stops).  SIGHUP: the file is read again, and
+everything it needs (its log folder, its bench's lock, its ports) is checked before the running
+service is touched; a bad one is refused and the running configuration stays; a good one
+restarts the pipeline (a new log part) and, if its [zenoh] section changed, the zenoh session.  Exit 2: a bad configuration (systemd does not restart into it); exit 1: a
 fault the daemon could not recover from, or instruments that cannot be reached at start.
 """
 
@@ -20,7 +23,9 @@ from __future__ import annotations
 
 import copy
 import logging
+import os
 import signal
+import socket
 import sys
 import threading
 import time
@@ -35,6 +40,7 @@ from ..formats.mcaplog.recorder import COMPRESSIONS, IDLE_RAW
 from .bench_commands import MAX_DWELL_S
 from .sd_notify import Notifier
 from .service import BenchService
+from .service_log import check_log_dir
 from .source_config import build_source, check_source
 
 if TYPE_CHECKING:
@@ -48,8 +54,8 @@ _NUM = NUM
 _ENDPOINT = Key(str, None, "endpoints like 'tcp/127.0.0.1:7447'")
 #: No new samples for this long and the watchdog is no longer fed.
 STALL_S = 5.0
-#: Retention of the logs runs at start and this often.
-HOUSEKEEPING_S = 60.0
+#: SIGTERM ends the daemon within this long in every state; past it, the process ends at once.
+STOP_S = 4.5
 #: section -> key -> :class:`Key` (type, default, unit, legal range, meaning).  The file is checked
 #: against it by :func:`~hystbench.config.schema.check_table`, and docs/config.md is generated from
 #: it (``python -m hystbench.reports.config_reference``).
@@ -231,6 +237,10 @@ def run_daemon(config_path: str | Path | None) -> int:
     flags = {"stop": False, "reload": False}
 
     def on_signal(signum, _frame) -> None:
+        if signum != signal.SIGHUP and not flags["stop"]:  # whatever the main loop is busy with
+            timer = threading.Timer(STOP_S, _stop_now, args=(signal.Signals(signum).name,))
+            timer.daemon = True  # also ends an interpreter whose shutdown waits on another library's threads
+            timer.start()
         flags["reload" if signum == signal.SIGHUP else "stop"] = True
         wake.set()
 
@@ -249,36 +259,47 @@ def run_daemon(config_path: str | Path | None) -> int:
     _started(cfg, svc)
     notifier.ready(f"bench {cfg['daemon']['bench']}: {svc.state}")
     status = 0
-    seen, progress_t, housekeeping_t = -1, time.monotonic(), time.monotonic()
-    while not flags["stop"]:
-        wake.wait(min(notifier.watchdog_s or 1.0, 1.0))
-        wake.clear()
-        try:
-            if svc.recover():
-                seen = -1
-        except BenchError as err:
-            log.error("cannot recover from the fault: %s; stopping", err)
-            status = 1
-            break
-        samples = svc.pipeline.stats["source"].samples
-        now = time.monotonic()
-        if samples != seen:
-            seen, progress_t = samples, now
-        if now - progress_t < STALL_S:  # a stalled source stops the pings: systemd restarts us
-            notifier.ping()
-        if now - housekeeping_t >= HOUSEKEEPING_S:
-            housekeeping_t = now
+    seen, progress_t = -1, time.monotonic()
+    try:
+        while not flags["stop"]:
+            wake.wait(min(notifier.watchdog_s or 1.0, 1.0))
+            wake.clear()
+            try:
+                if svc.recover():
+                    seen = -1
+            except BenchError as err:
+                log.error("cannot recover from the fault: %s; stopping", err)
+                status = 1
+                break
+            samples = svc.pipeline.stats["source"].samples
+            now = time.monotonic()
+            if samples != seen:
+                seen, progress_t = samples, now
+            if now - progress_t < STALL_S:  # a stalled source stops the pings: systemd restarts us
+                notifier.ping()
             svc.housekeeping()
-        if flags["reload"] and not flags["stop"]:
-            flags["reload"] = False
-            notifier.reloading()
-            svc, cfg = _reload(config_path, svc, cfg, claim)
-            notifier.ready(f"bench {cfg['daemon']['bench']}: {svc.state}")
-    notifier.stopping("output off, finishing the log")
-    paths = svc.stop()
-    claim.release()
+            if flags["reload"] and not flags["stop"]:
+                flags["reload"] = False
+                notifier.reloading()
+                svc, cfg = _reload(config_path, svc, cfg, claim)
+                notifier.ready(f"bench {cfg['daemon']['bench']}: {svc.state}")
+    finally:  # whatever ended the loop: output off, log finished, the bench's lock and port freed
+        notifier.stopping("output off, finishing the log")
+        try:
+            paths = svc.stop()
+        finally:
+            claim.release()
     log.info("stopped; log %s", ", ".join(map(str, paths)) or "(none)")
     return status
+
+
+def _stop_now(signame: str) -> None:
+    """SIGTERM came ``STOP_S`` ago and the service has not stopped: end the process now.  The
+    kernel frees the bench's lock and ports; with the heartbeat gone, the amplifier's watchdog
+    switches the output off (the drivers tried first, in the stop that is hanging)."""
+    log.error("%s: the service did not stop within %g s; exiting now", signame, STOP_S)
+    logging.shutdown()
+    os._exit(1)
 
 
 def _started(cfg: DaemonConfig, svc: BenchService) -> None:
@@ -358,12 +379,49 @@ def _open_session(cfg: DaemonConfig):
         raise ConfigError(f"{cfg.source} [zenoh] listen: {err}; change [zenoh] listen") from None
 
 
+def _endpoint_free(endpoint: str) -> str:
+    """Why a zenoh listen ``endpoint`` (``tcp/HOST:PORT``, ``udp/...``) cannot be bound now ('' :
+    it can, or it is of a kind not checked here)."""
+    proto, _, rest = endpoint.partition("/")
+    host, _, port = rest.split("#")[0].split("?")[0].rpartition(":")
+    if proto not in ("tcp", "udp") or not port.isdigit() or int(port) == 0:
+        return ""
+    kind = socket.SOCK_STREAM if proto == "tcp" else socket.SOCK_DGRAM
+    try:
+        for family, _, _, _, addr in socket.getaddrinfo(host.strip("[]") or None, int(port), type=kind):
+            with socket.socket(family, kind) as s:
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as a listener binds it
+                s.bind(addr)
+    except OSError as err:
+        return err.strerror or str(err)
+    return ""
+
+
+def _check_reload(new: DaemonConfig, cfg: DaemonConfig, claim: _Claim) -> None:
+    """Everything ``new`` needs that the running service does not hold already, checked before it
+    is touched: a source it can build, a log folder it can write, its bench's lock, its ports."""
+    from .instance import BenchLock
+
+    if new["source"]["kind"] != "bench":  # instruments cannot be opened twice: checked at start
+        build_source(new).close()
+    if new["recording"]["enabled"]:
+        check_log_dir(new["daemon"]["log_dir"], new.source)
+    if new["daemon"]["bench"] != cfg["daemon"]["bench"]:
+        BenchLock(new["daemon"]["bench"], config=new.source).acquire().release()
+    if new["zenoh"]["enabled"] and new["zenoh"] != claim.zenoh:
+        held = set(_endpoints(cfg))
+        for endpoint in _endpoints(new):
+            if endpoint not in held and (why := _endpoint_free(endpoint)):
+                raise ConfigError(f"{new.source} [zenoh] listen: cannot listen on {endpoint}: {why}; change "
+                                  "[zenoh] listen")
+
+
 def _reload(path, svc: BenchService, cfg: DaemonConfig, claim: _Claim):
-    """Check the file again; a bad one is refused (the old config keeps running)."""
+    """Check the file again and all it needs; a bad one is refused (the old config keeps running,
+    its sweep and log part untouched)."""
     try:
         new = load_daemon_config(path)
-        if new["source"]["kind"] != "bench":  # instruments cannot be opened twice: checked at start
-            build_source(new).close()  # fails here, not after the old service is gone
+        _check_reload(new, cfg, claim)
     except BenchError as err:
         log.error("reload refused, keeping the running configuration: %s", err)
         svc.pipeline.status("error", "reload_refused", str(err))

@@ -13,7 +13,9 @@ Threads, each with a bounded hand-off and counters of what it had to drop:
   that learns) to the compensator, whose state it emits;
 - *record*: a ring reader writing raw blocks to MCAP, cut where the source cut them (so a log
   replayed and recorded again has the same blocks), plus the JSON messages others emit through
-  a bounded queue (full: the message is dropped and counted);
+  a bounded queue (full: the message is dropped and counted).  A write the disk refuses ends
+  this stage only (``log_write_failed`` on ``status``, ``on_log_error`` told at once): the source,
+  the estimates and zenoh go on; :meth:`Pipeline.attach_recorder` starts logging again;
 - *stats*: every ``stats_interval_s`` publishes per-stage counters on ``stats`` (and logs them).
 
 ``emit(topic, obj)`` is the one way a message leaves: to the recorder's queue, to zenoh and to
@@ -38,7 +40,7 @@ from numpy.typing import DTypeLike
 
 from ..blocks import BlockFlags, SampleBlock
 from ..deadline import Deadline
-from ..errors import ConfigError
+from ..errors import ConfigError, LogWriteError
 from ..formats.mcaplog.schemas import COMPENSATOR, ESTIMATE, STATS, STATUS
 from ..messages import Estimate
 from .ring import RingBuffer, RingRead, RingReader
@@ -117,8 +119,13 @@ class Pipeline:
                  ring_seconds: float = 2.0, dtype: DTypeLike = np.float32, queue_size: int = 1024,
                  stats_interval_s: float = 1.0, publish_raw: bool = True,
                  gil_switch_s: float | None = 0.0005, background_nice: int = 10,
-                 lossless: bool | None = None) -> None:
+                 lossless: bool | None = None, on_log_error: Callable[[LogWriteError], None] | None = None,
+                 epoch_ns: int | None = None) -> None:
         self.source, self.estimator, self.recorder, self.bus = source, estimator, recorder, bus
+        self.on_log_error = on_log_error
+        self.log_error: LogWriteError | None = None  # why the recorder was let go, if it was
+        #: the log's clock (wall time of sample 0), kept when a recorder is let go or attached
+        self.epoch_ns = epoch_ns if epoch_ns is not None else recorder.epoch_ns if recorder is not None else None
         self.lossless = getattr(source, "pace", None) == "max" if lossless is None else bool(lossless)
         self.backpressure = threading.Event()  # set while a lossless source waits for a stage
         self.compensator = compensator
@@ -233,9 +240,7 @@ class Pipeline:
 
     def index_time_ns(self, index: int) -> int:
         """Log time of a sample index (the recorder's clock, or ns from sample 0 without one)."""
-        if self.recorder is not None:
-            return self.recorder.index_time_ns(index, self.source.fs_hz)
-        return round(index * 1e9 / self.source.fs_hz)
+        return (self.epoch_ns or 0) + round(index * 1e9 / self.source.fs_hz)
 
     # --- threads ---------------------------------------------------------------------------------
     def _run_source(self) -> None:
@@ -397,8 +402,7 @@ class Pipeline:
             st.busy_s += time.monotonic() - t0
             self._latency(st, got.end)
 
-    def _drain_messages(self) -> None:
-        rec = self.recorder
+    def _drain_messages(self, rec: McapRecorder) -> None:
         while True:
             try:
                 topic, obj = self._queue.get_nowait()
@@ -435,8 +439,32 @@ class Pipeline:
                             flags=b.flags, gap_samples=b.gap_samples, meta=b.meta)
         return RingRead(block, parts[0].lost, parts[0].start, parts[-1].end)
 
+    def attach_recorder(self, recorder: McapRecorder) -> None:
+        """Start logging into ``recorder`` (started) from the newest sample on: after a write error
+        let the last one go, once the disk has room again."""
+        if self.recorder is not None:
+            raise ConfigError("the pipeline already logs; it takes a recorder only after it let the last one go")
+        self._readers["record"] = self.ring.reader("record", start="newest")
+        self.recorder, self.log_error = recorder, None
+        t = threading.Thread(target=self._guard, args=("record", self._run_record), name="pipeline-record", daemon=True)
+        self._threads.append(t)
+        t.start()
+
     def _run_record(self) -> None:
-        st, r, rec = self.stats["record"], self._readers["record"], self.recorder
+        rec, r = self.recorder, self._readers["record"]
+        try:
+            self._record(rec, r)
+        except LogWriteError as err:  # the disk's fault, not the pipeline's: everything else goes on
+            self.ring.remove_reader(r)
+            self.recorder = None
+            rec.abandon()
+            self.log_error = err
+            self.status("error", "log_write_failed", f"{err}; logging stopped", folder=err.folder)
+            if self.on_log_error is not None:
+                self.on_log_error(err)
+
+    def _record(self, rec: McapRecorder, r: RingReader) -> None:
+        st = self.stats["record"]
         estimating = [t for t in self._threads if t.name == "pipeline-estimate"]
         last_lost = 0
         while True:
@@ -450,14 +478,14 @@ class Pipeline:
                     self.status("warning", "recorder_overrun", f"recorder lost {r.lost_samples - last_lost} "
                                 f"samples before sample {got.block.first_index}")
                     last_lost = st.lost_samples = r.lost_samples
-            self._drain_messages()
+            self._drain_messages(rec)
             rec.tick()
             st.busy_s += time.monotonic() - t0
             if reads:
                 self._latency(st, reads[-1].end)
             elif self.ring.closed and r.lag <= 0:
                 if not any(t.is_alive() for t in estimating):  # its last estimates are queued
-                    self._drain_messages()
+                    self._drain_messages(rec)
                     rec.add_message(STATS, self.stats_dict())
                     return
                 time.sleep(0.01)

@@ -7,7 +7,9 @@ i.e. when the part was last written), the parts of one bench's logs that are old
 touches files named as the daemon names its logs (``<bench>-YYYYMMDD-HHMMSS[.k][-NNNN].mcap``), so
 other benches' logs, recovered copies and exports in the same folder are left alone; the part(s)
 given in ``keep`` (the open one) are never deleted, nor is a part that is not finished (no MCAP
-footer) and was written in the last ``UNFINISHED_GRACE_S`` (another process may be writing it).
+footer) and was written in the last ``UNFINISHED_GRACE_S`` (another process may be writing it),
+unless it is one of ``own`` (this process wrote and closed it: a part left without its summary by
+a full disk).
 """
 
 from __future__ import annotations
@@ -63,19 +65,21 @@ def _finished(path: Path) -> bool:
 
 
 def apply_retention(folder: str | Path, bench: str, *, keep_days: float = 0.0, max_total_bytes: float = 0.0,
-                    keep: Iterable[Path] = (), now: float | None = None) -> RetentionReport:
+                    keep: Iterable[Path] = (), own: Iterable[Path] = (), now: float | None = None) -> RetentionReport:
     """Delete the oldest parts of ``bench``'s logs in ``folder``: those older than ``keep_days``
     (0: no age limit), then the oldest until the total is at most ``max_total_bytes`` (0: no size
     limit).  ``keep``: parts never deleted (the open one)."""
     now = time.time() if now is None else now
     protected = {Path(p).resolve() for p in keep}
+    closed = {Path(p).resolve() for p in own} - protected
     parts = []
     for p in bench_logs(Path(folder), bench):
         try:
             st = p.stat()
         except FileNotFoundError:
             continue
-        busy = p.resolve() in protected or (now - st.st_mtime < UNFINISHED_GRACE_S and not _finished(p))
+        busy = p.resolve() in protected or (p.resolve() not in closed and now - st.st_mtime < UNFINISHED_GRACE_S
+                                            and not _finished(p))
         parts.append((p, st.st_size, st.st_mtime, busy))
     rep = RetentionReport()
     total = sum(size for _, size, _, _ in parts)

@@ -193,6 +193,14 @@ class RingBuffer:
             self._readers.append(reader)
         return reader
 
+    def remove_reader(self, reader: RingReader) -> None:
+        """Forget ``reader`` (its stage ended while the ring goes on): a lossless writer no longer
+        waits for it."""
+        with self._cond:
+            if reader in self._readers:
+                self._readers.remove(reader)
+            self._room.notify_all()
+
     @property
     def head(self) -> int:
         return self._head

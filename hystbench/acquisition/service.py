@@ -31,10 +31,13 @@ from ..drivers.safety import SafetyLimitError
 from ..errors import BenchError, CommandRefused, ConfigError
 from ..messages import OperatingPoint
 from .bench_commands import MIN_FREQUENCY_HZ, Limits, check_command, check_current
+from .service_log import ServiceLog, check_log_dir
 from .source_config import build_source
 
 if TYPE_CHECKING:
     import zenoh
+
+    from ..formats.mcaplog.recorder import McapRecorder
 
     from .daemon import DaemonConfig
 
@@ -73,16 +76,6 @@ class TooManyFaults(BenchError):
     only meet the same fault, so the service stops (the daemon exits 1, systemd restarts it).  Not
     the class of the last fault (that may be an instrument's, the log's, the simulation's): the
     service's own verdict on all of them; the last one is its ``__cause__``."""
-
-
-def _log_path(folder: Path, bench: str) -> Path:
-    """``<bench>-<start time>.mcap`` (parts ``...-0001.mcap``), made unique within the second."""
-    stem = f"{bench}-{time.strftime('%Y%m%d-%H%M%S')}"
-    k = 1
-    while (folder / f"{stem}-0001.mcap").exists() or (folder / f"{stem}.mcap").exists():
-        k += 1
-        stem = f"{bench}-{time.strftime('%Y%m%d-%H%M%S')}.{k}"
-    return folder / f"{stem}.mcap"
 
 
 def _load_compensator(c: dict, source):
@@ -132,8 +125,9 @@ class BenchService:
         self.source = build_source(cfg)
         self.session = session
         self.pipeline = None
-        self.recorder = None
         self.bus = None
+        self._said: list[tuple] = []  # statuses told before the pipeline runs
+        self.log = ServiceLog(cfg, self._metadata, self._status)
         self.started = time.monotonic()
         self._sweep_stop = threading.Event()
         self._sweep: threading.Thread | None = None
@@ -147,9 +141,20 @@ class BenchService:
         self.trips = 0  # faults the excitation caused (caused_by_command): never end the service
         #: why the output may not be switched on until ``clear_fault`` ('' : it may)
         self.tripped = ""
-        self.retention_deleted = 0
         self.log_dir = Path(cfg["daemon"]["log_dir"])
         self._reset_point()
+
+    @property
+    def recorder(self) -> McapRecorder | None:
+        """The open log's recorder (None: recording off, or paused after a write error)."""
+        return self.log.recorder
+
+    def _status(self, level: str, event: str, message: str = "", **extra) -> None:
+        """A status of the service's own (the log's): said once a pipeline runs to say it."""
+        self._said.append((level, event, message, extra))
+        while self.pipeline is not None and self._said:
+            level, event, message, extra = self._said.pop(0)
+            self.pipeline.status(level, event, message, **extra)
 
     def _reset_point(self) -> None:
         """The operating point a (new) source starts at: the configured excitation, output off."""
@@ -159,18 +164,13 @@ class BenchService:
 
     # --- life cycle ------------------------------------------------------------------------------
     def start(self) -> "BenchService":
-        from ..formats.mcaplog.recorder import McapRecorder
         from .zenoh_bus import ZenohBus
 
         c = self.cfg
         try:
             if c["recording"]["enabled"]:
-                r = c["recording"]
-                self.recorder = McapRecorder(_log_path(self.log_dir, c["daemon"]["bench"]), metadata=self._metadata(),
-                                             compression=r["compression"], chunk_size=r["chunk_kib"] * 1024,
-                                             flush_interval_s=r["flush_interval_s"], idle_raw=r["idle_raw"],
-                                             rotate_bytes=int(r["rotate_mib"] * 2**20), rotate_s=r["rotate_minutes"] * 60)
-                self.recorder.start()
+                check_log_dir(self.log_dir, c.source)
+                self.log.start()
             if c["zenoh"]["enabled"]:
                 from .daemon import zenoh_config
 
@@ -183,10 +183,12 @@ class BenchService:
             self.stop()
             raise
         self.state = "running"
-        where = str(self.recorder.paths[-1]) if self.recorder is not None else "nowhere (recording disabled)"
-        self.pipeline.status("info", "log", f"logging to {where}; folder {self.log_dir}", log_dir=str(self.log_dir),
-                             idle_raw=c["recording"]["idle_raw"])
-        self.housekeeping()
+        if self.log.fault:
+            self._log_failed(None)
+        else:
+            where = str(self.recorder.paths[-1]) if self.recorder is not None else "nowhere (recording disabled)"
+            self._status("info", "log", f"logging to {where}; folder {self.log_dir}", log_dir=str(self.log_dir),
+                         idle_raw=c["recording"]["idle_raw"])
         if c["sweep"]["autostart"]:
             self.command("start_sweep", {})
         return self
@@ -213,7 +215,8 @@ class BenchService:
                               keep_windows=bool(comp and comp.wants_windows)) if e["enabled"] else None
         self.pipeline = Pipeline(self.source, estimator=est, recorder=self.recorder, bus=self.bus, compensator=comp,
                                  ring_seconds=c["source"]["ring_seconds"], stats_interval_s=c["daemon"]["stats_interval_s"],
-                                 publish_raw=c["zenoh"]["publish_raw"])
+                                 publish_raw=c["zenoh"]["publish_raw"], on_log_error=self._log_failed,
+                                 epoch_ns=self.log.epoch_ns)
         self.pipeline.listeners.append(self._count)
         self.pipeline.start()
 
@@ -223,19 +226,20 @@ class BenchService:
             if obj.get("error"):
                 self.last_error = str(obj["error"])
 
-    def stop(self, timeout_s: float = 10.0) -> list[Path]:
-        """Output off first, then the pipeline drains, the log is finished, zenoh is closed."""
+    def stop(self, timeout_s: float = 3.0) -> list[Path]:
+        """Output off first, then the pipeline drains, the log is finished, zenoh is closed; every
+        wait bounded (the daemon's SIGTERM ends it within STOP_S)."""
         self.state = "stopping"
         self._sweep_stop.set()
         if hasattr(self.source, "set_output"):
             self.source.set_output(False)
         if self._sweep is not None:
-            self._sweep.join(timeout=2.0)
+            self._sweep.join(timeout=1.0)
         if self.pipeline is not None:
             self.pipeline.status("info", "stopping", "output off, finishing the log")
             self.pipeline.stop(timeout_s)
         self.source.close()
-        paths = self.recorder.finish() if self.recorder is not None else []
+        paths = self.log.finish()
         if self.bus is not None:
             self.bus.close()
         self.state = "stopped"
@@ -276,9 +280,8 @@ class BenchService:
         if self.bus is not None:
             self.bus.publish("status", fault)
         tripped = str(getattr(p.compensator, "tripped", "") or "")
-        if self.recorder is not None:
-            self.recorder.add_message(STATUS, fault, fault["t_ns"])
-            self.recorder.rotate()
+        self.log.add_status(STATUS, fault)
+        self.log.rotate()
         if recent > MAX_FAULTS:
             raise TooManyFaults(f"{recent} faults within {FAULT_WINDOW_S:g} s, giving up; the last: {message}") from err
         self.source = build_source(self.cfg, clear_faults=True)
@@ -290,20 +293,26 @@ class BenchService:
         return True
 
     def housekeeping(self) -> None:
-        """Retention of this bench's logs ([recording] keep_days, max_total_gib): the oldest parts
-        beyond the limits are deleted, never the open one; what went is said on ``status``."""
-        from .retention import apply_retention
+        """Every turn of the daemon's loop: the log's retention, and logging resumed (output still
+        off) once a full folder has room again."""
+        self.log.housekeeping()
+        if self.log.fault and self.pipeline is not None and self.state in ("running", "sweeping"):
+            rec = self.log.resume()
+            if rec is not None:
+                self.pipeline.attach_recorder(rec)
 
-        r = self.cfg["recording"]
-        if self.recorder is None or not (r["keep_days"] or r["max_total_gib"]):
-            return
-        rep = apply_retention(self.log_dir, self.cfg["daemon"]["bench"], keep_days=r["keep_days"],
-                              max_total_bytes=r["max_total_gib"] * 2**30, keep=self.recorder.paths[-1:])
-        self.retention_deleted += len(rep.deleted)
-        if (rep.deleted or rep.errors) and self.pipeline is not None:
-            self.pipeline.status("warning" if rep.errors else "info", "retention",
-                                 rep.message() + ("; " + "; ".join(rep.errors) if rep.errors else ""),
-                                 deleted=[p.name for p in rep.deleted], deleted_bytes=rep.deleted_bytes)
+    def _log_failed(self, err) -> None:
+        """The disk refused a write (the record stage let the log go; ``err`` None: at start): the
+        output goes off before anything else, a sweep stops, and ``output on`` is refused until
+        logging resumes by itself; zenoh, the estimates and the commands go on."""
+        if hasattr(self.source, "set_output"):
+            self.source.set_output(False)
+        self._sweep_stop.set()
+        if err is not None:
+            self.log.failed(err)
+        if self.pipeline is not None:
+            self.pipeline.status("error", "logging_paused", f"{self.log.fault}; output off until logging resumes",
+                                 log_dir=str(self.log_dir))
 
     # --- commands (zenoh cmd/<verb>) -------------------------------------------------------------
     def _controllable(self):
@@ -322,6 +331,9 @@ class BenchService:
         if self._tripped():
             return (f"the compensator switched the output off ({self._tripped()}); reload the configuration "
                     "(SIGHUP) to start again")
+        if self.log.fault:
+            return (f"the log cannot be written ({self.log.fault}); logging resumes by itself once the folder has room "
+                    "(free space there, or let [recording] max_total_gib retention free it)")
         return self.tripped
 
     def _apply(self, src, point: OperatingPoint, who: str) -> None:
@@ -431,12 +443,7 @@ class BenchService:
         return {"bench": self.cfg["daemon"]["bench"], "state": self.state, "version": __version__, "pid": os.getpid(),
                 "uptime_s": time.monotonic() - self.started, "source": self.source.name,
                 "listen": list(z["listen"]) if z["enabled"] else [], "config": self.cfg.source,
-                "log_dir": str(self.log_dir),
-                "log": str(self.recorder.paths[-1]) if self.recorder and self.recorder.paths else None,
-                "idle_raw": self.cfg["recording"]["idle_raw"],
-                "idle_samples_skipped": self.recorder.idle_samples_skipped if self.recorder else 0,
-                "raw_flushed_to": self.recorder.raw_end_flushed if self.recorder else 0,
-                "retention_deleted": self.retention_deleted,
+                "log_dir": str(self.log_dir), **self.log.health(), "idle_raw": self.cfg["recording"]["idle_raw"],
                 "limits": {"max_current_a": self.limits.max_current_a,
                            "frequency_hz": [MIN_FREQUENCY_HZ, self.limits.max_frequency_hz]},
                 "samples": p.stats["source"].samples if p else 0, "estimates": self.estimates,

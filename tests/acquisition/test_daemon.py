@@ -24,21 +24,9 @@ from hystbench.deadline import Deadline
 from hystbench.errors import CommandRefused, ConfigError, RecordingError
 from hystbench.messages import Estimate
 
-ROOT = Path(__file__).resolve().parents[2]
+from .conftest import HANG_S, ROOT, Daemon, health_when
+
 FS = 100_000.0
-HANG_S = 60.0  # a safety timeout: waits end on their event, only a hang takes this long
-
-
-def health_when(session, bench: str, cond) -> dict:
-    """The daemon's health once ``cond(health)`` holds, asked until it does (a daemon that has just
-    started or reloaded may not answer, or may not have produced a sample yet)."""
-    deadline, last = Deadline(HANG_S), None
-    while not deadline.expired:
-        got = query_json(session, f"hystbench/{bench}/health", timeout_s=1.0)
-        if got and cond(got[0]):
-            return got[0]
-        last = got or last
-    raise AssertionError(f"hystbench/{bench}/health never met the condition; last: {last}")
 
 
 def write_config(path: Path, port: int, logs: Path, *, periods: float = 10.0, extra: str = "") -> None:
@@ -48,50 +36,6 @@ def write_config(path: Path, port: int, logs: Path, *, periods: float = 10.0, ex
                     f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n'
                     f'[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 30.0\nautostart = true\n' + extra,
                     encoding="utf-8")
-
-
-class Daemon:
-    """The daemon in a subprocess with a notify socket of our own."""
-
-    def __init__(self, tmp: Path, config: Path | str, *, state: Path | None = None, name: str = "") -> None:
-        self.sock_path = tmp / f"notify{name}.sock"
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.sock.bind(str(self.sock_path))
-        self.messages: list[str] = []
-        self.stderr_path = tmp / f"daemon{name}.stderr"
-        env = dict(os.environ, NOTIFY_SOCKET=str(self.sock_path), WATCHDOG_USEC="400000", PYTHONUNBUFFERED="1",
-                   STATE_DIRECTORY=str(state or tmp / "state"))
-        env.pop("WATCHDOG_PID", None)
-        self.proc = subprocess.Popen([sys.executable, "-m", "hystbench", "daemon",
-                                      "--config", str(config)], cwd=ROOT, env=env,
-                                     stdout=subprocess.DEVNULL, stderr=open(self.stderr_path, "wb"))
-
-    def wait_for(self, field: str) -> None:
-        """Read notifications until one holds ``field`` (or the daemon exits: a failure).  However
-        long the daemon takes on a busy machine: the timeout only turns a hang into a failure."""
-        deadline = Deadline(HANG_S)
-        while not deadline.expired:
-            self.sock.settimeout(max(0.01, deadline.left(0.5)))
-            try:
-                msg = self.sock.recv(4096).decode()
-            except socket.timeout:
-                if self.proc.poll() is not None:
-                    break
-                continue
-            self.messages.append(msg)
-            if field in msg.split("\n"):
-                return
-        raise AssertionError(f"no {field} within {deadline.elapsed:.0f} s; got {self.messages[-5:]}; "
-                             f"exit {self.proc.poll()}; stderr: {self.stderr()[-2000:]}")
-
-    def stderr(self) -> str:
-        return self.stderr_path.read_text(errors="replace")
-
-    def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(timeout=10)
-        self.sock.close()
 
 
 def test_daemon_notify_reload_refusal_and_clean_stop(tmp_path: Path) -> None:
@@ -306,7 +250,7 @@ def test_bad_commands_are_refused_and_the_daemon_stays_up(tmp_path: Path) -> Non
         session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
         for verb, args in (("set_excitation", {"frequency_hz": 320, "current_pp_a": 50}),
                            ("start_sweep", {"frequencies_hz": [160], "current_pp_a": 50})):
-            with pytest.raises(BenchError, match=r"refused: .*25 A exceeds the bench's limit of 1\.8 A"):
+            with pytest.raises(BenchError, match=r"refused: .*25 A exceeds the bench's limit of 1\.71 A"):
                 send_command(session, "d3", verb, args, timeout_s=30.0)
         assert send_command(session, "d3", "set_excitation", {"frequency_hz": 160, "current_pp_a": 1.0},
                             timeout_s=30.0)["ok"]

@@ -10,25 +10,35 @@ Raw blocks recorded while the output is off (block meta ``output_on`` = 0) follo
 ``"full"`` keeps them all, ``"decimated"`` keeps a snapshot of ``IDLE_SNAPSHOT_S`` in every
 ``IDLE_EVERY_S`` of sample time (offsets, noise floor and pickup at full bandwidth, ~1 % of the
 bytes), ``"off"`` none; JSON messages (estimates, status, stats) are always kept.
+
+A write the disk refuses (full, an I/O error, remounted read-only) raises :class:`LogWriteError`
+naming the part, its folder and the free space there; the recorder is then closed (what was
+flushed stays readable, ``hystbench recover`` salvages it) and a new one may be started once space
+is back.  A part that cannot even be started is removed, so a full disk gathers no empty parts.
+``on_size(path, bytes)`` is told the open part's size as it grows (every half chunk), so retention
+can keep a folder's cap before the part grows past it.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import shutil
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 from ... import __version__
 from ...blocks import BlockFlags, SampleBlock
-from ...errors import RecordingError
+from ...errors import LogWriteError, RecordingError
 from ...messages import OperatingPoint, json_bytes
 from ..raw_block import encode_json
 from .schemas import RAW, SCHEMAS, TOPICS, schema_bytes
 
-__all__ = ["McapRecorder", "COMPRESSIONS", "IDLE_RAW", "IDLE_EVERY_S", "IDLE_SNAPSHOT_S"]
+__all__ = ["McapRecorder", "COMPRESSIONS", "IDLE_RAW", "IDLE_EVERY_S", "IDLE_SNAPSHOT_S", "free_bytes",
+           "write_error"]
 
 COMPRESSIONS = ("zstd", "lz4", "none")
 PROFILE = "hystbench"
@@ -37,6 +47,26 @@ IDLE_RAW = ("off", "decimated", "full")
 #: aligned on sample index 0, so replays cut the same snapshots).
 IDLE_EVERY_S = 1.0
 IDLE_SNAPSHOT_S = 0.01
+
+
+def free_bytes(folder: str | Path) -> int | None:
+    """Bytes free for this process in ``folder`` (or its nearest existing parent); None if unknown."""
+    p = Path(folder)
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        return shutil.disk_usage(p).free
+    except OSError:
+        return None
+
+
+def write_error(path: Path, err: OSError, doing: str) -> LogWriteError:
+    """``err`` as the error a bench engineer can act on: the part, the folder, its free space."""
+    free = free_bytes(path.parent)
+    room = f"{free / 2**20:.1f} MiB free" if free is not None else "free space unknown"
+    why = err.strerror or errno.errorcode.get(err.errno or 0, "") or str(err)
+    return LogWriteError(f"{path}: cannot {doing}: {why} (folder {path.parent}, {room})", errno=err.errno,
+                         folder=str(path.parent))
 
 
 def _metadata_record(obj: Mapping[str, Any]) -> dict[str, str]:
@@ -59,7 +89,8 @@ class McapRecorder:
     def __init__(self, path: str | Path, *, metadata: Mapping[str, Mapping[str, Any]] | None = None,
                  compression: str = "zstd", chunk_size: int = 256 * 1024, flush_interval_s: float = 0.5,
                  rotate_bytes: int | None = None, rotate_s: float | None = None, epoch_ns: int | None = None,
-                 units: Mapping[str, str] | None = None, overwrite: bool = False, idle_raw: str = "full") -> None:
+                 units: Mapping[str, str] | None = None, overwrite: bool = False, idle_raw: str = "full",
+                 on_size: Callable[[Path, int], None] | None = None) -> None:
         if compression not in COMPRESSIONS:
             raise RecordingError(f"{path}: compression must be one of {', '.join(COMPRESSIONS)}, got {compression!r}")
         if idle_raw not in IDLE_RAW:
@@ -77,6 +108,7 @@ class McapRecorder:
         self.units = dict(units or {})
         self.overwrite = overwrite
         self.idle_raw = idle_raw
+        self.on_size = on_size
         self.idle_samples_skipped = 0  # raw samples with the output off not written (idle_raw)
         self.paths: list[Path] = []
         self.messages = 0
@@ -105,8 +137,6 @@ class McapRecorder:
         return self
 
     def _open_part(self) -> None:
-        from mcap.writer import CompressionType, Writer
-
         path = self._part_path(len(self.paths) + 1)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -114,7 +144,17 @@ class McapRecorder:
         except FileExistsError as err:
             raise RecordingError(f"{path}: already exists; choose another name or pass overwrite") from err
         except OSError as err:
-            raise RecordingError(f"{path}: cannot create the log: {err.strerror}") from err
+            raise write_error(path, err, "create the log") from err
+        try:
+            self._start_part(path)
+        except OSError as err:  # a full disk: no empty part left behind
+            self.abandon()
+            path.unlink(missing_ok=True)
+            raise write_error(path, err, "start the log") from err
+
+    def _start_part(self, path: Path) -> None:
+        from mcap.writer import CompressionType, Writer
+
         comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
         w = Writer(self._fh, chunk_size=self.chunk_size, compression=comp[self.compression])
         w.start(profile=PROFILE, library=f"hystbench {__version__}")
@@ -131,6 +171,7 @@ class McapRecorder:
         for name, obj in self.metadata.items():
             w.add_metadata(name, _metadata_record(obj))
         w.flush()  # schemas and channels on disk before any data
+        self._fh.flush()
         self._writer = w
         self.paths.append(path)
         self._part_started = self._last_flush = time.monotonic()
@@ -148,7 +189,9 @@ class McapRecorder:
         return self.paths[-1]
 
     def finish(self) -> list[Path]:
-        """Close the log (summary, indexes, footer); returns the parts written.  Idempotent."""
+        """Close the log (summary, indexes, footer); returns the parts written.  Idempotent.  A disk
+        that refuses the summary leaves the part without it (recover salvages it) and raises
+        :class:`LogWriteError`; the recorder is closed either way."""
         if self._writer is not None:
             w, fh = self._writer, self._fh
             self._writer = self._fh = None
@@ -156,9 +199,24 @@ class McapRecorder:
                 w.finish()
                 fh.flush()
                 os.fsync(fh.fileno())
+            except OSError as err:
+                raise write_error(self.paths[-1], err, "finish the log") from err
             finally:
-                fh.close()
+                try:
+                    fh.close()  # flushes what Python still buffers: may fail again on a full disk
+                except OSError:
+                    pass
         return list(self.paths)
+
+    def abandon(self) -> None:
+        """Close the open part as it stands, without a summary (after a write error: writing one
+        would fail too); what was flushed stays readable."""
+        fh, self._writer, self._fh = self._fh, None, None
+        if fh is not None:
+            try:
+                fh.close()
+            except OSError:
+                pass
 
     def __enter__(self) -> "McapRecorder":
         return self.start()
@@ -208,11 +266,15 @@ class McapRecorder:
         if self._writer is None:
             raise RecordingError(f"{self.path}: recorder not started (or already finished)")
         now = time.monotonic()
-        if self._should_rotate(now):
-            self.finish()
-            self._open_part()
-        self._writer.add_message(self._channel_ids[topic], log_time=log_time_ns, data=data,
-                                 publish_time=time.time_ns(), sequence=self.messages)
+        try:
+            if self._should_rotate(now):
+                self.finish()
+                self._open_part()
+            self._writer.add_message(self._channel_ids[topic], log_time=log_time_ns, data=data,
+                                     publish_time=time.time_ns(), sequence=self.messages)
+        except OSError as err:
+            self.abandon()
+            raise write_error(self.paths[-1], err, "write the log") from err
         self.messages += 1
         self.bytes_in += len(data)
         self.tick(now)
@@ -221,17 +283,26 @@ class McapRecorder:
         """Close the open chunk if it is older than ``flush_interval_s`` (call this when idle, too)."""
         now = time.monotonic() if now is None else now
         if self._writer is not None and now - self._last_flush >= self.flush_interval_s:
-            self._writer.flush()
+            try:
+                self._writer.flush()
+                self._fh.flush()  # in the OS's hands: what a kill -9 keeps, and where a full disk shows
+            except OSError as err:
+                self.abandon()
+                raise write_error(self.paths[-1], err, "write the log") from err
             self._last_flush = now
             self.raw_end_flushed = self.raw_end_added
 
     def _should_rotate(self, now: float) -> bool:
         if self.rotate_s is not None and now - self._part_started >= self.rotate_s:
             return True
-        if self.rotate_bytes is None or self._fh is None or self.bytes_in - self._size_checked_in < self.chunk_size // 2:
+        if (self.rotate_bytes is None and self.on_size is None) or self._fh is None or \
+                self.bytes_in - self._size_checked_in < self.chunk_size // 2:
             return False  # the part grows a chunk at a time: its size (a system call) is asked once one may be out
         self._size_checked_in = self.bytes_in
-        return self._fh.tell() >= self.rotate_bytes
+        size = self._fh.tell()
+        if self.on_size is not None:
+            self.on_size(self.paths[-1], size)
+        return self.rotate_bytes is not None and size >= self.rotate_bytes
 
     @property
     def bytes_written(self) -> int:

@@ -1,0 +1,181 @@
+"""Issue 26 item 3: a log folder that refuses writes pauses the log, not the bench service.
+
+The disk is real: a tmpfs of a few MiB mounted for the test (root only; skipped, saying why,
+elsewhere), filled by the daemon's own log.  Then: the output goes off, ``status`` and ``health``
+name the folder and its free space, zenoh still answers, ``output on`` is refused, and once room
+is back the log resumes by itself in a new part.  SIGTERM ends the daemon in that state and frees
+the bench's lock.  Retention keeps ``max_total_gib`` as the log grows, not once a minute."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.acquisition.retention import bench_logs
+from hystbench.acquisition.service_log import RESUME_FREE_BYTES
+from hystbench.acquisition.zenoh_bus import (Subscription, free_port, load_zenoh_config, open_session, peer_config,
+                                             send_command)
+from hystbench.errors import CommandRefused, LogWriteError
+from hystbench.formats.mcaplog import McapRecorder
+from hystbench.formats.raw_block import decode
+from hystbench.messages import OperatingPoint
+
+from .conftest import HANG_S, Daemon, health_when
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path):
+    """A tmpfs of ``size_mib`` mounted in the test's folder, unmounted after it."""
+    mounted: list[Path] = []
+
+    def make(size_mib: int) -> Path:
+        where = tmp_path / f"disk{len(mounted)}"
+        where.mkdir()
+        done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size_mib}m", "tmpfs", str(where)],
+                              capture_output=True, text=True)
+        if done.returncode:
+            pytest.skip(f"a small disk needs mount -t tmpfs (root): {done.stderr.strip()}")
+        mounted.append(where)
+        return where
+
+    yield make
+    for where in mounted:
+        subprocess.run(["umount", "-l", str(where)], check=False)
+
+
+def fill(disk: Path, leave_bytes: int) -> Path:
+    """A file taking all but ``leave_bytes`` of ``disk``."""
+    import shutil
+
+    filler = disk / "filler.bin"
+    with open(filler, "wb") as fh:
+        fh.truncate(0)
+        left = shutil.disk_usage(disk).free - leave_bytes
+        chunk = b"\0" * 2**20
+        while left > 0:
+            fh.write(chunk[:left])
+            left -= len(chunk)
+    return filler
+
+
+def test_a_full_disk_pauses_the_log_output_off_and_it_resumes_by_itself(tmp_path: Path, small_disk) -> None:
+    disk = small_disk(16)
+    logs = disk / "logs"
+    port, cfg = free_port(), tmp_path / "daemon.toml"
+    cfg.write_text(f'[daemon]\nbench = "full"\nlog_dir = "{logs.as_posix()}"\n[source]\nkind = "sim"\n'
+                   '[recording]\nidle_raw = "full"\nflush_interval_s = 0.25\nmax_total_gib = 0.0\n'
+                   f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
+    filler = fill(disk, 3 * 2**20)  # 3 MiB left: the log fills it in a couple of seconds
+    d = Daemon(tmp_path, cfg)
+    session = None
+    try:
+        d.wait_for("READY=1")
+        session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
+        status = Subscription(session, "hystbench/full/status")
+        raw = Subscription(session, "hystbench/full/raw")
+        health_when(session, "full", lambda h: True)  # connected: the subscriptions see what follows
+        send_command(session, "full", "output", {"on": True}, timeout_s=30.0)
+        paused = health_when(session, "full", lambda h: h["logging"] == "paused")
+        assert "No space left on device" in paused["log_error"] and str(logs) in paused["log_error"]
+        assert "MiB free" in paused["log_error"] and paused["log_free_bytes"] < RESUME_FREE_BYTES
+        assert paused["state"] == "running" and d.proc.poll() is None  # zenoh still answers
+        events = {}
+        while "logging_paused" not in events:
+            got = status.get(HANG_S)
+            assert got is not None, f"no logging_paused status; got {list(events)}"
+            events[json.loads(got[1])["event"]] = json.loads(got[1])
+        assert events["log_write_failed"]["folder"] == str(logs) and "output off" in events["logging_paused"]["message"]
+        output_off_after_failure = False  # a raw block with the output off comes once the log failed
+        while not output_off_after_failure:
+            got = raw.get(HANG_S)
+            assert got is not None, "no raw block with the output off after the log failed"
+            output_off_after_failure = not OperatingPoint.from_meta(decode(got[1]).meta).output_on
+        with pytest.raises(CommandRefused, match=r"log cannot be written .*No space left on device.*resumes by itself"):
+            send_command(session, "full", "output", {"on": True}, timeout_s=30.0)
+        filler.unlink()  # room again
+        resumed = health_when(session, "full", lambda h: h["logging"] == "on")
+        assert resumed["log"] and Path(resumed["log"]).exists() and resumed["log_error"] is None
+        assert send_command(session, "full", "output", {"on": True}, timeout_s=30.0)["ok"]
+        d.proc.send_signal(signal.SIGTERM)
+        assert d.proc.wait(timeout=HANG_S) == 0
+    finally:
+        if session is not None:
+            session.close()
+        d.close()
+    parts = bench_logs(logs, "full")
+    assert len(parts) == 2 and all(p.stat().st_size > 0 for p in parts)  # the cut part and the resumed one
+
+
+def test_sigterm_on_a_full_disk_ends_the_daemon_and_frees_the_bench(tmp_path: Path, small_disk) -> None:
+    """Started on a folder with no room: the daemon serves (log paused, output refused), a restart
+    leaves no empty part, SIGTERM ends it with exit 0 and the bench's lock is free again."""
+    disk = small_disk(4)
+    logs = disk / "logs"
+    logs.mkdir()
+    fill(disk, 0)
+    port, cfg = free_port(), tmp_path / "daemon.toml"
+    cfg.write_text(f'[daemon]\nbench = "nofree"\nlog_dir = "{logs.as_posix()}"\n[source]\nkind = "sim"\n'
+                   f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
+    for run in range(2):
+        d = Daemon(tmp_path, cfg, name=str(run))
+        session = None
+        try:
+            d.wait_for("READY=1")
+            session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
+            h = health_when(session, "nofree", lambda h: h["logging"] == "paused")
+            assert "No space left on device" in h["log_error"] and h["output_refused"]
+            d.proc.send_signal(signal.SIGTERM)
+            assert d.proc.wait(timeout=HANG_S) == 0, d.stderr()[-2000:]
+        finally:
+            if session is not None:
+                session.close()
+            d.close()
+        assert not list(logs.glob("*.mcap"))  # no empty part left behind, run after run
+
+
+# --- in the process: the recorder and retention ---------------------------------------------------------
+def test_a_write_error_names_the_part_the_folder_and_its_free_space(small_disk) -> None:
+    disk = small_disk(2)
+    rec = McapRecorder(disk / "x.mcap", compression="none", chunk_size=64 * 1024, flush_interval_s=0.01).start()
+    with pytest.raises(LogWriteError) as info:
+        for _ in range(10_000):  # 640 MB at most; the 2 MiB disk is full long before
+            rec.add_message("/status", {"t_ns": 0, "level": "info", "event": "fill", "message": "x" * 65_536})
+    err = info.value
+    assert str(disk / "x.mcap") in str(err) and "No space left on device" in str(err) and "MiB free" in str(err)
+    assert err.folder == str(disk) and err.errno == 28
+    rec.abandon()
+    with pytest.raises(LogWriteError, match="cannot start the log: No space left"):
+        McapRecorder(disk / "y.mcap").start()
+    assert not (disk / "y.mcap").exists()  # no empty part
+
+
+def test_retention_keeps_the_cap_as_the_log_grows(tmp_path: Path) -> None:
+    """A 2 MiB cap and a log written as fast as the simulation runs: at every point where the
+    recorder tells its size, this bench's parts add up to no more than the cap."""
+    cap = 2 * 2**20
+    toml = tmp_path / "daemon.toml"
+    toml.write_text(f'[daemon]\nbench = "cap"\nlog_dir = "{tmp_path.as_posix()}"\n'
+                    '[source]\nkind = "sim"\npace = "max"\nblock_samples = 5000\n'
+                    f'[recording]\nidle_raw = "full"\ncompression = "none"\nchunk_kib = 64\n'
+                    f'max_total_gib = {cap / 2**30!r}\n[zenoh]\nenabled = false\n[estimation]\nenabled = false\n',
+                    encoding="utf-8")
+    svc = BenchService(load_daemon_config(toml))
+    totals: list[int] = []
+    told = svc.log._grew
+
+    def grew(part: Path, size: int) -> None:
+        told(part, size)
+        totals.append(sum(p.stat().st_size for p in bench_logs(tmp_path, "cap")))
+    svc.log._grew = grew
+    svc.start()
+    try:
+        svc.pipeline.after_samples(4_000_000).wait(HANG_S)  # 64 MB of samples: 30 times the cap
+    finally:
+        svc.stop()
+    assert len(totals) > 100 and svc.log.deleted > 5
+    assert max(totals) <= cap, f"the folder reached {max(totals) / 2**20:.2f} MiB against a 2 MiB cap"

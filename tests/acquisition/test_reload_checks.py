@@ -1,0 +1,66 @@
+"""Issue 26 item 6: a reload that cannot take effect does not touch the running service.
+
+A daemon runs a sweep with the output on; its file is then changed three ways that cannot work
+(a listen port another process holds, a log folder under a file, a bench name another daemon
+serves) and SIGHUP is sent each time.  Each is refused naming why, and the sweep, the output and
+the log part go on as they were."""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+from pathlib import Path
+
+from hystbench.acquisition.instance import BenchLock
+from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config, open_session, peer_config
+
+from .conftest import HANG_S, Daemon, health_when
+
+
+def config_text(port: int, logs: Path, bench: str = "rl") -> str:
+    return (f'[daemon]\nbench = "{bench}"\nlog_dir = "{logs.as_posix()}"\n[source]\nkind = "sim"\n'
+            f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n'
+            '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 3600.0\nautostart = true\n')
+
+
+def test_a_reload_that_cannot_take_effect_is_refused_and_the_sweep_goes_on(tmp_path: Path) -> None:
+    port, logs, cfg = free_port(), tmp_path / "logs", tmp_path / "daemon.toml"
+    cfg.write_text(config_text(port, logs), encoding="utf-8")
+    (tmp_path / "a_file").write_text("not a folder")
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen()
+    other = BenchLock("other", folder=tmp_path / "state").acquire()  # another daemon's bench
+    d = Daemon(tmp_path, cfg)
+    session = None
+    try:
+        d.wait_for("READY=1")
+        session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
+        status = Subscription(session, "hystbench/rl/status")
+        before = health_when(session, "rl", lambda h: h["state"] == "sweeping")
+        bad = {"port taken": (config_text(taken.getsockname()[1], logs), "Address already in use"),
+               "log folder under a file": (config_text(port, tmp_path / "a_file" / "logs"), "Not a directory"),
+               "bench served": (config_text(port, logs, bench="other"), "already served")}
+        for case, (text, why) in bad.items():
+            cfg.write_text(text, encoding="utf-8")
+            d.proc.send_signal(signal.SIGHUP)
+            while True:  # the statuses until this reload's verdict
+                got = status.get(HANG_S)
+                assert got is not None, f"{case}: no reload verdict"
+                msg = json.loads(got[1])
+                if msg["event"].startswith("reload"):
+                    break
+            assert msg["event"] == "reload_refused" and why in msg["message"], (case, msg)
+            now = health_when(session, "rl", lambda h: True)
+            assert now["state"] == "sweeping" and now["log"] == before["log"], (case, now)
+            assert now["samples"] > before["samples"] and now["pid"] == before["pid"]
+        d.proc.send_signal(signal.SIGTERM)
+        assert d.proc.wait(timeout=HANG_S) == 0
+    finally:
+        if session is not None:
+            session.close()
+        d.close()
+        taken.close()
+        other.release()
+    assert len(list(logs.glob("rl-*.mcap"))) == 1  # one configuration ran, in one part
