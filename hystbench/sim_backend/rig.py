@@ -129,6 +129,22 @@ class SimulatedRig:
     def _tell_period(self) -> None:
         if hasattr(self.actuator, "set_period"):
             self.actuator.set_period(self.fs_hz / self.generator_frequency_hz)
+        if hasattr(self.actuator, "expect_current"):  # how the E-core solves its iron depends on it
+            self.actuator.expect_current(*self._current_range())
+
+    def _current_range(self) -> tuple[float, float]:
+        """The lowest and highest coil current the excitation asks for (output on), after the
+        amplifier's distortion when it is on."""
+        if self._waveform is None:
+            lo, hi = self.offset_a - 0.5 * self.current_pp_a, self.offset_a + 0.5 * self.current_pp_a
+        else:
+            lo, hi = float(self._waveform.min()), float(self._waveform.max())
+        if "amplifier_distortion" not in self.effects:
+            return lo, hi
+        d = self.effects["amplifier_distortion"]
+        i = np.linspace(lo, hi, 65)
+        i = i + float(d["second"]) * i**2 + float(d["third"]) * i**3
+        return float(i.min()), float(i.max())
 
     @property
     def generator_frequency_hz(self) -> float:

@@ -4,10 +4,13 @@ own MMF drop and the eddy currents, advanced one block at a time (vectorised).
 The iron is the one its material file's ``model`` names (:mod:`hystbench.physics.iron`): a Preisach
 operator or Rayleigh's law is the nonlinear remainder the fixed point iterates; a complex
 permeability is linear and goes into the exactly solved linear part (nu' into N, nu''/omega with
-the eddy currents into D, rebuilt whenever the excitation's period changes).  A block whose passes
-do not converge (the iron is steep: at a reversal deep in saturation, or where a loop whose extrema
-tie is wiped out and the tabulated branches leave a small step in H) is solved sample by sample
-instead, which converges over the whole current range (:meth:`ECoreActuator._solve_sequential`).
+the eddy currents into D, rebuilt whenever the excitation's period changes).  Where the passes
+stall (the iron is steep at a reversal deep in saturation; a loop whose extrema tie is wiped out
+where the tabulated branches leave a small step in H) the block is solved sample by sample, which
+converges over the whole current range (:meth:`ECoreActuator._solve_sequential`): every block of an
+excitation whose current can take the iron beyond its knee (decided from the commanded current, so
+the same whatever the cut into blocks), and a block whose passes stalled, with the rest of its
+excitation.  Beyond the field range of the material's model the block is refused, not invented.
 
 The same step runs as numba kernels (:mod:`.ecore_kernel`) when :func:`hystbench.jit.enabled`:
 the numpy code here is the reference they are tested against, and the fallback (``KERNEL``)."""
@@ -141,6 +144,9 @@ class ECoreActuator:
         self._omega = 2.0 * np.pi * float(preset["excitation"]["frequency_hz"])  # until the rig tells the period
         self._m = np.array([self._coil, self._magnet]) / self.area_m2  # flux density per MMF
         self._lag = self._linear_part()
+        #: B in the coil leg per (coil, magnet) MMF at DC with the linear iron: what the passes start
+        #: from, used to tell which blocks can take the iron beyond its knee (_beyond_knee)
+        self._b_dc = (np.linalg.inv(np.eye(2) + self._m @ self._lag.n) @ self._m)[0]
         self._b_knee = np.inf  # beyond it the iron's slope outgrows nu0 (only with saturation on)
         if self.hysteresis is not None and self._saturation:
             grid = np.linspace(0.0, 2.6, 1041)
@@ -248,10 +254,10 @@ class ECoreActuator:
         return x[0], h_rest, h_state, bool(np.max(np.abs(step)) <= CONVERGED * (np.max(np.abs(h_rest)) + 1.0))
 
     def _solve_sequential(self, fc: np.ndarray, fm: np.ndarray, current_a: np.ndarray):
-        """The block's fixed point when MAX_PASSES passes did not converge (every block that
-        converged before is untouched, sample for sample): solved sample by sample
-        (:func:`.ecore_kernel.solve_sequential`: each sample's B is bracketed and found, whatever
-        the iron's slope), from the committed states, so it does not depend on the passes' iterate.
+        """The block's fixed point where the passes stall (every block they settle below the knee is
+        untouched, sample for sample): solved sample by sample (:func:`.ecore_kernel.solve_sequential`:
+        each sample's B is bracketed and found, whatever the iron's slope), from the committed
+        states, so it does not depend on the passes' iterate nor on where the block begins.
 
         The passes stall in two places.  Deep in saturation, right after a reversal the branch's
         dH/dB is the reversible one, 1/mu_rev(H) (1e4 A/m per T at 5 kA/m; 1/mu0 in the limit):
@@ -301,6 +307,25 @@ class ECoreActuator:
             return self._solve_sequential(fc, fm, current_a)
         raise self._refusal(peak_b_t, current_a, f"{MAX_PASSES} passes")
 
+    def expect_current(self, low_a: float, high_a: float) -> None:
+        """The range of coil current the new excitation asks for (the rig calls this after
+        set_period): if it can take the iron beyond its knee, where the passes stall
+        (_solve_sequential says why), every block of the excitation is solved sample by sample,
+        however the stream is cut into blocks."""
+        self._by_sample = self._beyond_knee(self.turns * np.array([low_a, high_a]), self.magnet_mmf_a)
+
+    def _beyond_knee(self, fc: np.ndarray, fm: np.ndarray | float) -> bool:
+        """Whether the coil and magnet MMFs can take the iron beyond its knee: B read off them with
+        the linear iron at DC (2 % below the B the iron reaches)."""
+        return bool(np.size(fc)) and float(np.max(np.abs(self._b_dc[0] * fc + self._b_dc[1] * fm))) > self.saturation_knee_t
+
+    def _solve_by_sample(self, fc: np.ndarray, fm: np.ndarray) -> bool:
+        """Whether the block is solved sample by sample from the start: in an excitation that takes
+        the iron beyond its knee (expect_current), or once a block's passes have stalled, until the
+        excitation changes; or when the block's own MMFs reach beyond the knee (a magnet drifting
+        with temperature, a rig told nothing of its excitation)."""
+        return self._by_sample or self._beyond_knee(fc, fm)
+
     def _check_range(self, peak_b_t: float, current_a: np.ndarray) -> None:
         """Refuse a block whose iron goes beyond the field range of its material model (checked
         before anything is committed, so the rig may go on with less current)."""
@@ -334,7 +359,7 @@ class ECoreActuator:
             fm, dfm = fm * (1.0 + rate * t_s), self.magnet_mmf_a * rate
         # The linear part of the iron and the eddy currents are solved exactly by the recursion;
         # only the iron's nonlinear remainder h(B) - nu0 B is iterated (a small loop gain).
-        if self.hysteresis is not None and self._by_sample:
+        if self.hysteresis is not None and self._kernel_ok and self._solve_by_sample(fc, fm):
             h_rest, h_state, peak_b = self._solve_sequential(fc, fm, current_a)
         else:
             h_rest, h_state, passes = self._first_guess(fc.size)
@@ -407,7 +432,7 @@ class ECoreActuator:
         y_start = np.zeros(2) if cold else np.ascontiguousarray(lag.state[0], dtype=f64)
         if self.hysteresis is None:
             h_rest = np.zeros(n)
-        elif self._by_sample:
+        elif self._solve_by_sample(fc, fm):
             h_rest, h_state, peak_b = self._solve_sequential(fc, fm, current_a)
             self._check_range(peak_b, current_a)
             self._remember(h_rest)
