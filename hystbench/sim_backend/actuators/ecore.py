@@ -312,19 +312,27 @@ class ECoreActuator:
         set_period): if it can take the iron beyond its knee, where the passes stall
         (_solve_sequential says why), every block of the excitation is solved sample by sample,
         however the stream is cut into blocks."""
-        self._by_sample = self._beyond_knee(self.turns * np.array([low_a, high_a]), self.magnet_mmf_a)
+        fc = self.turns * np.array([low_a, high_a])
+        self._by_sample = self._beyond_knee(fc.min(), fc.max(), self.magnet_mmf_a, self.magnet_mmf_a)
 
-    def _beyond_knee(self, fc: np.ndarray, fm: np.ndarray | float) -> bool:
-        """Whether the coil and magnet MMFs can take the iron beyond its knee: B read off them with
-        the linear iron at DC (2 % below the B the iron reaches)."""
-        return bool(np.size(fc)) and float(np.max(np.abs(self._b_dc[0] * fc + self._b_dc[1] * fm))) > self.saturation_knee_t
+    def _beyond_knee(self, fc_low: float, fc_high: float, fm_low: float, fm_high: float) -> bool:
+        """Whether coil and magnet MMFs in these ranges can take the iron beyond its knee: B read off
+        them with the linear iron at DC (2 % below the B the iron reaches), at the ranges' corners
+        (it is affine in both)."""
+        b = [self._b_dc[0] * fc + self._b_dc[1] * fm for fc in (fc_low, fc_high) for fm in (fm_low, fm_high)]
+        return max(abs(x) for x in b) > self.saturation_knee_t
 
     def _solve_by_sample(self, fc: np.ndarray, fm: np.ndarray) -> bool:
         """Whether the block is solved sample by sample from the start: in an excitation that takes
         the iron beyond its knee (expect_current), or once a block's passes have stalled, until the
         excitation changes; or when the block's own MMFs reach beyond the knee (a magnet drifting
         with temperature, a rig told nothing of its excitation)."""
-        return self._by_sample or self._beyond_knee(fc, fm)
+        if self._by_sample:
+            return True
+        if not fc.size:
+            return False
+        fm_low, fm_high = (self.magnet_mmf_a,) * 2 if self._thermal is None else (float(fm.min()), float(fm.max()))
+        return self._beyond_knee(float(fc.min()), float(fc.max()), fm_low, fm_high)
 
     def _check_range(self, peak_b_t: float, current_a: np.ndarray) -> None:
         """Refuse a block whose iron goes beyond the field range of its material model (checked
