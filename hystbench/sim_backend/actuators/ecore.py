@@ -168,6 +168,7 @@ class ECoreActuator:
         self._compliance = 0.0 if comp is None else 1.0 / float(comp["stiffness_n_per_m"])
         self._prev_drop: np.ndarray | None = None
         self._rest_tail = np.full(2, np.nan)  # the iron's remainder at the last two samples (NaN: none yet)
+        self._primed = False  # the sample-by-sample solve compiled (_prime_sequential)
         # the kernels cover the Preisach iron and every linear iron; Rayleigh's loops stay in numpy
         self._kernel_ok = self.hysteresis is None or hasattr(self.hysteresis, "kernel_tables")
         self._kernel_lag: tuple[_LinearPart, np.ndarray, np.ndarray] | None = None  # lag it was built for
@@ -422,6 +423,16 @@ class ECoreActuator:
             self._kernel_tables = self.hysteresis.kernel_tables()
         return self._kernel_tables
 
+    def _prime_sequential(self, fc: np.ndarray, fm: np.ndarray, current_a: np.ndarray) -> None:
+        """Compile (or load from numba's cache) the sample-by-sample solve with the passes, during
+        the rig's warm-up: compiled the first time a rig saturates, it would hold a streaming clock
+        for 3 s (one sample, nothing committed)."""
+        self._primed = True
+        try:
+            self._solve_sequential(fc[:1], fm[:1], current_a[:1])
+        except SimulationError:
+            pass
+
     def _step_kernel(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
         """:meth:`step` by the numba kernels (same passes, same numbers; see ecore_kernel)."""
         from . import ecore_kernel as kern  # numba compiles (or loads its cache) on the first call
@@ -438,6 +449,8 @@ class ECoreActuator:
         lag = self._lag
         cold = lag.state is None
         y_start = np.zeros(2) if cold else np.ascontiguousarray(lag.state[0], dtype=f64)
+        if self.hysteresis is not None and not self._primed:
+            self._prime_sequential(fc, fm, current_a)
         if self.hysteresis is None:
             h_rest = np.zeros(n)
         elif self._solve_by_sample(fc, fm):
