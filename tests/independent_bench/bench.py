@@ -40,7 +40,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     "magnet_eddy_currents": {"sigma_S_per_m": 6.7e5, "shape_factor": 1.0},
     "iron_saturation": {"knee_T": 1.05, "power": 8.0},
     "instrument_filter": {"fn_Hz": 4450.0, "zeta": 0.012, "lpf_Hz": 31000.0, "lpf_zeta": 1.0},
-    "frame_resonance": {"frequency_Hz": 1175.0, "zeta": 0.015, "mass_ratio": 3.0, "coupling": 0.03},
+    "frame_resonance": {"frequency_Hz": 1175.0, "zeta": 0.015, "mass_ratio": 40.0, "coupling": 0.002},
     "charge_amp_highpass": {"tau_s": 4.0, "reset_before_s": 0.5},
     "integrator_leak": {"dc_gain": 2.0e4, "r_feedback_ohm": 4.7e6},
     "channel_skew": {"current_A": 0.5e-6, "force_N": 0.0, "flux_Wb": 0.0, "command_V": 0.0},

@@ -4,7 +4,7 @@ state, so each harmonic is multiplied by its response; exact, and no discretisat
 - Load cell + frame: two masses.  m1 (actuator + load-cell top) rides on the load cell's stiffness
   k1 over the frame mass m2, which sits on the floor through k2.  The actuator pulls m1 with +F and
   the mover's mount pulls the frame with -(1 - kappa) F (kappa: the part of the reaction the frame's
-  mode does not feel).  The piezo's charge follows its deformation: the reading is k1 (x1 - x2).  With a rigid frame this is the
+  mode does not feel; the mass ratio m2/m1 sets how much the frame's mode shows).  The piezo's charge follows its deformation: the reading is k1 (x1 - x2).  With a rigid frame this is the
   paper's single mode (fn, zeta); the frame adds its own mode.
 - Charge amplifier: a high-pass of time constant tau (the charge leaks through the feedback
   resistor), then the datasheet's 2nd-order low-pass.
@@ -30,6 +30,8 @@ def load_cell_frame_response(omega: np.ndarray, fn_hz: float | None, zeta: float
     if frame is None:
         return k1 / (k1 - m1 * w**2 + 1j * w * c1)
     m2 = float(frame["mass_ratio"]) * m1
+    k1 = m1 * m2 / (m1 + m2) * (2 * np.pi * f1) ** 2  # the cell's mode stays at fn on a frame that moves
+    c1 = 2 * zeta * np.sqrt(k1 * m1 * m2 / (m1 + m2))
     wf = 2 * np.pi * float(frame["frequency_Hz"])
     k2 = (m1 + m2) * wf**2  # the whole assembly on the frame's spring
     c2 = 2 * float(frame["zeta"]) * np.sqrt(k2 * (m1 + m2))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import configparser
 import sys
 from pathlib import Path
 
@@ -35,6 +36,15 @@ def test_the_package_imports_only_numpy_scipy_and_the_standard_library():
                     bad.append(f"{path.name}:{node.lineno}: {name}")
     assert bad == []
     assert len(_bench_sources()) >= 5  # the check saw the modules
+
+
+def test_the_contract_names_every_module_of_the_bench():
+    """A new module cannot escape the contract by being left out of it."""
+    ini = configparser.ConfigParser()
+    ini.read(PACKAGE / "importlinter.ini")
+    listed = set(ini["importlinter:contract:independent-bench"]["source_modules"].split())
+    modules = {f"independent_bench.{p.stem}" for p in _bench_sources() if p.stem != "__init__"}
+    assert listed == modules
 
 
 def test_import_linter_contract_holds(capsys):
