@@ -167,7 +167,8 @@ def test_saturation_beyond_the_material_model_is_refused_alike_on_both_paths(mon
 
 
 @needs_numba
-@pytest.mark.parametrize(("rig", "ipp", "offset"), [("ecore_pm", 6.0, 0.0), ("ecore_pm", 2.0, 2.5), ("ecore", 7.2, 0.0)])
+@pytest.mark.parametrize(("rig", "ipp", "offset"),
+                         [("ecore_pm", 6.0, 0.0), ("ecore_pm", 2.0, 2.5), ("ecore", 7.2, 0.0)])
 def test_kernel_equals_numpy_in_saturation(rig, ipp, offset, monkeypatch):
     """Beyond the knee the passes stall and the blocks are solved sample by sample: both paths run
     the one compiled solve, from the same committed states, so they agree as below the knee."""

@@ -166,7 +166,8 @@ class EmulatedBench:
             try:
                 block = self.tick()
             except Exception:  # the rig fails even with no current: nothing left to stream
-                log.exception("emulated bench: the simulated rig %s cannot go on; the sample clock stops", self.rig.name)
+                log.exception("emulated bench: the simulated rig %s cannot go on; the sample clock stops",
+                              self.rig.name)
                 return
             if self.pacer is not None and (wait := self.pacer.wait_s(block.end_index, time.monotonic())) > 0:
                 self._stop.wait(wait)
