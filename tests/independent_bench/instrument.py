@@ -4,8 +4,10 @@ state, so each harmonic is multiplied by its response; exact, and no discretisat
 - Load cell + frame: two masses.  m1 (actuator + load-cell top) rides on the load cell's stiffness
   k1 over the frame mass m2, which sits on the floor through k2.  The actuator pulls m1 with +F and
   the mover's mount pulls the frame with -(1 - kappa) F (kappa: the part of the reaction the frame's
-  mode does not feel; the mass ratio m2/m1 sets how much the frame's mode shows).  The piezo's charge follows its deformation: the reading is k1 (x1 - x2).  With a rigid frame this is the
-  paper's single mode (fn, zeta); the frame adds its own mode.
+  mode does not feel; the mass ratio m2/m1 sets how much the frame's mode shows).  The piezo's
+  charge follows its deformation: the reading is k1 (x1 - x2).  With a rigid frame this is the
+  paper's single mode (fn, zeta); the frame adds its own mode, and k1 is set so the cell's mode
+  stays at fn.
 - Charge amplifier: a high-pass of time constant tau (the charge leaks through the feedback
   resistor), then the datasheet's 2nd-order low-pass.
 - Flux integrator: an inverting op-amp integrator, R_in and C, with a finite open-loop DC gain

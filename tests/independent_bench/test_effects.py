@@ -69,7 +69,7 @@ def _phase(x: np.ndarray, t: np.ndarray, f: float) -> float:
 def test_integrator_leak_leads_the_flux_as_its_circuit_says():
     off, on = _pair("integrator_leak")
     p = DEFAULTS["integrator_leak"]
-    w = 2 * np.pi * _f_seen(40.0) * (1 + B.adc_clock_ppm * 1e-6)
+    w = 2 * np.pi * 40.0 * (1 + B.generator_clock_ppm * 1e-6)  # the true excitation
     # corner of the real integrator: its feedback resistor and the op-amp's finite gain
     w_leak = 1 / (p["r_feedback_ohm"] * B.integrator_c_f) + 1 / (p["dc_gain"] * B.integrator_r_in_ohm * B.integrator_c_f)
     lead = _phase(on["flux_Wb"], on["time_s"], _f_seen(40.0)) - _phase(off["flux_Wb"], off["time_s"], _f_seen(40.0))
