@@ -30,7 +30,10 @@ def health_when(session, bench: str, cond) -> dict:
 class Daemon:
     """The daemon in a subprocess with a notify socket of our own."""
 
-    def __init__(self, tmp: Path, config: Path | str, *, state: Path | None = None, name: str = "") -> None:
+    def __init__(self, tmp: Path, config: Path | str, *, state: Path | None = None, name: str = "",
+                 python: tuple[str, ...] = ("-m", "hystbench")) -> None:
+        """``python``: what runs ``hystbench daemon --config CONFIG`` (``-c SCRIPT``: a script that
+        injects a fault first, then calls ``hystbench.cli.main.main(sys.argv[1:])``)."""
         self.sock_path = tmp / f"notify{name}.sock"
         self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self.sock.bind(str(self.sock_path))
@@ -39,7 +42,7 @@ class Daemon:
         env = dict(os.environ, NOTIFY_SOCKET=str(self.sock_path), WATCHDOG_USEC="400000", PYTHONUNBUFFERED="1",
                    STATE_DIRECTORY=str(state or tmp / "state"))
         env.pop("WATCHDOG_PID", None)
-        self.proc = subprocess.Popen([sys.executable, "-m", "hystbench", "daemon",
+        self.proc = subprocess.Popen([sys.executable, *python, "daemon",
                                       "--config", str(config)], cwd=ROOT, env=env,
                                      stdout=subprocess.DEVNULL, stderr=open(self.stderr_path, "wb"))
 

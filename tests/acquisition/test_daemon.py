@@ -358,17 +358,34 @@ def test_a_hardware_bench_file_as_config_fails_only_at_connect(tmp_path: Path, m
     assert "current_amplifier" in errors[0] and str(tmp_path / "absent-ttyUSB0") in errors[0]
 
 
+#: The daemon with a simulated rig that cannot follow 3 A-pp or more (a SimulationError in the source
+#: thread, as the E-core's iron gave before it learnt to saturate): a fault the service cannot control.
+_RIG_THAT_FAILS = """
+import sys
+from hystbench.errors import SimulationError
+from hystbench.sim_backend.rig import SimulatedRig
+read = SimulatedRig.read
+def failing(self, n):
+    if self.output_enabled and self.current_pp_a >= 3.0:
+        raise SimulationError(f"{self.name}: cannot follow {self.current_pp_a:g} A-pp (injected)")
+    return read(self, n)
+SimulatedRig.read = failing
+from hystbench.cli.main import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
 def test_a_fault_in_the_source_is_survived_output_off(tmp_path: Path) -> None:
-    """A command within the bench's limit that the simulated magnet-biased E-core cannot follow
-    (3 A-pp: its iron saturates, the simulation refuses in the source thread) ended the daemon
-    ('pipeline failed ... stopping', exit 1); now the daemon's loop publishes the fault, restarts
-    the source and pipeline with the output off, and answers the next command."""
+    """A command within the bench's limit that the simulated rig cannot follow (the simulation
+    raises in the source thread) ended the daemon ('pipeline failed ... stopping', exit 1); now
+    the daemon's loop publishes the fault, restarts the source and pipeline with the output off,
+    and answers the next command."""
     from hystbench.acquisition.zenoh_bus import Subscription, send_command
 
     port, cfg = free_port(), tmp_path / "daemon.toml"
     cfg.write_text(f'[daemon]\nbench = "d4"\nlog_dir = "{(tmp_path / "logs").as_posix()}"\n[source]\nkind = "sim"\n'
                    f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
-    d = Daemon(tmp_path, cfg)
+    d = Daemon(tmp_path, cfg, python=("-c", _RIG_THAT_FAILS))
     session = None
     try:
         d.wait_for("READY=1")
