@@ -9,12 +9,13 @@ control dropping the query).
 
 from __future__ import annotations
 
+import json
 import threading
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..deadline import Deadline
 from ..errors import CommandRefused, ConfigError, NoReply
-from .zenoh_bus import COMMANDS, key, load_zenoh_config, open_session, query_json
+from .zenoh_bus import COMMANDS, MAX_COMMAND_BYTES, key, load_zenoh_config, open_session, query_json
 
 if TYPE_CHECKING:
     import zenoh
@@ -38,9 +39,12 @@ def describe_endpoint(connect: Sequence[str] | None, zenoh_config: str | None) -
 
 def open_client(connect: Sequence[str] | None = None, zenoh_config: str | None = None) -> zenoh.Session:
     """A client session: a peer that listens nowhere and connects to ``connect`` (default
-    :data:`DEFAULT_CONNECT`, or the endpoints of ``zenoh_config`` when one is given)."""
+    :data:`DEFAULT_CONNECT`, or the endpoints of ``zenoh_config`` when one is given).  Not a
+    serving one: it takes messages as large as zenoh does (a raw block may be megabytes).  A bad
+    endpoint or file is a one-line :class:`~hystbench.errors.ConfigError` naming it."""
     endpoints = list(connect or ([] if zenoh_config else [DEFAULT_CONNECT]))
-    cfg = load_zenoh_config(zenoh_config, listen=[] if not zenoh_config else None, connect=endpoints or None)
+    cfg = load_zenoh_config(zenoh_config, listen=[] if not zenoh_config else None, connect=endpoints or None,
+                            serve=False)
     return open_session(cfg)
 
 
@@ -85,6 +89,10 @@ class BenchControl:
             raise ConfigError(f"unknown verb {verb!r}; known: {', '.join((*COMMANDS, *QUERIES))}")
         k = self.keyexpr(verb)
         payload = dict(args or {}) if verb in COMMANDS else None
+        size = len(json.dumps(payload).encode()) if payload is not None else 0
+        if size > MAX_COMMAND_BYTES:  # the daemon would refuse it (or zenoh drop it: no reply at all)
+            raise ConfigError(f"{verb}: the arguments are {size} bytes of JSON, more than the {MAX_COMMAND_BYTES} "
+                              "a daemon takes")
         deadline = Deadline(self.timeout_s)
         pause = threading.Event()
         while True:

@@ -44,12 +44,25 @@ if TYPE_CHECKING:
     import zenoh
 
 __all__ = ["PREFIX", "key", "peer_config", "load_zenoh_config", "ZenohBus",
-           "Subscription", "send_command", "query_json", "free_port", "open_session", "ListenError", "COMMANDS"]
+           "Subscription", "send_command", "query_json", "free_port", "open_session", "ListenError", "COMMANDS",
+           "MAX_COMMAND_BYTES", "MAX_COMMAND_DEPTH", "MAX_MESSAGE_BYTES"]
 
 log = logging.getLogger("hystbench.zenoh")
 
 PREFIX = "hystbench"
 COMMANDS = tuple(_COMMAND_ARGS)
+#: The largest command payload the daemon takes, in bytes (docs/zenoh.md): a larger one is refused
+#: before it is copied out of zenoh or parsed.  The largest legal command, a sweep of
+#: ``MAX_SWEEP_POINTS`` (1000) frequencies, is about 20 kB of JSON.
+MAX_COMMAND_BYTES = 64 * 1024
+#: The deepest nesting of arrays and objects a command's JSON may have (a legal one has 2: the
+#: object and a sweep's list of frequencies); deeper is refused before it is parsed.
+MAX_COMMAND_DEPTH = 8
+#: The largest message a serving session (one that listens: the daemon's) puts together from
+#: fragments (zenoh's ``transport/link/rx/max_message_size``, 1 GiB by default): a larger one is
+#: dropped by zenoh unseen, so no client can make the daemon hold more than this per message.
+#: Sixteen times MAX_COMMAND_BYTES, so that a payload a little too big is refused with a reason.
+MAX_MESSAGE_BYTES = 1024 * 1024
 
 
 def key(bench: str, *parts: str) -> str:
@@ -81,38 +94,94 @@ def peer_config(*, listen: list[str] | None = None, connect: list[str] | None = 
     cfg: dict[str, Any] = {"mode": "peer", "listen": {"endpoints": list(listen or [])},
                            "connect": {"endpoints": list(connect or [])},
                            "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-                           "transport": {"link": {"tx": {"queue": TX_QUEUE}}}}
+                           "transport": {"link": {"tx": {"queue": TX_QUEUE}},
+                                         "shared_memory": {"enabled": False}}}
     if user is not None:
         cfg["transport"]["auth"] = {"usrpwd": {"user": user, "password": password or ""}}
     return cfg
 
 
 def load_zenoh_config(source: str | Path | Mapping | None, *, listen: list[str] | None = None,
-                      connect: list[str] | None = None) -> zenoh.Config:
+                      connect: list[str] | None = None, serve: bool | None = None) -> zenoh.Config:
     """A ``zenoh.Config`` from a json5 file, a dict or (None) :func:`peer_config`; ``listen`` and
-    ``connect``, when given, replace the file's endpoints (tests put ephemeral ports there)."""
+    ``connect``, when given, replace the file's endpoints (tests put ephemeral ports there).
+
+    Whatever the source says, two limits are set (docs/zenoh.md, "Memory"):
+
+    - zenoh's shared memory is off: a session that receives a buffer in a peer's shared memory
+      keeps that peer's whole segment (16 MiB by default) mapped until the process ends, even after
+      the peer has gone (zenoh 1.10, ``ShmReader``; eclipse-zenoh/zenoh#2787), so every local
+      client that ever sent the daemon 3 KiB or more added 16 MiB to it for good (issue 26).
+      Over loopback TCP instead.
+    - a session that serves (``serve``; by default: one that listens on an endpoint, as the
+      daemon's does) reassembles messages of at most :data:`MAX_MESSAGE_BYTES`; a client's
+      (``serve=False``) keeps zenoh's limit, as a raw block may be larger.
+
+    A bad endpoint or file is a :class:`ConfigError` of one line naming it."""
     import zenoh
 
+    for role, endpoints in (("listen", listen), ("connect", connect)):
+        _check_endpoints(role, endpoints or ())
+    where = f"zenoh config {source if source is not None and not isinstance(source, Mapping) else '(built-in)'}"
     try:
         if source is None:
             cfg = zenoh.Config.from_json5(json.dumps(peer_config(listen=listen, connect=connect)))
-            return cfg
-        if isinstance(source, Mapping):
-            cfg = zenoh.Config.from_json5(json.dumps(dict(source)))
         else:
-            path = Path(source)
-            if not path.is_file():
-                raise ConfigError(f"{path}: zenoh config file not found")
-            cfg = zenoh.Config.from_file(str(path))
-        if listen is not None:
-            cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
-        if connect is not None:
-            cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
+            if isinstance(source, Mapping):
+                cfg = zenoh.Config.from_json5(json.dumps(dict(source)))
+            else:
+                path = Path(source)
+                if path.is_dir():
+                    raise ConfigError(f"{path}: is a folder, not a zenoh config file")
+                if not path.is_file():
+                    raise ConfigError(f"{path}: zenoh config file not found")
+                where = f"zenoh config {path}"
+                cfg = zenoh.Config.from_file(str(path))
+            if listen is not None:
+                cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
+            if connect is not None:
+                cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        cfg.insert_json5("transport/shared_memory/enabled", "false")
+        if serve if serve is not None else bool(_config_endpoints(cfg, "listen")):
+            limit = json.loads(cfg.get_json("transport/link/rx/max_message_size"))
+            cfg.insert_json5("transport/link/rx/max_message_size", str(min(int(limit), MAX_MESSAGE_BYTES)))
         return cfg
     except ConfigError:
         raise
     except Exception as err:  # zenoh.ZError and friends: say which config
-        raise ConfigError(f"zenoh config {source if source is not None else '(built-in)'}: {err}") from err
+        raise ConfigError(f"{where}: {_plain(str(err))}") from None
+
+
+#: What a zenoh endpoint looks like, for messages.
+_ENDPOINT_FORM = "<protocol>/<address>[?<metadata>][#<config>], e.g. tcp/127.0.0.1:7447"
+
+
+def _check_endpoints(role: str, endpoints) -> None:
+    """Each endpoint as zenoh reads it; a ConfigError naming the first it refuses."""
+    import zenoh
+
+    for ep in endpoints:
+        try:
+            zenoh.Config().insert_json5(f"{role}/endpoints", json.dumps([ep]))
+        except Exception as err:
+            why = re.sub(r"^line \d+, column \d+: ", "", _plain(str(err)))  # the place in a one-item list
+            why = "not a zenoh endpoint" if why.startswith("Endpoints must be of the form") else why
+            raise ConfigError(f"{role} endpoint {_preview_text(ep)}: {why} ({_ENDPOINT_FORM})") from None
+
+
+def _config_endpoints(cfg: zenoh.Config, role: str) -> list[str]:
+    """The endpoints ``cfg`` will ``role`` ("listen", "connect") on in its mode (the value may
+    be one list or one per mode)."""
+    value = json.loads(cfg.get_json(f"{role}/endpoints"))
+    if isinstance(value, dict):
+        value = value.get(json.loads(cfg.get_json("mode")) or "peer") or []
+    return [str(v) for v in value or []]
+
+
+def _preview_text(value: Any, limit: int = 80) -> str:
+    """``repr(value)``, cut to ``limit`` characters (a message quotes what it refused, not all of it)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 class ListenError(NetworkError):
@@ -120,12 +189,26 @@ class ListenError(NetworkError):
 
 
 def _plain(message: str) -> str:
-    """zenoh's error text without the Rust source locations it appends (`` at /root/.cargo/...rs:61.``)."""
-    return re.sub(r"\s+at\s+\S+\.rs:\d+\.?", "", message).strip()
+    """zenoh's error text as one line for a person: without the Rust source locations it appends
+    (`` at /root/.cargo/...rs:61.``), a json5 error's ``Message { msg: "...", location: ... }``
+    and a parser's drawing of the line (`` --> 1:9 | ... = expected ...``) as
+    ``line L, column C: what``."""
+    text = re.sub(r"\s+at\s+\S+\.rs:\d+\.?", "", message)
+    wrapped = re.search(r'Message \{ msg: "(.*)", location: '
+                        r'(?:Some\(Location \{ line: (\d+), column: (\d+) \}\)|None) \}', text, re.S)
+    if wrapped:
+        what = wrapped.group(1).replace('\\"', '"')
+        text = f"line {wrapped.group(2)}, column {wrapped.group(3)}: {what}" if wrapped.group(2) else what
+    drawn = re.search(r"-->\s*(\d+):(\d+)", text)
+    said = re.search(r"^\s*=\s*(.+)$", text, re.M)
+    if drawn and said:
+        text = f"line {drawn.group(1)}, column {drawn.group(2)}: {said.group(1)}"
+    return " ".join(text.split())
 
 
 def open_session(config: zenoh.Config) -> zenoh.Session:
-    """A zenoh session; a taken listening port is a :class:`ListenError` naming the endpoint."""
+    """A zenoh session; a taken listening port is a :class:`ListenError` naming the endpoint; any
+    other refusal a :class:`ConfigError` of one line naming the endpoints."""
     import zenoh
 
     try:
@@ -138,7 +221,12 @@ def open_session(config: zenoh.Config) -> zenoh.Session:
             why = "address already in use (another hystbench daemon or a zenoh router?)" \
                 if "Address already in use" in text else text
             raise ListenError(f"cannot listen on {endpoint}: {why}") from None
-        raise ConfigError(f"cannot open the zenoh session: {text}") from None
+        try:
+            where = "; ".join(f"{role} {', '.join(eps)}" for role in ("listen", "connect")
+                              if (eps := _config_endpoints(config, role)))
+        except Exception:
+            where = ""
+        raise ConfigError(f"cannot open a zenoh session ({where or 'no endpoints'}): {text}") from None
 
 
 # --- the daemon's side -----------------------------------------------------------------------------------
@@ -168,6 +256,8 @@ class ZenohBus:
         self.put_errors = 0
         self.published = 0
         self.commands = 0
+        self.refused = 0  # commands answered ok: false (each logged in one line)
+        self._failures: set[tuple[str, str]] = set()  # (verb, exception) whose traceback was logged
 
     def open(self) -> "ZenohBus":
         import zenoh
@@ -245,25 +335,86 @@ class ZenohBus:
         return handler
 
     def _command(self, query) -> None:
+        """``cmd/<verb>``: answered, always; a refusal is logged in one line naming the verb and why."""
         with query:
             verb = str(query.key_expr).rsplit("/", 1)[-1]
             try:
-                args = json.loads(query.payload.to_bytes()) if query.payload else {}
-                if not isinstance(args, dict):
-                    raise ConfigError(f"cmd/{verb}: the payload must be a JSON object, got {type(args).__name__}")
-                if verb not in COMMANDS:
-                    raise ConfigError(f"unknown command {verb!r}; known: {', '.join(COMMANDS)}")
+                args = self._arguments(verb, query.payload)
                 if self.on_command is None:
                     raise CommandRefused("this bench takes no commands")
                 result = self.on_command(verb, args)
                 self.commands += 1
                 query.reply(query.key_expr, json_bytes({"ok": True, **(result or {})}), encoding="application/json")
             except (BenchError, ValueError) as err:
+                self.refused += 1
+                log.warning("cmd/%s refused: %s", _verb_text(verb), _one_line(str(err)))
                 query.reply_err(json_bytes({"ok": False, "error": str(err)}), encoding="application/json")
             except Exception as err:  # never let a command go unanswered (nor kill zenoh's thread)
-                log.exception("cmd/%s failed", verb)
-                query.reply_err(json_bytes({"ok": False, "error": f"cmd/{verb} failed: {type(err).__name__}: {err}"}),
+                self.refused += 1
+                kind = (verb if verb in COMMANDS else "?", type(err).__name__)
+                first = kind not in self._failures and len(self._failures) < 100
+                self._failures.add(kind)  # a traceback once per kind, not once per command a client repeats
+                log.error("cmd/%s failed: %s: %s%s", _verb_text(verb), type(err).__name__, _one_line(str(err)),
+                          "" if first else " (traceback logged before)", exc_info=first)
+                query.reply_err(json_bytes({"ok": False, "error": f"cmd/{_verb_text(verb)} failed: "
+                                            f"{type(err).__name__}: {_one_line(str(err))}"}),
                                 encoding="application/json")
+
+    @staticmethod
+    def _arguments(verb: str, payload) -> dict:
+        """A command's arguments: its payload, checked before it is parsed (the verb known, at most
+        :data:`MAX_COMMAND_BYTES`, nested at most :data:`MAX_COMMAND_DEPTH` deep), as a JSON object."""
+        if verb not in COMMANDS:
+            raise ConfigError(f"unknown command {_verb_text(verb)}; known: {', '.join(COMMANDS)}")
+        if not payload:
+            return {}
+        size = len(payload)
+        if size > MAX_COMMAND_BYTES:  # before to_bytes(): too big is never copied out of zenoh
+            raise ConfigError(f"cmd/{verb}: the payload is {size} bytes, more than the {MAX_COMMAND_BYTES} a "
+                              "command may have")
+        raw = payload.to_bytes()
+        depth = _depth_over(raw, MAX_COMMAND_DEPTH)
+        if depth is not None:
+            raise ConfigError(f"cmd/{verb}: the payload nests arrays and objects {depth} deep, more than the "
+                              f"{MAX_COMMAND_DEPTH} a command may have")
+        try:
+            args = json.loads(raw)
+        except ValueError as err:  # JSONDecodeError, UnicodeDecodeError, an integer of 5000 digits
+            raise ConfigError(f"cmd/{verb}: the payload is not JSON: {_one_line(str(err))}") from None
+        if not isinstance(args, dict):
+            raise ConfigError(f"cmd/{verb}: the payload must be a JSON object, got {type(args).__name__}")
+        return args
+
+
+_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"', re.S)
+_BRACKET = re.compile(rb"[\[\]{}]")
+
+
+def _depth_over(raw: bytes, limit: int) -> int | None:
+    """How deep arrays and objects nest in ``raw`` if that is more than ``limit``, else None;
+    brackets inside strings do not count, and nothing is parsed (the parser's recursion on a
+    payload such as 30 000 ``[`` is what this guards)."""
+    if raw.count(b"[") + raw.count(b"{") <= limit:
+        return None  # no deeper than the brackets it has
+    depth = deepest = 0
+    for m in _BRACKET.finditer(_STRING.sub(b'""', raw)):
+        if m.group() in b"[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        else:
+            depth -= 1
+    return deepest if deepest > limit else None
+
+
+def _verb_text(verb: str) -> str:
+    """A verb for a message: as it is if it is one, else quoted and cut short (a client chooses it)."""
+    return verb if verb in COMMANDS else _preview_text(verb, 40)
+
+
+def _one_line(text: str, limit: int = 300) -> str:
+    """``text`` on one line (a log line per refusal, never one a client's newline splits), cut short."""
+    text = text.replace("\r", "\\r").replace("\n", "\\n")
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 # --- a client's side ---------------------------------------------------------------------------------------

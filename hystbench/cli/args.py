@@ -77,12 +77,16 @@ def positive_floats(text: str) -> list[float]:
 
 
 def _items(text: str, item: Callable[[str], float], what: str) -> list[float]:
-    """``text`` split at commas, each part through ``item`` (``what`` it must be, for the message)."""
-    parts = [p.strip() for p in text.split(",") if p.strip()]
-    if not parts:
+    """``text`` split at commas, each part through ``item`` (``what`` it must be, for the message).
+    An empty item (``80,,160``, ``80,``) is refused, not skipped: it is a number left out, and
+    leaving it out would run one point fewer than the operator typed."""
+    parts = [p.strip() for p in text.split(",")]
+    if not any(parts):
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, each {what}, got {text!r}")
     out = []
-    for part in parts:
+    for k, part in enumerate(parts, 1):
+        if not part:
+            raise argparse.ArgumentTypeError(f"item {k} of {text!r} is empty; every item must be {what}")
         try:
             out.append(item(part))
         except argparse.ArgumentTypeError:
