@@ -223,7 +223,7 @@ def zenoh_config(cfg: DaemonConfig) -> zenoh.Config:
     src = z["config"] or None
     listen = z["listen"] if (src is None or ("zenoh", "listen") in cfg.given) else None
     connect = z["connect"] if (src is None or ("zenoh", "connect") in cfg.given) else None
-    return load_zenoh_config(src, listen=listen, connect=connect)
+    return load_zenoh_config(src, listen=listen, connect=connect, serve=True)  # bounded, listening or not
 
 
 def run_daemon(config_path: str | Path | None) -> int:

@@ -447,6 +447,7 @@ class BenchService:
                 "limits": {"max_current_a": self.limits.max_current_a,
                            "frequency_hz": [MIN_FREQUENCY_HZ, self.limits.max_frequency_hz]},
                 "samples": p.stats["source"].samples if p else 0, "estimates": self.estimates,
+                "commands_refused": self.bus.refused if self.bus is not None else 0,
                 "faults": len(self.faults), "trips": self.trips, "last_fault": self.last_fault,
                 "output_refused": self.why_output_off() or None,
                 "pipeline_error": repr(p.error) if p and p.error else None, "last_estimate_error": self.last_error}
