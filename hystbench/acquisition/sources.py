@@ -368,8 +368,13 @@ class BenchSource:
         settle_until = -1  # samples before this index may predate the last command
         commanded_at: float | None = None  # the last command's time, until its first sample is known
         settle = int(self.settle_s * self.fs_hz)
+        # The first block is the first one handed out, not the first turn after which the bench
+        # knows where the streams start: a turn can learn that and still hand out nothing (a slow
+        # stream's backlog ends before another's first sample, as on a loaded machine), and a
+        # command applied after it would apply before the first block.
+        started = False
         while (stop is None or not stop.is_set()) and (left is None or left > 0):
-            cursor = bench.next_index
+            cursor = bench.next_index if started else None
             # after the first sample (settling is counted from it), every sample the instruments
             # may still hold is marked settling
             if cursor is not None and self._apply_commands():
@@ -384,6 +389,7 @@ class BenchSource:
                 limit = self.min_block_samples if limit is None else min(limit, self.min_block_samples)
             if (b := bench.read_aligned(limit, min_samples=self.min_block_samples, gather_s=self.gather_s)) is None:
                 continue
+            started = True
             if left is not None:
                 left -= b.n
             g = bench.generator.state

@@ -7,7 +7,9 @@ block, the truth against which samples that came through the drivers are checked
 Nothing here waits on wall time: tests wait for the emulator's sample clock to reach an index
 (``Hil.wait_clock``), for a condition the clock's blocks make true (``Hil.wait_for``), or acquire
 until the samples they need have come (``acquire_through``).  The timeouts only turn a hang into a
-failure.  Where a measurement begins is a sample index too: the one where the output came on
+failure.  A fault placed at a sample index ahead of the clock is placed from the clock's own thread
+(``arm_ahead``), so the clock cannot pass the index while the test's thread waits for the CPU.
+Where a measurement begins is a sample index too: the one where the output came on
 (``switched_on_at``, from the emulator's log of the rig's settings), not "whatever arrives after
 start_output() returned" (``skip_to``).  And the streams' stall timeout is a hang bound
 (``STALL_S``): the emulated instruments share the machine's CPU, so a busy machine holds their
@@ -109,11 +111,50 @@ class Hil:
         """A sample index no frame has been made for yet: ``n_blocks`` blocks past the clock."""
         return self.emu.next_index + n_blocks * self.emu.block_samples
 
+    def arm_ahead(self, n_blocks: int, arm: Callable[[int], None]) -> int:
+        """``arm(index)`` with ``index`` = ``blocks_ahead(n_blocks)``, on the clock thread (see
+        :func:`arm_ahead`).  Returns ``index``."""
+        return arm_ahead(self.emu, n_blocks, arm)
+
     def close(self) -> None:
         try:
             self.bench.close()
         finally:
             self.emu.close()
+
+
+def arm_ahead(emu: EmulatedBench, n_blocks: int, arm: Callable[[int], None]) -> int:
+    """``arm(index)`` with ``index`` ``n_blocks`` clock blocks past the emulator's clock, called on
+    the clock thread between two of its blocks, so the clock cannot pass ``index`` before ``arm``
+    returns.  From the test's thread, a busy machine can hold the test between reading the clock
+    and arming a fault for longer than a few 10 ms ticks: the fault then lands later than the
+    test says.  Returns ``index``."""
+    done, at = threading.Event(), []
+
+    def tap(block: SampleBlock) -> None:  # after the rig made ``block``, before it is sent
+        if not at:
+            at.append(block.end_index + n_blocks * emu.block_samples)
+            arm(at[0])
+            done.set()
+
+    emu.taps.append(tap)
+    try:
+        assert done.wait(HANG_S), "the emulator's clock stopped"
+    finally:
+        emu.taps.remove(tap)
+    return at[0]
+
+
+def wait_clock(emu: EmulatedBench, index: int) -> None:
+    """Wait, on the clock's own blocks, until the emulator has made every sample before ``index``
+    (for an emulator no ``Hil`` wraps: a ``BenchSource``'s, or one a test builds)."""
+    reached = threading.Event()
+    tap = lambda block: reached.set() if block.end_index >= index else None  # noqa: E731
+    emu.taps.append(tap)
+    try:
+        assert emu.next_index >= index or reached.wait(HANG_S), "the emulator's clock stopped"
+    finally:
+        emu.taps.remove(tap)
 
 
 def merge_runs(runs: list[SampleBlock]) -> list[SampleBlock]:

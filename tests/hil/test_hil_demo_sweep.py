@@ -13,25 +13,12 @@ the change are dropped up to where the streams' readers, caught up, placed the c
 leaves room for it.
 """
 
-import threading
-
 from hystbench.analysis.settling import settling_time_s
 from hystbench.reports import demo
 from hystbench.drivers.bench import Bench
 from hystbench.sim_backend.emulators.bench import EmulatedBench
 
-from .conftest import HANG_S
-
-
-def wait_clock(emu: EmulatedBench, index: int) -> None:
-    """Wait, on the clock's own blocks, until the emulator has made every sample before ``index``."""
-    reached = threading.Event()
-    tap = lambda block: reached.set() if block.end_index >= index else None  # noqa: E731
-    emu.taps.append(tap)
-    try:
-        assert emu.next_index >= index or reached.wait(HANG_S), "the emulator's clock stopped"
-    finally:
-        emu.taps.remove(tap)
+from .conftest import wait_clock
 
 
 def test_each_point_is_measured_after_its_change_and_the_settling(monkeypatch):

@@ -269,8 +269,9 @@ def test_serial_instrument_silent_for_a_moment_gives_an_exact_gap_and_no_stop(hi
     hil = hil_factory(**{"sim.block_samples": "1000"})  # 10 ms ticks: the silence is 10 of them, shorter
     hil.bench.start_output()  # than two of the heartbeat's 1 s reply deadlines (then it is a fault)
     streams = streams_flowing(hil)
-    at, span = hil.blocks_ahead(2), 10 * hil.emu.block_samples
-    hil.emu.charge_amp.faults.silence(at, span)  # serial cable out for 0.1 s: no replies, no frames
+    span = 10 * hil.emu.block_samples  # serial cable out for 0.1 s: no replies, no frames (all of
+    # it: set before the clock can reach its start, however busy the machine)
+    at = hil.arm_ahead(2, lambda at: hil.emu.charge_amp.faults.silence(at, span))
     runs = acquire_through(hil, at + span + hil.emu.block_samples)
     gap = check_runs(hil, runs)
     assert gap == span and streams["charge_amplifier"].stats.gap_samples == gap

@@ -15,17 +15,21 @@ from .conftest import HANG_S, acquire_through
 from .test_hil_faults import check_runs, streams_flowing
 
 
-def hold_clock_at(hil, index):
-    """Stop the clock thread when it reaches ``index``; returns (stalled, release) events."""
+def hold_clock_ahead(hil, n_blocks):
+    """Stop the clock thread when it reaches ``n_blocks`` blocks past where it is; returns (index,
+    stalled, release).  The index is taken on the clock thread (``Hil.arm_ahead``): taken on the
+    test's, a busy machine could let the clock pass it before the hold was set, and it never held."""
     stalled, release = threading.Event(), threading.Event()
+    at: list[int] = []
 
     def tap(block):
-        if block.first_index == index:
+        if at and block.first_index == at[0]:
             stalled.set()
             release.wait(HANG_S)
 
     hil.emu.taps.append(tap)
-    return stalled, release
+    hil.arm_ahead(n_blocks, at.append)
+    return at[0], stalled, release
 
 
 def let_real_time_pass(hil, polls):
@@ -40,8 +44,7 @@ def test_a_clock_that_fell_behind_goes_on_with_the_same_samples(hil):
     clock for what it is, not for a pulled cable (no reconnect, so no frame lost meanwhile)."""
     hil.bench.start_output()
     streams = streams_flowing(hil)
-    at = hil.blocks_ahead(2)
-    stalled, release = hold_clock_at(hil, at)
+    at, stalled, release = hold_clock_ahead(hil, 2)
     assert stalled.wait(HANG_S)
     let_real_time_pass(hil, 7)  # polls 0.1 s apart: the clock is >= 0.6 s behind
     release.set()
@@ -55,8 +58,7 @@ def test_an_acquisition_the_emulated_bench_cannot_feed_says_why(hil):
     hil.bench.start_output()
     streams_flowing(hil)
     end = hil.bench.acquire(0.01, timeout_s=HANG_S)[-1].end_index
-    at = hil.blocks_ahead(2)
-    stalled, release = hold_clock_at(hil, at)
+    at, stalled, release = hold_clock_ahead(hil, 2)
     try:
         assert stalled.wait(HANG_S)
         fs = hil.config.fs_hz
