@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import DTypeLike
 
 from ..blocks import SampleBlock
-from ..errors import ConfigError
+from ..errors import ConfigError, InstrumentError, SimulationError
 from ..messages import OPERATING_KEYS, OperatingPoint
 
 if TYPE_CHECKING:
@@ -387,7 +387,13 @@ class BenchSource:
             if cursor is None:  # the first block no longer than the minimum: commands queued before the
                 # streams delivered (the switch-on) apply right after it, not after a whole backlog or burst
                 limit = self.min_block_samples if limit is None else min(limit, self.min_block_samples)
-            if (b := bench.read_aligned(limit, min_samples=self.min_block_samples, gather_s=self.gather_s)) is None:
+            try:
+                b = bench.read_aligned(limit, min_samples=self.min_block_samples, gather_s=self.gather_s)
+            except InstrumentError as err:
+                if self.emu is not None and self.emu.failure:  # the emulated rig's own cause, not its symptom
+                    raise SimulationError(f"{err}; the cause: {self.emu.failure}") from err
+                raise
+            if b is None:
                 continue
             started = True
             if left is not None:

@@ -94,3 +94,34 @@ def test_faults_in_quick_succession_stop_the_service_with_too_many_faults(tmp_pa
         assert not source.emu.rig.output_enabled and svc.source is source  # output off; no restart
     finally:
         svc.stop()
+
+
+def test_an_emulated_rig_that_fails_is_named_as_the_cause_and_counts_as_a_fault(tmp_path: Path, monkeypatch) -> None:
+    """The emulated rig refuses a block (the clock trips the amplifier's INTERLOCK and runs on):
+    the pipeline's error is a SimulationError naming the rig's own cause, not only the interlock it
+    tripped, and recover() counts it as a fault the service cannot control (not a trip)."""
+    import numpy as np
+
+    from hystbench.errors import SimulationError
+
+    toml = tmp_path / "daemon.toml"
+    toml.write_text(f'[daemon]\nbench = "r"\nlog_dir = "{tmp_path.as_posix()}"\n[source]\nkind = "bench"\n'
+                    '[zenoh]\nenabled = false\n[estimation]\nenabled = false\n', encoding="utf-8")
+    svc = BenchService(load_daemon_config(toml)).start()
+    try:
+        actuator = svc.source.emu.rig.actuator
+        real, cause = actuator.step, "the iron's field did not converge (injected)"
+
+        def refuse_with_current(t_s, current_a, dcurrent_dt):
+            if np.any(current_a != 0.0):
+                raise SimulationError(cause)
+            return real(t_s, current_a, dcurrent_dt)
+
+        monkeypatch.setattr(actuator, "step", refuse_with_current)
+        svc.command("output", {"on": True})
+        assert svc.pipeline.join(30.0)
+        err = svc.pipeline.error
+        assert isinstance(err, SimulationError) and cause in str(err) and "INTERLOCK" in str(err)
+        assert svc.recover() and svc.health()["faults"] == 1 and svc.trips == 0
+    finally:
+        svc.stop()

@@ -13,6 +13,7 @@ import pytest
 
 from hystbench.blocks import BlockFlags
 from hystbench.drivers.current_amplifier import ModbusError
+from hystbench.drivers.protocols.modbus_map import REGISTERS as R
 from hystbench.drivers.safety import SafetyLimitError
 from hystbench.drivers.signal_generator import ScpiError
 from hystbench.errors import ConnectionLost, InstrumentError, InstrumentTimeout, ProtocolError
@@ -202,7 +203,11 @@ def test_amplifier_fault_bits_stop_the_output(hil):
 
 
 def test_current_limit_trips_the_amplifier(hil):
-    hil.bench.configure("current_amplifier", current_limit_a=0.5)  # the sine peaks at 0.7 A
+    """The amplifier's own protection, the last one: its limit lowered at the amplifier itself (the
+    front panel; the drivers refuse to, see the next test) below the sine's 0.7 A peak trips it."""
+    amp = hil.emu.amplifier
+    with amp._lock:
+        amp.regs[R["current_limit"].address] = R["current_limit"].to_raw(0.5)
     hil.bench.start_output()
     hil.wait_for(lambda: hil.bench.faults, "a bench fault")
     assert "OVERCURRENT" in hil.bench.faults[0].message and output_is_off(hil)
@@ -252,12 +257,14 @@ def test_integrator_bus_off_raises_with_the_output_already_off(hil_factory):
 def test_safety_limits_are_refused_before_anything_is_sent(hil):
     bench, emu = hil.bench, hil.emu
     sent = len(emu.generator.commands_seen)
-    with pytest.raises(SafetyLimitError, match="exceeds max_current_a = 2 A"):
-        bench.configure("signal_generator", amplitude_vpp=9.0)  # 4.5 V x 0.5 A/V = 2.25 A
+    with pytest.raises(SafetyLimitError, match=r"exceeds the command limit 1.71 A \(max_current_a 2 A, amplifier trip 1.8 A"):
+        bench.configure("signal_generator", amplitude_vpp=7.2)  # 3.6 V x 0.5 A/V = 1.8 A: the trip level itself
     with pytest.raises(SafetyLimitError):
         bench.configure("current_amplifier", gain_a_per_v=1.5)  # 1.4 V x 1.5 A/V = 2.1 A
     with pytest.raises(SafetyLimitError):
         bench.configure("current_amplifier", current_limit_a=2.5)
+    with pytest.raises(SafetyLimitError, match="lower the excitation first"):
+        bench.configure("current_amplifier", current_limit_a=0.5)  # below the sine's 0.7 A peak: it would trip
     with pytest.raises(SafetyLimitError):
         bench.generator.upload_waveform(np.linspace(-1.0, 4.5, 256), 320.0)
     assert len(emu.generator.commands_seen) == sent
