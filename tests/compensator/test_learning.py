@@ -56,11 +56,11 @@ def test_unreachable_references_and_current_limit(models_pm, models_ecore):
     with pytest.raises(UnreachableReference, match="only attracts"):
         run_closed_loop(actuation("ecore", 320.0), models_ecore["best"], ForceReference.parse("offset=0,amp=1,freq=320"),
                         models_ecore.instrument)
-    with pytest.raises(UnreachableReference, match=r"above the 1.8 A limit; reachable 7\d.\d+ to 3\d\d.\d+ N"):
+    with pytest.raises(UnreachableReference, match=r"above the 1.71 A limit; reachable 7\d.\d+ to 3\d\d.\d+ N"):
         run_closed_loop(actuation("ecore_pm", 320.0), models_pm["best"],
                         ForceReference.parse("offset=200,amp=150,freq=320"), models_pm.instrument)
     act = actuation("ecore_pm", 320.0)
-    with pytest.raises(CompensatorError, match="refused a 4-point waveform: peak 2.5 A exceeds the 1.8 A limit"):
+    with pytest.raises(CompensatorError, match="refused a 4-point waveform: peak 2.5 A exceeds the 1.71 A limit"):
         act.set_waveform(np.array([0.0, 2.5, 0.0, -1.0]), 320.0)
-    with pytest.raises(CompensatorError, match="exceeds the 1.8 A limit"):
+    with pytest.raises(CompensatorError, match="exceeds the 1.71 A limit"):
         act.set_sine(320.0, 3.0, 0.5)
