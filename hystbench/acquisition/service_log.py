@@ -104,7 +104,7 @@ class ServiceLog:
                            chunk_size=self.chunk_bytes, flush_interval_s=r["flush_interval_s"],
                            idle_raw=r["idle_raw"], rotate_bytes=rotate, rotate_s=r["rotate_minutes"] * 60,
                            epoch_ns=self.epoch_ns, on_size=self._grew if self.cap_bytes else None)
-        self._retention(force=True)  # room first, and the finished parts' total
+        self._retention()  # room first, and the finished parts' total
         try:
             rec.start()
         except LogWriteError as err:  # the folder was checked (check_log_dir): this is the disk's state
@@ -179,13 +179,11 @@ class ServiceLog:
         """Every turn of the daemon's loop: age-based retention every RETENTION_EVERY_S; logging
         resumed once there is room (see :meth:`resume`, which the service attaches)."""
         now = time.monotonic() if now is None else now
-        if now - self._retention_t >= RETENTION_EVERY_S:
+        if self.fault or now - self._retention_t >= RETENTION_EVERY_S:  # paused: what it frees is the room waited for
             self._retention_t = now
             self._retention()
-        if self.fault:  # space may have come back: let retention free what it may first
-            self._retention(force=True)
 
-    def _retention(self, force: bool = False) -> None:
+    def _retention(self) -> None:
         r = self.r
         if not self.enabled or not (r["keep_days"] or self.cap_bytes):
             return
