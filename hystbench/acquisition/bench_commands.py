@@ -27,7 +27,7 @@ from ..config.schema import NUM, OPTIONAL, Key
 from ..errors import ConfigError
 from ..messages import OperatingPoint
 
-__all__ = ["Limits", "check_command", "check_frequency", "check_current", "ARGUMENTS", "COMMANDS",
+__all__ = ["Limits", "show", "check_command", "check_frequency", "check_current", "ARGUMENTS", "COMMANDS",
            "MIN_FREQUENCY_HZ", "MIN_SAMPLES_PER_PERIOD", "MAX_SWEEP_POINTS", "MAX_DWELL_S"]
 
 #: Below this the estimator's window of whole periods (10 by default) grows past what a ring and
@@ -82,10 +82,10 @@ class Limits:
                 f"samples per period at {self.fs_hz:g} S/s)")
 
 
-def _show(value: Any) -> str:
-    """``repr(value)``, cut short (a refusal quotes what it refused, not a megabyte of it)."""
+def show(value: Any, limit: int = 60) -> str:
+    """``repr(value)``, cut to ``limit`` characters (a refusal quotes what it refused, not a megabyte of it)."""
     text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def _number(name: str, value: Any, spec: Key = _FINITE) -> float:
@@ -94,7 +94,7 @@ def _number(name: str, value: Any, spec: Key = _FINITE) -> float:
     bad = _FINITE.problem(value) or spec.problem(value)
     if bad:
         unit = f" {spec.unit}" if spec.unit and bad == f"must be {spec.range_text()}" else ""
-        raise ConfigError(f"{name} {bad}{unit}, got {_show(value)}")
+        raise ConfigError(f"{name} {bad}{unit}, got {show(value)}")
     return float(value)
 
 
@@ -120,19 +120,19 @@ def check_command(verb: Any, args: Any, limits: Limits, point: OperatingPoint,
     """``(arguments, point)``: the checked arguments (floats, bools, defaults filled in for a sweep)
     and the operating point after the command; a ConfigError names what is refused and why."""
     if not isinstance(verb, str) or verb not in COMMANDS:
-        raise ConfigError(f"unknown command {_show(verb)}; known: {', '.join(COMMANDS)}")
+        raise ConfigError(f"unknown command {show(verb)}; known: {', '.join(COMMANDS)}")
     if not isinstance(args, Mapping):
         raise ConfigError(f"{verb}: the arguments must be a JSON object, got {type(args).__name__}")
     unknown = sorted(map(str, set(args) - set(COMMANDS[verb])))
     if unknown:
         known = ", ".join(COMMANDS[verb]) or "none"
-        raise ConfigError(f"{verb}: unknown argument(s) {_show(unknown)}; it takes: {known}")
+        raise ConfigError(f"{verb}: unknown argument(s) {show(unknown)}; it takes: {known}")
     if verb in ("stop_sweep", "clear_fault"):
         return {}, point
     keys = ARGUMENTS[verb]
     if verb == "output":
         if keys["on"].problem(args.get("on")):  # "'on'": the word alone would read as part of the sentence
-            raise ConfigError(f"output: 'on' must be true or false, got {_show(args.get('on'))}")
+            raise ConfigError(f"output: 'on' must be true or false, got {show(args.get('on'))}")
         return {"on": args["on"]}, point
     if verb == "set_excitation":
         if not args:
@@ -147,7 +147,7 @@ def check_command(verb: Any, args: Any, limits: Limits, point: OperatingPoint,
     freqs = given["frequencies_hz"]
     if not isinstance(freqs, (list, tuple)) or not 1 <= len(freqs) <= MAX_SWEEP_POINTS:
         raise ConfigError(f"start_sweep: frequencies_hz must be a list of 1 to {MAX_SWEEP_POINTS} frequencies, "
-                          f"got {_show(freqs)}")
+                          f"got {show(freqs)}")
     fs = [check_frequency(f"start_sweep: frequencies_hz[{k}]", f, limits) for k, f in enumerate(freqs)]
     ipp = _number("start_sweep: current_pp_a", given["current_pp_a"], keys["current_pp_a"])
     dwell = _number("start_sweep: dwell_s", given["dwell_s"], keys["dwell_s"])

@@ -37,6 +37,7 @@ from ..blocks import SampleBlock
 from ..deadline import Deadline
 from ..errors import BenchError, CommandRefused, ConfigError, NetworkError, NoReply
 from .bench_commands import COMMANDS as _COMMAND_ARGS
+from .bench_commands import show
 from ..messages import json_bytes
 from ..formats.raw_block import BINARY_ENCODING, encode_binary
 
@@ -166,7 +167,7 @@ def _check_endpoints(role: str, endpoints) -> None:
         except Exception as err:
             why = re.sub(r"^line \d+, column \d+: ", "", _plain(str(err)))  # the place in a one-item list
             why = "not a zenoh endpoint" if why.startswith("Endpoints must be of the form") else why
-            raise ConfigError(f"{role} endpoint {_preview_text(ep)}: {why} ({_ENDPOINT_FORM})") from None
+            raise ConfigError(f"{role} endpoint {show(ep, 80)}: {why} ({_ENDPOINT_FORM})") from None
 
 
 def _config_endpoints(cfg: zenoh.Config, role: str) -> list[str]:
@@ -176,12 +177,6 @@ def _config_endpoints(cfg: zenoh.Config, role: str) -> list[str]:
     if isinstance(value, dict):
         value = value.get(json.loads(cfg.get_json("mode")) or "peer") or []
     return [str(v) for v in value or []]
-
-
-def _preview_text(value: Any, limit: int = 80) -> str:
-    """``repr(value)``, cut to ``limit`` characters (a message quotes what it refused, not all of it)."""
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 class ListenError(NetworkError):
@@ -408,7 +403,7 @@ def _depth_over(raw: bytes, limit: int) -> int | None:
 
 def _verb_text(verb: str) -> str:
     """A verb for a message: as it is if it is one, else quoted and cut short (a client chooses it)."""
-    return verb if verb in COMMANDS else _preview_text(verb, 40)
+    return verb if verb in COMMANDS else show(verb, 40)
 
 
 def _one_line(text: str, limit: int = 300) -> str:
