@@ -260,16 +260,29 @@ def is_benchmark(rig: str) -> bool:
 
 
 def read_sweeps(folder: str | Path) -> dict[str, list[Recording]]:
-    """A sweep folder, or a folder of sweep folders: {name: recordings}."""
+    """A sweep folder, or a folder of sweep folders: {name: recordings}, one rig each.
+
+    A folder of one rig is one sweep named by the folder.  A bench day's folder holding several
+    rigs (told apart by the sidecars' ``rig``) is one sweep per rig: named by the rig when it is
+    the folder given, ``<folder>/<rig>`` when it is one of the folders under it."""
     folder = Path(folder)
     if not folder.is_dir():
         raise RecordingError(f"{folder}: not a folder")
     if any(p.suffix == ".csv" for p in folder.iterdir()):
-        return {folder.name: read_sweep(folder)}
+        return _by_rig(folder.name, read_sweep(folder), prefix=False)
     subs = sorted(p for p in folder.iterdir() if p.is_dir() and any(q.suffix == ".csv" for q in p.iterdir()))
     if not subs:
         raise RecordingError(f"{folder}: neither a sweep (NAME.csv + NAME.json) nor a folder of sweeps")
-    return {p.name: read_sweep(p) for p in subs}
+    return {name: recs for p in subs for name, recs in _by_rig(p.name, read_sweep(p), prefix=True).items()}
+
+
+def _by_rig(name: str, recs: list[Recording], *, prefix: bool) -> dict[str, list[Recording]]:
+    """``{name: recs}`` for one rig; else one entry per rig (``read_sweep`` keeps each rig's
+    recordings together, in its order), keyed by the rig or, with ``prefix``, ``name/rig``."""
+    rigs = dict.fromkeys(r.rig for r in recs)
+    if len(rigs) == 1:
+        return {name: recs}
+    return {f"{name}/{rig}" if prefix else rig: [r for r in recs if r.rig == rig] for rig in rigs}
 
 
 def preset_instrument(rig: str) -> InstrumentModel:

@@ -61,8 +61,8 @@ def cmd_model_fit(args: argparse.Namespace) -> int:
         if args.instrument_sweep is not None:
             from ..analysis.identification import fit_instrument, frequency_response
 
-            instrument = fit_instrument(frequency_response(read_sweep(args.instrument_sweep))).model
-        recs = read_sweep(args.sweep)
+            instrument = fit_instrument(frequency_response(read_sweep(args.instrument_sweep, one_rig=True))).model
+        recs = read_sweep(args.sweep, one_rig=True)  # one actuator's models: a bench day's folder is refused
         task = bar.add_task(f"period averages of {args.sweep}", total=len(recs))
         rig, points = sweep_data(recs, tick=lambda: bar.advance(task))
         bar.update(task, description=f"fitting {', '.join(args.kinds)}", total=None)

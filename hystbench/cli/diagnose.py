@@ -4,10 +4,11 @@ its parameters, and the held-out proof (issue 13).
     hystbench diagnose SWEEP_DIR [SWEEP_DIR ...] [--baseline EFFECT,...] [--candidates EFFECT,...]
                        [--json] [--report DIR]
 
-Inputs: sweep folders of the recording format (a bench day: one folder per rig), MCAP logs (read as
-``hystbench export`` reads them), or measured material loss tables (``.csv`` with their sidecar),
-which take the loss-separation path.  Every input is read and checked, and ``--report`` is checked,
-before the diagnosis runs; the report is written whole or not at all.
+Inputs: sweep folders of the recording format (a folder may hold a whole bench day, its rigs told apart
+by the sidecars, or one rig's sweep), MCAP logs (read as ``hystbench export`` reads them), or measured
+material loss tables (``.csv`` with their sidecar), which take the loss-separation path.  Every input
+is read and checked, and ``--report`` is checked, before the diagnosis runs; the report is written
+whole or not at all.
 """
 
 from __future__ import annotations
@@ -47,7 +48,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("diagnose", help="locate, name, model and prove what the simulation leaves out",
                               description=__doc__.split("\n\n")[0])
     p.add_argument("inputs", nargs="+", type=path_arg, metavar="SWEEP_DIR",
-                   help="sweep folders (a bench day: one per rig), MCAP logs (.mcap) or material loss tables (.csv)")
+                   help="sweep folders (one may hold a whole bench day, or one rig each), MCAP logs (.mcap) or "
+                        "material loss tables (.csv)")
     p.add_argument("--baseline", type=effect_list("--baseline"), default=None, metavar="EFFECT,...",
                    help="the effects of your model of the bench (default: each rig preset's own)")
     p.add_argument("--candidates", type=effect_list("--candidates"), default=None, metavar="EFFECT,...",
@@ -65,7 +67,8 @@ def _is_loss_table(path: Path) -> bool:
 
 def read_inputs(paths: list[Path]) -> list[Any]:
     """The recordings of every sweep folder and MCAP log, in the order given (each folder sorted by
-    ``read_sweep``); a folder or log with fewer than two operating points is refused."""
+    ``read_sweep``: by rig, then operating point).  A folder may hold a whole bench day, several rigs
+    told apart by the sidecars' ``rig``; a folder or log with fewer than two recordings is refused."""
     from ..analysis.log_recordings import read_mcap_segments
     from ..formats.recording import read_sweep
 

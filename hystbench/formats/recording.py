@@ -491,8 +491,13 @@ def sweep_stem(rec: Recording) -> str:
     return f"{rec.rig}_{rec.frequency_hz:g}Hz_{rec.current_pp_a:g}App"
 
 
-def read_sweep(folder: str | Path) -> list[Recording]:
-    """Every recording in ``folder``, sorted by (frequency_Hz, current_pp_A); one rig only."""
+def read_sweep(folder: str | Path, *, one_rig: bool = False) -> list[Recording]:
+    """Every recording in ``folder``, sorted by (rig, frequency_Hz, current_pp_A, path).
+
+    A bench day's folder may hold the recordings of several rigs, told apart by each sidecar's
+    ``rig`` (``recording-format.md``); they are all returned, each rig's together.  A caller that
+    takes one actuator's sweep passes ``one_rig=True``: a folder of several rigs is then refused,
+    naming the folder and its rigs."""
     folder = Path(folder)
     if not folder.is_dir():
         raise RecordingError(f"{folder}: not a folder")
@@ -506,11 +511,15 @@ def read_sweep(folder: str | Path) -> list[Recording]:
         raise RecordingError(f"{folder}: sidecars without a .csv: {', '.join(orphans)}")
     if not stems:
         raise RecordingError(f"{folder}: no recordings (NAME.csv + NAME.json) in this folder")
-    recs = [read_recording(s) for s in sorted(stems)]
-    rigs = sorted({r.rig for r in recs})
-    if len(rigs) > 1:
-        raise RecordingError(f"{folder}: recordings of several rigs ({', '.join(rigs)}); a sweep is one rig")
-    return sorted(recs, key=lambda r: (r.frequency_hz, r.current_pp_a, str(r.path)))
+    recs = sorted((read_recording(s) for s in sorted(stems)),
+                  key=lambda r: (r.rig, r.frequency_hz, r.current_pp_a, str(r.path)))
+    if one_rig:
+        counts = {rig: sum(r.rig == rig for r in recs) for rig in dict.fromkeys(r.rig for r in recs)}
+        if len(counts) > 1:
+            rigs = ", ".join(f"{rig}: {n} recording{'s' * (n != 1)}" for rig, n in counts.items())
+            raise RecordingError(f"{folder}: recordings of several rigs ({rigs}); this takes one rig's sweep: "
+                                 "move the recordings of the rig to use (sidecar 'rig') into a folder of their own")
+    return recs
 
 
 def write_sweep(recordings: Iterable[Recording], folder: str | Path, *,

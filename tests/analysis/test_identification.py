@@ -79,3 +79,23 @@ def test_points_too_near_nyquist_are_left_out_and_reported():
     dropped = []
     resp = frequency_response(recs, dropped=dropped)
     assert resp.freq_hz.size == 2 and len(dropped) == 1 and "20000 Hz" in dropped[0][0]
+
+
+def test_read_sweeps_splits_a_bench_day_folder_by_rig(tmp_path):
+    """recording-format.md: one folder may hold a bench day's rigs; identify takes each rig as a sweep
+    (named by the rig, or ``<folder>/<rig>`` under a folder of sweeps); a one-rig folder keeps its name."""
+    from hystbench.analysis.identification import read_sweeps
+    from hystbench.formats.recording import Recording, write_sweep
+
+    def rec(rig, f):
+        t = np.arange(100) / 10_000.0
+        return Recording(None, 10_000.0, {"current_A": np.sin(2 * np.pi * f * t), "force_N": t},
+                         {"rig": rig, "frequency_Hz": f, "sample_rate_Hz": 10_000.0, "current_pp_A": 1.0})
+
+    write_sweep([rec("ecore", 320.0), rec("voicecoil_ferrite", 40.0), rec("ecore", 80.0)], tmp_path / "day" / "mon")
+    write_sweep([rec("ecore_pm", 80.0), rec("ecore_pm", 40.0)], tmp_path / "day" / "pm")
+    day = read_sweeps(tmp_path / "day" / "mon")
+    assert list(day) == ["ecore", "voicecoil_ferrite"]
+    assert [r.frequency_hz for r in day["ecore"]] == [80.0, 320.0]
+    assert list(read_sweeps(tmp_path / "day")) == ["mon/ecore", "mon/voicecoil_ferrite", "pm"]
+    assert [r.frequency_hz for r in read_sweeps(tmp_path / "day" / "pm")["pm"]] == [40.0, 80.0]

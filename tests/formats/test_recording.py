@@ -426,11 +426,21 @@ def test_sweep_bad_member_names_its_file(tmp_path):
         read_sweep(tmp_path / "sw")
 
 
-def test_sweep_of_several_rigs(tmp_path):
+def test_sweep_of_several_rigs_reads_back_by_rig_then_frequency(tmp_path):
+    """recording-format.md: a bench day's folder holds several rigs, told apart by the sidecar."""
     sweep(tmp_path)
-    write_recording(sample_rec(rig="ecore"), tmp_path / "sw" / "other")
-    with pytest.raises(RecordingError, match="several rigs"):
-        read_sweep(tmp_path / "sw")
+    write_sweep([sample_rec(rig="ecore", frequency_Hz=f, current_pp_A=1.27) for f in (320.0, 80.0)], tmp_path / "sw")
+    back = read_sweep(tmp_path / "sw")
+    assert [(r.rig, r.frequency_hz, r.current_pp_a) for r in back] == [
+        ("ecore", 80.0, 1.27), ("ecore", 320.0, 1.27),
+        ("ecore_pm", 40.0, 0.35), ("ecore_pm", 40.0, 0.7), ("ecore_pm", 320.0, 1.4)]
+    with pytest.raises(RecordingError) as info:
+        read_sweep(tmp_path / "sw", one_rig=True)
+    msg = str(info.value)
+    assert msg.startswith(f"{tmp_path / 'sw'}: recordings of several rigs")
+    assert "ecore: 2 recordings" in msg and "ecore_pm: 3 recordings" in msg and "folder of their own" in msg
+    write_sweep([sample_rec(frequency_Hz=f) for f in (320.0, 40.0)], tmp_path / "one")
+    assert [r.frequency_hz for r in read_sweep(tmp_path / "one", one_rig=True)] == [40.0, 320.0]  # one rig passes
 
 
 def test_write_sweep_refuses_name_clash_before_writing(tmp_path):

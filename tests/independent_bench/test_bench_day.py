@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hystbench.errors import RecordingError
 from hystbench.formats.recording import read_recording, read_sweep
 from independent_bench import BASELINE, bench_day_plan, write_bench_day
 
@@ -58,13 +57,11 @@ def test_sidecars_hold_what_a_real_bench_writes(day):
 
 
 def test_the_folder_is_one_sweep_of_several_rigs(day):
-    """recording-format.md: a bench day's sweep may hold several rigs.  Until the reader accepts
-    that (issue 27), its refusal is expected; any other error is a failure."""
-    folder, _ = day
-    try:
-        recs = read_sweep(folder)
-    except RecordingError as err:
-        if "several rigs" in str(err):
-            pytest.xfail(f"read_sweep still refuses a bench day: {err}")
-        raise
+    """recording-format.md: a bench day's sweep may hold several rigs, told apart by the sidecar;
+    read_sweep returns them all, each rig's recordings together."""
+    folder, stems = day
+    recs = read_sweep(folder)
+    assert len(recs) == len(stems) == len(bench_day_plan())
     assert {r.rig for r in recs} == {"voicecoil_ferrite", "ecore", "ecore_pm"}
+    keys = [(r.rig, r.frequency_hz, r.current_pp_a) for r in recs]
+    assert keys == sorted(keys)
