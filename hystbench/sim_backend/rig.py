@@ -217,6 +217,17 @@ class SimulatedRig:
             raise ConfigError(f"{self.name}: the number of samples to read must be >= 1, got {n}")
         return self._generate(int(n))
 
+    def skip(self, n: int) -> None:
+        """Move the clock and the generator's phase on by ``n`` samples without simulating them.
+
+        The rig's memory (iron, filters, delays) stays where the last sample left it, so what follows
+        is a transient: a caller that skips settles the rig before it reads what it keeps (a replay
+        of a bench day skips the long pauses between recordings when no slow effect spans them)."""
+        if not n >= 0:
+            raise ConfigError(f"{self.name}: the number of samples to skip must be >= 0, got {n}")
+        self._cycle = (self._cycle + self.generator_frequency_hz / self.fs_hz * int(n)) % 1.0
+        self._next_index += int(n)
+
     def blocks(self, block_size: int = 10_000, duration_s: float | None = None,
                pace: str = "max") -> Iterator[SampleBlock]:
         """Consecutive blocks; ``pace='realtime'`` sleeps so samples leave no faster than the ADC's."""

@@ -171,3 +171,20 @@ def test_a_refused_block_leaves_the_rig_as_it_was(monkeypatch):
     assert again.first_index == reference.first_index == 700
     for name, x in reference.channels.items():
         assert np.array_equal(again.channels[name], x), name
+
+
+def test_skip_keeps_the_clock_and_the_generator_phase():
+    """A skipped stretch is as if simulated once the rig has settled: the same samples follow (the
+    replay of a bench day skips its pauses this way)."""
+    quiet = {"sensor_noise": False, "adc_quantisation": False}
+    ran, skipped = (SimulatedRig("ecore_pm", fs_hz=50e3, effects=quiet, frequency_hz=120.0) for _ in range(2))
+    ran.read(40_000)
+    skipped.skip(37_000)  # then 3000 samples (7 periods) of settling
+    skipped.read(3_000)
+    assert skipped.next_index == ran.next_index
+    a, b = ran.read(2_000), skipped.read(2_000)
+    for ch in ("current_A", "flux_Wb", "force_N"):
+        scale = np.max(np.abs(a.channels[ch]))
+        assert np.max(np.abs(a.channels[ch] - b.channels[ch])) < 1e-4 * scale, ch  # the iron's memory: 2e-5
+    with pytest.raises(ConfigError, match="skip must be >= 0"):
+        ran.skip(-1)

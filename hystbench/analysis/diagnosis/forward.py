@@ -21,6 +21,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ...config import load_rig
+from ...config.effects import CATALOGUE
 from ...formats.recording import Recording
 from ...sim_backend.bench_day import default_settle_s
 from ...sim_backend.rig import SimulatedRig
@@ -121,6 +122,10 @@ def replay_rig(preset: Mapping[str, Any], points: Sequence[Point], *, periods: i
     out: list[Replayed | None] = [None] * len(points)
     sim: SimulatedRig | None = None
     previous_end = 0.0
+    memory = memory_s(preset)
+    pre_roll = 0.0
+    # a record's DC is the mean of a drift or a transient along it, not the middle's value
+    drifts = memory > 0 or any(e in (preset.get("effects") or {}) for e in CLOCKED)
     for i in sorted(range(len(points)), key=lambda i: points[i].start_time_s):
         p = points[i]
         if sim is None or sim.fs_hz != p.fs_hz:  # a stepped sine may change rate: a new rig, no memory kept
@@ -131,27 +136,28 @@ def replay_rig(preset: Mapping[str, Any], points: Sequence[Point], *, periods: i
                                current_pp_a=p.current_pp_a, warmup_s=settle_s(p.frequency_hz),
                                clock_offset_s=p.start_time_s)
         else:  # the operating point changes when the previous recording ends (the rig ran on through it)
-            _run_until(sim, previous_end)
+            _advance(sim, previous_end, pre_roll)  # the previous point's: its state when the point changes
             sim.set_excitation(p.frequency_hz, p.current_pp_a)
+        pre_roll = max(settle_s(p.frequency_hz), RING_DOWN_S, memory)
         end = p.start_time_s + p.duration_s
         previous_end = end
         keep = (max(2, int(periods)) + 0.5) / p.frequency_hz
         begin = p.start_time_s + max(0.0, 0.5 * (p.duration_s - keep))
         if p.duration_s * p.fs_hz <= WHOLE_RECORD_SAMPLES:  # short: the whole record, its transients as they were
-            out[i] = Replayed(_window(sim, p.start_time_s, p.duration_s), None, (p.start_time_s, end))
-        elif p.duration_s >= 3.5 * keep:
-            first = _window(sim, p.start_time_s, keep)
-            middle = _window(sim, begin, keep)
-            last = _window(sim, end - keep, keep)
+            out[i] = Replayed(_window(sim, p.start_time_s, p.duration_s, pre_roll), None, (p.start_time_s, end))
+        elif drifts and p.duration_s >= 3.5 * keep:
+            first = _window(sim, p.start_time_s, keep, pre_roll)
+            middle = _window(sim, begin, keep, pre_roll)
+            last = _window(sim, end - keep, keep, pre_roll)
             averaged = p.averaged_s if math.isfinite(p.averaged_s) else p.duration_s
             out[i] = Replayed(middle, (first, last), (p.start_time_s, p.start_time_s + averaged))
         else:
-            out[i] = Replayed(_window(sim, begin, keep), None, (p.start_time_s, end))
+            out[i] = Replayed(_window(sim, begin, keep, pre_roll), None, (p.start_time_s, end))
     return [r for r in out if r is not None]
 
 
-def _window(sim: SimulatedRig, begin: float, keep: float) -> Recording:
-    _run_until(sim, begin)
+def _window(sim: SimulatedRig, begin: float, keep: float, pre_roll: float) -> Recording:
+    _advance(sim, begin, pre_roll)
     block = sim.read(max(2, int(math.ceil(keep * sim.fs_hz))))
     meta = sim.metadata()
     meta["start_time_s"] = begin
@@ -168,6 +174,32 @@ def record_mean(values: Sequence[float], centres: Sequence[float], span: tuple[f
 def settle_s(frequency_hz: float) -> float:
     """How long the bench day settles a rig at a new operating point (``sim_backend.bench_day``)."""
     return default_settle_s(frequency_hz)
+
+
+#: Effects that follow the day's clock (the DC moves along a record).
+CLOCKED = ("force_offset_drift", "magnet_thermal_drift")
+#: A skip leaves a step in the rig's state; the load cell's lightly damped mode (zeta 0.01 at 4.5 kHz)
+#: rings 3.5 ms per neper: this much pre-roll leaves 1e-7 of it.
+RING_DOWN_S = 0.06
+
+
+def memory_s(preset: Mapping[str, Any]) -> float:
+    """How long a rig remembers what it did: five of its slowest time constant (a charge amplifier's
+    high-pass, a leaky integrator); 0 when it has neither.  Longer pauses need not be simulated."""
+    effects = preset.get("effects") or {}
+    taus = [float({**CATALOGUE[name].defaults, **(effects[name] or {})}["time_constant_s"])
+            for name in ("charge_amp_highpass", "integrator_leak") if name in effects]
+    return 5.0 * max(taus, default=0.0)
+
+
+def _advance(sim: SimulatedRig, t_s: float, pre_roll_s: float) -> None:
+    """Bring the rig to ``t_s`` on the day's clock, simulating only the last ``pre_roll_s`` of the way
+    (what it remembers, and its settling): the pauses of a bench day are most of its clock, and a rig
+    with nothing slow in it forgets them."""
+    skip = int(round((t_s - pre_roll_s - sim.clock_offset_s) * sim.fs_hz)) - sim.next_index
+    if skip > 0:
+        sim.skip(skip)
+    _run_until(sim, t_s)
 
 
 def _run_until(sim: SimulatedRig, t_s: float, chunk: int = 200_000) -> None:
