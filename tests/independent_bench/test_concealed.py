@@ -1,0 +1,157 @@
+"""The independent bench's concealed suite (tests/independent_bench/concealed.py): its truth is in
+the catalogue's names and outside the baseline, every hidden effect changes the recordings beyond
+the noise of a 48-period record (measured here with numpy on the samples, nothing of hystbench's
+analysis), the nulls hide nothing, and a case's day reads back with hystbench's reader.
+
+Visibility, one point of the day at a time: the same point is simulated with and without the hidden
+effect (same seed: the same noise draw), and the difference d is split, by the DFT of the record
+(48 whole nominal periods), into its period-averaged part (the bins at multiples of 48) and the rest.
+The period average's rms difference is compared with the noise's standard error on a period average,
+sigma / sqrt(48), sigma the rms of the effect-free record about its own period average (white,
+flicker and ADC together); an effect off the excitation's harmonics (mains) is compared line by line
+with the local noise floor of the effect-free record's spectrum.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hystbench.config.effects import CATALOGUE
+from hystbench.formats.recording import read_recording
+from independent_bench import BASELINE, simulate_recording
+from independent_bench.concealed import CASES, DIAGNOSIS_BASELINE, Case, day_points, without_hidden, write_case
+
+PERIODS = 48
+FS_HZ = 100e3
+#: A hidden effect must reach this many standard errors in some period average of its day ...
+MIN_PERIODIC_SE = 5.0
+#: ... or a line off the harmonics this many times the local noise floor (noise alone: ~4 at most).
+MIN_LINE_FLOOR = 20.0
+CHANNELS = ("current_A", "force_N", "flux_Wb")
+
+EFFECT_CASES = [c for c in CASES if not c.null]
+NULL_CASES = [c for c in CASES if c.null]
+
+
+def test_the_suite_has_the_issues_shape():
+    singles = [c for c in EFFECT_CASES if len(c.truth) == 1 and c.plan is None]
+    assert {e for c in singles for e in c.truth} == {
+        "magnet_eddy_currents", "iron_saturation", "frame_resonance", "charge_amp_highpass", "integrator_leak",
+        "channel_skew", "force_offset_drift", "magnet_thermal_drift", "load_cell_compliance", "mains_pickup",
+        "amplifier_distortion"}
+    assert 14 <= len(singles) <= 16
+    assert len([c for c in EFFECT_CASES if len(c.truth) == 2]) >= 2
+    assert any(c.plan is not None for c in EFFECT_CASES)
+    assert len(NULL_CASES) >= 3 and any(c.bench is not None for c in NULL_CASES)
+    assert len({c.seed for c in CASES}) == len(CASES)
+
+
+@pytest.mark.parametrize("case", CASES, ids=lambda c: c.name)
+def test_truth_is_catalogue_names_outside_the_baseline(case: Case):
+    assert set(case.baseline) <= set(CATALOGUE)
+    assert case.baseline == DIAGNOSIS_BASELINE == ("static_hysteresis", "lamination_eddy_currents",
+                                                   "instrument_filter", "sensor_noise", "adc_quantisation")
+    assert set(case.truth) <= set(CATALOGUE)
+    assert not set(case.truth) & set(case.baseline)
+    assert set(case.truth) == set(case.hidden) == set(case.expected)
+    assert case.concealment
+
+
+@pytest.mark.parametrize("case", NULL_CASES, ids=lambda c: c.name)
+def test_a_null_hides_nothing(case: Case):
+    assert case.truth == () and case.expected == {} and case.hidden == {}
+    assert case.effects == BASELINE
+
+
+def _spectra(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    return {ch: np.fft.rfft(cols[ch]) for ch in CHANNELS if ch in cols}
+
+
+def _visibility(on: dict[str, np.ndarray], off: dict[str, np.ndarray]) -> tuple[float, float]:
+    """(period-averaged rms difference in noise SE, strongest off-harmonic line over the noise floor),
+    the largest over the channels of one record."""
+    periodic = line = 0.0
+    off_s, on_s = _spectra(off), _spectra(on)
+    for ch, x_off in off_s.items():
+        n = off[ch].size
+        d = on_s[ch] - x_off
+        harm = np.zeros(x_off.size, bool)
+        harm[::PERIODS] = True  # n is 48 whole periods: the period average lives on these bins
+        weight = np.full(x_off.size, 2.0)
+        weight[0] = 1.0
+        sigma = np.sqrt(np.sum(weight[~harm] * np.abs(x_off[~harm]) ** 2) / n**2)
+        rms_d = np.sqrt(np.sum(weight[harm] * np.abs(d[harm]) ** 2) / n**2)
+        periodic = max(periodic, rms_d / (sigma / np.sqrt(PERIODS)))
+        # lines: each off-harmonic bin of d against the median noise amplitude of its block of 48 bins
+        m = (x_off.size - 1) // PERIODS * PERIODS
+        noise = np.abs(np.where(harm, np.nan, x_off))[1:m + 1].reshape(-1, PERIODS)
+        floor = np.repeat(np.nanmedian(noise, axis=1), PERIODS)
+        dl = np.abs(np.where(harm, 0.0, d))[1:m + 1]
+        line = max(line, float(np.max(dl / floor)))
+    return periodic, line
+
+
+def _points(case: Case) -> list[tuple[str, float, float, float]]:
+    """The first and last frequency of each rig and current of the day, at their times on its clock
+    (where every effect of the suite shows most: the low end's leads, the high end's modes and delays;
+    a third of the day's cost)."""
+    pts = list(day_points(case))
+    keep = []
+    for k, (rig, f, ipp, t) in enumerate(pts):
+        block = [p for p in pts if p[0] == rig and p[2] == ipp]
+        if f in (block[0][1], block[-1][1]):
+            keep.append(pts[k])
+    return keep
+
+
+def _day_visibility(case: Case, hidden: dict) -> tuple[float, float]:
+    periodic = line = 0.0
+    base = without_hidden(case).effects
+    for rig, f, ipp, t in _points(case):
+        kw = dict(fs_hz=FS_HZ, periods=PERIODS, start_time_s=t, seed=case.seed, bench=case.bench)
+        off, _ = simulate_recording(rig, f, ipp, effects=base, **kw)
+        on, _ = simulate_recording(rig, f, ipp, effects={**base, **hidden}, **kw)
+        p, q = _visibility(on, off)
+        periodic, line = max(periodic, p), max(line, q)
+    return periodic, line
+
+
+@pytest.mark.parametrize("case, effect",
+                         [pytest.param(c, e, id=f"{c.name}:{e}") for c in EFFECT_CASES for e in c.truth])
+def test_every_hidden_effect_changes_the_recordings_beyond_the_noise(case: Case, effect: str):
+    """Each hidden effect alone (a two-effect day: each of its two) over the same day without it."""
+    periodic, line = _day_visibility(case, {effect: case.hidden[effect]})
+    assert periodic >= MIN_PERIODIC_SE or line >= MIN_LINE_FLOOR, (periodic, line)
+
+
+def test_the_visibility_measure_sees_noise_as_noise():
+    """A difference that is the noise alone (a noisy record against the same without its noise and ADC)
+    is ~1 SE in the period average and a few floors in any line: the thresholds are far above it."""
+    case = NULL_CASES[0]
+    quiet = {k: v for k, v in case.effects.items() if k not in ("sensor_noise", "adc_quantisation")}
+    for rig, f, ipp, t in _points(case):
+        noisy, _ = simulate_recording(rig, f, ipp, effects=case.effects, start_time_s=t, seed=case.seed)
+        clean, _ = simulate_recording(rig, f, ipp, effects=quiet, start_time_s=t, seed=case.seed)
+        periodic, line = _visibility(clean, noisy)
+        assert periodic < 2.5 and line < MIN_LINE_FLOOR / 2, (rig, f, ipp, periodic, line)
+
+
+def test_write_case_writes_a_day_hystbench_reads_back(tmp_path: Path):
+    """One folder, the rigs of the case's plan (a partial day: a whole one takes 3 s to write)."""
+    case = {c.name: c for c in CASES}["partial_ecores_current_skew"]
+    folder = write_case(case, tmp_path / case.name)
+    assert folder == tmp_path / case.name
+    stems = sorted(p.with_suffix("") for p in folder.glob("*.csv"))
+    assert len(stems) == len(case.points)
+    recs = sorted((read_recording(s) for s in stems), key=lambda r: r.start_time_s)
+    expected = list(day_points(case))
+    assert [(r.rig, r.frequency_hz, r.current_pp_a) for r in recs] == [p[:3] for p in expected]
+    assert [r.start_time_s for r in recs] == pytest.approx([p[3] for p in expected], abs=1e-9)
+    assert {r.rig for r in recs} == {"ecore", "ecore_pm"}
+    for r in recs:
+        assert r.n == round(PERIODS * FS_HZ / r.frequency_hz)
+        assert ("flux_Wb" in r.channels) == (r.rig != "voicecoil_ferrite")
+        assert not {"effects", "seed", "truth"} & set(r.metadata)
