@@ -1,17 +1,27 @@
-"""Benchmark of ``hystbench diagnose`` on the concealed-effect suite (issue 13's targets).
+"""Benchmark of ``hystbench diagnose`` on the concealed-effect suites (issue 13's and issue 27's targets).
 
-Every case of :data:`hystbench.sim_backend.concealed.CASES` is a bench day (the voice coil's stepped
-sine, ``ecore`` at 1.27 A-pp, ``ecore_pm`` at 0.7 and 1.4 A-pp, 40-480 Hz, 48 periods, the presets'
-noise) with physics the baseline leaves out, concealed; null cases leave nothing out (other seeds,
-presets off nominal, foreign benches).  The diagnosis sees the recordings and the baseline, never the
-truth; this benchmark compares its answer with the truth.
+Two suites, each of bench days with physics the baseline leaves out, concealed, and null days that leave
+nothing out; the diagnosis sees the recordings and the baseline, never the truth, and this benchmark
+compares its answer with the truth, suite by suite:
+
+- ``ours``: :data:`hystbench.sim_backend.concealed.CASES`, days of our own simulator (the voice coil's
+  stepped sine, ``ecore`` at 1.27 A-pp, ``ecore_pm`` at 0.7 and 1.4 A-pp, 40-480 Hz, 48 periods, the
+  presets' noise; nulls on other seeds, presets off nominal, foreign benches);
+- ``independent``: ``tests/independent_bench/concealed.py``'s CASES, days of the independent bench
+  (its own physics for every block, nothing shared with ``sim_backend``), each written to a temporary
+  folder in the recording format and read back file by file with ``read_recording``, as a real bench's
+  day would be; diagnosed with the issue's baseline
+  (``static_hysteresis,lamination_eddy_currents,instrument_filter,sensor_noise,adc_quantisation``).
 
 Targets: >= 90 % of effect cases named right (top 1), every null case "none", held-out improvement
 >= 5x where an effect is present, < 60 s per bench day (the diagnosis's own CPU time, one process: one core;
 cases run side by side, one per core).
 
-Run: ``hystbench bench diagnose [--json] [--cases NAME,...] [--out DIR] [--quick]`` (``--out``: each
-case's report page and figures, and results.json; ``--quick``: a short day, for a first look only).
+Run: ``hystbench bench diagnose [--suite ours|independent|all] [--json] [--cases NAME,...] [--out DIR] [--quick]``
+(``--cases``: a bare name selects it in every chosen suite that has it, ``SUITE:NAME`` in that suite only;
+``--out``: each case's report page and figures, the independent suite's under ``DIR/independent``, and
+results.json; ``--quick``: a short day of our suite, for a first look only; the independent days are
+played as written).
 """
 
 from __future__ import annotations
@@ -22,9 +32,12 @@ import math
 import multiprocessing
 import os
 import sys
+import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import fields
 from pathlib import Path
+from types import ModuleType
 from typing import Any, Callable
 
 from hystbench.analysis.diagnosis import diagnose
@@ -33,10 +46,37 @@ from hystbench.sim_backend.concealed import CASES, Case, simulate_case
 
 TARGETS = {"named_right_pct": 90.0, "improvement_x": 5.0, "seconds_per_sweep": 60.0}
 
+SUITES: tuple[str, ...] = ("ours", "independent")
 
-def run_named(name: str, plan: BenchDayPlan | None = None, out: Path | None = None) -> dict[str, Any]:
-    """:func:`run_case` of the case called ``name`` (what a worker process is sent: a case's tables
-    are read-only mappings, which do not pickle)."""
+#: The repository's tests/ folder: the independent bench is the package ``independent_bench`` in it.
+_TESTS = Path(__file__).resolve().parents[1] / "tests"
+
+
+def independent_suite() -> ModuleType:
+    """``independent_bench.concealed``, imported from the repository's tests/ folder (it is no part of
+    the installed hystbench, and imports nothing from it)."""
+    if str(_TESTS) not in sys.path:
+        sys.path.append(str(_TESTS))
+    import independent_bench.concealed as suite
+
+    return suite
+
+
+def suite_cases(suite: str) -> list[Any]:
+    """The cases of ``suite`` ("ours" or "independent"), in the suite's order."""
+    if suite == "ours":
+        return list(CASES)
+    if suite == "independent":
+        return list(independent_suite().CASES)
+    raise ValueError(f"unknown suite {suite!r}; known: {', '.join(SUITES)}")
+
+
+def run_named(name: str, plan: BenchDayPlan | None = None, out: Path | None = None,
+              suite: str = "ours") -> dict[str, Any]:
+    """:func:`run_case` (or :func:`run_independent_case`) of the case called ``name`` in ``suite`` (what
+    a worker process is sent: our cases' tables are read-only mappings, which do not pickle)."""
+    if suite == "independent":
+        return run_independent_case({c.name: c for c in suite_cases(suite)}[name], out)
     return run_case({c.name: c for c in CASES}[name], plan, out)
 
 
@@ -50,8 +90,44 @@ def run_case(case: Case, plan: BenchDayPlan | None = None, out: Path | None = No
     t0 = time.process_time()
     d = diagnose(recs, baseline=list(case.baseline) if case.baseline is not None else None, progress=say, jobs=1)
     t_diag = time.process_time() - t0
-    row = {
-        "case": case.name, "truth": list(case.truth), "bench": case.bench, "seed": case.seed,
+    row = _row("ours", case, case.bench, d, len(recs), t_sim, t_diag)
+    if out is not None:
+        from hystbench.reports.diagnosis import write_report
+
+        row["report"] = str(write_report(d, out / case.name, overwrite=True))
+    return row
+
+
+def run_independent_case(case: Any, out: Path | None = None,
+                         say: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """One case of the independent suite: its day written to a temporary folder (one folder, every
+    rig), read back file by file with ``read_recording`` in the order recorded, diagnosed with the
+    case's baseline (every candidate), and the answer judged against the truth; the row has
+    :func:`run_case`'s keys (``seconds_simulate``: writing the day and reading it back)."""
+    from hystbench.formats.recording import read_recording
+
+    t0 = time.process_time()
+    with tempfile.TemporaryDirectory(prefix="hystbench-independent-") as tmp:
+        folder = independent_suite().write_case(case, Path(tmp) / case.name)
+        stems = sorted(p.with_suffix("") for p in folder.glob("*.csv"))
+        recs = sorted((read_recording(s) for s in stems), key=lambda r: r.start_time_s)
+    t_sim = time.process_time() - t0
+    t0 = time.process_time()
+    d = diagnose(recs, baseline=list(case.baseline), progress=say, jobs=1)
+    t_diag = time.process_time() - t0
+    row = _row("independent", case, _bench_label(case.bench), d, len(recs), t_sim, t_diag)
+    if out is not None:
+        from hystbench.reports.diagnosis import write_report
+
+        row["report"] = str(write_report(d, out / "independent" / case.name, overwrite=True))
+    return row
+
+
+def _row(suite: str, case: Any, bench: str | None, d: Any, recordings: int, t_sim: float,
+         t_diag: float) -> dict[str, Any]:
+    """A case's row: its truth, the diagnosis's answer, the judge's verdict, the times."""
+    return {
+        "suite": suite, "case": case.name, "truth": list(case.truth), "bench": bench, "seed": case.seed,
         "concealment": case.concealment, "named": list(d.effects), "effect": d.effect,
         "right": (d.effect is None) if case.null else (d.effect in case.truth),
         "all_found": set(d.effects) == set(case.truth),
@@ -59,13 +135,26 @@ def run_case(case: Case, plan: BenchDayPlan | None = None, out: Path | None = No
         "residual_before": d.residual_before, "residual_after": d.residual_after,
         "parameters": {e: {p: {"value": v, "std": s} for p, (v, s) in ps.items()} for e, ps in d.parameters.items()},
         "expected": {e: dict(ps) for e, ps in case.expected.items()},
-        "recordings": len(recs), "seconds_simulate": t_sim, "seconds_diagnose": t_diag,
+        "recordings": recordings, "seconds_simulate": t_sim, "seconds_diagnose": t_diag,
     }
-    if out is not None:
-        from hystbench.reports.diagnosis import write_report
 
-        row["report"] = str(write_report(d, out / case.name, overwrite=True))
-    return row
+
+def _bench_label(bench: Any) -> str | None:
+    """An independent bench's constants off nominal as one JSON-ready line (None: the nominal bench)."""
+    if bench is None:
+        return None
+
+    def diff(obj: Any, ref: Any, prefix: str = "") -> list[str]:
+        out = []
+        for f in fields(obj):
+            a, b = getattr(obj, f.name), getattr(ref, f.name)
+            if hasattr(a, "__dataclass_fields__"):
+                out += diff(a, b, f"{prefix}{f.name}.")
+            elif a != b:
+                out.append(f"{prefix}{f.name}={a:g}" if isinstance(a, (int, float)) else f"{prefix}{f.name}={a!r}")
+        return out
+
+    return "independent bench off nominal: " + (", ".join(diff(bench, type(bench)())) or "as nominal")
 
 
 def targets(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -113,50 +202,79 @@ def _print(res: dict[str, Any]) -> None:
     from hystbench.reports.console import console
 
     con = console()
-    conf = res["confusion"]
-    named = sorted({n for row in conf.values() for n in row}, key=lambda n: (n == "none", n))
-    t = Table(title="confusion: truth (rows) x named (columns), cases")
-    t.add_column("truth \\ named")
-    for n in named:
-        t.add_column(n, justify="right")
-    for truth in sorted(conf, key=lambda n: (n == "none", n)):
-        t.add_row(truth, *(str(conf[truth].get(n, "")) for n in named))
-    con.print(t)
-    t = Table(title="per case: named, held-out residual (noise floors), time")
-    for col in ("case", "truth", "named", "right", "before", "after", "improvement", "diagnose (s)"):
-        numeric = col in ("before", "after", "improvement", "diagnose (s)")
-        t.add_column(col, justify="right" if numeric else "left", no_wrap=not numeric)
-    for r in res["cases"]:
-        imp = r["improvement"]
-        t.add_row(r["case"], "+".join(r["truth"]) or "none", "+".join(r["named"]) or "none",
-                  "yes" if r["right"] else "NO", f"{r['residual_before']:.3g}", f"{r['residual_after']:.3g}",
-                  "n/a" if imp is None else f"{imp:.1f}x", f"{r['seconds_diagnose']:.1f}")
-    con.print(t)
-    t = Table(title="targets")
-    for col in ("target", "measured", "pass"):
-        t.add_column(col)
-    for row in res["targets"]:
-        t.add_row(row["target"], row["measured"], "PASS" if row["pass"] else "FAIL")
-    con.print(t)
+    for suite, judged in res["suites"].items():
+        conf = judged["confusion"]
+        named = sorted({n for row in conf.values() for n in row}, key=lambda n: (n == "none", n))
+        t = Table(title=f"{suite} suite: confusion, truth (rows) x named (columns), cases")
+        t.add_column("truth \\ named")
+        for n in named:
+            t.add_column(n, justify="right")
+        for truth in sorted(conf, key=lambda n: (n == "none", n)):
+            t.add_row(truth, *(str(conf[truth].get(n, "")) for n in named))
+        con.print(t)
+        t = Table(title=f"{suite} suite, per case: named, held-out residual (noise floors), time")
+        for col in ("case", "truth", "named", "right", "before", "after", "improvement", "diagnose (s)"):
+            numeric = col in ("before", "after", "improvement", "diagnose (s)")
+            t.add_column(col, justify="right" if numeric else "left", no_wrap=not numeric)
+        for r in res["cases"]:
+            if r["suite"] != suite:
+                continue
+            imp = r["improvement"]
+            t.add_row(r["case"], "+".join(r["truth"]) or "none", "+".join(r["named"]) or "none",
+                      "yes" if r["right"] else "NO", f"{r['residual_before']:.3g}", f"{r['residual_after']:.3g}",
+                      "n/a" if imp is None else f"{imp:.1f}x", f"{r['seconds_diagnose']:.1f}")
+        con.print(t)
+        t = Table(title=f"{suite} suite: targets")
+        for col in ("target", "measured", "pass"):
+            t.add_column(col)
+        for row in judged["targets"]:
+            t.add_row(row["target"], row["measured"], "PASS" if row["pass"] else "FAIL")
+        con.print(t)
+
+
+def judge(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """suite -> its confusion table and targets, for each suite with rows (in :data:`SUITES` order)."""
+    out = {}
+    for suite in SUITES:
+        mine = [r for r in rows if r.get("suite", "ours") == suite]
+        if mine:
+            out[suite] = {"confusion": confusion(mine), "targets": targets(mine)}
+    return out
+
+
+def _select(ap: argparse.ArgumentParser, spec: str | None, suites: list[str]) -> list[tuple[str, Any]]:
+    """(suite, case) pairs: every case of ``suites``, or those ``spec`` names (``NAME``: in each chosen
+    suite that has it; ``SUITE:NAME``: in that suite)."""
+    by_suite = {s: {c.name: c for c in suite_cases(s)} for s in suites}
+    if not spec:
+        return [(s, c) for s in suites for c in by_suite[s].values()]
+    names = [n.strip() for n in spec.split(",") if n.strip()]
+    if not names:
+        ap.error(f"--cases: unknown case {spec!r}")
+    picked: list[tuple[str, Any]] = []
+    for name in names:
+        where, _, bare = name.rpartition(":") if ":" in name else ("", "", name)
+        hits = [(s, by_suite[s][bare]) for s in suites if (not where or where == s) and bare in by_suite[s]]
+        if not hits:
+            known = ", ".join(f"{s}:{n}" if len(suites) > 1 else n for s in suites for n in by_suite[s])
+            ap.error(f"--cases: unknown case {name!r}; known: {known}")
+        picked += [h for h in hits if h not in picked]
+    return picked
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="hystbench bench diagnose", description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", action="store_true")
-    ap.add_argument("--cases", help="comma-separated case names (default: the whole suite)")
+    ap.add_argument("--suite", choices=[*SUITES, "all"], default="all",
+                    help="ours (sim_backend's concealed suite), independent (the independent bench's), or all")
+    ap.add_argument("--cases", help="comma-separated case names, NAME or SUITE:NAME (default: the whole suites)")
     ap.add_argument("--out", help="folder for each case's report and results.json")
-    ap.add_argument("--quick", action="store_true", help="a short bench day (BenchDayPlan.quick): a first look only")
+    ap.add_argument("--quick", action="store_true",
+                    help="a short bench day (BenchDayPlan.quick) for our suite: a first look only")
     ap.add_argument("--jobs", type=int, default=0, help="cases diagnosed at once, one core each (default: one per core)")
     args = ap.parse_args(argv)
-    by_name = {c.name: c for c in CASES}
-    if args.cases:
-        names = [n.strip() for n in args.cases.split(",") if n.strip()]
-        odd = [n for n in names if n not in by_name]
-        if odd or not names:
-            ap.error(f"--cases: unknown case {odd[0] if odd else args.cases!r}; known: {', '.join(by_name)}")
-        cases = [by_name[n] for n in names]
-    else:
-        cases = list(CASES)
+    suites = list(SUITES) if args.suite == "all" else [args.suite]
+    cases = _select(ap, args.cases, suites)
     plan = BenchDayPlan.quick() if args.quick else None
     out = Path(args.out) if args.out else None
     from hystbench.reports.console import progress
@@ -164,20 +282,21 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     jobs = args.jobs or os.cpu_count() or 1
     with progress() as bar:
-        task = bar.add_task(f"concealed suite ({jobs} at once)", total=len(cases))
+        task = bar.add_task(f"concealed suites ({jobs} at once)", total=len(cases))
         if jobs == 1:
             rows = []
-            for c in cases:
-                rows.append(run_case(c, plan, out, say=lambda msg, c=c: bar.update(task, description=f"{c.name}: {msg}")))
+            for s, c in cases:
+                def say(msg: str, c: Any = c, s: str = s) -> None:
+                    bar.update(task, description=f"{s}:{c.name}: {msg}")
+                rows.append(run_case(c, plan, out, say=say) if s == "ours" else run_independent_case(c, out, say=say))
                 bar.advance(task)
         else:  # one case per process, each diagnosis on one core (its seconds are that core's)
             with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("forkserver")) as pool:
-                futures = [pool.submit(run_named, c.name, plan, out) for c in cases]
+                futures = [pool.submit(run_named, c.name, plan, out, s) for s, c in cases]
                 for fut in as_completed(futures):
                     bar.advance(task)
                 rows = [f.result() for f in futures]
-    res = {"cases": rows, "confusion": confusion(rows), "targets": targets(rows), "quick": bool(args.quick),
-           "seconds": time.monotonic() - t0}
+    res = {"cases": rows, "suites": judge(rows), "quick": bool(args.quick), "seconds": time.monotonic() - t0}
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / "results.json").write_text(json.dumps(res, indent=2, default=float))
