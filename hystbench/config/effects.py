@@ -103,7 +103,9 @@ CATALOGUE: Mapping[str, Effect] = MappingProxyType({e.name: e for e in [
                           items=Key(NUM, None, "frequencies", "Hz", gt=0.0)),
        zeta=_num(0.02, "damping ratio of each mode", gt=0.0, le=1.0),
        depth=_num(0.2, "gain 1 + depth at each mode: > 0 a peak, < 0 a dip (-1 would be a perfect notch); "
-                  "at most 100 (40 dB: a frame mode, not a second load cell)", gt=-1.0, le=100.0)),
+                  "at most 100 (40 dB: a frame mode, not a second load cell)", gt=-1.0, le=100.0),
+       split=_num(0.0, "the mode's anti-resonance sits this share above (> 0) or below (< 0) its resonance "
+                  "(a frame's two masses: the gain steps across the mode); 0: a pure peak", ge=-0.5, le=0.5)),
     _e("charge_amp_highpass",
        "piezo charge leaks through the charge amplifier's time constant: force high-passed",
        "time_constant_s", time_constant_s=_num(1.0, "the charge amplifier's time constant (a long one: "

@@ -26,10 +26,15 @@ def second_order_lowpass(f_hz: float, zeta: float) -> tuple[np.ndarray, np.ndarr
     return np.array([w * w]), np.array([1.0, 2 * zeta * w, w * w])
 
 
-def resonance_pair(f_hz: float, zeta_pole: float, zeta_zero: float) -> tuple[np.ndarray, np.ndarray]:
-    """A small mode: unity gain away from f, gain zeta_zero/zeta_pole at f, a local phase wiggle."""
+def resonance_pair(f_hz: float, zeta_pole: float, zeta_zero: float,
+                   f_zero_hz: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A small mode: unity gain below f, gain zeta_zero/zeta_pole at f, a local phase wiggle.  With its
+    anti-resonance at ``f_zero_hz`` (a frame's two masses: the zero apart from the pole) the gain steps
+    by (f/f_zero)^2 across the mode and its phase swings one way below it, the other above."""
     w = 2 * np.pi * f_hz
-    return np.array([1.0, 2 * zeta_zero * w, w * w]), np.array([1.0, 2 * zeta_pole * w, w * w])
+    wz = w if f_zero_hz is None else 2 * np.pi * f_zero_hz
+    r2 = (w / wz) ** 2  # unity DC gain: (s^2 / wz^2 + 2 zeta_z s / wz + 1) / (s^2 / w^2 + 2 zeta_p s / w + 1)
+    return np.array([r2, 2 * zeta_zero * w * w / wz, w * w]), np.array([1.0, 2 * zeta_pole * w, w * w])
 
 
 def bilinear_sos(b: np.ndarray, a: np.ndarray, fs_hz: float, prewarp_hz: float | None = None) -> np.ndarray:
@@ -54,7 +59,7 @@ class InstrumentModel:
     zeta_n: float = 0.012
     f0_hz: float = 31000.0
     zeta_0: float = 1.0
-    frame_modes: tuple[tuple[float, float, float], ...] = field(default=())  # (f, zeta_p, zeta_z)
+    frame_modes: tuple[tuple[float, ...], ...] = field(default=())  # (f, zeta_p, zeta_z[, f_zero])
     highpass_time_constant_s: float | None = None
 
     def sections(self, *, core: bool = True) -> list[tuple[np.ndarray, np.ndarray, float | None]]:
@@ -64,7 +69,7 @@ class InstrumentModel:
         if core:
             out += [(*second_order_lowpass(self.fn_hz, self.zeta_n), self.fn_hz),
                     (*second_order_lowpass(self.f0_hz, self.zeta_0), None)]
-        out += [(*resonance_pair(f, zp, zz), f) for f, zp, zz in self.frame_modes]
+        out += [(*resonance_pair(*mode), mode[0]) for mode in self.frame_modes]
         if self.highpass_time_constant_s is not None:
             tau = self.highpass_time_constant_s
             out.append((np.array([tau, 0.0]), np.array([tau, 1.0]), None))

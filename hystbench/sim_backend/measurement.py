@@ -35,7 +35,9 @@ def instrument_from_preset(preset: Mapping[str, Any], effects: Mapping[str, Mapp
     if "frame_resonance" in effects:
         fr = effects["frame_resonance"]
         zeta = float(fr["zeta"])
-        modes = tuple((float(f), zeta, zeta * (1.0 + float(fr["depth"]))) for f in fr["frequencies_hz"])
+        split = 1.0 + float(fr.get("split", 0.0))
+        modes = tuple((float(f), zeta, zeta * (1.0 + float(fr["depth"])), float(f) * split)
+                      for f in fr["frequencies_hz"])
     hp = effects.get("charge_amp_highpass")
     return dataclasses.replace(
         physics_presets.instrument(preset), frame_modes=modes,

@@ -52,3 +52,14 @@ def test_frame_mode_is_local():
     expected = np.degrees(np.arctan(2 * 0.024 * r / (1 - r * r)) - np.arctan(2 * 0.02 * r / (1 - r * r)))
     assert moded.phase_deg(320.0) - plain.phase_deg(320.0) == pytest.approx(expected, abs=1e-9)
     assert moded.phase_deg(3000.0) - plain.phase_deg(3000.0) == pytest.approx(0.0, abs=0.2)
+
+
+def test_a_split_mode_steps_the_gain_across_it():
+    """A frame's two masses: the anti-resonance apart from the resonance; unity gain far below, the
+    ratio of the two frequencies squared far above (the mass line), a peak then a dip between."""
+    plain = InstrumentModel()
+    split = InstrumentModel(frame_modes=((850.0, 0.02, 0.02, 900.0),))
+    ratio = lambda f: abs(split.frequency_response(f) / plain.frequency_response(f))  # noqa: E731
+    assert ratio(5.0) == pytest.approx(1.0, abs=1e-4)
+    assert ratio(40_000.0) == pytest.approx((850.0 / 900.0) ** 2, rel=1e-3)
+    assert ratio(840.0) > 1.5 and ratio(910.0) < 0.5  # the peak below, the anti-resonance above
