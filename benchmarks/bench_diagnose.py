@@ -9,13 +9,14 @@ compares its answer with the truth, suite by suite:
   presets' noise; nulls on other seeds, presets off nominal, foreign benches);
 - ``independent``: ``tests/independent_bench/concealed.py``'s CASES, days of the independent bench
   (its own physics for every block, nothing shared with ``sim_backend``), each written to a temporary
-  folder in the recording format and read back file by file with ``read_recording``, as a real bench's
-  day would be; diagnosed with the issue's baseline
+  folder in the recording format and read back with ``read_sweep``, as a real bench's day would be;
+  diagnosed with the issue's baseline
   (``static_hysteresis,lamination_eddy_currents,instrument_filter,sensor_noise,adc_quantisation``).
 
-Targets: >= 90 % of effect cases named right (top 1), every null case "none", held-out improvement
->= 5x where an effect is present, < 60 s per bench day (the diagnosis's own CPU time, one process: one core;
-cases run side by side, one per core).
+Targets (issue 27), on each suite: >= 90 % of effect cases named right (top 1; a two-effect day: both),
+every null case "none", held-out improvement >= 5x in the named effect's own signature (the numbers it
+moves, at held-out operating points; the total beside it), a median under 30 s per bench day (the
+diagnosis's own CPU time, one process: one core; cases run side by side, one per core).
 
 Run: ``hystbench bench diagnose [--suite ours|independent|all] [--json] [--cases NAME,...] [--out DIR] [--quick]``
 (``--cases``: a bare name selects it in every chosen suite that has it, ``SUITE:NAME`` in that suite only;
@@ -44,7 +45,7 @@ from hystbench.analysis.diagnosis import diagnose
 from hystbench.sim_backend.bench_day import BenchDayPlan
 from hystbench.sim_backend.concealed import CASES, Case, simulate_case
 
-TARGETS = {"named_right_pct": 90.0, "improvement_x": 5.0, "seconds_per_sweep": 60.0}
+TARGETS = {"named_right_pct": 90.0, "improvement_x": 5.0, "median_seconds": 30.0}
 
 SUITES: tuple[str, ...] = ("ours", "independent")
 
@@ -101,16 +102,14 @@ def run_case(case: Case, plan: BenchDayPlan | None = None, out: Path | None = No
 def run_independent_case(case: Any, out: Path | None = None,
                          say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """One case of the independent suite: its day written to a temporary folder (one folder, every
-    rig), read back file by file with ``read_recording`` in the order recorded, diagnosed with the
+    rig), read back as the recording format's sweep (``read_sweep``: rigs told apart by the sidecar), diagnosed with the
     case's baseline (every candidate), and the answer judged against the truth; the row has
     :func:`run_case`'s keys (``seconds_simulate``: writing the day and reading it back)."""
-    from hystbench.formats.recording import read_recording
+    from hystbench.formats.recording import read_sweep
 
     t0 = time.process_time()
     with tempfile.TemporaryDirectory(prefix="hystbench-independent-") as tmp:
-        folder = independent_suite().write_case(case, Path(tmp) / case.name)
-        stems = sorted(p.with_suffix("") for p in folder.glob("*.csv"))
-        recs = sorted((read_recording(s) for s in stems), key=lambda r: r.start_time_s)
+        recs = read_sweep(independent_suite().write_case(case, Path(tmp) / case.name))  # one folder, every rig
     t_sim = time.process_time() - t0
     t0 = time.process_time()
     d = diagnose(recs, baseline=list(case.baseline), progress=say, jobs=1)
@@ -129,9 +128,12 @@ def _row(suite: str, case: Any, bench: str | None, d: Any, recordings: int, t_si
     return {
         "suite": suite, "case": case.name, "truth": list(case.truth), "bench": bench, "seed": case.seed,
         "concealment": case.concealment, "named": list(d.effects), "effect": d.effect,
-        "right": (d.effect is None) if case.null else (d.effect in case.truth),
+        "right": (not d.effects) if case.null else (d.effect in case.truth and set(case.truth) <= set(d.effects)),
         "all_found": set(d.effects) == set(case.truth),
         "improvement": d.improvement if math.isfinite(d.improvement) else None,
+        # the proof in each named effect's own signature (held-out, before / after), and the suspects
+        "signature": {e: sig.get("improvement") for e, sig in d.signature.items()},
+        "suspects": [{"name": c.name, "score": c.score, "held_out_gain": c.held_out_gain} for c in d.suspects],
         "residual_before": d.residual_before, "residual_after": d.residual_after,
         "parameters": {e: {p: {"value": v, "std": s} for p, (v, s) in ps.items()} for e, ps in d.parameters.items()},
         "expected": {e: dict(ps) for e, ps in case.expected.items()},
@@ -166,10 +168,12 @@ def targets(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         out.append({"target": f">= {TARGETS['named_right_pct']:g} % of effect cases named right (top 1)",
                     "measured": f"{pct:.0f} % ({sum(r['right'] for r in effect)}/{len(effect)})",
                     "pass": pct >= TARGETS["named_right_pct"]})
-        imps = [r["improvement"] for r in effect]
+        # per effect case: the worst signature improvement of its true effects that were named
+        imps = [min((r["signature"].get(e) or 0.0 for e in r["truth"] if e in r["named"]), default=None)
+                for r in effect]
         worst = min((i for i in imps if i is not None), default=None)
         ok = all(i is not None and i >= TARGETS["improvement_x"] for i in imps)
-        out.append({"target": f"held-out improvement >= {TARGETS['improvement_x']:g}x where an effect is present",
+        out.append({"target": f"held-out improvement >= {TARGETS['improvement_x']:g}x in the effect's signature",
                     "measured": "n/a" if worst is None else f"worst {worst:.2f}x "
                                 f"({sum(i is not None and i >= TARGETS['improvement_x'] for i in imps)}/{len(imps)})",
                     "pass": ok})
@@ -177,11 +181,11 @@ def targets(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         out.append({"target": "every null case: none", "measured": f"{sum(r['right'] for r in null)}/{len(null)}",
                     "pass": all(r["right"] for r in null)})
     if rows:
-        slowest = max(r["seconds_diagnose"] for r in rows)
-        out.append({"target": f"< {TARGETS['seconds_per_sweep']:g} s per sweep (diagnosis, one core)",
-                    "measured": f"slowest {slowest:.1f} s, median "
-                                f"{sorted(r['seconds_diagnose'] for r in rows)[len(rows) // 2]:.1f} s",
-                    "pass": slowest < TARGETS["seconds_per_sweep"]})
+        times = sorted(r["seconds_diagnose"] for r in rows)
+        median = times[len(times) // 2] if len(times) % 2 else 0.5 * (times[len(times) // 2 - 1] + times[len(times) // 2])
+        out.append({"target": f"median < {TARGETS['median_seconds']:g} s per bench day (diagnosis, one core)",
+                    "measured": f"median {median:.1f} s, slowest {times[-1]:.1f} s",
+                    "pass": median < TARGETS["median_seconds"]})
     return out
 
 
@@ -213,16 +217,17 @@ def _print(res: dict[str, Any]) -> None:
             t.add_row(truth, *(str(conf[truth].get(n, "")) for n in named))
         con.print(t)
         t = Table(title=f"{suite} suite, per case: named, held-out residual (noise floors), time")
-        for col in ("case", "truth", "named", "right", "before", "after", "improvement", "diagnose (s)"):
-            numeric = col in ("before", "after", "improvement", "diagnose (s)")
+        for col in ("case", "truth", "named", "right", "before", "after", "improvement", "signature", "diagnose (s)"):
+            numeric = col in ("before", "after", "improvement", "signature", "diagnose (s)")
             t.add_column(col, justify="right" if numeric else "left", no_wrap=not numeric)
         for r in res["cases"]:
             if r["suite"] != suite:
                 continue
             imp = r["improvement"]
+            sig = ", ".join(f"{v:.1f}x" for v in r["signature"].values() if v is not None) or "n/a"
             t.add_row(r["case"], "+".join(r["truth"]) or "none", "+".join(r["named"]) or "none",
                       "yes" if r["right"] else "NO", f"{r['residual_before']:.3g}", f"{r['residual_after']:.3g}",
-                      "n/a" if imp is None else f"{imp:.1f}x", f"{r['seconds_diagnose']:.1f}")
+                      "n/a" if imp is None else f"{imp:.1f}x", sig, f"{r['seconds_diagnose']:.1f}")
         con.print(t)
         t = Table(title=f"{suite} suite: targets")
         for col in ("target", "measured", "pass"):

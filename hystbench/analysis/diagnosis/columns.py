@@ -14,6 +14,7 @@ The calibration (stage 1 of the issue), each parameter with a prior from the pre
 - ``geometry.airgap_m``, ``depth_m`` and ``middle_tooth_width_m`` (+-20 % each): the force law and
   the flux per ampere of both E-cores (a real core is off its drawing in more than its gap);
 - ``magnet.remanence_t`` (+-10 %): the magnet's bias;
+- ``voicecoil.force_constant_n_per_a`` (+-50 %): the voice coil's Bl, which the paper does not give;
 - ``iron.conductivity_s_per_m`` (+-50 %, when the baseline has ``lamination_eddy_currents``) and
   ``magnet.conductivity_s_per_m`` (+-70 %, with ``magnet_eddy_currents``): the eddy-current lags;
 - ``effects.frame_resonance.depth`` (+-0.2, when the baseline has the frame's modes);
@@ -35,7 +36,7 @@ from ...config.effects import CATALOGUE
 from ...errors import ConfigError
 from .forward import Point, preset_value, replay_features, with_effects, with_value
 
-__all__ = ["Knob", "KNOBS", "Probe", "PROBES", "GAINS", "Simulator", "accepts", "catalogue_params", "check_known"]
+__all__ = ["Knob", "KNOBS", "Probe", "PROBES", "CATALOGUE_FRAME", "GAINS", "Simulator", "accepts", "catalogue_params", "check_known"]
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,7 @@ KNOBS = (
     Knob("geometry.depth_m", 0.2),
     Knob("geometry.middle_tooth_width_m", 0.2),
     Knob("magnet.remanence_t", 0.1),
+    Knob("voicecoil.force_constant_n_per_a", 0.5),  # the paper gives no Bl: the preset's is assumed
     Knob("iron.conductivity_s_per_m", 0.5, needs="lamination_eddy_currents"),
     Knob("magnet.conductivity_s_per_m", 0.7, needs="magnet_eddy_currents"),
     Knob("effects.frame_resonance.depth", 0.2, needs="frame_resonance", linear=True),
@@ -103,6 +105,17 @@ def _inverse(effect: str, param: str, probe: float, grid: tuple[float, ...] = ()
                  lower=0.0, grid=tuple(1.0 / g for g in grid))
 
 
+#: The catalogue's own frame modes (the paper's, at their catalogue frequencies and damping), their
+#: depth fitted: what a frame like the paper's is, beside the searched mode of a frame not like it.
+CATALOGUE_FRAME = Probe("frame_resonance", "depth", 0.2, lambda u: {"depth": u}, lambda u: u, lower=-1.0)
+#: Where a frame mode is looked for (Hz; :mod:`.search`'s band): a linear step beyond it is held at its edge.
+FRAME_BAND_HZ = (300.0, 8000.0)
+
+
+def _in_band(f_hz: float) -> float:
+    return min(max(f_hz, FRAME_BAND_HZ[0]), FRAME_BAND_HZ[1])
+
+
 #: Time constants (s) simulated first for the high-pass effects: a day's transients to beyond it.
 TIME_CONSTANT_GRID = (0.25, 1.0, 4.0, 16.0, 64.0)
 
@@ -134,7 +147,11 @@ PROBES: Mapping[str, tuple[Probe, ...]] = {
     "load_cell_compliance": (_inverse("load_cell_compliance", "stiffness_n_per_m", 1e-8),),
     "amplifier_distortion": (_linear("amplifier_distortion", "second", 0.005, third=0.0),
                              _linear("amplifier_distortion", "third", 0.005, second=0.0)),
-    "frame_resonance": (_linear("frame_resonance", "depth", 0.2, lower=-1.0),),
+    # measured around the mode its search found (.search): frequency (a 1 % step), depth, split
+    "frame_resonance": (Probe("frame_resonance", "frequency_hz", 0.01, lambda u: {"frequencies_hz": [_in_band(u)]},
+                              _in_band, lower=FRAME_BAND_HZ[0], fixed={"zeta": 0.02, "depth": 0.0, "split": 0.0}),
+                        _linear("frame_resonance", "depth", 0.05, lower=-0.99),
+                        _linear("frame_resonance", "split", 0.005, lower=-0.5)),
     "static_hysteresis": (_switch("static_hysteresis"),),
     "lamination_eddy_currents": (_switch("lamination_eddy_currents"),),
     "magnet_eddy_currents": (_switch("magnet_eddy_currents"),),

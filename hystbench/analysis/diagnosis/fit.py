@@ -65,6 +65,10 @@ DC_FLOOR = 1e-2
 FLOOR_FACTOR_RANGE = (0.1, 100.0)
 
 
+#: The median of a chi-square with one degree of freedom.
+FLOOR_MEDIAN = 0.454936
+
+
 def variance(se: np.ndarray, scale: np.ndarray, views: np.ndarray, harmonic: np.ndarray,
              factor: np.ndarray | float = 1.0) -> np.ndarray:
     """Each number's variance: its standard error squared plus the model-error floor (times ``factor``)."""
@@ -74,8 +78,12 @@ def variance(se: np.ndarray, scale: np.ndarray, views: np.ndarray, harmonic: np.
 
 def floor_scales(residual: np.ndarray, layout: Any, data: Sequence[Any], ok: np.ndarray) -> np.ndarray:
     """Per harmonic row, the factor on the model-error floor of its part of the bench day (its view on
-    its rig): the one that makes the calibrated baseline's reduced chi-square 1 there (bisection in log),
-    within FLOOR_FACTOR_RANGE.  A part the baseline fits to its noise keeps the lowest floor."""
+    its rig): the one that makes the calibrated baseline's standardised residuals there as spread as
+    noise (bisection in log), within FLOOR_FACTOR_RANGE.  A part the baseline fits to its noise keeps the
+    lowest floor.  The spread is measured by the median of the squared residuals (a chi-square with one
+    degree of freedom has median FLOOR_MEDIAN), not their mean: the residual holds what the baseline
+    leaves out, and an effect that acts on a few numbers (a frame mode near two of the voice coil's
+    points, a high-pass at the lowest frequencies) must not raise the floor that would reveal it."""
     views = layout.view()
     rigs = np.array([data[r].rig for r in layout.record])
     eps = np.where(layout.harmonic == 0, DC_FLOOR, np.array([MODEL_ERROR_FLOOR[v] for v in views])) * layout.scale
@@ -89,7 +97,7 @@ def floor_scales(residual: np.ndarray, layout: Any, data: Sequence[Any], ok: np.
         r2, se2, e2 = r[sel] ** 2, layout.se[sel] ** 2, eps[sel] ** 2
 
         def reduced(f: float) -> float:
-            return float(np.mean(r2 / (se2 + f * f * e2)))
+            return float(np.median(r2 / (se2 + f * f * e2))) / FLOOR_MEDIAN
 
         lo, hi = math.log(lo_f), math.log(hi_f)
         if reduced(lo_f) <= 1.0:

@@ -49,16 +49,20 @@ class Point:
     averaged_s: float = math.nan  # the whole periods a feature's DC is the mean of (from the record's start)
 
 
-def points_of(recordings: Sequence[Recording], averaged_s: Sequence[float] | None = None) -> tuple[list[Point], bool]:
+def points_of(recordings: Sequence[Recording], averaged_s: Sequence[float] | None = None,
+              measured_pp_a: Sequence[float] | None = None) -> tuple[list[Point], bool]:
     """The recordings' points, and whether their sidecars gave the clock.  Without ``start_time_s``
     the recordings are taken as recorded back to back in the order given (the replay then has no
     slow effect to compare).  ``averaged_s``: per recording, the span of whole periods its features'
-    DC is the mean of (``periods / frequency_hz`` of its features)."""
+    DC is the mean of (``periods / frequency_hz`` of its features).  ``measured_pp_a``: per recording,
+    the current it really had (twice its fundamental's amplitude), which the replay drives instead of
+    the sidecar's setpoint: a real amplifier's bandwidth and gain are not its setpoint's."""
     clocked = all(r.start_time_s is not None for r in recordings)
     points, t = [], 0.0
     for n, rec in enumerate(recordings):
         start = float(rec.start_time_s) if clocked else t
-        points.append(Point(recording_name(rec), rec.rig, rec.frequency_hz, rec.current_pp_a, start, rec.duration_s,
+        ipp = rec.current_pp_a if measured_pp_a is None else float(measured_pp_a[n])
+        points.append(Point(recording_name(rec), rec.rig, rec.frequency_hz, ipp, start, rec.duration_s,
                             rec.fs_hz, math.nan if averaged_s is None else float(averaged_s[n])))
         t = start + rec.duration_s
     return points, clocked
@@ -183,13 +187,22 @@ CLOCKED = ("force_offset_drift", "magnet_thermal_drift")
 RING_DOWN_S = 0.06
 
 
+#: The longest memory a replay simulates (s): a bench day's pause between recordings.
+MEMORY_CAP_S = 20.0
+
+
 def memory_s(preset: Mapping[str, Any]) -> float:
-    """How long a rig remembers what it did: five of its slowest time constant (a charge amplifier's
-    high-pass, a leaky integrator); 0 when it has neither.  Longer pauses need not be simulated."""
+    """How long a rig remembers what it did: five of its charge amplifier's time constant (the force's
+    DC after each change of operating point), at most MEMORY_CAP_S; 0 without a high-pass.  Longer
+    pauses need not be simulated.  An integrator's leak is not counted: the flux's DC is never compared
+    (an integrator's DC is where it was reset), and its ramp is separated from the harmonics by the
+    features.  Nor is a high-pass longer than the cap followed to the end: with one, the force's DC is
+    not compared either (:data:`.select.DC_BLIND`)."""
     effects = preset.get("effects") or {}
-    taus = [float({**CATALOGUE[name].defaults, **(effects[name] or {})}["time_constant_s"])
-            for name in ("charge_amp_highpass", "integrator_leak") if name in effects]
-    return 5.0 * max(taus, default=0.0)
+    if "charge_amp_highpass" not in effects:
+        return 0.0
+    tau = float({**CATALOGUE["charge_amp_highpass"].defaults, **(effects["charge_amp_highpass"] or {})}["time_constant_s"])
+    return min(5.0 * tau, MEMORY_CAP_S)
 
 
 def _advance(sim: SimulatedRig, t_s: float, pre_roll_s: float) -> None:

@@ -1,8 +1,8 @@
 """Stage 5 of a diagnosis: prove the fit improves, on recordings the fit never saw.
 
-Cross-validation over operating points: each fold holds out one excitation frequency of the E-core
-rigs (the voice coil's instrument sweep always trains); the calibration (and the named effects) are
-fitted on the rest and predict the held-out flux and force harmonics.  The residual is in units of
+Cross-validation over operating points: each fold holds out one excitation frequency on every rig
+that played it (the voice coil's kHz points included); the calibration, its discrepancy and the named
+effects are fitted on the rest and predict the held-out harmonics and lines.  The residual is in units of
 their standard errors (the noise floor of each period average), before (the calibrated baseline) and
 after (with the named effects).  The held-out recording the baseline missed most is kept as one period
 of measured and predicted signals for the report's loops.
@@ -26,21 +26,19 @@ __all__ = ["cross_validate", "folds", "held_out"]
 
 
 def folds(problem: Problem, data: Sequence[RecordFeatures]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(training rows, held-out rows) per fold: one excitation frequency of the E-core rigs held out
-    (its flux and force harmonics and its non-harmonic lines judged), the voice coil's instrument sweep
-    always in training."""
+    """(training rows, held-out rows) per fold: one excitation frequency held out on every rig that
+    played it (the voice coil's kHz points too: a frame mode shows only there), every channel's
+    harmonics and the non-harmonic lines of those recordings judged.  A bench day with a single
+    frequency holds out one recording at a time."""
     layout, rows = problem.layout, problem.rows
-    recs_ecore = sorted({r for r, f in enumerate(data) if "flux_Wb" in f.harmonics})
-    group = {r: round(data[r].frequency_hz) for r in recs_ecore} or {r: r for r in range(len(data))}
+    group = {r: round(f.frequency_hz) for r, f in enumerate(data)}
     if len(set(group.values())) < 2:
         group = {r: r for r in group}
     rec_of = np.concatenate([layout.record, problem.line_records])[rows]
-    judged = np.concatenate([np.isin(layout.channel, [CHANNELS.index("flux_Wb"), CHANNELS.index("force_N")]),
-                             np.ones(problem.line_records.size, bool)])[rows]  # the lines: mains is judged there
     out = []
     for g in sorted(set(group.values())):
         held = np.isin(rec_of, [r for r, gg in group.items() if gg == g])
-        test, train = rows[held & judged], rows[~held]
+        test, train = rows[held], rows[~held]
         if test.size and train.size:
             out.append((train, test))
     return out

@@ -31,7 +31,7 @@ class Candidate:
     score: float  # BIC(baseline) - BIC(baseline + this effect): > 0 means the effect explains more than it costs
     parameters: Mapping[str, tuple[float, float]]  # catalogue parameter -> (value, standard error)
     round: int = 1
-    held_out_gain: float | None = None  # for a decisive score that was not named: how little it predicted
+    held_out_gain: float | None = None  # for a decisive score: how much better, modelled, it predicts its signature held out
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "score": json_number(self.score), "round": self.round,
@@ -75,6 +75,11 @@ class Diagnosis:
     rigs: list[str] = field(default_factory=list)
     loops: Loops | None = None
     grid: Any = None  # the locate heat map's data (reports draw it)
+    #: per named effect, the proof in its own signature: the held-out residual (model-error sigmas) on
+    #: the numbers it moves, before and after it was modelled
+    signature: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: decisive effects the held-out proof refused, with their numbers
+    suspects: list[Candidate] = field(default_factory=list)
 
     @property
     def improvement(self) -> float:
@@ -103,4 +108,6 @@ class Diagnosis:
             "warnings": list(self.warnings),
             "recordings": self.recordings,
             "rigs": list(self.rigs),
+            "signature": {e: {k: json_number(v) for k, v in sig.items()} for e, sig in self.signature.items()},
+            "suspects": [c.to_json() for c in self.suspects],
         }
