@@ -23,7 +23,7 @@ from hystbench.analysis.diagnosis.select import MIN_HELD_OUT_GAIN
 pytestmark = pytest.mark.slow
 
 #: (suite, case): a single, a null on a foreign bench, a two-effect day, a null on a bench copy.
-SUBSET = (("ours", "magnet_eddy_currents"), ("ours", "foreign_m130_null"),
+SUBSET = (("ours", "magnet_eddy_currents"), ("ours", "foreign_rayleigh"),
           ("independent", "integrator_leak+distortion"), ("independent", "null_bench_geometry"))
 
 
