@@ -42,7 +42,7 @@ from .forward import MEASURED_DIRECTLY, points_of
 from .locate import locate_residual
 from .prove import cross_validate, folds, held_out
 from .result import Diagnosis
-from .select import DC_BLIND, MIN_HELD_OUT_GAIN, candidate_effects, dc_blind, family, forward_selection, parameters_of
+from .select import DC_BLIND, MIN_HELD_OUT_GAIN, candidate_effects, dc_blind, family, forward_selection, named_parameters
 from .vector import CHANNELS, layout_of, line_values, values_of
 
 __all__ = ["diagnose", "DiagnosisError"]
@@ -165,7 +165,7 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
     names = [family(e.name) for e in selection.named]
     return Diagnosis(
         effect=names[0] if names else None, effects=names, candidates=selection.ranked,
-        parameters={family(e.name): parameters_of(e, selection.solution) for e in selection.named},
+        parameters={family(e.name): named_parameters(e, selection.solution) for e in selection.named},
         recalibrated=recal, located=located, residual_before=proof["before"], residual_after=proof["after"],
         noise_floor=_noise_floor(data), seconds=time.perf_counter() - start, baseline=in_base,
         candidates_considered=pool_names, findings=findings, warnings=warnings, recordings=len(recs), rigs=list(presets),

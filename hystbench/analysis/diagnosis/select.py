@@ -28,7 +28,7 @@ from .search import frame_mode_search
 from .vector import CHANNELS
 from .result import Candidate
 
-__all__ = ["CandidateEffect", "Selection", "candidate_effects", "best_on_grid", "setting_at", "dc_blind", "forward_selection", "family", "parameters_of",
+__all__ = ["CandidateEffect", "Selection", "candidate_effects", "best_on_grid", "setting_at", "dc_blind", "named_parameters", "forward_selection", "family", "parameters_of",
            "NAME_MARGIN", "RUNNER_UP_MARGIN", "MAX_ROUNDS"]
 
 #: BIC margins that make a finding decisive: over the baseline (Kass & Raftery's "very strong") and
@@ -63,6 +63,8 @@ class CandidateEffect:
     #: the proof in its own signature: held-out residual (in sigmas) on the numbers it moves, before and
     #: after it was modelled, and how many numbers those are
     signature: tuple[float, float, int] | None = None
+    #: once named: each parameter's standard error where it was fitted (its value is ``at``, simulated)
+    std: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -189,11 +191,12 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
     for rnd in range(1, MAX_ROUNDS + 1):
         cal = calibration.columns
         base_cols = cal + generic + [c for e in named for c in e.columns]
+        base = problem.solve(m_named, base_cols)  # what each candidate is scored against
         scores = []
         for key, eff in effects.items():
             if any(family(key) == family(e.name) for e in named):
                 continue
-            judge, ref = problem, sol
+            judge, ref = problem, base
             if family(key) in DC_BLIND:  # judged, like the baseline it is compared with, without that DC
                 judge = dc_blind(problem, key)
                 ref = judge.solve(m_named, base_cols)
@@ -225,6 +228,7 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
         say(f"recalibrating with {', '.join(family(e.name) for e in named)} in the baseline")
         for e in named:  # their columns now perturb the fitted values, which the simulation holds
             # (a switch is simulated on as the preset describes it: strength 1, whatever was fitted)
+            e.std = {pr.param: sol.value(f"{e.name}.{pr.param}")[1] for pr in e.probes}
             e.at = {pr.param: 1.0 if pr.is_switch else e.at.get(pr.param, 0.0) + sol.value(f"{e.name}.{pr.param}")[0]
                     for pr in e.probes}
             e.offset = None
@@ -245,10 +249,10 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
             for e, kept in zip(named, saved):
                 e.at, e.offset, e.columns = kept.at, kept.offset, kept.columns
             effects.pop(top[1])  # the next round tries the others without it, beside what it fitted
+            # (the named effects' fit, ``sol``, stays as it was: a generic term must not take from them)
             generic += [Column(f"generic.{family(top[1])}", acts)] + [dataclasses.replace(c, name=f"generic.{c.name}",
                                                                                      lower=-math.inf)
                                                                  for c in eff.columns]
-            sol = problem.solve(m_named, calibration.columns + generic + [c for e in named for c in e.columns])
     return Selection(named, ranked, m_named, sol, calibration, suspects, problem, generic)
 
 
@@ -366,6 +370,20 @@ def best_per_family(scores: Sequence[tuple[float, str, Solution]]) -> list[tuple
         if f not in best or s[0] > best[f][0]:
             best[f] = s
     return list(best.values())
+
+
+def named_parameters(eff: CandidateEffect, sol: Solution) -> dict[str, tuple[float, float]]:
+    """A named effect's parameters: the values the final model simulates it at (the fit that named it,
+    refined; what the held-out proof measured), with the standard errors of that fit.  The linear
+    columns it keeps for later rounds were measured around an earlier calibration: they adjust, they
+    do not report."""
+    if eff.line_hz is not None or not eff.std:
+        return parameters_of(eff, sol)
+    out = {}
+    for pr in eff.probes:
+        u = eff.at.get(pr.param, 0.0)
+        out[pr.param] = (pr.value(u), abs(pr.derivative(u)) * eff.std[pr.param] if math.isfinite(pr.value(u)) else math.nan)
+    return out
 
 
 def parameters_of(eff: CandidateEffect, sol: Solution) -> dict[str, tuple[float, float]]:
