@@ -29,7 +29,7 @@ LOOPS = "loops.png"
 
 #: Units of preset keys by suffix (the presets' naming rule: ``fn_hz``, ``airgap_m``, ``conductivity_s_per_m``).
 _UNITS = {"_hz": "Hz", "_s": "s", "_m": "m", "_t": "T", "_a": "A", "_s_per_m": "S/m", "_n_per_m": "N/m",
-          "_n_per_s": "N/s", "_k": "K"}
+          "_n_per_s": "N/s", "_n_per_a": "N/A", "_k": "K"}
 
 
 def unit_of(key: str) -> str:
