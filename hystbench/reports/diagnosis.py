@@ -312,6 +312,11 @@ def print_summary(diagnosis: Diagnosis, console: Any) -> None:
         t.add_row("", escape(line))
     t.add_row("held-out residual", f"{_num(d.residual_before)} -> {_num(d.residual_after)} noise floors "
                                    f"({_num(d.improvement)}x)")
+    for effect, sig in d.signature.items():
+        t.add_row("in its signature", f"{escape(effect)}: {_num(sig['before'])} -> {_num(sig['after'])} "
+                                      f"({_num(sig['improvement'])}x, {sig['numbers']:.0f} held-out numbers)")
+    for c in d.suspects:
+        t.add_row("suspect", f"{escape(c.name)} (score {_num(c.score)}, held out {_num(c.held_out_gain)}x)")
     first = [c for c in d.candidates if c.round == 1 and (not d.effects or c.name != d.effects[0])]
     if first:
         best = max(first, key=lambda c: c.score if math.isfinite(c.score) else -math.inf)

@@ -76,3 +76,14 @@ def test_the_terminal_table_is_short_and_says_what_was_named():
     out = buf.getvalue()
     assert "charge_amp_highpass.time_constant_s = 0.41 +- 0.02 s" in out and "(20x)" in out
     assert "channel_skew" in out and len(out.splitlines()) < 15
+
+
+def test_the_terminal_table_gives_the_proof_in_the_signature_and_the_suspects():
+    d = _diagnosis()
+    d.signature = {"charge_amp_highpass": {"before": 30.0, "after": 1.5, "improvement": 20.0, "numbers": 42}}
+    d.suspects = [Candidate("frame_resonance", 400.0, {}, held_out_gain=0.2)]
+    buf = io.StringIO()
+    print_summary(d, Console(file=buf, width=140))
+    out = buf.getvalue()
+    assert "charge_amp_highpass: 30 -> 1.5 (20x, 42 held-out numbers)" in out
+    assert "frame_resonance (score 400, held out 0.2x)" in out

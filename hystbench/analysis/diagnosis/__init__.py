@@ -6,12 +6,16 @@ The stages, each in its module:
 0. the recordings as numbers with standard errors (:mod:`.features`, laid out by :mod:`.vector`), and
    the same numbers of the simulation: the bench day replayed on the simulated rig (:mod:`.forward`),
    as a function of calibration knobs and effects (:mod:`.columns`), fitted by :mod:`.fit`;
-1. calibrate (:mod:`.calibrate`): the baseline's calibration parameters, each against its prior;
+1. calibrate (:mod:`.calibrate`): the baseline's calibration parameters, each against its prior, and
+   the explicit discrepancy of each path of the bench (:mod:`.discrepancy`: a baseline allowed to be
+   wrong, issue 27);
 2. locate (:mod:`.locate`): the calibrated baseline's residual as z-scores over channel pair,
    harmonic, operating point, rig and time;
-3. name and 4. model (:mod:`.select`): each candidate switched on in the simulation, scored by BIC,
-   named only when decisive, re-simulated at its fitted values;
-5. prove (:mod:`.prove`): cross-validation over operating points, held-out residual before and after.
+3. name and 4. model (:mod:`.select`): each candidate switched on in the simulation (a frame mode
+   searched first, :mod:`.search`), scored by BIC, named only when decisive and proven in its own
+   signature at held-out operating points, re-simulated at its fitted values;
+5. prove (:mod:`.prove`): cross-validation over every block's operating points, held-out residual
+   before and after.
 Real material data (loss tables, no waveforms) take their own path: :mod:`.loss_separation`.
 """
 

@@ -34,7 +34,7 @@ from .features import RecordFeatures
 from .fit import Column
 from .vector import CHANNELS, Layout
 
-__all__ = ["discrepancy_columns", "IRON_PRIOR", "LAW_PRIOR", "is_discrepancy"]
+__all__ = ["discrepancy_columns", "IRON_PRIOR", "LAW_PRIOR", "AMPLIFIER_PRIOR"]
 
 #: Prior width of each iron coefficient (constant, slope over the group's log-frequency span), as a
 #: share of the flux's largest harmonic in the group.
@@ -45,10 +45,6 @@ LAW_PRIOR = 0.05
 AMPLIFIER_PRIOR = 0.3
 _PHASES = 64  # points per period where the force law is linearised
 PREFIX = "discrepancy."
-
-
-def is_discrepancy(name: str) -> bool:
-    return name.startswith(PREFIX)
 
 
 def discrepancy_columns(data: Sequence[RecordFeatures], base_effects: Mapping[str, Mapping[str, Any]],
