@@ -32,7 +32,7 @@ import numpy as np
 
 from .features import RecordFeatures
 from .fit import Column
-from .vector import CHANNELS, Layout
+from .vector import CHANNELS, Layout, record_harmonics
 
 __all__ = ["discrepancy_columns", "IRON_PRIOR", "LAW_PRIOR", "AMPLIFIER_PRIOR"]
 
@@ -116,7 +116,7 @@ def _amplifier_columns(data: Sequence[RecordFeatures], layout: Layout, m0: np.nd
             for power in (0, 1, 2):
                 v = np.zeros(m0.size)
                 for r in recs:
-                    c = _harmonics_of(m0, layout, r, command, int(layout.harmonic.max()))
+                    c = record_harmonics(m0, layout, r).get("command_V")
                     if c is None:
                         continue
                     w = (data[r].frequency_hz / f_max) ** power
@@ -124,16 +124,6 @@ def _amplifier_columns(data: Sequence[RecordFeatures], layout: Layout, m0: np.nd
                 cols.append(Column(f"{PREFIX}amplifier.{rig}.f{power}.{'im' if part else 're'}", v,
                                    prior=AMPLIFIER_PRIOR))
     return cols
-
-
-def _harmonics_of(m: np.ndarray, layout: Layout, record: int, channel: int, K: int) -> np.ndarray | None:
-    sel = (layout.record == record) & (layout.channel == channel)
-    if not sel.any():
-        return None
-    h = np.zeros(K + 1, complex)
-    for i in np.flatnonzero(sel):
-        h[layout.harmonic[i]] += m[i] if layout.part[i] == 0 else 1j * m[i]
-    return h
 
 
 def _wave(h: np.ndarray, n: int = _PHASES) -> np.ndarray:
@@ -148,8 +138,8 @@ def _force_law_slope(m: np.ndarray, layout: Layout, record: int, K: int):
     """For one record, a function (k, dphi_k) -> the force's harmonic change that a change dphi_k of
     the flux's k-th harmonic makes through the model's force law (F ~ a0 + a1 phi + a2 phi^2 fitted on
     the model's own period); None without flux or force."""
-    phi = _harmonics_of(m, layout, record, CHANNELS.index("flux_Wb"), K)
-    F = _harmonics_of(m, layout, record, CHANNELS.index("force_N"), K)
+    h = record_harmonics(m, layout, record)
+    phi, F = h.get("flux_Wb"), h.get("force_N")
     if phi is None or F is None:
         return None
     phi[0] = 0.0  # the integrator's DC is where it was reset: the law's a0, a1 hold the bias

@@ -20,7 +20,7 @@ from .features import RecordFeatures
 from .fit import Column, Problem
 from .result import Loops
 from .select import Selection
-from .vector import CHANNELS, Layout
+from .vector import record_harmonics
 
 __all__ = ["cross_validate", "folds", "held_out"]
 
@@ -86,33 +86,18 @@ def cross_validate(problem: Problem, data: Sequence[RecordFeatures], before: Cal
         worst = max(err, key=err.get)
         phase = np.linspace(0.0, 1.0, 256, endpoint=False)
         f = data[worst]
-        meas = reconstruct(np.where(np.isfinite(pred_before), d, np.nan), layout, worst)
-        bef = reconstruct(pred_before, layout, worst)
-        aft = reconstruct(pred_after, layout, worst)
+        meas = record_harmonics(np.where(np.isfinite(pred_before), d, np.nan), layout, worst)
+        bef = record_harmonics(pred_before, layout, worst)
+        aft = record_harmonics(pred_after, layout, worst)
         loops = Loops(f.name, f.rig, f.frequency_hz, f.current_pp_a, phase,
                       {c: period(np.nan_to_num(h), phase) for c, h in meas.items()},
                       {c: period(np.nan_to_num(h), phase) for c, h in bef.items()},
                       {c: period(np.nan_to_num(h), phase) for c, h in aft.items()})
-        cur = reconstruct(d, layout, worst).get("current_A")
+        cur = record_harmonics(d, layout, worst).get("current_A")
         if cur is not None:
             for part in (loops.measured, loops.before, loops.after):
                 part["current_A"] = period(np.nan_to_num(cur), phase)
     return {"before": before_res, "after": after_res, "loops": loops}
-
-
-def reconstruct(values: np.ndarray, layout: Layout, record: int) -> dict[str, np.ndarray]:
-    """Complex harmonics per channel of one record from the vector's rows (the loops' figure)."""
-    out: dict[str, np.ndarray] = {}
-    K = int(layout.harmonic.max(initial=0))
-    for ci, ch in enumerate(CHANNELS):
-        sel = (layout.record == record) & (layout.channel == ci)
-        if not sel.any():
-            continue
-        h = np.zeros(K + 1, complex)
-        for v, k, p in zip(values[: layout.size][sel], layout.harmonic[sel], layout.part[sel]):
-            h[k] += v if p == 0 else 1j * v
-        out[ch] = h
-    return out
 
 
 def period(h: np.ndarray, phase: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ import numpy as np
 
 from .features import RecordFeatures
 
-__all__ = ["CHANNELS", "VIEWS", "Layout", "layout_of", "values_of", "line_values"]
+__all__ = ["CHANNELS", "VIEWS", "Layout", "layout_of", "values_of", "line_values", "record_harmonics"]
 
 #: The channels compared, and the view each channel's harmonics speak to (everything is referenced
 #: to the current's fundamental, so the flux's harmonics are "flux vs current" and so on).
@@ -98,3 +98,19 @@ def line_values(features: Sequence[RecordFeatures]) -> tuple[np.ndarray, np.ndar
                     s.append(2 * se ** 2)
                     labels.append((r, ch, float(hz)))
     return np.asarray(y, float), np.asarray(s, float), labels
+
+
+def record_harmonics(values: np.ndarray, layout: Layout, record: int) -> dict[str, np.ndarray]:
+    """Complex harmonics 0..K per channel of one record, read back from a vector's rows (what
+    :func:`values_of` laid out; a row the layout lacks reads 0)."""
+    out: dict[str, np.ndarray] = {}
+    K = int(layout.harmonic.max(initial=0))
+    for ci, ch in enumerate(CHANNELS):
+        sel = (layout.record == record) & (layout.channel == ci)
+        if not sel.any():
+            continue
+        h = np.zeros(K + 1, complex)
+        for v, k, p in zip(values[: layout.size][sel], layout.harmonic[sel], layout.part[sel]):
+            h[k] += v if p == 0 else 1j * v
+        out[ch] = h
+    return out
