@@ -93,7 +93,7 @@ def cross_validate(problem: Problem, data: Sequence[RecordFeatures], before: Cal
                       {c: period(np.nan_to_num(h), phase) for c, h in meas.items()},
                       {c: period(np.nan_to_num(h), phase) for c, h in bef.items()},
                       {c: period(np.nan_to_num(h), phase) for c, h in aft.items()})
-        cur = record_harmonics(d, layout, worst).get("current_A")
+        cur = f.harmonics.get("current_A")  # measured: its fundamental is the replay's input, not a row
         if cur is not None:
             for part in (loops.measured, loops.before, loops.after):
                 part["current_A"] = period(np.nan_to_num(cur), phase)

@@ -53,8 +53,10 @@ def _rows(f: RecordFeatures):
         for k in range(h.size):
             if not np.isfinite(h[k]) or (ch == "flux_Wb" and k == 0):  # an integrator's DC is where it was reset
                 continue
+            if ch == "current_A" and k == 1:  # the replay's input (it drives the current each record had)
+                continue
             yield ci, ch, k, 0
-            if k > 0 and not (ch == "current_A" and k == 1):  # the current's fundamental is real by construction
+            if k > 0:
                 yield ci, ch, k, 1
 
 
