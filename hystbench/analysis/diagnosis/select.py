@@ -104,9 +104,8 @@ def candidate_effects(problem: Problem, pool: Sequence[str], presets: Mapping[st
         probes = tuple(p for p in PROBES[name] if any(accepts(r, presets[r], name) for r in presets))
         if name == "frame_resonance" and probes:  # its own frequency and damping, searched on the fit first
             fn = next((p["instrument"]["fn_hz"] for p in presets.values() if "instrument" in p), None)
-            if fn is not None:  # the load cell as calibrated
-                fn *= math.exp(x0.get("instrument.fn_hz", 0.0) + calibration.solution.value("instrument.fn_hz")[0]
-                               if "instrument.fn_hz" in calibration.solution.names else 0.0)
+            if fn is not None and "instrument.fn_hz" in calibration.solution.names:  # the load cell as calibrated
+                fn *= math.exp(x0.get("instrument.fn_hz", 0.0) + calibration.solution.value("instrument.fn_hz")[0])
             mode = frame_mode_search(problem, m0, calibration.columns, np.asarray(frequency_hz, float), fn)
             say(f"frame_resonance: a mode near {mode['frequency_hz']:.0f} Hz (damping {mode['zeta']:g}) fits best")
             start = clamp(name, {"depth": mode["depth"], "split": mode["split"]})
@@ -133,15 +132,14 @@ def candidate_effects(problem: Problem, pool: Sequence[str], presets: Mapping[st
         around.append((name, (pr,), {pr.param: u}, change))
     # each of those around its starting point: a replay there (unless the grid made it) and one per
     # parameter stepped (a time constant or a frequency by a share of itself), all at once
-    plan = [(name, probes, at, *rest) for name, probes, at, *rest in around]
     requests = []
-    for name, probes, at, *rest in plan:
+    for name, probes, at, *rest in around:
         if not rest:
             requests.append((x0, {family(name): setting_at(probes, at)}))
         requests += [(x0, {family(name): setting_at(probes, {**at, pr.param: at[pr.param] + _step(pr, at)})})
                      for pr in probes]
     runs = iter(problem.model_many(requests))
-    for name, probes, at, *rest in plan:
+    for name, probes, at, *rest in around:
         change = rest[0] if rest else next(runs) - m0
         cols = [Column(f"{name}.{pr.param}", (next(runs) - m0 - change) / _step(pr, at), lower=pr.lower - at[pr.param])
                 for pr in probes]
