@@ -1,7 +1,7 @@
 """Issue 27's targets on a representative subset of both concealed suites.
 
 The whole suites are a benchmark (``hystbench bench diagnose``, which ``.ci/run`` runs after ``make
-test``; its figures and confusion tables are in the README's diagnosis section).  Here, one day of each
+test``; its figures and confusion tables are in docs/diagnosis.md#results).  Here, one day of each
 kind: from our simulator's suite a single effect and a null on a foreign bench (another iron, geometry
 off its drawing); from the independent bench (its own physics for every block, nothing shared with
 ``sim_backend``) a two-effect day and a null on a copy of the bench off nominal.  The diagnosis sees the
