@@ -237,6 +237,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file, not a folder")
+    if args.day is None and (args.baseline is not None or args.truth is not None):
+        raise ConfigError(f"{'--baseline' if args.baseline is not None else '--truth'}: only with --day")
+    if args.day is not None:  # read and checked now, not after a minute of the live part
+        from ..formats.recording import read_sweep
+        from ..reports.demo_diagnosis import truth_line
+
+        read_sweep(args.day)
+        if args.truth is not None:
+            truth_line(args.truth)
     # --source digitiser: the samples come from the emulated SCPI digitiser through pyvisa-py (issue 15)
     bench_file = CONFIG_DIR / "bench_digitiser.toml" if args.source == "digitiser" else None
     from ..reports.demo import sample_source
@@ -255,7 +264,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if status == 0:  # last: a diagnosis of a bench day with a concealed effect (issue 13)
         from ..reports.demo_diagnosis import demo_diagnosis
 
-        demo_diagnosis(out / "diagnosis", console())
+        demo_diagnosis(out / "diagnosis", console(), day=args.day, baseline=args.baseline, truth=args.truth)
     return status
 
 
@@ -326,6 +335,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--source", choices=("streams", "digitiser"), default="streams",
                    help="where the samples come from: the instruments' own frame streams, or one SCPI digitiser "
                         "(config/bench_digitiser.toml)")
+    p.add_argument("--day", type=path_arg, default=None, metavar="DIR",
+                   help="a bench day's folder to diagnose last (make demo: one of the independent bench's); "
+                        "default: a concealed day of the simulated rig")
+    p.add_argument("--baseline", type=commands_diagnose.effect_list("--baseline"), default=None, metavar="EFFECT,...",
+                   help="with --day: the effects of your model of that bench (default: each rig preset's own)")
+    p.add_argument("--truth", type=path_arg, default=None, metavar="FILE",
+                   help="with --day: the generator's truth (JSON), printed after the verdict")
     p.set_defaults(func=cmd_demo)
     return parser
 

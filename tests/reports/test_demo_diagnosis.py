@@ -1,23 +1,61 @@
-"""``make demo`` ends with a diagnosis of a concealed bench day (issue 13): the short day names the
-effect the generator hid, and the report page and its figures are written."""
+"""``make demo`` ends with a diagnosis of a concealed bench day written by the independent bench
+(issues 13 and 27): it names the effect that bench hid, with the time constant of the circuit that
+bench simulates, and writes the report; the truth file beside the day is printed after the verdict.
+``hystbench demo`` checks ``--day``, ``--baseline`` and ``--truth`` before anything runs."""
 
 from __future__ import annotations
 
 import io
+import json
 
+import pytest
 from rich.console import Console
 
-from hystbench.reports.demo_diagnosis import DEMO_CASE, demo_diagnosis
+from hystbench.cli.main import main
+from hystbench.reports.demo_diagnosis import demo_diagnosis
+from independent_bench.__main__ import main as write_independent_day
+
+BASELINE = ["static_hysteresis", "lamination_eddy_currents", "instrument_filter", "sensor_noise", "adc_quantisation"]
 
 
-def test_the_demo_names_the_concealed_effect_and_writes_its_report(tmp_path):
+@pytest.fixture(scope="module")
+def independent_day(tmp_path_factory):
+    out = tmp_path_factory.mktemp("independent")
+    assert write_independent_day(["integrator_leak", str(out)]) == 0
+    return out
+
+
+def test_the_writer_keeps_the_truth_beside_the_day_never_in_it(independent_day):
+    truth = json.loads((independent_day / "truth.json").read_text())
+    assert truth["truth"] == ["integrator_leak"] and truth["baseline"] == BASELINE
+    # the circuit's leak: 4.7 MOhm || the op-amp's 20000 x 10 kOhm, on 100 nF
+    assert truth["catalogue"]["integrator_leak"]["time_constant_s"] == pytest.approx(1 / (1 / 0.47 + 1 / 20.0), rel=1e-3)
+    sidecars = [p.read_text() for p in (independent_day / "day").glob("*.json")]
+    assert len(sidecars) == 24 and not any("leak" in s or "truth" in s for s in sidecars)
+
+
+def test_the_demo_names_what_the_independent_bench_hid_and_writes_its_report(independent_day, tmp_path):
     buf = io.StringIO()
-    page = demo_diagnosis(tmp_path / "diagnosis", Console(file=buf, width=160))
+    page = demo_diagnosis(tmp_path / "diagnosis", Console(file=buf, width=200), day=independent_day / "day",
+                          baseline=BASELINE, truth=independent_day / "truth.json")
     out = buf.getvalue()
     assert page == tmp_path / "diagnosis" / "report" / "README.md"
-    first = page.read_text().split("\n\n")[1]
-    assert f"**{DEMO_CASE}**" in first  # the verdict names the generator's truth
+    assert "**integrator_leak**" in page.read_text().split("\n\n")[1]  # the verdict names the bench's truth
     assert (page.parent / "loops.png").exists() and (page.parent / "heat_map.png").exists()
-    assert f"{DEMO_CASE}.time_constant_s = " in out and str(page) in out
-    assert sorted(p.name for p in (tmp_path / "diagnosis" / "day").iterdir()) == ["ecore", "ecore_pm",
-                                                                                 "voicecoil_ferrite"]
+    line = next(x for x in out.splitlines() if "integrator_leak.time_constant_s = " in x)
+    tau = float(line.split("= ")[1].split()[0])
+    assert tau == pytest.approx(1 / (1 / 0.47 + 1 / 20.0), rel=0.05)  # the circuit's, not our simulator's
+    assert "truth (never shown to the diagnosis): integrator_leak" in out and "--baseline " + ",".join(BASELINE) in out
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--truth", "t.json"], "--truth: only with --day"),
+    (["--baseline", "static_hysteresis"], "--baseline: only with --day"),
+    (["--day", "{tmp}/nowhere"], "nowhere"),
+    (["--day", "{day}", "--truth", "{day}/../day"], "--truth"),
+])
+def test_the_demo_refuses_a_bad_day_before_it_starts(argv, says, independent_day, tmp_path, capsys):
+    argv = [a.format(tmp=tmp_path, day=independent_day / "day") for a in argv]
+    assert main(["demo", "--out", str(tmp_path / "out"), *argv]) == 2
+    assert says in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # nothing ran
