@@ -23,8 +23,12 @@ Per E-core rig (presets as shipped: noise at the paper's level, 0.0015 N rms wit
    with the ferrite voice coil on the bench's load cell, the models fitted from the nominal preset
    (all a user of that bench has), judged at 40-480 Hz, Eq. 6 at 320 Hz, learning from rest.
 
-Run: ``hystbench bench compensator [--json] [--out DIR] [--quick] [--family]`` (figures in DIR;
-``--family`` only the foreign benches' table).
+6. every description of the force (Eq. 1, Eq. 6 and the iron descriptions) on the independent
+   bench's family (:mod:`benchmarks.compensator_independent`: elliptic and Bouc-Wen iron, with and
+   without the magnet, code that shares nothing with hystbench): is ``best`` the best of them?
+
+Run: ``hystbench bench compensator [--json] [--out DIR] [--quick] [--family] [--independent]`` (figures
+in DIR; ``--family`` only the foreign benches' table, ``--independent`` only the independent family's).
 """
 
 from __future__ import annotations
@@ -47,6 +51,8 @@ from hystbench.config import load_rig
 from hystbench.drivers.protocols.bench_config import load_bench_config
 from hystbench.sim_backend.recordings import simulated_sweep
 from hystbench.sim_backend.rig import SimulatedRig
+
+from benchmarks.compensator_independent import independent_family, independent_targets, print_independent
 
 MAIN_IPP = {"ecore": 1.27, "ecore_pm": 1.4}
 UNSEEN_IPP = 0.9
@@ -143,7 +149,7 @@ def foreign(name: str, quick: bool) -> dict:
     return {"bench": name, "iron": bench.material, "description": preset["description"], "fit_seconds": fit_s,
             "instrument_identified": {"fn_Hz": ins.fn_hz, "zeta_n": ins.zeta_n},
             "instrument_true": {"fn_Hz": preset["instrument"]["fn_hz"], "zeta_n": preset["instrument"]["zeta_n"]},
-            "chosen": models["best"].report["choice"]["chosen"], "why": models["best"].report["choice"]["why"],
+            "chosen": models.report["choice"]["chosen"], "why": models.report["choice"]["why"],
             "judge": rows, **extra, "learning": {"reference": ref, "reached_at": loop["reached_at"],
                                                  "ratios": [r["ratio"] for r in loop["iterations"]]}}
 
@@ -189,7 +195,7 @@ def run(quick: bool = False) -> dict:
         rows, extra = judge(rig, models, quick)
         out["rigs"][rig] = {"fit_seconds": fit_s, "fit_recordings": len(pts), "judge": rows, "_iron": iron_loops(pts, models, rig == "ecore_pm"),
                             "best_model": {k: v for k, v in models["best"].to_dict().items() if k != "report"},
-                            "chosen": models["best"].report["choice"]["why"],
+                            "chosen": models.report["choice"]["why"],
                             **{k: v for k, v in extra.items() if k != "loops"}, "_loops": extra.get("loops")}
         out["closed_loop"].append(closed_loop(rig, models, REFERENCES[rig]))
         if not quick:
@@ -346,6 +352,8 @@ def _print(res: dict) -> None:
     con = console()
     if res.get("family"):
         _print_family(res["family"])
+    if res.get("independent"):
+        print_independent(res["independent"], con)
     for rig, r in res["rigs"].items():
         t = Table(title=f"{rig}: accuracy (%) on recordings the fit did not see (fit: {r['fit_recordings']} "
                         f"recordings, {r['fit_seconds']:.1f} s)")
@@ -380,15 +388,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", help="folder for the figures (PNG)")
     ap.add_argument("--quick", action="store_true", help="80 and 320 Hz only, fewer closed loops")
     ap.add_argument("--family", action="store_true", help="the foreign benches only")
+    ap.add_argument("--independent", action="store_true", help="the independent bench's family only")
     args = ap.parse_args(argv)
     t0 = time.monotonic()
-    if args.family:
-        res = {"rigs": {}, "closed_loop": [], "family": family(args.quick)}
-        res["targets"] = family_targets(res["family"])
-    else:
+    res = {"rigs": {}, "closed_loop": [], "targets": []}
+    if not (args.family or args.independent):
         res = run(quick=args.quick)
+    if args.family or not args.independent:
         res["family"] = family(args.quick)
         res["targets"] += family_targets(res["family"])
+    if args.independent or not args.family:
+        res["independent"] = independent_family()
+        res["targets"] += independent_targets(res["independent"])
     res["seconds"] = time.monotonic() - t0
     if args.out:
         res["figures"] = [str(p) for p in figures(res, Path(args.out))]

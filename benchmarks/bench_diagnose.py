@@ -44,23 +44,15 @@ from typing import Any, Callable
 from hystbench.analysis.diagnosis import diagnose
 from hystbench.sim_backend.bench_day import BenchDayPlan
 from hystbench.sim_backend.concealed import CASES, Case, simulate_case
+from benchmarks.compensator_independent import independent_bench
 
 TARGETS = {"named_right_pct": 90.0, "improvement_x": 5.0, "median_seconds": 30.0}
 
 SUITES: tuple[str, ...] = ("ours", "independent")
 
-#: The repository's tests/ folder: the independent bench is the package ``independent_bench`` in it.
-_TESTS = Path(__file__).resolve().parents[1] / "tests"
-
-
 def independent_suite() -> ModuleType:
-    """``independent_bench.concealed``, imported from the repository's tests/ folder (it is no part of
-    the installed hystbench, and imports nothing from it)."""
-    if str(_TESTS) not in sys.path:
-        sys.path.append(str(_TESTS))
-    import independent_bench.concealed as suite
-
-    return suite
+    """``independent_bench.concealed``, imported from the repository's tests/ folder."""
+    return independent_bench("concealed")
 
 
 def suite_cases(suite: str) -> list[Any]:

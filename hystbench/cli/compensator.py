@@ -72,11 +72,13 @@ def cmd_model_fit(args: argparse.Namespace) -> int:
         models.save(tmp, overwrite=True)
     path = Path(args.out)
     rows = models.report["training_error"]
-    choice = models.models["best"].report.get("choice", {}) if "best" in models.models else {}
+    choice = models.report.get("choice", {})
     if args.json:
         print(_json_out({"model_file": str(path), "rig": rig, "training_error": rows,
                          "instrument": {"fn_Hz": models.instrument.fn_hz, "zeta_n": models.instrument.zeta_n},
-                         "best_iron_description": choice.get("chosen"), "why": choice.get("why")}))
+                         "best_description": choice.get("chosen"), "why": choice.get("why"),
+                         "held_out_worst_accuracy_pct": choice.get("worst_held_out_accuracy_pct"),
+                         "held_out_largest_shortfall_pts": choice.get("largest_shortfall_pts")}))
         return 0
     from rich.table import Table
 
@@ -89,7 +91,16 @@ def cmd_model_fit(args: argparse.Namespace) -> int:
     con = _console()
     con.print(table)
     if choice:
-        con.print(f"best model's iron description: {choice['chosen']} ({choice['why']})")
+        held = Table(title="the best model's choice: every description on the recordings its fit did not see")
+        for col in ("description", "worst held-out accuracy (%)", "largest shortfall from the best (points)", ""):
+            held.add_column(col, justify="left" if not col or col == "description" else "right")
+        for d, worst in choice["worst_held_out_accuracy_pct"].items():
+            held.add_row(d, f"{worst:.3f}", f"{choice['largest_shortfall_pts'][d]:.3f}",
+                         "chosen" if d == choice["chosen"] else "")
+        for d, err in choice["failed"].items():
+            held.add_row(d, "-", "-", f"failed: {err}")
+        con.print(held)
+        con.print(f"best model: {choice['why']}")
     con.print("accuracy = 100 % x (1 - max|F_measured - H_instr{F_model}| / force range) on the period average, on "
               f"the recordings fitted (judge on others with `model predict`). Wrote {path}")
     return 0

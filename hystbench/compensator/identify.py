@@ -1,4 +1,4 @@
-"""Identification of the best model from a sweep: the iron description the data choose.
+"""The iron descriptions of the best model, fitted on a sweep.
 
 1. :func:`.calibration.calibrate` gives the static law, the flux-to-current map j = kappa phi + c
    and the instrument, from the sweep alone.
@@ -10,13 +10,8 @@
      frequency and amplitude, by linear least squares;
    - ``rayleigh_loop`` (:mod:`.rayleigh_loop`): closed-form parabolic branches (Rayleigh's law)
      between the period's turning points, by linear least squares.
-3. Each is judged on recordings of the sweep it was not fitted on (whole frequencies and whole
-   amplitudes held out in turn): the predicted force, through the instrument, against the measured
-   one.  The score is the rms of the held-out max|dF| over the rms of their force ranges: the large
-   loops, where the models differ, count most; a small loop's max|dF| is mostly its noise, the same
-   for every candidate (a worst-case score chose by noise).  The lowest score wins; the model's
-   report says which, with every candidate's held-out errors, and the winner is refitted on the
-   whole sweep.
+3. :mod:`.choice` judges them, beside the paper's Eq. 1 and Eq. 6, on recordings of the sweep each
+   was not fitted on (:func:`held_out_folds`), and chooses the best model.
 """
 
 from __future__ import annotations
@@ -42,7 +37,7 @@ from .models import ForceModel, predict_measured
 from .periodic import apply_response, denoise, derivative, resample
 from .rayleigh_loop import RayleighLoopModel, fit_rayleigh_loop
 
-__all__ = ["IronData", "iron_data", "fit_hysteresis_eddy", "fit_best", "CANDIDATES", "held_out_folds"]
+__all__ = ["IronData", "iron_data", "fit_hysteresis_eddy", "CANDIDATES", "held_out_folds"]
 
 _KINDS = ("gauss", "lorentz")
 #: Starting widths of the switching-field distributions, relative to the coercive guess.
@@ -183,7 +178,7 @@ CANDIDATES: dict[str, Fitter] = {"preisach": fit_hysteresis_eddy, "describing_fu
                                   "rayleigh_loop": fit_rayleigh}
 
 
-# --- the choice --------------------------------------------------------------------------------------
+# --- the folds the choice holds out ------------------------------------------------------------------
 def held_out_folds(points: Sequence[PeriodData]) -> list[tuple[str, list[int]]]:
     """(what is held out, indices held out): each inner frequency and each inner amplitude of the
     sweep's grid in turn (interpolation, as the held-out judgement will ask), else one recording."""
@@ -197,55 +192,3 @@ def held_out_folds(points: Sequence[PeriodData]) -> list[tuple[str, list[int]]]:
     if not folds:
         folds = [(points[k].name, [k]) for k in range(1, len(points) - 1)]
     return [(n, k) for n, k in folds if 0 < len(k) < len(points) - 2]
-
-
-def _held_out_error_n(model: ForceModel, point: PeriodData, instrument: InstrumentModel) -> float:
-    """max|dF| of ``model`` on ``point`` (the measured force against the prediction), N."""
-    pred = predict_measured(model, point.current_a, point.frequency_hz, instrument,
-                            current_noise_a=point.average_noise_a())
-    return float(np.max(np.abs(point.force_n - pred)))
-
-
-def fit_best(points: Sequence[PeriodData], cal: SweepCalibration, scaling: IronScaling,
-             tick: Callable[[], None] | None = None) -> HysteresisEddyModel | DescribingFunctionModel | RayleighLoopModel:
-    """The best model: every candidate judged on held-out folds, the winner refitted on all."""
-    data = iron_data(points, cal)
-    folds = held_out_folds(points)
-    held: dict[str, dict[str, float]] = {}
-    failed: dict[str, str] = {}
-    for name, fit in CANDIDATES.items():
-        errs: dict[str, float] = {}
-        try:
-            for _, out in folds:
-                keep = [k for k in range(len(points)) if k not in out]
-                model = fit(data.subset(keep), cal, scaling)
-                for k in out:
-                    errs[points[k].name] = _held_out_error_n(model, points[k], cal.instrument)
-                if tick is not None:
-                    tick()
-        except CompensatorError as err:
-            failed[name] = str(err)
-            continue
-        held[name] = errs
-    if not held:
-        raise CompensatorError("no iron description fits this sweep: "
-                               + "; ".join(f"{k}: {v}" for k, v in failed.items()))
-    ranges = {p.name: p.force_range_n for p in points}
-
-    def score_of(errs: dict[str, float]) -> float:
-        if not errs:
-            return math.inf
-        return 100.0 * math.sqrt(sum(e * e for e in errs.values()) / sum(ranges[n] ** 2 for n in errs))
-
-    score = {k: score_of(v) for k, v in held.items()}
-    chosen = min(score, key=score.get)
-    model = CANDIDATES[chosen](data, cal, scaling)
-    others = ", ".join(f"{k} {score[k]:.3f} %" for k in score if k != chosen)
-    model.report["choice"] = {
-        "chosen": chosen,
-        "why": (f"lowest held-out force error: rms max|dF| {score[chosen]:.3f} % of the rms force range"
-                + (f" (against {others})" if others else "") + "; folds held out: "
-                + ", ".join(n for n, _ in folds)),
-        "held_out_max_error_N": held, "score_pct": score, "failed": failed,
-    }
-    return model

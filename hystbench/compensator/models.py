@@ -4,10 +4,10 @@
   (:mod:`.calibration`: a bench never equals its preset's MEC, so the preset's geometry is not used);
 - ``paper``: Eq. 6, the same law with the current delayed by theta_hyst(f) measured per frequency
   (flux behind current, the paper's Sec. VII), interpolated in frequency;
-- ``best``: ours, with the iron description the sweep chooses (:mod:`.identify`): a Preisach iron
-  plus eddy term (:class:`~.hysteresis_eddy.HysteresisEddyModel`), a describing function
-  (:class:`~.describing.DescribingFunctionModel`) or Rayleigh loops
-  (:class:`~.rayleigh_loop.RayleighLoopModel`).
+- ``best``: the description the sweep's held-out recordings choose (:mod:`.choice`) among all of them:
+  the two above, a Preisach iron plus eddy term (:class:`~.hysteresis_eddy.HysteresisEddyModel`), a
+  describing function (:class:`~.describing.DescribingFunctionModel`) or Rayleigh loops
+  (:class:`~.rayleigh_loop.RayleighLoopModel`); never worse than a simpler one where the data can tell.
 
 Every model works on one period (``force_period``: current -> the actuator's force;
 ``current_period``: force -> current, which is the feed-forward).  What the load cell reports is
@@ -16,7 +16,7 @@ corrected in the measurement, never put into the actuator's command.
 
 A :class:`ModelSet` is what ``hystbench model fit`` writes: the rig, the instrument model used,
 the three models, what the identification found (law, magnet bias and flux map with standard
-errors, the iron description chosen and why) and how well each model fits the sweep (JSON, ``FORMAT``; files of
+errors), the best model's choice (which description, why, every description's held-out accuracy) and how well each model fits the sweep (JSON, ``FORMAT``; files of
 the first format, ``hystbench-force-models/1``, are still read: their models are the same kinds).
 """
 
@@ -44,7 +44,7 @@ from .periodic import apply_response, denoise, shift
 from .rayleigh_loop import RayleighLoopModel
 from .static import StaticLaw
 
-__all__ = ["ForceModel", "NonHysteretic", "PaperModel", "ModelSet", "MODEL_KINDS", "FORMAT", "fit_models",
+__all__ = ["ForceModel", "NonHysteretic", "PaperModel", "ModelSet", "MODEL_KINDS", "FORMAT", "fit_models", "paper_model",
            "predict_measured", "force_error", "model_from_dict", "phase_delay_bound_n"]
 
 FORMAT = "hystbench-force-models/2"
@@ -55,6 +55,8 @@ MAX_MODEL_BYTES = 16 << 20
 MODEL_KINDS = ("nonhysteretic", "paper", "best")
 #: The best model's iron descriptions, by the ``name`` a model file gives them (format 1: always Preisach).
 BEST_DESCRIPTIONS = {cls.name: cls for cls in (HysteresisEddyModel, DescribingFunctionModel, RayleighLoopModel)}
+#: The paper's models' names, which a best model may be too (where the sweep chooses them).
+PAPER_NAMES = ("eq1_mec", "eq6_phase_delay")
 
 
 @runtime_checkable
@@ -143,15 +145,17 @@ class PaperModel:
 def model_from_dict(d: Mapping[str, Any]) -> ForceModel:
     """The model that a model file's entry describes, by its ``kind`` (the inverse of ``to_dict``)."""
     kind = d.get("kind")
-    if kind == "nonhysteretic":
-        return NonHysteretic(StaticLaw.from_dict(d["law"]))
-    if kind == "paper":
+    paper_kind = {"eq1_mec": "nonhysteretic", "eq6_phase_delay": "paper"}.get(d.get("name")) if kind == "best" else kind
+    if paper_kind == "nonhysteretic":
+        return NonHysteretic(StaticLaw.from_dict(d["law"]), kind=str(kind))
+    if paper_kind == "paper":
         return PaperModel(StaticLaw.from_dict(d["law"]), tuple(map(float, d["frequency_Hz"])),
-                          tuple(map(float, d["theta_hyst_rad"])))
+                          tuple(map(float, d["theta_hyst_rad"])), kind=str(kind))
     if kind == "best":
         name = d.get("name", HysteresisEddyModel.name)
         if name not in BEST_DESCRIPTIONS:
-            raise ConfigError(f"unknown best-model iron description {name!r}; known: {', '.join(BEST_DESCRIPTIONS)}")
+            raise ConfigError(f"unknown best-model description {name!r}; known: "
+                              f"{', '.join([*PAPER_NAMES, *BEST_DESCRIPTIONS])}")
         return BEST_DESCRIPTIONS[name].from_dict(dict(d))
     raise ConfigError(f"unknown force model kind {kind!r}; known: {', '.join(MODEL_KINDS)}")
 
@@ -257,7 +261,7 @@ def fit_models(points: Sequence[PeriodData], preset: Mapping[str, Any],
     averages).  The force instrument is ``instrument`` (a voice coil's identification), else the
     preset's; the preset's geometry only sets the Preisach description's B scale; the law, the
     magnet's bias and the iron come from the sweep."""
-    from .identify import fit_best  # identify uses this module's predict_measured
+    from .choice import choose_best  # choice fits this module's models
 
     rig = str(preset.get("name"))
     if preset.get("actuator") != "ecore":
@@ -278,16 +282,28 @@ def fit_models(points: Sequence[PeriodData], preset: Mapping[str, Any],
         if "nonhysteretic" in kinds:
             models["nonhysteretic"] = NonHysteretic(law)
         if "paper" in kinds:
-            pm = PhaseDelayModel.from_phases(law.coefficients, [f for f, _ in th], [t for _, t in th])
-            models["paper"] = PaperModel(law, tuple(map(float, pm.freq_hz)), tuple(map(float, pm.theta_rad)))
+            models["paper"] = paper_model(points, law)
+    choice = None
     if "best" in kinds:
         cal = calibrate(points, instrument, magnet)
         identification.update(cal.report)
-        models["best"] = fit_best(points, cal, IronScaling.from_mec(presets.ecore_mec(preset)), tick=tick)
+        models["best"], choice = choose_best(points, cal, IronScaling.from_mec(presets.ecore_mec(preset)),
+                                             instrument, magnet, tick=tick)
     fit = {k: [_summary(force_error(m, p, instrument)) for p in points] for k, m in models.items()}
-    return ModelSet(rig, instrument, models, {"recordings": [p.name for p in points],
-                                              "identification": identification,
-                                              "training_error": fit})
+    report = {"recordings": [p.name for p in points], "identification": identification, "training_error": fit}
+    if choice is not None:
+        report["choice"] = choice
+    return ModelSet(rig, instrument, models, report)
+
+
+def paper_model(points: Sequence[PeriodData], law: StaticLaw, *, kind: str = "paper") -> PaperModel:
+    """Eq. 6 from a sweep: ``law`` with the theta_hyst measured at each frequency (several amplitudes
+    at one frequency: their mean)."""
+    th = [(p.nominal_frequency_hz, p.theta_hyst_rad) for p in points if np.isfinite(p.theta_hyst_rad)]
+    if not th:
+        raise CompensatorError("no theta_hyst measured in the sweep; the paper's Eq. 6 needs it")
+    pm = PhaseDelayModel.from_phases(law.coefficients, [f for f, _ in th], [t for _, t in th])
+    return PaperModel(law, tuple(map(float, pm.freq_hz)), tuple(map(float, pm.theta_rad)), kind=kind)
 
 
 def phase_delay_bound_n(point: PeriodData, instrument: InstrumentModel, *, max_theta_deg: float = 4.0,

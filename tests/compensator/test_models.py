@@ -87,7 +87,7 @@ def test_best_model_identified_parameters_are_physical(models_pm, models_ecore):
 
     for ms in (models_pm, models_ecore):
         best = ms["best"]
-        assert best.report["choice"]["chosen"] == "preisach", best.report["choice"]["why"]
+        assert ms.report["choice"]["chosen"] == "preisach", ms.report["choice"]["why"]
         assert 2e-6 < best.tau_s < 1e-5  # lamination (and magnet) eddy currents, ~5 us
         comps = best.material["components"]
         assert all(5.0 < c[2] < 200.0 for c in comps)  # switching fields of a soft SiFe, A/m

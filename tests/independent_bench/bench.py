@@ -56,6 +56,14 @@ DEFAULTS: dict[str, dict[str, Any]] = {
                          "force_N": {"ecore": 10.0, "ecore_pm": 400.0, "voicecoil_ferrite": 10.0}},
 }
 
+#: Another parameterisation of an effect, chosen by giving its parameters: the iron's loops as
+#: ellipses (a linear iron with a loss angle, tan_delta + tan_delta_per_T x the period's AC flux
+#: density: Rayleigh's loss growth, the loop kept an ellipse; the paper's Sec. II B picture) instead
+#: of Bouc-Wen's pointed ones.
+VARIANTS: dict[str, dict[str, Any]] = {
+    "static_hysteresis": {"tan_delta": 0.15, "tan_delta_per_T": 0.5},
+}
+
 #: The issue's calibration baseline: what an engineer would model on day one.
 BASELINE: dict[str, bool] = {name: True for name in (
     "static_hysteresis", "lamination_eddy_currents", "instrument_filter", "sensor_noise", "adc_quantisation")}
@@ -89,6 +97,8 @@ def effect_params(effects: Mapping[str, Any] | None) -> dict[str, dict[str, Any]
         if value is False or value is None:
             continue
         params = dict(DEFAULTS[name])
+        if isinstance(value, Mapping) and name in VARIANTS and set(value) & set(VARIANTS[name]):
+            params = dict(VARIANTS[name])
         if isinstance(value, Mapping):
             unknown = set(value) - set(params)
             if unknown:
@@ -152,13 +162,26 @@ def solve_ecore(p: dict, bench: BenchConstants, current: np.ndarray, f_hz: float
     if lam is not None:
         iron = mag.ladder_reluctivity_factor(omega, mag.MU0 * geo.iron_mu_r, lam["sigma_S_per_m"],
                                              lam["thickness_m"], int(lam["layers"]))
-    z = r0 + geo.iron_path_m * nu / area * iron
+    eddy = np.zeros(k.size, complex)
     me = p.get("magnet_eddy_currents")
     if magnet and me is not None:
         g_m = me["sigma_S_per_m"] * geo.magnet_length_m / (4 * np.pi) * me["shape_factor"]
-        z = z + 2 * g_m * 1j * omega  # the middle leg carries 2 Phi through the magnet
+        eddy = 2 * g_m * 1j * omega  # the middle leg carries 2 Phi through the magnet
     mmf = geo.turns * current + (mag.magnet_mmf(geo) * magnet_factor if magnet else 0.0)
     sat, hyst, comp = p.get("iron_saturation"), p.get("static_hysteresis"), p.get("load_cell_compliance")
+    elliptic = hyst if hyst is not None and "tan_delta" in hyst else None  # a lossy linear iron instead of Bouc-Wen
+    hyst = None if elliptic is not None else hyst
+
+    def impedance(phi: np.ndarray | None) -> np.ndarray:
+        """The loop's reluctance per harmonic; an elliptic iron's loss angle grows with the period's
+        AC flux density (Rayleigh's loops, taken as ellipses)."""
+        loss = np.ones(k.size, complex)
+        if elliptic is not None:
+            b_ac = 0.0 if phi is None else 0.5 * float(np.ptp(phi)) / area
+            loss[1:] += 1j * (elliptic["tan_delta"] + elliptic.get("tan_delta_per_T", 0.0) * b_ac)
+        return r0 + geo.iron_path_m * nu / area * iron * loss + eddy
+
+    z = impedance(None)
     phi = _wave(_harmonics(mmf) / z, m)
     g = np.full(m, geo.gap_m)
     for _ in range(200):
@@ -173,13 +196,15 @@ def solve_ecore(p: dict, bench: BenchConstants, current: np.ndarray, f_hz: float
             force = mag.gap_force(geo, phi, g, magnet)
             g = geo.gap_m - comp["compliance_m_per_N"] * force
             dr = mag.loop_reluctance(geo, g, magnet)[0] - r0
+        if elliptic is not None:
+            z = impedance(phi)
         rhs = mmf - geo.iron_path_m * extra - dr * phi
         new = _wave(_harmonics(rhs) / z, m)
         step = float(np.max(np.abs(new - phi)))
         phi = phi + 0.8 * (new - phi)
         if step < 1e-12 * max(float(np.max(np.abs(phi))), 1e-30):
             break
-        if sat is None and hyst is None and comp is None:
+        if sat is None and hyst is None and comp is None and not (elliptic and elliptic.get("tan_delta_per_T")):
             break
     return phi, mag.gap_force(geo, phi, g, magnet)
 
