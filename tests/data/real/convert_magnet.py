@@ -16,6 +16,10 @@ round-trip text, so float(text) gives back the source's number bit for bit):
   the other rows are triangular/trapezoidal), columns Frequency, Flux_Density (peak), Power_Loss; the
   Duty_* and Outlier_Factor columns are dropped, no row is removed.  The sidecar copies the store's
   own metadata (core shape, effective volume, temperature, measurement date).
+* ``magnet_{MAT}_shapes.csv`` + ``.json``: the other rows of the same store (``Duty_1 != -1``:
+  triangular and trapezoidal B(t)), columns Frequency, Flux_Density, Duty_1..4, Power_Loss;
+  Outlier_Factor dropped, no row removed.  The sidecar says what the duties mean as MagNet's own
+  code uses them (``hystbench.formats.flux_shapes`` rebuilds B(t) from them).
 * ``N87_mu_large.csv`` + ``.json``: the large-signal complex relative permeability of N87 of
   ``dataset/N87_mu_large/`` (MATLAB text ``a+bi``, ``NaNNaNi`` outside the measured range), every 2nd
   frequency x every 2nd flux density, finite entries only, as a long table.
@@ -91,6 +95,59 @@ def convert_magnet(wheel: Path, out: Path) -> None:
                             "Outlier_Factor dropped; no row removed (tests/data/real/convert_magnet.py)"),
             }
             _write(out, f"magnet_{mat}_sine", "frequency_Hz,flux_density_peak_T,loss_W_per_m3", rows, sidecar)
+            _write_shapes(out, mat, maker, member, sha, cols, values, meta)
+
+
+#: What MagNet's Duty_1..4 are, read from the wheel's own code (magnet/core.py, magnet/plots.py).
+DUTY_MEANING = {
+    "columns": "duty_1, duty_2, duty_3, duty_4: fractions of one period, in time order, of a piecewise-linear "
+               "B(t): duty_1 rising (from -peak), duty_2 the first interval between the slopes, duty_3 falling, "
+               "duty_4 the second interval between them (MagNet's d_P, d_0, d_N, d_0: duty_2 == duty_4 in every "
+               "row); a triangle has duty_2 = duty_4 = 0 and duty_1 + duty_3 = 1",
+    "waveform": "the winding sees a full bridge's +V, 0, -V, 0 over duty_1..duty_4 through a series capacitor "
+                "that removes the mean, so the levels are 1 - (d1 - d3), -(d1 - d3), -1 - (d1 - d3), -(d1 - d3) "
+                "(units of V): B is flat over duty_2 and duty_4 only when d1 == d3; its corners are -BP, BP, BN, -BN "
+                "with BN = BP (1 + d1 - d3) d3 / ((1 - d1 + d3) d1), and the larger of BP, BN is the peak",
+    "sine_marker": "duty_1 = -1 (all four -1) marks a sinusoidal row, MagNet's convention: those rows are in "
+                   "magnet_{MAT}_sine.csv; no row here has it",
+    "from_code": "mag-net 0.1.0 wheel: magnet/core.py core_loss_ML_triangular (inputs duty, 0, 1 - duty, 0) and "
+                 "core_loss_ML_trapezoidal (inputs d_P, d_0, d_N, d_0 after log f and log B: the order of "
+                 "Duty_1..4 the networks were trained on), core_loss_iGSE_trapezoidal (segment ends 0, d_P, "
+                 "d_P + d_0, 1 - d_0, 1; corners -BP, BP, BN, -BN, -BP) and core_loss_iGSE_triangular (-flux, "
+                 "flux, -flux at 0, duty, 1); magnet/plots.py cycle_points_trapezoidal (the voltage levels)",
+    "rebuilt_by": "hystbench.formats.flux_shapes.shape_flux_density (period starting with the rising slope)",
+}
+
+
+def _write_shapes(out: Path, mat: str, maker: str, member: str, sha: str, cols: list[str], values: np.ndarray,
+                  meta: dict) -> None:
+    """The triangular/trapezoidal rows (Duty_1 != -1) of one store, as they are."""
+    duty_cols = [cols.index(f"Duty_{k}") for k in range(1, 5)]
+    shapes = values[:, duty_cols[0]] != -1
+    rows = values[shapes][:, [cols.index("Frequency"), cols.index("Flux_Density"), *duty_cols,
+                              cols.index("Power_Loss")]]
+    tuples, counts = np.unique(rows[:, 2:6], axis=0, return_counts=True)
+    sidecar = {
+        "material": mat, "manufacturer": maker, "kind": "core_loss", "excitation": "triangular_trapezoidal",
+        "source": {**MAGNET_SOURCE, "file": member, "wheel_sha256": sha},
+        "licence": MAGNET_LICENCE,
+        "units": {"frequency_Hz": "Hz", "flux_density_peak_T": "T", "duty_1": "1", "duty_2": "1", "duty_3": "1",
+                  "duty_4": "1", "loss_W_per_m3": "W/m^3"},
+        "flux_density_peak": "Flux_Density: the amplitude of B(t), half its peak-to-peak (magnet/core.py builds the "
+                             "waveform between -flux and +flux)",
+        "duty": DUTY_MEANING,
+        "duty_tuples": {",".join(_num(v) for v in t): int(c) for t, c in zip(tuples, counts)},
+        "core_shape": meta["core_shape"], "effective_volume_m3": meta["effective_volume"],
+        "effective_area_m2": meta["effective_area"], "effective_length_m": meta["effective_length"],
+        "temperature_C": 25.0,
+        "measured": f"{meta['info_date_trap']}; {meta['info_excitation']}; {meta['info_setup_trap']}",
+        "trimmed": (f"the {int(shapes.sum())} of {len(values)} rows with Duty_1 != -1 (triangular/trapezoidal "
+                    "excitation); columns Frequency, Flux_Density, Duty_1..4, Power_Loss unchanged; Outlier_Factor "
+                    "dropped (MagNet's per-row outlier score: its web app hides rows by it, magnet/io.py "
+                    "load_dataframe; nothing is filtered here); no row removed (tests/data/real/convert_magnet.py)"),
+    }
+    _write(out, f"magnet_{mat}_shapes",
+           "frequency_Hz,flux_density_peak_T,duty_1,duty_2,duty_3,duty_4,loss_W_per_m3", rows, sidecar)
 
 
 def _matlab_complex(text: str) -> complex:
