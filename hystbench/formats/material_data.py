@@ -11,6 +11,9 @@ Two layouts, told apart by the header:
 * complex permeability: ``frequency_Hz,flux_density_peak_T,mu_real,mu_imag`` (relative, with
   ``mu_imag <= 0`` for a lossy material: mu_r = mu' - j mu'').
 
+Measured waveforms (rows of B(t), maybe H(t), with frequency, temperature, loss or material, as
+mag-net-hub's test files) are read by :func:`read_waveform_table`.
+
 The sidecar says where the numbers came from; a table whose source, licence or units are unknown
 cannot be quoted, so those keys are required.  Reading is strict as for recordings: every defect is
 a :class:`RecordingError` naming the file, line and column; nothing is dropped or guessed.  A table
@@ -29,7 +32,8 @@ import numpy as np
 from ..errors import RecordingError
 from .small_files import MAX_TABLE_BYTES, excerpt, read_json, read_text
 
-__all__ = ["DUTY_COLUMNS", "LossTable", "LAYOUTS", "REQUIRED_SIDECAR_KEYS", "read_material_table"]
+__all__ = ["DUTY_COLUMNS", "LossTable", "LAYOUTS", "REQUIRED_SIDECAR_KEYS", "REQUIRED_WAVEFORM_KEYS",
+           "WAVEFORM_COLUMNS", "WaveformTable", "read_material_table", "read_waveform_table"]
 
 #: Column layouts by kind (the sidecar's ``kind`` must match the header's).
 LAYOUTS = {
@@ -175,3 +179,149 @@ def _check_duties(path: Path, names: list[str], data: np.ndarray) -> None:
         r = int(np.argmax(bad_sum))
         raise RecordingError(f"{path}:{r + 2}: columns {j + 1}-{j + 4} (duty_1..duty_4): {duty[r].tolist()} sum to "
                              f"{float(duty[r].sum())!r}, not 1 (the four fractions of one period)")
+
+
+# --- measured waveforms ------------------------------------------------------------------------
+
+#: The columns a waveform table may have beside its samples, as mag-net-hub names them: the
+#: :class:`WaveformTable` field each fills and the unit its sidecar must give (None: a name).
+WAVEFORM_COLUMNS = {"freq": ("frequency_hz", "Hz"), "temp": ("temperature_c", "degC"),
+                    "ploss": ("loss_w_per_m3", "W/m^3"), "material": ("material", None)}
+#: Sidecar keys every waveform table must have (``material`` too when the file has no such column).
+REQUIRED_WAVEFORM_KEYS = ("kind", "source", "licence", "units", "row")
+_MATERIAL = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]*", re.A)
+
+
+@dataclass(frozen=True, eq=False)
+class WaveformTable:
+    """Rows of one measured waveform each: B(t) (and H(t) when the file has it) with the row's
+    frequency, temperature and loss when the file has them (else None), and its material (the
+    file's column, else the sidecar's).  Samples are (rows, samples) float64 arrays, SI units."""
+
+    path: Path
+    b_t: np.ndarray
+    h_t: np.ndarray | None
+    frequency_hz: np.ndarray | None
+    temperature_c: np.ndarray | None
+    loss_w_per_m3: np.ndarray | None
+    material: tuple[str, ...]
+    metadata: dict
+
+    @property
+    def samples(self) -> int:
+        return int(self.b_t.shape[1])
+
+    def __len__(self) -> int:
+        return int(self.b_t.shape[0])
+
+
+def read_waveform_table(path: str | Path) -> WaveformTable:
+    """Read ``path`` (the ``.csv``; the sidecar is the same stem's ``.json``, ``kind: waveform``).
+
+    The header is ``B_t_0..B_t_{n-1}``, optionally ``H_t_0..H_t_{n-1}``, then any of
+    :data:`WAVEFORM_COLUMNS`; the sidecar's ``units`` gives ``B_t_*``, ``H_t_*`` and each scalar
+    column its unit, which must be the one the fields are named for (a file in kHz or mT would
+    otherwise be read a thousand times off).  Strict as :func:`read_material_table`.
+    """
+    csv_path = Path(path).with_suffix(".csv")
+    side = csv_path.with_suffix(".json")
+    meta = _read_waveform_sidecar(side)
+    lines = read_text(csv_path, MAX_TABLE_BYTES, "waveform table", "MAX_TABLE_BYTES").rstrip("\n").split("\n")
+    names = [n.strip() for n in lines[0].split(",")]
+    n, has_h, scalars = _waveform_header(csv_path, names)
+    if "material" not in scalars and not (isinstance(meta.get("material"), str) and meta["material"]):
+        raise RecordingError(f"{side}: missing key 'material' (a non-empty string: the file has no material column)")
+    want = {"B_t_*": "T", **({"H_t_*": "A/m"} if has_h else {}),
+            **{c: WAVEFORM_COLUMNS[c][1] for c in scalars if c != "material"}}
+    units = meta["units"]
+    if not isinstance(units, dict) or sorted(units) != sorted(want):
+        raise RecordingError(f"{side}: key 'units' must give the unit of every column ({', '.join(want)}), "
+                             f"got {units!r}")
+    for key, unit in want.items():
+        if units[key] != unit:
+            raise RecordingError(f"{side}: key 'units': {key} is in {units[key]!r}; this reader takes {unit!r}")
+    if len(lines) < 2:
+        raise RecordingError(f"{csv_path}: no rows after the header")
+    numeric = [j for j, name in enumerate(names) if name != "material"]
+    m = names.index("material") if "material" in scalars else None
+    values = np.empty((len(lines) - 1, len(numeric)))
+    materials: list[str] = []
+    for r, line in enumerate(lines[1:]):
+        fields = line.split(",")
+        if len(fields) != len(names):
+            raise RecordingError(f"{csv_path}:{r + 2}: {len(fields)} fields, the header has {len(names)}")
+        for k, j in enumerate(numeric):
+            if not _NUMBER.fullmatch(fields[j]):
+                field = fields[j].strip()
+                what = "empty field" if not field else f"{excerpt(field)} is not a finite number"
+                raise RecordingError(f"{csv_path}:{r + 2}: column {j + 1} ({names[j]}): {what}")
+            values[r, k] = float(fields[j])
+        if m is not None:
+            if not _MATERIAL.fullmatch(fields[m].strip()):
+                raise RecordingError(f"{csv_path}:{r + 2}: column {m + 1} (material): {excerpt(fields[m])} is not a "
+                                     "material name (letters, digits, _.+-)")
+            materials.append(fields[m].strip())
+    if not np.all(np.isfinite(values)):  # a finite-looking field can overflow: 1e999
+        r, k = (int(x) for x in np.argwhere(~np.isfinite(values))[0])
+        raise RecordingError(f"{csv_path}:{r + 2}: column {numeric[k] + 1} ({names[numeric[k]]}): "
+                             f"{excerpt(lines[r + 1].split(',')[numeric[k]])} is not a finite number")
+    cols = {names[j]: values[:, k] for k, j in enumerate(numeric)}
+    _check_waveform_scalars(csv_path, names, cols)
+    scalar_fields = {field: cols[c].copy() if c in cols else None
+                     for c, (field, _) in WAVEFORM_COLUMNS.items() if c != "material"}
+    return WaveformTable(csv_path, values[:, :n].copy(), values[:, n:2 * n].copy() if has_h else None,
+                         material=tuple(materials) if materials else (meta["material"],) * (len(lines) - 1),
+                         metadata=meta, **scalar_fields)
+
+
+def _read_waveform_sidecar(path: Path) -> dict:
+    if not path.is_file():
+        raise RecordingError(f"{path}: missing sidecar (a waveform table needs its source, licence and units)")
+    meta = read_json(path)
+    if not isinstance(meta, dict):
+        raise RecordingError(f"{path}: the sidecar must be a JSON object, got {type(meta).__name__}")
+    for key in REQUIRED_WAVEFORM_KEYS:
+        if key not in meta:
+            raise RecordingError(f"{path}: missing key {key!r} (required: {', '.join(REQUIRED_WAVEFORM_KEYS)})")
+    if meta["kind"] != "waveform":
+        raise RecordingError(f"{path}: key 'kind' must be 'waveform' for a waveform table, got {meta['kind']!r}")
+    return meta
+
+
+def _waveform_header(path: Path, names: list[str]) -> tuple[int, bool, list[str]]:
+    """Samples per row, whether H(t) is there, and the scalar columns, from the header."""
+    n = 0
+    while n < len(names) and names[n] == f"B_t_{n}":
+        n += 1
+    if n < 2:
+        raise RecordingError(f"{path}:1: column {n + 1}: {excerpt(names[n]) if n < len(names) else 'missing'}; a "
+                             "waveform table starts with B_t_0, B_t_1, ... (two samples of B(t) at least)")
+    has_h = n < len(names) and names[n].startswith("H_t_")
+    if has_h:
+        for k in range(n):
+            got = names[n + k] if n + k < len(names) else None
+            if got != f"H_t_{k}":
+                raise RecordingError(f"{path}:1: column {n + k + 1}: expected 'H_t_{k}', got "
+                                     f"{excerpt(got) if got is not None else 'the end of the header'} (H(t) has as "
+                                     f"many samples as B(t): H_t_0..H_t_{n - 1})")
+    scalars = names[2 * n if has_h else n:]
+    for j, name in enumerate(scalars, start=(2 * n if has_h else n) + 1):
+        if name not in WAVEFORM_COLUMNS:
+            where = ("a sample out of place (B_t_0.., then H_t_0.., each numbered from 0 without a gap)"
+                     if re.fullmatch(r"[BH]_t_\d+", name) else f"not a waveform column ({', '.join(WAVEFORM_COLUMNS)})")
+            raise RecordingError(f"{path}:1: column {j}: {excerpt(name)} is {where}")
+        if name in names[:j - 1]:
+            raise RecordingError(f"{path}:1: column {j}: {name!r} appears twice")
+    return n, has_h, scalars
+
+
+def _check_waveform_scalars(path: Path, names: list[str], cols: dict[str, np.ndarray]) -> None:
+    """Frequency > 0, loss >= 0, temperature above absolute zero."""
+    rules = {"freq": (lambda c: c > 0, "must be > 0"),
+             "ploss": (lambda c: c >= 0, "must be >= 0 (a negative loss would be a core giving energy)"),
+             "temp": (lambda c: c > -273.15, "must be above absolute zero (-273.15 degC)")}
+    for name, (good, why) in rules.items():
+        if name in cols and not np.all(good(cols[name])):
+            r = int(np.argmax(~good(cols[name])))
+            raise RecordingError(f"{path}:{r + 2}: column {names.index(name) + 1} ({name}): "
+                                 f"{float(cols[name][r])!r} {why}")

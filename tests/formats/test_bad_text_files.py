@@ -21,7 +21,7 @@ import pytest
 from hystbench.cli.main import main as cli_main
 from hystbench.errors import RecordingError
 from hystbench.formats import material_data, text_chunks
-from hystbench.formats.material_data import read_material_table
+from hystbench.formats.material_data import read_material_table, read_waveform_table
 from hystbench.formats.recording import MAX_COLUMN_NAME_CHARS, read_recording
 from hystbench.formats.small_files import MAX_SIDECAR_BYTES
 
@@ -226,3 +226,25 @@ def test_material_table_and_sidecar_are_bounded_and_named(tmp_path: Path, monkey
         read_material_table(tmp_path / "t.csv")
     assert len(str(err.value)) < 300
 
+
+
+def test_waveform_table_is_bounded_and_named(tmp_path: Path, monkeypatch) -> None:
+    for suffix in (".csv", ".json"):
+        shutil.copy(REAL / "mag-net-hub" / f"maghub_3C90_sequence{suffix}", tmp_path / f"w{suffix}")
+    size = (tmp_path / "w.csv").stat().st_size
+    monkeypatch.setattr(material_data, "MAX_TABLE_BYTES", size - 1)
+    with pytest.raises(RecordingError, match=rf"^{tmp_path / 'w.csv'}: larger than {size - 1} bytes; a waveform "
+                                             r"table .*MAX_TABLE_BYTES"):
+        read_waveform_table(tmp_path / "w.csv")
+    monkeypatch.setattr(material_data, "MAX_TABLE_BYTES", size)
+    assert len(read_waveform_table(tmp_path / "w.csv")) == 6
+    lines = (tmp_path / "w.csv").read_text().splitlines()
+    lines[2] = "q" * 100_000 + lines[2][lines[2].index(","):]
+    (tmp_path / "w.csv").write_text("\n".join(lines) + "\n")
+    monkeypatch.setattr(material_data, "MAX_TABLE_BYTES", 1 << 20)
+    with pytest.raises(RecordingError, match=r"w\.csv:3: column 1 \(B_t_0\): 'qqq") as err:
+        read_waveform_table(tmp_path / "w.csv")
+    assert len(str(err.value)) < 300
+    (tmp_path / "w.json").write_text('{"kind": "waveform", "units": ' + "[" * 100_000)
+    with pytest.raises(RecordingError, match=rf"^{tmp_path / 'w.json'}: "):
+        read_waveform_table(tmp_path / "w.csv")
