@@ -58,6 +58,34 @@ log = logging.getLogger("hystbench.pipeline")
 _TOPIC_NAMES = {ESTIMATE: "estimate", COMPENSATOR: "compensator", STATUS: "status", STATS: "stats"}
 
 
+class _SwitchInterval:
+    """The interpreter's thread switch interval is one setting for the process: the first pipeline to
+    lower it keeps what it was, the last one to finish puts that back (two pipelines whose lives
+    overlap used to leave the lowered value behind, the second having saved the first's)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._holders = 0
+        self._original = 0.0
+
+    def lower(self, to_s: float | None) -> None:
+        with self._lock:
+            if self._holders == 0:
+                self._original = sys.getswitchinterval()
+            self._holders += 1
+            if to_s is not None and sys.getswitchinterval() > to_s:
+                sys.setswitchinterval(to_s)
+
+    def release(self) -> None:
+        with self._lock:
+            self._holders -= 1
+            if self._holders == 0:
+                sys.setswitchinterval(self._original)
+
+
+_SWITCH = _SwitchInterval()
+
+
 @runtime_checkable
 class Message(Protocol):
     """A typed message (:class:`~hystbench.messages.Estimate`): it knows its JSON."""
@@ -152,7 +180,7 @@ class Pipeline:
         self._readers: dict[str, RingReader] = {}
         self.error: BaseException | None = None
         self.finished = threading.Event()
-        self._previous_switch_s: float | None = None
+        self._holds_switch = False
 
     # --- life cycle ------------------------------------------------------------------------------
     def start(self) -> "Pipeline":
@@ -161,9 +189,8 @@ class Pipeline:
         thread up for at most that long, which is what keeps the raw-data latency in milliseconds.
         The estimate and record threads run at ``background_nice`` (Linux thread niceness), so on a
         busy core the scheduler runs the source thread first."""
-        self._previous_switch_s = sys.getswitchinterval()  # process-wide: restored when the threads end
-        if self.gil_switch_s is not None and self._previous_switch_s > self.gil_switch_s:
-            sys.setswitchinterval(self.gil_switch_s)
+        _SWITCH.lower(self.gil_switch_s)  # process-wide: given back when the last pipeline's threads end
+        self._holds_switch = True
         if self.estimator is not None:
             self._readers["estimate"] = self.ring.reader("estimate")
         if self.recorder is not None:
@@ -193,9 +220,9 @@ class Pipeline:
             t.join(deadline.left())
         done = not any(t.is_alive() for t in self._threads)
         if done:
-            if self._previous_switch_s is not None:
-                sys.setswitchinterval(self._previous_switch_s)  # what else runs in this process gets it back
-                self._previous_switch_s = None
+            if self._holds_switch:
+                self._holds_switch = False
+                _SWITCH.release()  # what else runs in this process gets it back
             self.finished.set()
         return done
 

@@ -425,3 +425,17 @@ def test_the_estimator_compiles_its_fits_when_made_not_at_the_first_window() -> 
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
     enabled, basis, solve = out.stdout.split()
     assert enabled == "False" or (basis, solve) == ("True", "True")
+
+
+def test_two_pipelines_whose_lives_overlap_give_back_the_switch_interval() -> None:
+    """The first lowers it, the second starts while it is low; whichever ends last must restore the
+    value from before the first (the second's start saw only the lowered one)."""
+    import sys
+
+    before = sys.getswitchinterval()
+    first = Pipeline(RigSource(SimulatedRig("voicecoil_ferrite"), duration_s=0.05, block_samples=1000, pace="max")).start()
+    second = Pipeline(RigSource(SimulatedRig("voicecoil_ferrite"), duration_s=0.05, block_samples=1000, pace="max")).start()
+    assert first.join(10.0)
+    assert sys.getswitchinterval() < before  # the second still runs
+    assert second.join(10.0)
+    assert sys.getswitchinterval() == before
