@@ -42,7 +42,7 @@ import numpy as np
 from scipy.constants import mu_0
 from scipy.optimize import least_squares
 
-from ...errors import EstimationError
+from ...errors import EstimationError, RecordingError
 from ...formats.material_data import LossTable, read_material_table
 
 __all__ = ["TERMS", "Term", "TermFit", "energy_per_cycle", "split_mask", "fit_terms", "noise_floor",
@@ -129,6 +129,10 @@ def energy_per_cycle(table: LossTable) -> np.ndarray:
     = pi B_pk^2 mu'' / (mu_0 |mu_r|^2) for mu_r = mu' - j mu'' (``mu_imag = -mu''``).
     """
     f, b = table.frequency_hz, table.flux_density_t
+    shaped = int(np.count_nonzero(table.duty[:, 0] != -1))
+    if shaped:  # a loss at a triangle's or trapezoid's B(t) is not the sine's the terms below describe
+        raise RecordingError(f"{table.path}: {shaped} of {len(f)} rows are not sinusoidal (duty_1 != -1: MagNet's "
+                             "triangular or trapezoidal flux); the loss separation models a sinusoidal flux only")
     if table.kind == "core_loss":
         return table.columns["loss_W_per_m3"] / f
     mu = table.columns["mu_real"] + 1j * table.columns["mu_imag"]

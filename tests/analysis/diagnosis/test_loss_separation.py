@@ -119,3 +119,13 @@ def test_n87_permeability_energy_grows_with_frequency():
     r = diagnose_loss_table(REAL / "N87_mu_large.csv")
     assert r["effect"] == "lamination_eddy_currents" and r["improvement"] > 1.3
     assert r["located"]["trend"]["slope_log_f"] > 0
+
+
+def test_a_table_of_triangular_or_trapezoidal_flux_is_refused_by_name(tmp_path):
+    """The loss separation's terms describe a sinusoidal flux; MagNet's duty-shaped rows are not
+    silently taken as sines (issue 28: their own diagnosis drives the model with their B(t))."""
+    from hystbench.errors import RecordingError
+
+    real = Path(__file__).resolve().parents[2] / "data" / "real"
+    with pytest.raises(RecordingError, match=r"magnet_N87_shapes\.csv: 24773 of 24773 rows are not sinusoidal"):
+        diagnose_loss_table(real / "magnet_N87_shapes.csv")
