@@ -98,15 +98,21 @@ def read_material_table(path: str | Path) -> LossTable:
     return LossTable(csv_path, kind, {n: data[:, j].copy() for j, n in enumerate(names)}, meta)
 
 
-def _read_sidecar(path: Path) -> dict:
+def _sidecar_with(path: Path, what: str, required: tuple[str, ...]) -> dict:
+    """The JSON object of a table's sidecar, with every ``required`` key, or an error naming the file."""
     if not path.is_file():
-        raise RecordingError(f"{path}: missing sidecar (a material table needs its source, licence and units)")
+        raise RecordingError(f"{path}: missing sidecar (a {what} needs its source, licence and units)")
     meta = read_json(path)
     if not isinstance(meta, dict):
         raise RecordingError(f"{path}: the sidecar must be a JSON object, got {type(meta).__name__}")
-    for key in REQUIRED_SIDECAR_KEYS:
+    for key in required:
         if key not in meta:
-            raise RecordingError(f"{path}: missing key {key!r} (required: {', '.join(REQUIRED_SIDECAR_KEYS)})")
+            raise RecordingError(f"{path}: missing key {key!r} (required: {', '.join(required)})")
+    return meta
+
+
+def _read_sidecar(path: Path) -> dict:
+    meta = _sidecar_with(path, "material table", REQUIRED_SIDECAR_KEYS)
     if meta["kind"] not in LAYOUTS:
         raise RecordingError(f"{path}: key 'kind' must be one of {', '.join(LAYOUTS)}, got {meta['kind']!r}")
     if not isinstance(meta["material"], str) or not meta["material"]:
@@ -275,14 +281,7 @@ def read_waveform_table(path: str | Path) -> WaveformTable:
 
 
 def _read_waveform_sidecar(path: Path) -> dict:
-    if not path.is_file():
-        raise RecordingError(f"{path}: missing sidecar (a waveform table needs its source, licence and units)")
-    meta = read_json(path)
-    if not isinstance(meta, dict):
-        raise RecordingError(f"{path}: the sidecar must be a JSON object, got {type(meta).__name__}")
-    for key in REQUIRED_WAVEFORM_KEYS:
-        if key not in meta:
-            raise RecordingError(f"{path}: missing key {key!r} (required: {', '.join(REQUIRED_WAVEFORM_KEYS)})")
+    meta = _sidecar_with(path, "waveform table", REQUIRED_WAVEFORM_KEYS)
     if meta["kind"] != "waveform":
         raise RecordingError(f"{path}: key 'kind' must be 'waveform' for a waveform table, got {meta['kind']!r}")
     return meta
