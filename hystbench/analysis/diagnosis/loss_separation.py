@@ -27,6 +27,17 @@ only.  The procedure is issue 13's, on W instead of waveforms:
    residual variance), in natural units by the delta method.
 5. Prove: held-out rms log10 error before (baseline) and after (baseline + named terms), in units
    of the noise floor, and their ratio.
+
+Non-sinusoidal flux (MagNet's triangles and trapezoids, a ``_shapes`` table read with the sine table
+of the same material: :func:`diagnose_loss_table` takes several tables, :func:`loss_table_groups`
+says which go together): B(t) = B_pk b(t/T), and each rate term k f^gamma B^delta is multiplied by
+its shape factor S_p, p = 1 + gamma (:mod:`.loss_shapes`: Bertotti's separation carried to arbitrary
+waveforms, the iGSE's for the free term; S_p = 1 for a sine, so a sine table's figures are unchanged);
+the rate-independent W_h(B_pk) stays the baseline (the same excursion for every shape).  The
+baseline is calibrated on the sine rows and the symmetric triangles (duty 0.5, 0, 0.5, 0) of the
+calibration frequencies; every other shape at every frequency is held out.  Located and proved per
+duty shape and per group (sine, triangle, trapezoid) as well; losses between the ramps (relaxation)
+are not modelled and show as a residual growing with the share duty_2 + duty_4.
 """
 
 from __future__ import annotations
@@ -44,9 +55,10 @@ from scipy.optimize import least_squares
 
 from ...errors import EstimationError, RecordingError
 from ...formats.material_data import LossTable, read_material_table
+from .loss_shapes import calibration_shapes, locate_shapes, shape_factor
 
 __all__ = ["TERMS", "Term", "TermFit", "energy_per_cycle", "split_mask", "fit_terms", "noise_floor",
-           "calibrate_split", "diagnose_energy", "diagnose_loss_table", "rate_trend", "main"]
+           "calibrate_split", "diagnose_energy", "diagnose_loss_table", "loss_table_groups", "rate_trend", "main"]
 
 B0_T = 0.1  # the baseline's reference flux density
 NAME_DELTA_BIC = 10.0  # decisively better than the current model (issue 13)
@@ -98,8 +110,8 @@ class TermFit:
     def bic(self) -> float:
         return self.n * math.log(max(self.rss, 1e-300) / self.n) + self.x.size * math.log(self.n)
 
-    def log_w(self, f: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return _log_w(self.x, self.terms, f, b)
+    def log_w(self, f: np.ndarray, b: np.ndarray, duty: np.ndarray | None = None) -> np.ndarray:
+        return _log_w(self.x, self.terms, f, b, duty)
 
     def parameters(self) -> dict[str, dict[str, tuple[float, float]]]:
         """Effect -> parameter -> (value, std), natural units (delta method from the ln-k covariance)."""
@@ -121,8 +133,9 @@ class TermFit:
         return out
 
 
-def energy_per_cycle(table: LossTable) -> np.ndarray:
-    """W (J/m^3 per cycle) of every row.
+def energy_per_cycle(table: LossTable, *, shapes: bool = False) -> np.ndarray:
+    """W (J/m^3 per cycle) of every row.  MagNet's triangular/trapezoidal rows are refused unless
+    ``shapes`` (the caller then carries ``table.duty`` into the fit: a W read as a sine's is wrong).
 
     Core loss: W = P / f.  Complex permeability: with B = Re(B_pk e^{jwt}) and H = B/(mu_0 mu_r),
     W = (closed integral of H dB) = pi Im(H_pk conj(B_pk)) = pi B_pk^2 Im(1/mu_r) / mu_0
@@ -130,7 +143,7 @@ def energy_per_cycle(table: LossTable) -> np.ndarray:
     """
     f, b = table.frequency_hz, table.flux_density_t
     shaped = int(np.count_nonzero(table.duty[:, 0] != -1))
-    if shaped:  # a loss at a triangle's or trapezoid's B(t) is not the sine's the terms below describe
+    if shaped and not shapes:  # a loss at a triangle's or trapezoid's B(t) is not the sine's the terms below describe
         raise RecordingError(f"{table.path}: {shaped} of {len(f)} rows are not sinusoidal (duty_1 != -1: MagNet's "
                              "triangular or trapezoidal flux); the loss separation models a sinusoidal flux only")
     if table.kind == "core_loss":
@@ -152,20 +165,25 @@ def split_mask(f: np.ndarray, how: str) -> np.ndarray:
     raise EstimationError(f"split {how!r}: choose low_third or interleaved")
 
 
-def _log_w(x: np.ndarray, terms: Sequence[Term], f: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _log_w(x: np.ndarray, terms: Sequence[Term], f: np.ndarray, b: np.ndarray,
+           duty: np.ndarray | None = None) -> np.ndarray:
+    """ln W; with ``duty`` (rows, 4) each rate term is scaled by its shape factor S_(1 + gamma)."""
     lb = np.log(b / B0_T)
     parts = [x[0] + x[1] * lb + x[2] * lb**2]
     i = 3
     for t in terms:
         g, d = (x[i + 1], x[i + 2]) if t.free else (t.f_exp, t.b_exp)
-        parts.append(x[i] + g * np.log(f) + d * np.log(b))
+        part = x[i] + g * np.log(f) + d * np.log(b)
+        parts.append(part if duty is None else part + np.log(shape_factor(duty, 1.0 + g)))
         i += 3 if t.free else 1
     return np.logaddexp.reduce(np.stack(parts), axis=0)
 
 
-def fit_terms(f: np.ndarray, b: np.ndarray, w: np.ndarray, terms: Sequence[Term] = ()) -> TermFit:
+def fit_terms(f: np.ndarray, b: np.ndarray, w: np.ndarray, terms: Sequence[Term] = (),
+              duty: np.ndarray | None = None) -> TermFit:
     """Baseline + ``terms`` fitted to ln W by least squares, from several starts (each term starting
-    at 1 %, 10 % and 50 % of the median energy); the covariance is (J'J)^-1 rss/dof."""
+    at 1 %, 10 % and 50 % of the median energy); the covariance is (J'J)^-1 rss/dof.  ``duty``: the
+    rows' MagNet duties (None: all sines)."""
     y = np.log(w)
     lb = np.log(b / B0_T)
     base = np.linalg.lstsq(np.column_stack([np.ones_like(lb), lb, lb**2]), y, rcond=None)[0]
@@ -182,7 +200,7 @@ def fit_terms(f: np.ndarray, b: np.ndarray, w: np.ndarray, terms: Sequence[Term]
                 x0 += [g, d]
                 lo += list(FREE_BOUNDS[0])
                 hi += list(FREE_BOUNDS[1])
-        sol = least_squares(lambda x: _log_w(x, terms, f, b) - y, np.array(x0), bounds=(lo, hi), x_scale="jac")
+        sol = least_squares(lambda x: _log_w(x, terms, f, b, duty) - y, np.array(x0), bounds=(lo, hi), x_scale="jac")
         if best is None or sol.cost < best.cost:
             best = sol
     resid = best.fun
@@ -191,14 +209,17 @@ def fit_terms(f: np.ndarray, b: np.ndarray, w: np.ndarray, terms: Sequence[Term]
     return TermFit(tuple(terms), best.x, cov, float(resid @ resid), int(resid.size))
 
 
-def noise_floor(f: np.ndarray, b: np.ndarray, w: np.ndarray) -> float:
-    """The measurement scatter (rms, log10 units) from the table alone: at each frequency with >= 6
-    points, the deviations from a quadratic in log B through them, pooled with their degrees of
-    freedom.  It holds repeatability and any roughness finer than a quadratic; no model of f."""
+def noise_floor(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | None = None) -> float:
+    """The measurement scatter (rms, log10 units) from the table alone: at each frequency (and duty
+    shape) with >= 6 points, the deviations from a quadratic in log B through them, pooled with their
+    degrees of freedom.  It holds repeatability and any roughness finer than a quadratic; no model of f."""
     y, lb = np.log10(w), np.log10(b)
     ss, dof = 0.0, 0
-    for fb in np.unique(f):
-        m = f == fb
+    keys = f[:, None] if duty is None else np.column_stack([f, duty])
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    group = group.ravel()
+    for k in range(int(group.max()) + 1):
+        m = group == k
         if m.sum() >= 6:
             a = np.column_stack([np.ones(m.sum()), lb[m], lb[m] ** 2])
             r = y[m] - a @ np.linalg.lstsq(a, y[m], rcond=None)[0]
@@ -252,17 +273,18 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2)))
 
 
-def _select(f: np.ndarray, b: np.ndarray, w: np.ndarray) -> tuple[TermFit, list[dict[str, Any]], list[str]]:
+def _select(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | None = None
+            ) -> tuple[TermFit, list[dict[str, Any]], list[str]]:
     """Forward selection over the Bertotti terms: name the best addition while it beats the current
     model by >= NAME_DELTA_BIC and the runner-up by >= RUNNER_UP_DELTA_BIC."""
-    current = fit_terms(f, b, w)
+    current = fit_terms(f, b, w, duty=duty)
     chosen: list[str] = []
     candidates: list[dict[str, Any]] = []
     for rnd in (1, 2):
         left = [t for n, t in TERMS.items() if n not in chosen]
         if not left:
             break
-        fits = {t.name: fit_terms(f, b, w, current.terms + (t,)) for t in left}
+        fits = {t.name: fit_terms(f, b, w, current.terms + (t,), duty) for t in left}
         scores = {n: current.bic - fit.bic for n, fit in fits.items()}
         for n, fit in fits.items():
             candidates.append({"name": n, "score": scores[n], "round": rnd, "in_catalogue": TERMS[n].in_catalogue,
@@ -281,36 +303,51 @@ def _param_json(p: dict[str, tuple[float, float]]) -> dict[str, dict[str, float]
     return {k: {"value": float(v), "std": float(s)} for k, (v, s) in p.items()}
 
 
-def calibrate_split(f: np.ndarray, b: np.ndarray, w: np.ndarray, split: str = "low_third"
+def calibrate_split(f: np.ndarray, b: np.ndarray, w: np.ndarray, split: str = "low_third",
+                    duty: np.ndarray | None = None
                     ) -> tuple[np.ndarray, TermFit, TermFit, list[dict[str, Any]], list[str]]:
     """Calibration mask, the baseline's fit, the fit with the named terms, the scored candidates and
-    the named terms' names (what :func:`diagnose_energy` and the figures share)."""
+    the named terms' names (what :func:`diagnose_energy` and the figures share).  With ``duty`` only
+    the sines and symmetric triangles of the split's frequencies are calibrated on."""
     train = split_mask(f, split)
-    base = fit_terms(f[train], b[train], w[train])
-    final, candidates, chosen = _select(f[train], b[train], w[train])
+    dt = None
+    if duty is not None:
+        train &= calibration_shapes(duty)
+        if train.sum() < 12:
+            raise EstimationError(f"split {split!r}: {int(train.sum())} sine or symmetric-triangle rows at the "
+                                  "calibration frequencies; at least 12 are needed")
+        dt = duty[train]
+    base = fit_terms(f[train], b[train], w[train], duty=dt)
+    final, candidates, chosen = _select(f[train], b[train], w[train], dt)
     return train, base, final, candidates, chosen
 
 
 def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: str = "",
-                    split: str = "low_third") -> dict[str, Any]:
-    """The whole diagnosis of one energy-per-cycle table (see the module docstring); JSON-ready."""
+                    split: str = "low_third", duty: np.ndarray | None = None) -> dict[str, Any]:
+    """The whole diagnosis of one energy-per-cycle table (see the module docstring); JSON-ready.
+    ``duty``: (rows, 4) MagNet duties (None: every row a sine); with it the result has ``shapes``."""
     t0 = time.perf_counter()
     f, b, w = (np.asarray(a, dtype=np.float64) for a in (f, b, w))
     if not (f.size == b.size == w.size) or f.size < 12:
         raise EstimationError(f"{material or 'table'}: need >= 12 rows of equal length, got {f.size}, {b.size}, {w.size}")
     if not (np.all(np.isfinite(w)) and np.all(w > 0)):
         raise EstimationError(f"{material or 'table'}: energy per cycle must be finite and > 0 in every row")
-    train, base, final, candidates, chosen = calibrate_split(f, b, w, split)
+    if duty is not None:
+        duty = np.asarray(duty, dtype=np.float64)
+        if duty.shape != (f.size, 4):
+            raise EstimationError(f"{material or 'table'}: duty must be (rows, 4) = ({f.size}, 4), got {duty.shape}")
+    train, base, final, candidates, chosen = calibrate_split(f, b, w, split, duty)
     held = ~train
-    noise = noise_floor(f, b, w)
+    noise = noise_floor(f, b, w, duty)
     y = np.log10(w)
     r_before = y - base.log_w(f, b) / LN10
-    r_after = y - final.log_w(f, b) / LN10
+    r_after = y - final.log_w(f, b, duty) / LN10
     model_floor = _rms(r_before[train])
     located = _locate(f, b, r_before, held, noise, model_floor)
-    beyond = _beyond_catalogue(f, b, w, train, final)
+    beyond = _beyond_catalogue(f, b, w, train, final, duty)
     before, after = _rms(r_before[held]), _rms(r_after[held])
-    verdict = _verdict(chosen, located, beyond, after)
+    shapes = None if duty is None else locate_shapes(duty, r_before, r_after, held, noise, _rms(r_after[train]))
+    verdict = _verdict(chosen, located, beyond, after, shapes)
     params = final.parameters()
     return {
         "material": material, "split": split,
@@ -328,14 +365,16 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
         "beyond_catalogue": beyond, "verdict": verdict,
         "rows": {"calibration": int(train.sum()), "held_out": int(held.sum()),
                  "calibration_max_Hz": float(f[train].max())},
+        **({} if shapes is None else {"shapes": shapes}),
         "seconds": time.perf_counter() - t0,
     }
 
 
-def _beyond_catalogue(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.ndarray, named: TermFit) -> dict[str, Any]:
+def _beyond_catalogue(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.ndarray, named: TermFit,
+                      duty: np.ndarray | None = None) -> dict[str, Any]:
     """The free-exponent rate term in place of the named ones: does the data need more than Bertotti?"""
-    fit = fit_terms(f[train], b[train], w[train], (STEINMETZ,))
-    r = np.log10(w) - fit.log_w(f, b) / LN10
+    fit = fit_terms(f[train], b[train], w[train], (STEINMETZ,), None if duty is None else duty[train])
+    r = np.log10(w) - fit.log_w(f, b, duty) / LN10
     p = fit.parameters()[STEINMETZ.name]
     gamma = fit.x[-2]
     at_bound = bool(np.isclose(gamma, FREE_BOUNDS[0][0]) or np.isclose(gamma, FREE_BOUNDS[1][0])
@@ -347,7 +386,8 @@ def _beyond_catalogue(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.nda
             "residual_held_out_log10": _rms(r[~train])}
 
 
-def _verdict(chosen: list[str], located: dict[str, Any], beyond: dict[str, Any], named_after: float) -> str:
+def _verdict(chosen: list[str], located: dict[str, Any], beyond: dict[str, Any], named_after: float,
+             shapes: dict[str, Any] | None = None) -> str:
     tr = located["trend"]
     where = (f"held-out energy per cycle grows with frequency beyond the rate-independent baseline as f^"
              f"{tr['slope_log_f']:.2f} +- {tr['slope_log_f_std']:.2f} (max |z| {located['max_abs_z']:.1f})")
@@ -359,43 +399,118 @@ def _verdict(chosen: list[str], located: dict[str, Any], beyond: dict[str, Any],
                 f"{a['value']:.2f} +- {a['std']:.2f}{', on its bound' if beyond['at_bound'] else ''}, delta BIC "
                 f"{beyond['delta_bic']:.0f} on the calibration points; held-out error with it "
                 f"{beyond['residual_held_out_log10']:.3f} log10, with the named terms {named_after:.3f})")
+    if shapes is not None:
+        out += "; held out per shape group, rms log10 before -> after: " + ", ".join(
+            f"{g} {v['residual_before_log10']:.3f} -> {v['residual_after_log10']:.3f}"
+            for g, v in shapes["groups"].items())
+        worst = ", ".join("(" + ", ".join(f"{x:g}" for x in d) + ")" for d in shapes["missed_most"])
+        out += f"; missed most: duty {worst}"
+        tr, fl = shapes["between_ramps_trend"], shapes["flat_trend"]
+        if tr is not None:
+            out += (f"; the residual after changes by {tr['slope_log10_per_share']:+.3f} +- {tr['slope_std']:.3f} "
+                    "log10 per unit of the period between the ramps")
+            if fl is not None:
+                out += (f" ({fl['slope_log10_per_share']:+.3f} +- {fl['slope_std']:.3f} where B is flat there, "
+                        "duty_1 == duty_3)")
+            out += " (losses between the ramps, relaxation, are not modelled)"
     return out
 
 
-def diagnose_loss_table(path: str | Path, split: str = "low_third") -> dict[str, Any]:
-    """Read a material table (core loss or complex permeability) and diagnose it; the result also
-    carries the other split's headline figures."""
-    table = read_material_table(path)
-    w = energy_per_cycle(table)
-    out = diagnose_energy(table.frequency_hz, table.flux_density_t, w, material=table.material, split=split)
-    out["path"], out["kind"] = str(table.path), table.kind
+TableArg = str | Path | LossTable
+
+
+def _read(t: TableArg) -> LossTable:
+    return t if isinstance(t, LossTable) else read_material_table(t)
+
+
+def loss_table_groups(tables: Sequence[TableArg]) -> list[list[LossTable]]:
+    """Read every table (all checked before any diagnosis) and group them: the core-loss tables of a
+    material of which one holds triangular/trapezoidal rows go together (sine tables first), in the
+    order the material first appears; every other table is its own group."""
+    read = [_read(t) for t in tables]
+    shaped = {t.material for t in read if t.kind == "core_loss" and np.any(t.duty[:, 0] != -1)}
+    groups: list[list[LossTable]] = []
+    by_material: dict[str, list[LossTable]] = {}
+    for t in read:
+        if t.kind == "core_loss" and t.material in shaped:
+            if t.material not in by_material:
+                by_material[t.material] = []
+                groups.append(by_material[t.material])
+            by_material[t.material].append(t)
+        else:
+            groups.append([t])
+    for g in groups:
+        g.sort(key=lambda t: bool(np.any(t.duty[:, 0] != -1)))
+    return groups
+
+
+def _energy_of(tables: list[LossTable]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """f, B, W and the duties (None when every row is a sine) of tables of one material."""
+    first = tables[0]
+    for t in tables[1:]:
+        if t.material != first.material or t.kind != "core_loss" or first.kind != "core_loss":
+            raise RecordingError(f"{t.path}: {t.kind} table of {t.material!r} read with {first.path} ({first.kind} "
+                                 f"of {first.material!r}); tables are diagnosed together only as core-loss tables "
+                                 "of one material")
+    f = np.concatenate([t.frequency_hz for t in tables])
+    b = np.concatenate([t.flux_density_t for t in tables])
+    w = np.concatenate([energy_per_cycle(t, shapes=True) for t in tables])
+    duty = np.concatenate([t.duty for t in tables])
+    return f, b, w, (None if np.all(duty[:, 0] == -1) else duty)
+
+
+def _diagnose_group(tables: list[LossTable], split: str) -> dict[str, Any]:
+    f, b, w, duty = _energy_of(tables)
+    out = diagnose_energy(f, b, w, material=tables[0].material, split=split, duty=duty)
+    out["path"], out["kind"] = str(tables[0].path), tables[0].kind
+    if len(tables) > 1:
+        out["paths"] = [str(t.path) for t in tables]
+    return out
+
+
+def diagnose_loss_table(tables: TableArg | Sequence[TableArg], split: str = "low_third") -> dict[str, Any]:
+    """Read a material table (core loss or complex permeability), or several core-loss tables of one
+    material (a sine table with MagNet's triangles/trapezoids of the same material), and diagnose them
+    together; the result also carries the other split's headline figures.  ``path`` is the first
+    table's (a sine table's when there is one), ``paths`` all of them when several."""
+    group = [_read(t) for t in ([tables] if isinstance(tables, (str, Path, LossTable)) else tables)]
+    if not group:
+        raise EstimationError("no loss table given")
+    group.sort(key=lambda t: bool(np.any(t.duty[:, 0] != -1)))
+    out = _diagnose_group(group, split)
     other = "interleaved" if split == "low_third" else "low_third"
-    o = diagnose_energy(table.frequency_hz, table.flux_density_t, w, material=table.material, split=other)
-    out["other_split"] = {k: o[k] for k in ("split", "effects", "residual_before_log10", "residual_after_log10",
-                                            "improvement", "beyond_catalogue")}
+    o = _diagnose_group(group, other)
+    keys = ("split", "effects", "residual_before_log10", "residual_after_log10", "improvement", "beyond_catalogue")
+    out["other_split"] = {k: o[k] for k in keys}
+    if "shapes" in o:
+        out["other_split"]["shape_groups"] = o["shapes"]["groups"]
     return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m hystbench.analysis.diagnosis.loss_separation TABLE.csv ...``: one line per table and split."""
+    """``python -m hystbench.analysis.diagnosis.loss_separation TABLE.csv ...``: one line per table (a
+    material's sine and shapes tables together, :func:`loss_table_groups`) and split, then for the
+    shape groups their held-out errors and the shapes missed most."""
     paths = list(sys.argv[1:] if argv is None else argv)
-    print(f"{'table':28s} {'split':11s} {'rows c/h':>9s} {'before':>7s} {'after':>7s} {'ratio':>6s} "
+    print(f"{'table':28s} {'split':11s} {'rows c/h':>11s} {'before':>7s} {'after':>7s} {'ratio':>6s} "
           f"{'f-slope':>12s} {'named':28s} {'free alpha (dBIC, held-out)':30s} {'s':>5s}")
-    for p in paths:
+    for group in loss_table_groups(paths):
+        name = "+".join(t.path.stem for t in group)
         for split in ("low_third", "interleaved"):
-            r = diagnose_energy(*_table_fw(p), material=Path(p).stem, split=split)
+            r = _diagnose_group(group, split)
             tr, bc = r["located"]["trend"], r["beyond_catalogue"]
-            print(f"{Path(p).stem:28s} {split:11s} {r['rows']['calibration']:4d}/{r['rows']['held_out']:<4d} "
+            print(f"{name:28s} {split:11s} {r['rows']['calibration']:5d}/{r['rows']['held_out']:<5d} "
                   f"{r['residual_before_log10']:7.3f} {r['residual_after_log10']:7.3f} {r['improvement']:6.2f} "
                   f"{tr['slope_log_f']:5.2f}+-{tr['slope_log_f_std']:.2f} {'+'.join(r['effects']) or 'none':28s} "
                   f"{bc['alpha']['value']:.2f} ({bc['delta_bic']:.0f}, {bc['residual_held_out_log10']:.3f})"
                   f"{'':8s} {r['seconds']:5.2f}")
+            for g, v in r.get("shapes", {}).get("groups", {}).items():
+                print(f"{'':28s} {'':11s} {g:>11s} {v['residual_before_log10']:7.3f} {v['residual_after_log10']:7.3f} "
+                      f"{v['improvement']:6.2f}  ({v['held_out']} held out; {v['residual_before']:.1f} -> "
+                      f"{v['residual_after']:.1f} noise floors)")
+            if "shapes" in r:
+                print(f"{'':41s} {r['verdict'].split('; missed most: ')[-1]}")
     return 0
-
-
-def _table_fw(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    t = read_material_table(path)
-    return t.frequency_hz, t.flux_density_t, energy_per_cycle(t)
 
 
 if __name__ == "__main__":

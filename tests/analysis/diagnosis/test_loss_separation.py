@@ -1,6 +1,9 @@
 """The loss-table diagnosis: names what a synthetic table was built with (and nothing when nothing
 rate dependent is in it), and on the vendored MagNet N87 data names the rate-dependent term and
-shrinks the held-out error by at least what an independent least-squares fit here finds."""
+shrinks the held-out error by at least what an independent least-squares fit here finds; with MagNet's
+triangles and trapezoids (issue 28) the shape factors match an independent integration, a sine table's
+figures are unchanged, a synthetic shapes table gives back its classical term, and the real N87 sine
+and shapes tables are diagnosed together, held out per shape."""
 
 from __future__ import annotations
 
@@ -121,11 +124,147 @@ def test_n87_permeability_energy_grows_with_frequency():
     assert r["located"]["trend"]["slope_log_f"] > 0
 
 
-def test_a_table_of_triangular_or_trapezoidal_flux_is_refused_by_name(tmp_path):
-    """The loss separation's terms describe a sinusoidal flux; MagNet's duty-shaped rows are not
-    silently taken as sines (issue 28: their own diagnosis drives the model with their B(t))."""
+def test_energy_per_cycle_refuses_shaped_rows_unless_told_they_are_carried(tmp_path):
+    """A caller that reads W as a sine's (the figures) gets MagNet's duty-shaped rows refused by name;
+    the diagnosis, which carries the duties into its shape factors, asks for them."""
+    from hystbench.analysis.diagnosis.loss_separation import energy_per_cycle
     from hystbench.errors import RecordingError
 
-    real = Path(__file__).resolve().parents[2] / "data" / "real"
+    t = read_material_table(REAL / "magnet_N87_shapes.csv")
     with pytest.raises(RecordingError, match=r"magnet_N87_shapes\.csv: 24773 of 24773 rows are not sinusoidal"):
-        diagnose_loss_table(real / "magnet_N87_shapes.csv")
+        energy_per_cycle(t)
+    assert np.array_equal(energy_per_cycle(t, shapes=True), t.columns["loss_W_per_m3"] / t.frequency_hz)
+
+
+# --- non-sinusoidal flux: MagNet's triangles and trapezoids (issue 28) ---------------------------------
+
+def _real_duties() -> np.ndarray:
+    return np.unique(read_material_table(REAL / "magnet_N87_shapes.csv").duty, axis=0)
+
+
+def _integral_numerically(duty, p: float, n: int = 20_000) -> float:
+    """int_0^1 |b'|^p from flux_shapes' B(t) on a grid holding every corner (tenths): the finite
+    differences are the exact slopes of the piecewise-linear b."""
+    from hystbench.formats.flux_shapes import shape_flux_density
+
+    b = shape_flux_density(duty, 1.0, np.linspace(0.0, 1.0, n + 1))
+    return float(np.sum(np.abs(np.diff(b) * n) ** p) / n)
+
+
+@pytest.mark.parametrize("p", [1.2, 1.5, 2.0, 2.7])
+def test_shape_factor_against_numerical_integration_and_the_triangle_closed_form(p: float):
+    from hystbench.analysis.diagnosis.loss_shapes import shape_factor, sine_integral
+    from hystbench.formats.flux_shapes import SINE_DUTY, shape_flux_density
+
+    duties = _real_duties()
+    assert len(duties) == 25
+    s = shape_factor(duties, p)
+    numeric = np.array([_integral_numerically(d, p) for d in duties]) / sine_integral(p)
+    assert s == pytest.approx(numeric, rel=1e-9)
+    tri = np.abs(duties[:, 1] + duties[:, 3]) < 1e-12
+    d = duties[tri, 0]
+    closed = 2.0**p * (d ** (1 - p) + (1 - d) ** (1 - p)) / sine_integral(p)
+    assert s[tri] == pytest.approx(closed, rel=1e-12)
+    # the sine's integral: its closed form against the derivative of flux_shapes' sine, numerically
+    n = 200_000
+    phase = (np.arange(n) + 0.5) / n
+    assert np.mean(np.abs(2 * np.pi * np.cos(2 * np.pi * phase)) ** p) == pytest.approx(sine_integral(p), rel=1e-8)
+    b = shape_flux_density(SINE_DUTY, 1.0, np.linspace(0, 1, n + 1))
+    assert np.sum(np.abs(np.diff(b) * n) ** p) / n == pytest.approx(sine_integral(p), rel=1e-6)
+    assert np.all(shape_factor(np.full((3, 4), -1.0), p) == 1.0)  # exactly: a sine's figures are unchanged
+
+
+def test_the_sine_diagnosis_is_unchanged_by_the_shape_path():
+    """A sine table through the duty path (S_p = 1 on every row, sines calibrated on) gives today's
+    figures to the last bit; one table given as a list is the same diagnosis."""
+    t = read_material_table(REAL / "magnet_N87_sine.csv")
+    f, b, w = t.frequency_hz, t.flux_density_t, t.columns["loss_W_per_m3"] / t.frequency_hz
+    plain = diagnose_energy(f, b, w, material="N87")
+    shaped = diagnose_energy(f, b, w, material="N87", duty=t.duty)
+    assert "shapes" not in plain and set(shaped["shapes"]["groups"]) == {"sine"}
+    for key in set(plain) - {"seconds", "verdict"}:
+        assert json.dumps(plain[key], sort_keys=True) == json.dumps(shaped[key], sort_keys=True), key
+    assert shaped["verdict"].startswith(plain["verdict"])
+    one = diagnose_loss_table(REAL / "magnet_N87_sine.csv")
+    listed = diagnose_loss_table([REAL / "magnet_N87_sine.csv"])
+    for r in (one, listed):
+        r.pop("seconds")
+    assert json.dumps(one, sort_keys=True) == json.dumps(listed, sort_keys=True)
+
+
+def synthetic_shapes(k_c: float, seed: int = 1):
+    """The real 25 duty tuples and the sine x 46 frequencies x 10 flux densities, W = k_h (B/0.1)^beta
+    + k_c f B^2 S_2, with 2 % scatter."""
+    from hystbench.analysis.diagnosis.loss_shapes import shape_factor
+
+    rng = np.random.default_rng(seed)
+    shapes = np.vstack([np.full((1, 4), -1.0), _real_duties()])
+    f0 = np.arange(50e3, 501e3, 10e3)
+    b0 = np.geomspace(0.01, 0.25, 10)
+    si, fi, bi = (a.ravel() for a in np.meshgrid(np.arange(len(shapes)), np.arange(f0.size), np.arange(b0.size),
+                                                 indexing="ij"))
+    duty, f = shapes[si], f0[fi]
+    b = b0[bi] * np.exp(rng.uniform(-0.05, 0.05, f.size))
+    w = K_H * (b / 0.1) ** BETA + k_c * f * b**2 * shape_factor(duty, 2.0)
+    return f, b, w * np.exp(rng.normal(0.0, NOISE_LN, f.size)), duty
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_synthetic_shapes_name_the_classical_term_with_its_value_and_nothing_else(seed: int):
+    k_c = 1e-4
+    f, b, w, duty = synthetic_shapes(k_c, seed)
+    r = diagnose_energy(f, b, w, duty=duty, split="low_third")
+    assert r["effects"] == ["lamination_eddy_currents"]
+    assert _within(r["parameters"]["lamination_eddy_currents"]["k_c_J_s_per_m3_T2"], k_c)
+    assert _within(r["recalibrated"]["static_hysteresis.beta"], BETA)
+    # calibrated on the sines and symmetric triangles of the lowest third only
+    low = f <= np.unique(f)[46 // 3 - 1]
+    sym = np.all(duty == -1, axis=1) | np.all(np.isclose(duty, [0.5, 0, 0.5, 0]), axis=1)
+    assert r["rows"]["calibration"] == int((low & sym).sum())
+    groups = r["shapes"]["groups"]
+    assert set(groups) == {"sine", "triangle", "trapezoid"}
+    for g in groups.values():  # every held-out shape predicted to the noise, far better than the baseline
+        assert g["residual_after"] < 1.5 and g["improvement"] > 3
+    assert r["noise_floor"]["log10_W"] == pytest.approx(NOISE_LN / math.log(10), rel=0.15)
+    assert len(r["shapes"]["shapes"]) == 26
+    json.dumps(r, allow_nan=False)
+
+
+def test_real_n87_sine_and_shapes_are_diagnosed_together():
+    """Structure only (the figures are measured, reported, not tuned into asserts)."""
+    sine, shapes = REAL / "magnet_N87_sine.csv", REAL / "magnet_N87_shapes.csv"
+    r = diagnose_loss_table([shapes, sine])  # any order: the sine table is read first
+    assert r["paths"] == [str(sine), str(shapes)] and r["path"] == str(sine)
+    ts, tt = read_material_table(sine), read_material_table(shapes)
+    f = np.concatenate([ts.frequency_hz, tt.frequency_hz])
+    duty = np.concatenate([ts.duty, tt.duty])
+    low = f <= np.unique(f)[46 // 3 - 1]
+    sym = np.all(duty == -1, axis=1) | np.all(np.isclose(duty, [0.5, 0, 0.5, 0]), axis=1)
+    assert r["rows"]["calibration"] == int((low & sym).sum())
+    assert r["rows"]["held_out"] == f.size - int((low & sym).sum())
+    per = r["shapes"]["shapes"]
+    assert len(per) == 26 and sum(s["held_out"] for s in per) == r["rows"]["held_out"]
+    assert {s["group"] for s in per} == {"sine", "triangle", "trapezoid"}
+    for s in per:
+        assert all(math.isfinite(s[k]) for k in ("rms_before_log10", "rms_after_log10", "z_after"))
+        if s["duty"][0] != -1 and not np.allclose(s["duty"], [0.5, 0, 0.5, 0]):
+            assert s["held_out"] == int(np.all(np.isclose(tt.duty, s["duty"]), axis=1).sum())  # at every frequency
+    for g in r["shapes"]["groups"].values():
+        assert math.isfinite(g["residual_before"]) and math.isfinite(g["residual_after"])
+    assert len(r["shapes"]["missed_most"]) == 3 and "missed most" in r["verdict"]
+    for trend in ("between_ramps_trend", "flat_trend"):
+        assert math.isfinite(r["shapes"][trend]["slope_log10_per_share"]) and r["shapes"][trend]["slope_std"] > 0
+    assert set(r["other_split"]["shape_groups"]) == {"sine", "triangle", "trapezoid"}
+    json.dumps(r, allow_nan=False)
+
+
+def test_tables_of_two_materials_are_not_diagnosed_together_and_groups_pair_a_material():
+    from hystbench.analysis.diagnosis.loss_separation import loss_table_groups
+    from hystbench.errors import RecordingError
+
+    with pytest.raises(RecordingError, match=r"magnet_3C90_shapes\.csv: core_loss table of '3C90'"):
+        diagnose_loss_table([REAL / "magnet_N87_sine.csv", REAL / "magnet_3C90_shapes.csv"])
+    names = ["magnet_N87_shapes", "N87_mu_large", "magnet_3E6_sine", "magnet_N87_sine"]
+    groups = loss_table_groups([REAL / f"{n}.csv" for n in names])
+    assert [[t.path.stem for t in g] for g in groups] == [["magnet_N87_sine", "magnet_N87_shapes"], ["N87_mu_large"],
+                                                          ["magnet_3E6_sine"]]
