@@ -6,7 +6,8 @@ its parameters, and the held-out proof (issue 13).
 
 Inputs: sweep folders of the recording format (a folder may hold a whole bench day, its rigs told apart
 by the sidecars, or one rig's sweep), MCAP logs (read as ``hystbench export`` reads them), or measured
-material loss tables (``.csv`` with their sidecar), which take the loss-separation path.  Every input
+material loss tables (``.csv`` with their sidecar), which take the loss-separation path (a material's
+sine table and MagNet triangular/trapezoidal ``_shapes`` table are diagnosed together).  Every input
 is read and checked, and ``--report`` is checked, before the diagnosis runs; the report is written
 whole or not at all.
 """
@@ -105,12 +106,13 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if tables and (args.baseline is not None or args.candidates is not None):
         raise ConfigError(f"{'--baseline' if args.baseline is not None else '--candidates'}: a loss table's "
                           "diagnosis has its own terms (rate independent, classical, excess); the option is for recordings")
+    groups = _loss_groups(tables, args) if tables else []
     # --report is checked (exists? writable beside?) before the work, and written only if it all succeeds
     report = (output_folder(args.report, overwrite=args.overwrite, option="--report") if args.report is not None
               else nullcontext())
     with report as stage:
         if tables:
-            return _loss_tables(tables, args, stage)
+            return _loss_tables(groups, args, stage)
         recs = read_inputs(paths)
         d = _run(recs, args)
         page = None
@@ -149,12 +151,25 @@ def _run(recs: list[Any], args: argparse.Namespace) -> Any:
                         progress=lambda msg: bar.update(task, description=msg))
 
 
-def _loss_tables(tables: list[Path], args: argparse.Namespace, stage: Any) -> int:
-    """Measured loss tables: the loss-separation diagnosis per table (rate-independent baseline
-    calibrated at the lowest frequencies, the rest held out)."""
+def _loss_groups(tables: list[Path], args: argparse.Namespace) -> list[list[Any]]:
+    """Every table read and checked, grouped (a material's sine and shapes tables together), before any
+    work; ``--report`` draws sinusoidal tables only, so a group with shapes refuses it here."""
+    from ..analysis.diagnosis.loss_separation import loss_table_groups
+
+    groups = loss_table_groups(tables)
+    shaped = [t for g in groups for t in g if (t.duty[:, 0] != -1).any()]
+    if shaped and args.report is not None:
+        raise ConfigError(f"--report: its figures draw sinusoidal tables only; {shaped[0].path} holds triangular/"
+                          "trapezoidal rows (leave out --report, or give its sine table alone)")
+    return groups
+
+
+def _loss_tables(groups: list[list[Any]], args: argparse.Namespace, stage: Any) -> int:
+    """Measured loss tables: the loss-separation diagnosis per group of tables (rate-independent
+    baseline calibrated at the lowest frequencies, the rest held out)."""
     from ..analysis.diagnosis.loss_separation import diagnose_loss_table
 
-    results = [diagnose_loss_table(p) for p in tables]
+    results = [diagnose_loss_table(g) for g in groups]
     page = None
     if stage is not None:
         from ..reports.diagnosis import render_loss_report
@@ -173,13 +188,14 @@ def _loss_tables(tables: list[Path], args: argparse.Namespace, stage: Any) -> in
         t.add_column(col)
     for r in results:
         imp = r.get("improvement")
-        t.add_row(escape(Path(r["path"]).name), escape(", ".join(r["effects"]) or "none"),
+        names = " + ".join(Path(p).name for p in r.get("paths", [r["path"]]))
+        t.add_row(escape(names), escape(", ".join(r["effects"]) or "none"),
                   f"{r['residual_before_log10']:.3f}", f"{r['residual_after_log10']:.3f}",
                   "n/a" if imp is None else f"{imp:.2f}x")
     con = console()
     con.print(t)
     for r in results:
-        con.print(f"{escape(Path(r['path']).name)}: {escape(r['verdict'])}")
+        con.print(f"{escape(' + '.join(Path(p).name for p in r.get('paths', [r['path']])))}: {escape(r['verdict'])}")
     if page is not None:
         con.print(f"report: {page}")
     return 0

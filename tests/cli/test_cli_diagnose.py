@@ -155,3 +155,31 @@ def test_a_loss_table_goes_to_the_loss_separation(capsys):
     assert code == 0, err
     doc = json.loads(out)
     assert doc["path"] == str(table) and {"effect", "effects", "residual_before", "residual_after"} <= set(doc)
+
+
+REAL = Path(__file__).parents[1] / "data" / "real"
+
+
+def test_a_materials_sine_and_shapes_tables_are_diagnosed_together(capsys):
+    sine, shapes = REAL / "magnet_N87_sine.csv", REAL / "magnet_N87_shapes.csv"
+    code, out, err = _run([str(shapes), str(sine), "--json"], capsys)
+    assert code == 0, err
+    doc = json.loads(out)  # one document: one group
+    assert doc["paths"] == [str(sine), str(shapes)]
+    assert {"sine", "triangle", "trapezoid"} == set(doc["shapes"]["groups"])
+    assert {"effect", "effects", "residual_before", "residual_after"} <= set(doc)
+
+
+def test_a_bad_shapes_table_or_a_report_of_shapes_is_refused_naming_the_file(tmp_path, capsys):
+    lines = (REAL / "magnet_N87_shapes.csv").read_text().splitlines()[:41]
+    lines[7] = lines[7].replace("0.1,0.0,0.9,0.0", "0.1,0.0,0.8,0.0")
+    bad = tmp_path / "bad_shapes.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    bad.with_suffix(".json").write_text((REAL / "magnet_N87_shapes.json").read_text())
+    code, out, err = _run([str(REAL / "magnet_N87_sine.csv"), str(bad)], capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1 and f"{bad}:8" in err and "sum to" in err
+    rep = tmp_path / "rep"
+    code, out, err = _run([str(REAL / "magnet_N87_sine.csv"), str(REAL / "magnet_N87_shapes.csv"), "--report",
+                           str(rep)], capsys)
+    assert code == 2 and out == "" and "--report" in err and "magnet_N87_shapes.csv" in err
+    assert not rep.exists() and _no_stage_left(tmp_path)
