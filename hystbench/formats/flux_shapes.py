@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["SINE_DUTY", "shape_corners", "shape_flux_density"]
+__all__ = ["SINE_DUTY", "segment_steps", "shape_corners", "shape_flux_density"]
 
 #: The duty tuple MagNet gives a sinusoidal row.
 SINE_DUTY = (-1.0, -1.0, -1.0, -1.0)
@@ -50,17 +50,26 @@ def _check(duty: Sequence[float], peak_t: float) -> tuple[float, float, float, f
     return d  # type: ignore[return-value]
 
 
+def segment_steps(duty: np.ndarray) -> np.ndarray:
+    """How far b = B / B_pk moves over each of the four segments, for every row of a (rows, 4) array of
+    triangular/trapezoidal duties (the bridge's levels through the series capacitor, scaled so that b
+    spans -1 .. 1); vectorised, for the rows of a whole table."""
+    d = np.atleast_2d(np.asarray(duty, dtype=np.float64))
+    offset = d[:, 0] - d[:, 2]  # the mean the series capacitor takes away
+    volts = np.stack([1.0 - offset, -offset, -1.0 - offset, -offset], axis=1)
+    step = volts * d
+    corners = np.concatenate([np.zeros((d.shape[0], 1)), np.cumsum(step, axis=1)], axis=1)
+    return step * (2.0 / (corners.max(axis=1) - corners.min(axis=1)))[:, None]
+
+
 def shape_corners(duty: Sequence[float], flux_density_peak_t: float) -> tuple[np.ndarray, np.ndarray]:
     """The corners of a triangular/trapezoidal B(t): phases t/T (0 ... 1, five points, a repeated
     phase where a fraction is 0) and B there (T); B(1) == B(0).  Not for a sine row."""
     d1, d2, d3, d4 = _check(duty, flux_density_peak_t)
     if (d1, d2, d3, d4) == SINE_DUTY:
         raise ValueError("a sine row has no corners; use shape_flux_density")
-    offset = d1 - d3  # the mean the series capacitor takes away
-    volts = np.array([1.0 - offset, -offset, -1.0 - offset, -offset])
-    b = np.concatenate([[0.0], np.cumsum(volts * np.array([d1, d2, d3, d4]))])
-    b -= (b.max() + b.min()) / 2.0
-    b *= flux_density_peak_t / b.max()
+    b = np.concatenate([[0.0], np.cumsum(segment_steps(np.array([d1, d2, d3, d4]))[0])])
+    b = flux_density_peak_t * (b - (b.max() + b.min()) / 2.0)
     b[-1] = b[0]  # closes exactly (the levels have zero mean), without the rounding of the sum
     return np.concatenate([[0.0], np.cumsum([d1, d2, d3, d4])]), b
 

@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 
+from ...formats.flux_shapes import segment_steps
+
 __all__ = ["sine_integral", "shape_factor", "calibration_shapes", "shape_group", "locate_shapes"]
 
 #: The symmetric triangle (duty_1 = duty_3 = 0.5), calibrated on with the sines.
@@ -53,11 +55,7 @@ def shape_factor(duty: np.ndarray, p: float) -> np.ndarray:
     duty = np.atleast_2d(np.asarray(duty, dtype=np.float64))
     sine = _is_sine(duty)
     d = np.where(sine[:, None], 0.25, duty)  # any valid shape in the sine rows; overwritten below
-    offset = d[:, 0] - d[:, 2]  # the series capacitor's (flux_shapes.shape_corners)
-    volts = np.stack([1.0 - offset, -offset, -1.0 - offset, -offset], axis=1)
-    step = volts * d
-    corners = np.concatenate([np.zeros((d.shape[0], 1)), np.cumsum(step, axis=1)], axis=1)
-    step *= (2.0 / (corners.max(axis=1) - corners.min(axis=1)))[:, None]  # b spans -1 .. 1
+    step = segment_steps(d)
     live = d > 0
     seg = np.where(live, np.where(live, d, 1.0) ** (1.0 - p) * np.abs(step) ** p, 0.0)
     s = seg.sum(axis=1) / sine_integral(p)
