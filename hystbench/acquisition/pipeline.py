@@ -181,6 +181,8 @@ class Pipeline:
         self.error: BaseException | None = None
         self.finished = threading.Event()
         self._holds_switch = False
+        self._running = 0  # threads not yet ended: the last one gives the switch interval back
+        self._running_lock = threading.Lock()
 
     # --- life cycle ------------------------------------------------------------------------------
     def start(self) -> "Pipeline":
@@ -203,6 +205,7 @@ class Pipeline:
         for name, target in plan:
             t = threading.Thread(target=self._guard, args=(name, target), name=f"pipeline-{name}", daemon=True)
             self._threads.append(t)
+        self._running = len(self._threads)
         for t in self._threads:
             t.start()
         self.status("info", "started", f"pipeline on {self.source.name}")
@@ -220,9 +223,6 @@ class Pipeline:
             t.join(deadline.left())
         done = not any(t.is_alive() for t in self._threads)
         if done:
-            if self._holds_switch:
-                self._holds_switch = False
-                _SWITCH.release()  # what else runs in this process gets it back
             self.finished.set()
         return done
 
@@ -241,6 +241,19 @@ class Pipeline:
             self._stop.set()
             self.ring.close()
             self._source_done.set()
+        finally:
+            self._thread_ended()
+
+    def _thread_ended(self) -> None:
+        """The last thread to end gives the switch interval back, whether or not anyone joins the
+        pipeline (one left unjoined used to keep it lowered for the rest of the process)."""
+        with self._running_lock:
+            self._running -= 1
+            release = self._running == 0 and self._holds_switch
+            if release:
+                self._holds_switch = False
+        if release:
+            _SWITCH.release()
 
     # --- messages --------------------------------------------------------------------------------
     def emit(self, topic: str, message: Mapping[str, Any] | Message) -> None:

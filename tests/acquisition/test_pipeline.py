@@ -439,3 +439,16 @@ def test_two_pipelines_whose_lives_overlap_give_back_the_switch_interval() -> No
     assert sys.getswitchinterval() < before  # the second still runs
     assert second.join(10.0)
     assert sys.getswitchinterval() == before
+
+
+def test_a_pipeline_nobody_joins_still_gives_back_the_switch_interval() -> None:
+    """The threads' end gives it back, not a join: a pipeline whose owner never joins it (or gave up
+    waiting) must not keep the process's switch interval lowered."""
+    import sys
+
+    before = sys.getswitchinterval()
+    pipe = Pipeline(RigSource(SimulatedRig("voicecoil_ferrite"), duration_s=0.05, block_samples=1000, pace="max")).start()
+    assert sys.getswitchinterval() < before
+    for t in list(pipe._threads):  # wait for the threads themselves, not through the pipeline
+        t.join(10.0)
+    assert sys.getswitchinterval() == before
