@@ -8,7 +8,6 @@ filled in; a bad key is refused at load, naming the file, the table and the key.
 
 from __future__ import annotations
 
-import os
 import tomllib
 from pathlib import Path
 from typing import Any, Mapping
@@ -16,20 +15,10 @@ from typing import Any, Mapping
 from ..errors import ConfigError
 from .presets import check_material, check_rig
 
-__all__ = ["CONFIG_DIR", "read_toml", "shared_data_dir", "rig_names", "load_rig", "material_names",
+__all__ = ["CONFIG_DIR", "read_toml", "rig_names", "load_rig", "material_names",
            "load_material", "check_rig", "check_material"]
 
 CONFIG_DIR = Path(__file__).resolve().parent
-
-
-def shared_data_dir() -> Path:
-    """``shared/data`` beside the checkout (real measured material data), or $HYSTBENCH_SHARED_DIR/data."""
-    root = os.environ.get("HYSTBENCH_SHARED_DIR")
-    base = Path(root) if root else CONFIG_DIR.parents[2] / "shared"
-    data = base / "data"
-    if not data.is_dir():
-        raise ConfigError(f"shared data folder {data} not found; set HYSTBENCH_SHARED_DIR to the shared/ folder")
-    return data
 
 
 def _names(folder: str) -> list[str]:

@@ -16,7 +16,6 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..config import shared_data_dir
 from ..errors import ConfigError
 from .hysteresis import PreisachHysteresis, PreisachParams, mu_0
 
@@ -26,7 +25,11 @@ __all__ = [
     "MATERIAL_DATA",
 ]
 
-#: material -> (data file under shared/data/real, how its loops are laid out)
+#: where the measured loops ship: copied, with their licences, from third-party measurements
+#: (measured/README.md names the sources)
+MEASURED_DIR = Path(__file__).resolve().parent / "measured"
+
+#: material -> (data file under MEASURED_DIR, how its loops are laid out)
 MATERIAL_DATA = {
     "M330-50A": ("epstein_static_loops/M330_50A_envelope.csv", "envelope"),
     "M130-27S": ("quasistatic_loops/M130_27s_3mixed_loops.csv", "pairs"),
@@ -56,7 +59,7 @@ def load_loops(material: str, data_dir: Path | None = None) -> list[MeasuredLoop
     if material not in MATERIAL_DATA:
         raise ConfigError(f"no measured loops for material {material!r}; known: {', '.join(MATERIAL_DATA)}")
     rel, layout = MATERIAL_DATA[material]
-    path = (data_dir or shared_data_dir()) / "real" / rel
+    path = (data_dir or MEASURED_DIR) / rel
     try:
         data = np.loadtxt(path, delimiter=",", skiprows=1)
     except OSError as err:
