@@ -20,7 +20,9 @@ __all__ = ["register", "cmd_emulate"]
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the bench commands to the CLI's subparsers."""
     p = subparsers.add_parser("emulate", help="run the emulated bench instruments until SIGINT/SIGTERM",
-                              description=__doc__.split("\n\n")[1])
+                              description="Prints on the first line of stdout one JSON object saying where each instrument "
+                                          "listens, then runs until SIGINT or SIGTERM. 'python -m hystbench "
+                                          "emulate' is the same command.")
     p.add_argument("--config", type=path_arg, default=None, help="bench file (default: the shipped config/bench.toml)")
     p.set_defaults(func=cmd_emulate)
 

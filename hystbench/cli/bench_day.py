@@ -21,7 +21,11 @@ __all__ = ["register", "cmd_simulate_bench_day", "refuse_clipped", "parse_rig_ef
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``simulate-bench-day`` to the CLI's subparsers."""
     p = subparsers.add_parser("simulate-bench-day", help="write a simulated bench day: one sweep folder per rig",
-                              description=__doc__.split("\n\n")[1])
+                              description="The voice coil's stepped sine, then ecore and ecore_pm, each rig running on "
+                                          "between its points, every recording's start_time_s on the day's one "
+                                          "clock; the sidecars hold what a real bench's hold (no effects, no "
+                                          "seed). Everything is simulated and checked (a clipped channel, an "
+                                          "existing file) before the first file is written.")
     p.add_argument("out", type=path_arg, help="output folder (OUT/voicecoil_ferrite, OUT/ecore, OUT/ecore_pm)")
     p.add_argument("--seed", type=nonnegative_int, default=0, help="noise seed (default 0)")
     p.add_argument("--bench", default=None, metavar="NAME",

@@ -265,7 +265,7 @@ def _closed_loop(args, act, models, source, ref, limit, con) -> int:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``model`` (``fit``, ``predict``) and ``compensate`` to the CLI's subparsers."""
     p = subparsers.add_parser("model", help="force models: fit from a sweep, predict a recording's force")
-    sub = p.add_subparsers(dest="model_command", required=True)
+    sub = p.add_subparsers(dest="model_command", required=True, metavar="{fit,predict}")
     q = sub.add_parser("fit", help="fit every force model (Eq. 1, Eq. 6, ours) from a sweep folder")
     q.add_argument("sweep", type=path_arg, help="sweep folder of one E-core rig (NAME.csv + NAME.json per recording)")
     q.add_argument("--out", type=path_arg, required=True, help="model file to write (JSON)")

@@ -47,7 +47,8 @@ def effect_list(option: str) -> Callable[[str], list[str]]:
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``diagnose`` to the CLI's subparsers."""
     p = subparsers.add_parser("diagnose", help="locate, name, model and prove what the simulation leaves out",
-                              description=__doc__.split("\n\n")[0])
+                              description="hystbench diagnose: where a bench day differs from its simulation, what physics "
+                                          "was left out, its parameters, and the held-out proof.")
     p.add_argument("inputs", nargs="+", type=path_arg, metavar="SWEEP_DIR",
                    help="sweep folders (one may hold a whole bench day, or one rig each), MCAP logs (.mcap) or "
                         "material loss tables (.csv)")

@@ -268,11 +268,29 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return status
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose usage error is one line on stderr, ``PROG: error: WHAT (see PROG
+    --help)``, and exit status 2: the usage block argparse prints above it buried the line that
+    says what is wrong.  Every subparser is of this class (``add_subparsers`` takes the parent's)."""
+
+    def parse_known_args(self, args=None, namespace=None):
+        # an argument nobody takes is the command's error, named with its own --help: argparse
+        # hands a subcommand's leftovers up to ``hystbench``, whose message named the wrong command
+        namespace, extras = super().parse_known_args(args, namespace)
+        if extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return namespace, extras
+
+    def error(self, message: str):
+        what = " ".join(message.split())  # one line, whatever argparse composed
+        self.exit(2, f"{self.prog}: error: {what} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The whole command line in one parser; each command group registers its own subcommands."""
-    parser = argparse.ArgumentParser(prog="hystbench", description=__doc__.split(".")[0])
+    parser = OneLineParser(prog="hystbench", description="The hystbench command line.")
     parser.add_argument("--version", action="version", version=f"hystbench {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("simulate", help="write one recording from the simulated rig")
     _add_rig_args(p)
