@@ -448,5 +448,6 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as err:  # the filesystem refused a path the user gave (too long, not a folder, full disk)
         print(f"{where}: error: {_os_error_line(err)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C: said, so that 130 is not read as a silent failure
+        print(f"{where}: interrupted", file=sys.stderr)
         return 130

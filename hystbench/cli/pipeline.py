@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
@@ -283,19 +284,54 @@ def cmd_record(args: argparse.Namespace) -> int:
     ours = args.overwrite or not out.exists()  # else the recorder refuses it and it must stay as it is
     src = _source_from_args(args)
     try:
-        res = record_log(src, out, compression=args.compression, overwrite=args.overwrite,
-                         on_message=_quiet_on_broken_pipe(_print_estimate) if args.verbose else None)
+        with _noting_ctrl_c() as interrupted:  # record_log ends the log cleanly on Ctrl-C and returns
+            res = record_log(src, out, compression=args.compression, overwrite=args.overwrite,
+                             on_message=_quiet_on_broken_pipe(_print_estimate) if args.verbose else None)
     except BenchError as err:  # a log with no measurement in it would only block the retry: remove it
         if ours and out.is_file() and not has_measurement(out):
             out.unlink()
             raise RecordingError(f"{err} (nothing was recorded with the output on; {out} removed)") from err
         raise
+    except KeyboardInterrupt:  # outside the pipeline's run (opening or closing the log)
+        if ours and out.is_file():
+            print(f"hystbench record: interrupted; {out} may be cut short (`hystbench recover {out}` salvages "
+                  "its complete chunks)", file=sys.stderr)
+        else:
+            print("hystbench record: interrupted before anything was recorded", file=sys.stderr)
+        return 130
     finally:
         src.close()
     errs = sum(1 for e in res["estimates"] if e.get("error"))
     print(f"wrote {', '.join(res['log'])}: {res['samples']} samples x {len(src.channels)} channels, "
           f"{len(res['estimates'])} estimates ({errs} refused), {res['bytes'] / 1e6:.2f} MB")
+    if interrupted:
+        print(f"hystbench record: interrupted; the log is closed and valid, with the {res['samples']} samples "
+              f"recorded before it: {', '.join(res['log'])}", file=sys.stderr)
+        return 130
     return 0
+
+
+@contextmanager
+def _noting_ctrl_c() -> Iterator[list[bool]]:
+    """A list that holds True once Ctrl-C (SIGINT) came while the block ran; the interrupt is
+    raised as usual (for the code that handles it), only now somebody knows it happened."""
+    import signal
+    import threading
+
+    seen: list[bool] = []
+    if threading.current_thread() is not threading.main_thread():  # only the main thread gets signals
+        yield seen
+        return
+
+    def note(signum, frame):
+        seen.append(True)
+        raise KeyboardInterrupt
+
+    before = signal.signal(signal.SIGINT, note)
+    try:
+        yield seen
+    finally:
+        signal.signal(signal.SIGINT, before)
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
