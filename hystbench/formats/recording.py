@@ -426,7 +426,7 @@ def _write_temp(dest: Path, write: Callable[[TextIO], Any]) -> Path:
 def _refuse_existing(paths: Iterable[Path]) -> None:
     for p in paths:
         if p.exists():
-            raise RecordingError(f"{p}: already exists; pass overwrite=True to replace it")
+            raise RecordingError(f"{p}: already exists; give --overwrite (overwrite=True from Python) to replace it")
 
 
 def write_recording(rec: Recording, stem: str | Path, *, overwrite: bool = False) -> tuple[Path, Path]:

@@ -33,7 +33,7 @@ from typing import Any, Callable, Mapping
 from ... import __version__
 from ...blocks import BlockFlags, SampleBlock
 from ...errors import LogWriteError, RecordingError
-from ...messages import OperatingPoint, json_bytes
+from ...messages import json_bytes
 from ..raw_block import encode_json
 from .schemas import RAW, SCHEMAS, TOPICS, schema_bytes
 
@@ -142,7 +142,8 @@ class McapRecorder:
             path.parent.mkdir(parents=True, exist_ok=True)
             self._fh = open(path, "wb" if self.overwrite else "xb")
         except FileExistsError as err:
-            raise RecordingError(f"{path}: already exists; choose another name or pass overwrite") from err
+            raise RecordingError(f"{path}: already exists; choose another name, or give --overwrite (overwrite=True from "
+                                 "Python) to replace it") from err
         except OSError as err:
             raise write_error(path, err, "create the log") from err
         try:
@@ -227,7 +228,7 @@ class McapRecorder:
     # --- messages --------------------------------------------------------------------------------
     def add_block(self, block: SampleBlock) -> None:
         """One raw block (every channel); with the output off, what ``idle_raw`` keeps of it."""
-        if self.idle_raw != "full" and not OperatingPoint.from_meta(block.meta).output_on:
+        if self.idle_raw != "full" and block.point is not None and not block.point.output_on:
             for piece in self._idle_pieces(block):
                 self._add(RAW, encode_json(piece, self.units), self.epoch_ns + piece.t0_ns)
             return
