@@ -29,7 +29,7 @@ from .data import PeriodData
 from .errors import CompensatorError
 from .hysteresis_eddy import IronScaling
 from .identify import CANDIDATES, IronData, held_out_folds, iron_data
-from .models import ForceModel, NonHysteretic, force_error, paper_model
+from .force_model import ForceModel, NonHysteretic, force_error, paper_model
 
 __all__ = ["SIMPLICITY", "choose_best", "fit_descriptions", "accuracy_noise_pct"]
 

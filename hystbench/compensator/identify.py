@@ -33,7 +33,6 @@ from .errors import CompensatorError
 from .hysteresis_eddy import (FIT_TABLES, HysteresisEddyModel, IronScaling, coercive_guess, iron_drop,
                               material_dict, preisach_params)
 from .lsq import scaled_lstsq, solution_covariance
-from .models import ForceModel, predict_measured
 from .periodic import apply_response, denoise, derivative, resample
 from .rayleigh_loop import RayleighLoopModel, fit_rayleigh_loop
 

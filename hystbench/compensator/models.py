@@ -23,24 +23,24 @@ the first format, ``hystbench-force-models/1``, are still read: their models are
 from __future__ import annotations
 
 import json
-import math
 import os
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from ..errors import ConfigError
 from ..physics import presets
 from ..physics.instrument import InstrumentModel
-from ..physics.phase_delay_model import PhaseDelayModel
 from .calibration import calibrate, fit_delayed_law
+from .choice import choose_best
 from .data import PeriodData
 from .describing import DescribingFunctionModel
 from .errors import CompensatorError
+from .force_model import ForceModel, NonHysteretic, PaperModel, force_error, paper_model, predict_measured
 from .hysteresis_eddy import HysteresisEddyModel, IronScaling
-from .periodic import apply_response, denoise, shift
+from .periodic import apply_response, shift
 from .rayleigh_loop import RayleighLoopModel
 from .static import StaticLaw
 
@@ -59,89 +59,6 @@ BEST_DESCRIPTIONS = {cls.name: cls for cls in (HysteresisEddyModel, DescribingFu
 PAPER_NAMES = ("eq1_mec", "eq6_phase_delay")
 
 
-@runtime_checkable
-class ForceModel(Protocol):
-    """One period of current in, one period of force out, and back: all that fitting, prediction and
-    the compensator ask of a model, whichever it is."""
-
-    kind: str
-    name: str
-    law: StaticLaw
-
-    def force_period(self, current_a: np.ndarray, frequency_hz: float) -> np.ndarray: ...
-
-    def current_period(self, force_n: np.ndarray, frequency_hz: float,
-                       current_limit_a: float | None = None) -> np.ndarray: ...
-
-    def to_dict(self) -> dict: ...
-
-
-@dataclass(frozen=True)
-class NonHysteretic:
-    """Eq. 1: the force follows the current through the static law, with no delay."""
-
-    law: StaticLaw
-    kind: str = "nonhysteretic"
-    name: str = "eq1_mec"
-
-    def force_period(self, current_a: np.ndarray, frequency_hz: float) -> np.ndarray:
-        """The static law sample by sample: the frequency does not matter to Eq. 1."""
-        return self.law.force(current_a)
-
-    def current_period(self, force_n: np.ndarray, frequency_hz: float,
-                       current_limit_a: float | None = None) -> np.ndarray:
-        """The static inverse: the feed-forward that ignores hysteresis (the paper's baseline)."""
-        return self.law.invert(force_n, current_limit_a=current_limit_a)
-
-    def to_dict(self) -> dict:
-        return {"kind": self.kind, "name": self.name, "law": self.law.to_dict()}
-
-
-@dataclass(frozen=True)
-class PaperModel:
-    """Eq. 6: the current delayed by theta_hyst(f) as a whole, then Eq. 1; its inverse advances
-    the static inverse by theta (the phase lead for the actuator's delay)."""
-
-    law: StaticLaw
-    freq_hz: tuple[float, ...]
-    theta_rad: tuple[float, ...]
-    kind: str = "paper"
-    name: str = "eq6_phase_delay"
-
-    @property
-    def phase(self) -> PhaseDelayModel:
-        return PhaseDelayModel.from_phases(self.law.coefficients, self.freq_hz, self.theta_rad)
-
-    def theta(self, frequency_hz: float) -> float:
-        return float(self.phase.theta(float(frequency_hz)))
-
-    def force_period(self, current_a: np.ndarray, frequency_hz: float) -> np.ndarray:
-        """Eq. 6: the period delayed by theta(f) as a whole, then the static law."""
-        return self.law.force(shift(current_a, self.theta(frequency_hz) / (2 * np.pi)))
-
-    def current_period(self, force_n: np.ndarray, frequency_hz: float,
-                       current_limit_a: float | None = None) -> np.ndarray:
-        """The static inverse advanced by theta(f): the phase lead that cancels the delay of Eq. 6."""
-        j = self.law.invert(force_n, current_limit_a=current_limit_a)
-        return shift(j, -self.theta(frequency_hz) / (2 * np.pi))
-
-    def with_theta(self, frequency_hz: float, theta_rad: float) -> "PaperModel":
-        """The model with theta at ``frequency_hz`` replaced (the live estimate)."""
-        f, th = list(self.freq_hz), list(self.theta_rad)
-        near = [k for k, x in enumerate(f) if abs(x - frequency_hz) <= 1e-3 * frequency_hz]
-        if near:
-            th[near[0]] = float(theta_rad)
-        else:
-            f.append(float(frequency_hz))
-            th.append(float(theta_rad))
-        order = np.argsort(f)
-        return replace(self, freq_hz=tuple(float(f[k]) for k in order), theta_rad=tuple(float(th[k]) for k in order))
-
-    def to_dict(self) -> dict:
-        return {"kind": self.kind, "name": self.name, "law": self.law.to_dict(),
-                "frequency_Hz": list(self.freq_hz), "theta_hyst_rad": list(self.theta_rad)}
-
-
 def model_from_dict(d: Mapping[str, Any]) -> ForceModel:
     """The model that a model file's entry describes, by its ``kind`` (the inverse of ``to_dict``)."""
     kind = d.get("kind")
@@ -158,29 +75,6 @@ def model_from_dict(d: Mapping[str, Any]) -> ForceModel:
                               f"{', '.join([*PAPER_NAMES, *BEST_DESCRIPTIONS])}")
         return BEST_DESCRIPTIONS[name].from_dict(dict(d))
     raise ConfigError(f"unknown force model kind {kind!r}; known: {', '.join(MODEL_KINDS)}")
-
-
-# --- what the load cell reports ------------------------------------------------------------------
-def predict_measured(model: ForceModel, current_a: np.ndarray, frequency_hz: float, instrument: InstrumentModel,
-                     *, current_noise_a: float = math.nan) -> np.ndarray:
-    """The force the load cell would report for one period of measured current: the model's
-    force through the instrument.  ``current_noise_a`` (noise of one point of the averaged
-    current) lets :func:`~.periodic.denoise` drop harmonics that are only noise first."""
-    i = denoise(current_a, current_noise_a)
-    return apply_response(model.force_period(i, frequency_hz), frequency_hz, instrument.frequency_response)
-
-
-def force_error(model: ForceModel, point: PeriodData, instrument: InstrumentModel) -> dict:
-    """Eq. 5 in the measurement domain for one recording: measured minus predicted-as-measured,
-    with the paper's accuracy 100 % (1 - max|dF| / range) on the period average."""
-    pred = predict_measured(model, point.current_a, point.frequency_hz, instrument,
-                            current_noise_a=point.average_noise_a())
-    err = np.asarray(point.force_n) - pred
-    rng = point.force_range_n
-    return {"recording": point.name, "model": model.kind, "frequency_Hz": point.nominal_frequency_hz,
-            "current_pp_A": point.current_pp_a, "force_range_N": rng, "max_abs_error_N": float(np.max(np.abs(err))),
-            "accuracy_pct": 100.0 * (1.0 - float(np.max(np.abs(err))) / rng),
-            "mean_error_N": float(np.mean(err)), "error_N": err, "predicted_N": pred}
 
 
 # --- a set of models for one rig -----------------------------------------------------------------
@@ -261,8 +155,6 @@ def fit_models(points: Sequence[PeriodData], preset: Mapping[str, Any],
     averages).  The force instrument is ``instrument`` (a voice coil's identification), else the
     preset's; the preset's geometry only sets the Preisach description's B scale; the law, the
     magnet's bias and the iron come from the sweep."""
-    from .choice import choose_best  # choice fits this module's models
-
     rig = str(preset.get("name"))
     if preset.get("actuator") != "ecore":
         raise CompensatorError(f"rig {rig!r} is a {preset.get('actuator')}, not an E-core: the force models are "
@@ -294,16 +186,6 @@ def fit_models(points: Sequence[PeriodData], preset: Mapping[str, Any],
     if choice is not None:
         report["choice"] = choice
     return ModelSet(rig, instrument, models, report)
-
-
-def paper_model(points: Sequence[PeriodData], law: StaticLaw, *, kind: str = "paper") -> PaperModel:
-    """Eq. 6 from a sweep: ``law`` with the theta_hyst measured at each frequency (several amplitudes
-    at one frequency: their mean)."""
-    th = [(p.nominal_frequency_hz, p.theta_hyst_rad) for p in points if np.isfinite(p.theta_hyst_rad)]
-    if not th:
-        raise CompensatorError("no theta_hyst measured in the sweep; the paper's Eq. 6 needs it")
-    pm = PhaseDelayModel.from_phases(law.coefficients, [f for f, _ in th], [t for _, t in th])
-    return PaperModel(law, tuple(map(float, pm.freq_hz)), tuple(map(float, pm.theta_rad)), kind=kind)
 
 
 def phase_delay_bound_n(point: PeriodData, instrument: InstrumentModel, *, max_theta_deg: float = 4.0,
