@@ -21,7 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-from ..errors import ConfigError, RecordingError
+from ..errors import BenchError, ConfigError, RecordingError
 
 __all__ = ["output_file", "output_folder", "StagedFolder"]
 
@@ -41,6 +41,13 @@ def _make_parent(path: Path, option: str) -> list[Path]:
     if not parent.is_dir():
         raise RecordingError(f"{option} {path}: {parent} is not a folder")
     return made
+
+
+def _named_as_final(err: BenchError, temporary: Path, final: Path) -> None:
+    """Let ``err`` (raised by a writer that was handed the temporary name) name ``final`` instead:
+    the user never gave, and will never find, the hidden temporary."""
+    if err.args and isinstance(err.args[0], str) and str(temporary) in err.args[0]:
+        err.args = (err.args[0].replace(str(temporary), str(final)), *err.args[1:])
 
 
 def _remove_folders(made: list[Path]) -> None:
@@ -69,6 +76,9 @@ def output_file(path: str | Path, *, overwrite: bool = False, option: str = "--o
         os.replace(tmp, path)
     except OSError as err:
         raise RecordingError(f"{option} {path}: cannot write: {err.strerror or err}") from err
+    except BenchError as err:
+        _named_as_final(err, tmp, path)
+        raise
     finally:
         tmp.unlink(missing_ok=True)
         if not path.exists():
@@ -108,7 +118,18 @@ def output_folder(path: str | Path, *, overwrite: bool = False, option: str = "-
         raise RecordingError(f"{option} {target}: cannot write beside it: {err.strerror}") from err
     created = not target.exists()
     try:
-        yield StagedFolder(target, stage)
+        staged = StagedFolder(target, stage)
+        try:
+            yield staged
+        except OSError as err:
+            if not _under(err.filename, stage):  # not a write of ours (an input, say): as it came
+                raise
+            # a writer's: named by where its file was going, not by the hidden stage
+            raise RecordingError(f"{option} {target}: cannot write {staged.final(err.filename)}: "
+                                 f"{err.strerror or type(err).__name__}") from err
+        except BenchError as err:
+            _named_as_final(err, stage, target)
+            raise
         try:
             if created:
                 os.replace(stage, target)
@@ -123,3 +144,12 @@ def output_folder(path: str | Path, *, overwrite: bool = False, option: str = "-
         shutil.rmtree(stage, ignore_errors=True)
         if not target.exists():
             _remove_folders(made)
+
+
+def _under(name, folder: Path) -> bool:
+    """Whether the path ``name`` (an OSError's filename, maybe None) lies in ``folder``."""
+    try:
+        Path(name).relative_to(folder)
+    except (TypeError, ValueError):
+        return False
+    return True

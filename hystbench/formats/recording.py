@@ -451,7 +451,8 @@ def write_recording(rec: Recording, stem: str | Path, *, overwrite: bool = False
         os.replace(temps[0], csv_path)
         os.replace(temps[1], json_path)
     except OSError as err:
-        raise RecordingError(f"{stem}: cannot write the recording: {err}") from err
+        # the error's own text names the hidden temporary, which the user never sees
+        raise RecordingError(f"{stem}: cannot write the recording: {err.strerror or type(err).__name__}") from err
     finally:
         for tmp in temps:
             tmp.unlink(missing_ok=True)
