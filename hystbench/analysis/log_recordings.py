@@ -17,7 +17,6 @@ from pathlib import Path
 from ..errors import RecordingError
 from ..formats.mcaplog.reader import Segment, iter_blocks, log_metadata, segments
 from ..formats.recording import Recording, sidecar_point
-from ..messages import OperatingPoint
 from .settling import settle_samples, settling_time_s
 
 __all__ = ["read_mcap_segments", "read_mcap_recording"]
@@ -41,7 +40,8 @@ def _split_settling(segs: list[Segment], base: dict, settle_s: float, settle_per
         if s.idle:
             out.append(s)
             continue
-        f = OperatingPoint.from_meta(s.blocks[0].meta, sidecar_point(base)).frequency_hz
+        point = s.blocks[0].point
+        f = (sidecar_point(base) if point is None else point).frequency_hz
         fs = s.blocks[0].fs_hz
         n = settle_samples(settle_s, settle_periods, fs, f)
         if n <= 0:
@@ -78,17 +78,21 @@ def read_mcap_segments(path: str | Path, *, include_idle: bool = False) -> list[
     return recs
 
 
+_LISTED = 12  # segments named in the refusal to pick one
+
+
 def read_mcap_recording(path: str | Path, segment: int | None = None) -> Recording:
     """The log's samples as one Recording: its only segment, or segment number ``segment``."""
     path = Path(path)
     recs = read_mcap_segments(path)
     if segment is None:
-        if len(recs) > 1:
-            points = ", ".join(f"{r.frequency_hz:g} Hz/{r.current_pp_a:g} A-pp" + (
+        if len(recs) > 1:  # each with the number that picks it
+            points = ", ".join(f"{k}: {r.frequency_hz:g} Hz/{r.current_pp_a:g} A-pp" + (
                 f" table {r.metadata['mcap_source']['table']}" if "table" in r.metadata["mcap_source"] else "")
-                for r in recs[:6])
-            raise RecordingError(f"{path}: {len(recs)} segments (operating points or gaps: {points}"
-                                 f"{', ...' if len(recs) > 6 else ''}); choose one, or "
+                for k, r in enumerate(recs[:_LISTED]))
+            more = f", ... {len(recs) - _LISTED} more" if len(recs) > _LISTED else ""
+            raise RecordingError(f"{path}: {len(recs)} segments (operating points or gaps; {points}{more}); "
+                                 "choose one with --segment N (segment=N from Python), or "
                                  f"`hystbench export {path} --out DIR` writes each")
         return recs[0]
     if not 0 <= segment < len(recs):
