@@ -41,14 +41,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def refuse_clipped(rec: Any) -> None:
     """A recording the ADC clipped is not a measurement: refused, naming the channel and the
     effect parameter to change (needs the generator's sidecar, with ``effects``)."""
-    from ..sim_backend.recordings import clipped_channels
+    from ..sim_backend.recordings import clipped_by_noise, clipped_channels
 
     if rec.metadata.get("clipped"):
-        over = [f"{ch} (full scale ±{full:g}, adc_quantisation.{ch.lower()})"
-                for ch, full in clipped_channels(rec).items()]
+        why = []
+        for ch, full in clipped_channels(rec).items():  # the advice follows the cause: noise or signal
+            key, peak = ch.lower(), clipped_by_noise(rec, ch)
+            if peak is None:
+                why.append(f"{ch} (full scale ±{full:g}): the signal reaches it; lower --ipp (or --freq), or raise "
+                           f"the full scale with --effect adc_quantisation.{key}=VALUE")
+            else:
+                sigma = rec.metadata["effects"]["sensor_noise"][key]
+                why.append(f"{ch} (full scale ±{full:g}): the sensor noise does (rms {sigma:g}; the signal peaks at "
+                           f"{peak:.3g}), not the current; lower it with --effect sensor_noise.{key}=VALUE, or "
+                           f"raise the full scale with --effect adc_quantisation.{key}=VALUE")
         raise SimulationError(f"{rec.rig} at {rec.frequency_hz:g} Hz, {rec.current_pp_a:g} A-pp: the ADC clipped "
-                              f"{', '.join(over)}; lower --ipp (or --freq), or raise the full scale with --effect "
-                              "adc_quantisation.PARAM=VALUE")
+                              + ("; ".join(why) or "a channel"))
 
 
 def _merge(a: Mapping[str, Any], b: Mapping[str, Any]) -> dict[str, Any]:

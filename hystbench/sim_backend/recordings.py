@@ -18,7 +18,8 @@ from ..blocks import BlockFlags
 from ..formats.recording import Recording
 from .rig import DEFAULT_FS_HZ, SimulatedRig
 
-__all__ = ["simulate_recording", "simulated_sweep", "simulate_voice_coil_sweep", "clipped_channels"]
+__all__ = ["simulate_recording", "simulated_sweep", "simulate_voice_coil_sweep", "clipped_channels",
+           "clipped_by_noise"]
 
 
 def simulate_recording(rig: str | Mapping[str, Any], frequency_hz: float, current_pp_a: float, duration_s: float,
@@ -68,6 +69,31 @@ def simulate_voice_coil_sweep(rig: str | Mapping[str, Any], freqs_hz: Iterable[f
         if tick:
             tick()
     return recs
+
+
+def clipped_by_noise(rec: Recording, channel: str) -> float | None:
+    """Whether the sensor noise, not the signal, took ``channel`` (which clipped) to its ADC full
+    scale: the signal's peak (the median of the samples at each phase of the excitation, which the
+    noise does not move and the clip does not bias until the signal itself reaches it) when it stays
+    below the clip level, else None (the signal reaches it: a smaller current or a larger full
+    scale helps, less noise would not)."""
+    eff = rec.metadata.get("effects") or {}
+    q, noise = eff.get("adc_quantisation") or {}, eff.get("sensor_noise") or {}
+    key = channel.lower()
+    if key not in q or not float(noise.get(key, 0.0)) > 0.0 or not rec.frequency_hz > 0.0:
+        return None
+    full = float(q[key])
+    lsb = 2.0 * full / 2 ** int(q["bits"])
+    x = np.asarray(rec.channels[channel], dtype=float)
+    bins = int(max(1, min(64, rec.fs_hz / rec.frequency_hz)))  # a bin: at most 1/64 period
+    phase = np.floor(np.mod(rec.time_s() * rec.frequency_hz, 1.0) * bins).astype(int)
+    order = np.argsort(phase, kind="stable")
+    cuts = np.searchsorted(phase[order], np.arange(1, bins))
+    medians = np.array([np.median(part) for part in np.split(x[order], cuts) if part.size])
+    top, bottom = float(medians.max()), float(medians.min())
+    if top >= full - 2 * lsb or bottom <= -full + lsb:  # the signal itself sits at the clip level
+        return None
+    return max(abs(top), abs(bottom))
 
 
 def clipped_channels(rec: Recording) -> dict[str, float]:
