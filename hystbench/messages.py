@@ -1,7 +1,8 @@
-"""The live path's messages as types: the operating point a block was played at, and the estimate
-of one window.
+"""The live path's messages as types: the operating point a block was played at, the estimate
+of one window, and what a compensator's update asks of the pipeline (:class:`CompensatorUpdate`:
+its published state apart from its commands; the one of the three not written as JSON).
 
-Both are frozen dataclasses in SI units with the unit in each name (``frequency_hz``,
+The first two are frozen dataclasses in SI units with the unit in each name (``frequency_hz``,
 ``current_pp_a``, ``delays_s``), and both read and write JSON symmetrically, as mcap's records do:
 ``X.from_json(x.to_json()) == x``.  ``to_json`` gives plain Python values named as the fields;
 NaN stays NaN there, :func:`json_bytes` (the bytes of every small message, in the MCAP log and on
@@ -31,7 +32,7 @@ import numpy as np
 
 from .errors import RecordingError
 
-__all__ = ["OperatingPoint", "Estimate", "OPERATING_KEYS", "json_schema", "json_bytes"]
+__all__ = ["OperatingPoint", "Estimate", "CompensatorUpdate", "OPERATING_KEYS", "json_schema", "json_bytes"]
 
 #: Block meta keys that name the operating point (the fields of :class:`OperatingPoint`, in order):
 #: a change of any of them starts a new run of the estimator and a new segment of a log.
@@ -281,3 +282,28 @@ class Estimate:
     def json_schema(cls) -> dict[str, Any]:
         return json_schema(cls, cls.SCHEMA_TITLE, "Delays over one window of whole periods "
                                                   "(positive: the later-named signal lags)")
+
+
+# --- what a compensator asks of the pipeline ----------------------------------------------------------------
+@dataclass(frozen=True)
+class CompensatorUpdate:
+    """What one ``update`` of a compensator returns to the pipeline's hook: the state it publishes,
+    and, apart from it, what the hook is to do to the source.
+
+    ``state`` is published on the ``compensator`` topic as it is (JSON-able; nothing in it is a
+    command).  ``output_off``: switch the source's output off, before anything else.
+    ``waveform_a``: one period of current (A, uniformly sampled) to upload, played at
+    ``frequency_hz`` (None: the estimate's nominal frequency).  Not a wire message: the commands
+    are never published, the state is (with what the hook did added)."""
+
+    state: Mapping[str, Any]
+    output_off: bool = False
+    waveform_a: np.ndarray | None = None
+    frequency_hz: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.waveform_a is not None:
+            wave = np.asarray(self.waveform_a, dtype=float)
+            if wave.ndim != 1 or wave.size == 0:
+                raise ValueError(f"waveform_a must be one period as a 1-D array, got shape {wave.shape}")
+            object.__setattr__(self, "waveform_a", wave)

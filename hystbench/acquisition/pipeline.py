@@ -42,7 +42,7 @@ from ..blocks import BlockFlags, SampleBlock
 from ..deadline import Deadline
 from ..errors import ConfigError, LogWriteError
 from ..formats.mcaplog.schemas import COMPENSATOR, ESTIMATE, STATS, STATUS
-from ..messages import Estimate
+from ..messages import CompensatorUpdate, Estimate
 from .ring import RingBuffer, RingRead, RingReader
 from .sources import Controllable
 from .stages import WindowEstimator
@@ -97,11 +97,12 @@ class Message(Protocol):
 class Compensator(Protocol):
     """What :class:`CompensatorHook` drives (the pipeline knows a compensator only by this).
 
-    ``update(estimate)`` returns the compensator's state (a JSON-able dict, published on
-    ``compensator``) or None.  One whose ``learns`` attribute is true is called
+    ``update(estimate)`` returns a :class:`~hystbench.messages.CompensatorUpdate` (its ``state``, a
+    JSON-able mapping, is published on ``compensator``; ``output_off`` and ``waveform_a`` are what
+    the hook does to the source) or None.  One whose ``learns`` attribute is true is called
     ``update(estimate, window)`` with the estimate's samples (a :class:`SampleBlock`)."""
 
-    def update(self, estimate: Estimate, window: SampleBlock | None = None) -> dict | None: ...
+    def update(self, estimate: Estimate, window: SampleBlock | None = None) -> CompensatorUpdate | None: ...
 
 
 @dataclass
@@ -549,11 +550,14 @@ class CompensatorHook:
     """Hands each estimate to the compensator (a :class:`Compensator`) and applies what it asks for.
 
     A compensator that ``learns`` also gets each estimate's samples: the estimator must keep them
-    (``wants_windows``).  If the state it returns says ``output_off`` the source's output goes off
-    before anything else; if it holds ``waveform_a`` (one period of current, uniformly sampled)
-    and ``frequency_hz``, the waveform is uploaded to the source (a :class:`Controllable`).  After
-    an output off, ``tripped`` says why, and the daemon refuses to switch the output on again
-    until it is reloaded.  A compensator that raises is reported, never fatal.
+    (``wants_windows``).  If the :class:`~hystbench.messages.CompensatorUpdate` it returns says
+    ``output_off`` the source's output goes off before anything else; if it carries ``waveform_a``
+    (one period of current, uniformly sampled), the waveform is uploaded to the source (a
+    :class:`Controllable`) at its ``frequency_hz`` (else the estimate's).  What is published is
+    the update's ``state`` with what was done added (``output_switched_off``,
+    ``waveform_applied``).  After an output off, ``tripped`` says why, and the daemon refuses to
+    switch the output on again until it is reloaded.  A compensator that raises, or returns
+    anything but an update or None, is reported, never fatal.
     """
 
     def __init__(self, compensator: Compensator, source: Any = None) -> None:
@@ -570,24 +574,26 @@ class CompensatorHook:
             return None
         try:
             if self.wants_windows and window is not None:
-                state = self.compensator.update(estimate, window)
+                update = self.compensator.update(estimate, window)
             else:
-                state = self.compensator.update(estimate)
+                update = self.compensator.update(estimate)
+            if update is not None and not isinstance(update, CompensatorUpdate):
+                raise TypeError(f"update() returned a {type(update).__name__}, not a "
+                                "hystbench.messages.CompensatorUpdate (or None)")
         except Exception as err:  # the compensator is someone else's code: report, carry on
             self.errors += 1
             self.last_error = f"{type(err).__name__}: {err}"
             return {"error": self.last_error, "first_index": estimate.first_index}
-        if not state:
+        if update is None or not (update.state or update.output_off or update.waveform_a is not None):
             return None
-        state = dict(state)
-        if state.pop("output_off", False):
+        state = dict(update.state)
+        if update.output_off:
             self.tripped = str(state.get("status") or "the compensator asked for the output off")
             if isinstance(self.source, Controllable):
                 self.source.set_output(False)
                 state["output_switched_off"] = True
-        wave = state.pop("waveform_a", None)
-        if wave is not None and isinstance(self.source, Controllable):
-            self.source.set_waveform(np.asarray(wave, dtype=float),
-                                     float(state.get("frequency_hz", estimate.nominal_frequency_hz)))
+        if update.waveform_a is not None and isinstance(self.source, Controllable):
+            f = estimate.nominal_frequency_hz if update.frequency_hz is None else update.frequency_hz
+            self.source.set_waveform(update.waveform_a, float(f))
             state["waveform_applied"] = True
         return state

@@ -1,11 +1,11 @@
 """The online compensator: follows the live hysteresis-delay estimate and re-shapes the current.
 
 It has the pipeline's compensator interface (``acquisition.pipeline.Compensator``):
-``update(estimate, window=None) -> state | None``, where ``estimate`` is a
+``update(estimate, window=None) -> CompensatorUpdate | None``, where ``estimate`` is a
 :class:`~hystbench.messages.Estimate` of one window (``frequency_hz``, ``delays_s['hysteresis']`` =
-flux behind current, ``error``).  The state it returns is published on the ``compensator`` topic;
-when it holds ``waveform_a`` (one period of current) and ``frequency_hz`` the hook uploads it to
-the source.
+flux behind current, ``error``).  The update's ``state`` is published on the ``compensator`` topic;
+when the update carries ``waveform_a`` (one period of current, played at ``frequency_hz``) the hook
+uploads it to the source.
 
 Following the live theta_hyst (smoothed, exponential weight ``smoothing``):
 
@@ -23,7 +23,7 @@ source applies it; a window of an older table, or of someone else's command, is 
 ``command_V``) and handed to the same :class:`~.learning.LearningController` as the offline loop,
 which returns the next table.  It is repetitive control: it runs as long as the stage does
 (``LearningConfig.iterations`` bounds only the offline loop).  If
-the controller stops itself (diverging, out of reach, not finite) the state asks for the output
+the controller stops itself (diverging, out of reach, not finite) the update asks for the output
 off (``output_off``, which the hook applies first) and the stage sends nothing more.
 """
 
@@ -35,7 +35,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..blocks import SampleBlock
-from ..messages import Estimate
+from ..messages import CompensatorUpdate, Estimate
 from ..physics.instrument import InstrumentModel
 from .errors import LearningStopped, UnreachableReference
 from .hysteresis_eddy import HysteresisEddyModel
@@ -113,9 +113,9 @@ class CompensatorStage:
         self.status = "learning"
         return True
 
-    def update(self, estimate: Estimate, window: SampleBlock | None = None) -> dict | None:
-        """One estimate (and, learning, its window of samples) in, the state (with a new table
-        when it changed) out."""
+    def update(self, estimate: Estimate, window: SampleBlock | None = None) -> CompensatorUpdate | None:
+        """One estimate (and, learning, its window of samples) in, the update out: the state, and
+        the new table when it changed (or the output off, when the learning stopped itself)."""
         if self.stopped:
             return None
         if estimate.error:
@@ -144,15 +144,15 @@ class CompensatorStage:
             except LearningStopped as err:
                 self.stopped = True
                 self.status = f"stopped, output off: {err}"
-                return {**self.state(), "output_off": True}
+                return CompensatorUpdate(self.state(), output_off=True)
         if send:
             self.updates += 1
             # the source applies sends in order: each moves its count on by one
             self._table_expected = max(self._table_expected, estimate.table) + 1
-        state = self.state()
-        if send:
-            state["waveform_a"] = self.current_a.copy()
-        return state
+        if not send:
+            return CompensatorUpdate(self.state())
+        return CompensatorUpdate(self.state(), waveform_a=self.current_a.copy(),
+                                 frequency_hz=self.reference.frequency_hz)
 
     def state(self) -> dict:
         th_model = self._model_theta()

@@ -8,6 +8,7 @@ import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -20,7 +21,7 @@ from hystbench.acquisition.pipeline import CompensatorHook, Pipeline
 from hystbench.acquisition.sources import Controllable, RigSource, Source, SyntheticSource
 from hystbench.acquisition.stages import WindowEstimator
 from hystbench.blocks import SampleBlock, concatenate
-from hystbench.messages import Estimate, OperatingPoint
+from hystbench.messages import CompensatorUpdate, Estimate, OperatingPoint
 from hystbench.sim_backend.rig import SimulatedRig
 
 
@@ -226,12 +227,12 @@ class FakeCompensator:
     def __init__(self) -> None:
         self.seen = []
 
-    def update(self, estimate: Estimate) -> dict:
+    def update(self, estimate: Estimate) -> CompensatorUpdate:
         self.seen.append(estimate)
         if len(self.seen) == 2:
             raise RuntimeError("model not ready")
-        return {"gain": 1.0 + len(self.seen), "waveform_a": np.sin(np.linspace(0, 2 * np.pi, 64, endpoint=False)),
-                "frequency_hz": 320.0}
+        return CompensatorUpdate({"gain": 1.0 + len(self.seen)},
+                                 waveform_a=np.sin(np.linspace(0, 2 * np.pi, 64, endpoint=False)), frequency_hz=320.0)
 
 
 def test_compensator_hook_publishes_state_applies_waveforms_and_survives_errors() -> None:
@@ -248,6 +249,51 @@ def test_compensator_hook_publishes_state_applies_waveforms_and_survives_errors(
     assert "model not ready" in states[1]["error"]
     assert states[0]["gain"] == 2.0 and states[0]["waveform_applied"] and "waveform_a" not in states[0]
     assert waves and waves[0] == (64, 320.0)
+
+
+class _Commands:
+    """A Controllable that only notes the commands it is given, in order."""
+
+    def __init__(self) -> None:
+        self.done: list[tuple] = []
+
+    def set_excitation(self, frequency_hz=None, current_pp_a=None, offset_a=None) -> None:
+        self.done.append(("excitation", frequency_hz, current_pp_a, offset_a))
+
+    def set_output(self, on: bool) -> None:
+        self.done.append(("output", on))
+
+    def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
+        self.done.append(("waveform", len(current_a), frequency_hz))
+
+
+def test_the_hook_applies_the_update_fields_and_publishes_only_the_state() -> None:
+    """The update's commands are typed fields apart from its state: output off first, then the
+    waveform (at its frequency, else the estimate's); the state is published with what was done."""
+    est = Estimate(0, 100, 0, nominal_frequency_hz=160.0, current_pp_a=1.0, frequency_hz=160.01,
+                   delays_s={"hysteresis": 1e-5})
+    both = CompensatorUpdate({"status": "stopped: diverging", "frequency_hz": 999.0}, output_off=True,
+                             waveform_a=[0.0, 1.0, 0.0, -1.0])
+    replies = iter([both, CompensatorUpdate({"k": 1}), None, {"waveform_a": [0.0, 1.0], "output_off": True}])
+
+    class Comp:
+        def update(self, estimate: Estimate) -> object:
+            return next(replies)
+
+    src = _Commands()
+    hook = CompensatorHook(Comp(), src)
+    assert isinstance(src, Controllable)
+    state = hook(est)
+    assert src.done == [("output", False), ("waveform", 4, 160.0)]  # not the state's frequency_hz: not a command
+    assert state == {"status": "stopped: diverging", "frequency_hz": 999.0, "output_switched_off": True,
+                     "waveform_applied": True}
+    assert hook.tripped == "stopped: diverging"
+    assert hook(est) == {"k": 1} and hook(est) is None and len(src.done) == 2
+    # an untyped dict is someone else's old-style state: refused and reported, its "commands" not applied
+    refused = hook(est)
+    assert "CompensatorUpdate" in refused["error"] and hook.errors == 1 and len(src.done) == 2
+    with pytest.raises(ValueError, match="waveform_a"):
+        CompensatorUpdate({}, waveform_a=np.zeros((2, 3)))
 
 
 def test_stop_is_prompt_and_a_failing_source_is_reported() -> None:

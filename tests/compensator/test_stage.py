@@ -41,14 +41,16 @@ def estimate(theta_deg, f=320.008, error=None, table=0):
 def test_paper_model_follows_the_live_theta_and_resends_only_on_change(models_pm):
     stage = CompensatorStage(models_pm["paper"], ForceReference.parse(REF), current_limit_a=1.8)
     first = stage.update(estimate(1.50))
-    assert first["waveform_a"].shape == (1000,) and first["frequency_hz"] == 320.0
-    assert first["theta_live_deg"] == pytest.approx(1.50) and first["theta_model_deg"] == pytest.approx(1.50)
-    assert "waveform_a" not in stage.update(estimate(1.50))
-    assert "waveform_a" not in stage.update(estimate(1.55))  # 0.3 x 0.05 deg: below the retune step
+    assert first.waveform_a.shape == (1000,) and first.frequency_hz == first.state["frequency_hz"] == 320.0
+    assert not first.output_off and "waveform_a" not in first.state  # the command is not published
+    assert first.state["theta_live_deg"] == pytest.approx(1.50) and first.state["theta_model_deg"] == pytest.approx(1.50)
+    assert stage.update(estimate(1.50)).waveform_a is None
+    assert stage.update(estimate(1.55)).waveform_a is None  # 0.3 x 0.05 deg: below the retune step
     moved = stage.update(estimate(1.80))
-    assert "waveform_a" in moved and moved["theta_model_deg"] == pytest.approx(moved["theta_live_deg"])
+    assert moved.waveform_a is not None and moved.state["theta_model_deg"] == pytest.approx(moved.state["theta_live_deg"])
     lead = lambda w: np.degrees(np.angle(np.fft.rfft(w)[1]))  # noqa: E731
-    assert lead(moved["waveform_a"]) > lead(first["waveform_a"])  # more lag measured, more lead given
+    assert lead(moved.waveform_a) > lead(first.waveform_a)  # more lag measured, more lead given
+    assert first.waveform_a is not stage.current_a  # a copy: the stage's next table does not change a sent one
     assert stage.update(estimate(1.5, error="flat channel")) is None
     assert "refused" in stage.state()["status"] and stage.state()["tables_sent"] == 2
 
@@ -58,8 +60,8 @@ def test_our_model_puts_a_drift_of_theta_into_its_eddy_time_constant(models_pm):
     own = stage.state()["theta_model_deg"]
     tau0 = stage.state()["tau_s"]
     s = stage.update(estimate(own + 0.3))
-    assert s["tau_s"] > tau0 and "waveform_a" in s
-    assert s["theta_model_deg"] == pytest.approx(own + 0.3, abs=0.05)
+    assert s.state["tau_s"] > tau0 and s.waveform_a is not None
+    assert s.state["theta_model_deg"] == pytest.approx(own + 0.3, abs=0.05)
 
 
 def test_stage_with_the_live_estimator(models_pm):
@@ -76,9 +78,9 @@ def test_stage_with_the_live_estimator(models_pm):
         for e in est.push(rig.read(5000)):
             s = stage.update(e)
             if s is not None:
-                states.append(s)
-                if "waveform_a" in s:
-                    rig.set_waveform(s.pop("waveform_a"), s["frequency_hz"])
+                states.append(s.state)
+                if s.waveform_a is not None:
+                    rig.set_waveform(s.waveform_a, s.frequency_hz)
     assert states and states[0]["tables_sent"] == 1
     assert 1.0 < states[-1]["theta_live_deg"] < 1.8  # flux behind current at 320 Hz with magnet
 
@@ -192,6 +194,7 @@ def test_online_learning_that_diverges_switches_the_output_off_and_says_why(mode
     rig, states = run_online(stage, blocks=120)
     off = [s for s in states if s.get("output_switched_off")]
     assert len(off) == 1 and "diverging" in off[0]["status"] and "output off" in off[0]["status"]
+    assert not any("output_off" in s or "waveform_a" in s for s in states)  # commands are not published
     assert not rig.output_enabled
     assert states[-1] is off[0]  # nothing after the stop
 
@@ -259,12 +262,12 @@ def test_learning_uses_only_windows_of_the_last_table_sent(models_pm):
     win = period_window(stage.current_a)
     learned = lambda: len(stage.learner.history)  # noqa: E731
     first = stage.update(estimate(1.5, table=0), win)
-    assert "waveform_a" in first and learned() == 0  # the sine's window: nothing to learn from
+    assert first.waveform_a is not None and learned() == 0  # the sine's window: nothing to learn from
     late = stage.update(estimate(2.5, table=0), win)  # theta moved: a second table
-    assert "waveform_a" in late and learned() == 0
+    assert late.waveform_a is not None and learned() == 0
     assert stage.update(estimate(2.5, table=1), win) is not None and learned() == 0  # the first
     s = stage.update(estimate(2.5, table=2), period_window(stage.current_a))
-    assert learned() == 1 and "waveform_a" in s and s["learning"]["iteration"] == 0
+    assert learned() == 1 and s.waveform_a is not None and s.state["learning"]["iteration"] == 0
     stage.update(estimate(2.5, table=5), win)  # someone else's command played
     assert learned() == 1
 
@@ -276,5 +279,5 @@ def test_a_retune_out_of_reach_leaves_the_stage_as_it_was(models_pm):
     model, table = stage.model, stage.current_a.copy()
     stage.limit_a = stage.learner.limit_a = 0.1  # any new table is now out of reach
     s = stage.update(estimate(stage.state()["theta_model_deg"] + 5.0))
-    assert "holding the last table" in s["status"] and "waveform_a" not in s
+    assert "holding the last table" in s.state["status"] and s.waveform_a is None and not s.output_off
     assert stage.model is model and stage.learner.model is model and np.array_equal(stage.current_a, table)
