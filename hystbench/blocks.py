@@ -4,6 +4,11 @@ Time inside the pipeline is an integer sample index plus the sample rate; nanose
 only at the boundaries (MCAP, zenoh).  Channel names are the recording-format column names
 (``current_A``, ``force_N``, ``flux_Wb``, ``sense_V``, ``command_V``) so that a block, a CSV
 recording and an MCAP log all say the same thing the same way.
+
+What the generator played while a block was sampled is its ``point``, a typed
+:class:`~hystbench.messages.OperatingPoint`; ``meta`` is that point's wire form (a flat mapping of
+numbers: what the raw-block codec writes, MCAP and zenoh alike) together with anything else a driver
+notes (e.g. a channel's skew).  ``point`` is read from ``meta`` once, the first time it is asked.
 """
 
 from __future__ import annotations
@@ -13,6 +18,8 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
+
+from .messages import OPERATING_KEYS, OperatingPoint
 
 #: Channels the recording format defines, with their units.
 CHANNEL_UNITS: Mapping[str, str] = {
@@ -36,7 +43,8 @@ class BlockFlags(enum.IntFlag):
 
 @dataclass(frozen=True)
 class SampleBlock:
-    """Samples ``first_index .. first_index + n - 1`` of every channel, at ``fs_hz``."""
+    """Samples ``first_index .. first_index + n - 1`` of every channel, at ``fs_hz``; ``meta``
+    (numbers by name, the operating point's among them) is not changed once the block is made."""
 
     first_index: int
     fs_hz: float
@@ -58,6 +66,19 @@ class SampleBlock:
     @property
     def n(self) -> int:
         return self._n  # type: ignore[attr-defined]
+
+    @property
+    def point(self) -> OperatingPoint | None:
+        """The operating point the block was played at, read from ``meta`` on first use and kept;
+        None when ``meta`` names none (no key of ``OPERATING_KEYS``: a driver's raw block, a
+        hand-made one).  Keys such a meta lacks are :meth:`OperatingPoint.from_meta`'s defaults."""
+        try:
+            return self._point  # type: ignore[attr-defined]
+        except AttributeError:
+            meta = self.meta
+            point = OperatingPoint.from_meta(meta) if any(k in meta for k in OPERATING_KEYS) else None
+            object.__setattr__(self, "_point", point)
+            return point
 
     @property
     def end_index(self) -> int:

@@ -10,8 +10,9 @@ zenoh alike) writes it as ``null`` (NaN is not JSON) and ``from_json`` reads ``n
 log registers from the fields, so the schema cannot drift from the class.
 
 A block keeps its operating point in ``SampleBlock.meta`` as a flat mapping of numbers (what the
-raw-block codec writes and old logs hold); code builds and reads that mapping only through
-:meth:`OperatingPoint.to_meta` and :meth:`OperatingPoint.from_meta`.
+raw-block codec writes and old logs hold); code builds that mapping only through
+:meth:`OperatingPoint.to_meta`, and reads it as the block's typed ``SampleBlock.point`` (read once per
+block by :meth:`OperatingPoint.from_meta`; None for a block whose meta names no operating point).
 
 The recording sidecar (``frequency_Hz``, ``current_pp_A``, ``sample_rate_Hz``) is the interchange
 format's spelling: it is translated in :mod:`hystbench.formats.recording` only, never here.
@@ -32,7 +33,8 @@ import numpy as np
 
 from .errors import RecordingError
 
-__all__ = ["OperatingPoint", "Estimate", "CompensatorUpdate", "OPERATING_KEYS", "json_schema", "json_bytes"]
+__all__ = ["OperatingPoint", "UNKNOWN_POINT", "Estimate", "CompensatorUpdate", "OPERATING_KEYS", "json_schema",
+           "json_bytes"]
 
 #: Block meta keys that name the operating point (the fields of :class:`OperatingPoint`, in order):
 #: a change of any of them starts a new run of the estimator and a new segment of a log.
@@ -215,7 +217,7 @@ class OperatingPoint:
     def from_meta(cls, meta: Mapping[str, Any], default: "OperatingPoint | None" = None) -> "OperatingPoint":
         """The point a block's meta names; keys it lacks are ``default``'s (the source's nominal
         point), or the field defaults with NaN frequency, current and offset when there is none."""
-        d = _UNKNOWN if default is None else default
+        d = UNKNOWN_POINT if default is None else default
         get = meta.get
         f, ipp, off, on, settling, table = (get(k) for k in OPERATING_KEYS)  # the fields, in order
         return cls(d.frequency_hz if f is None else float(f),
@@ -237,7 +239,8 @@ class OperatingPoint:
         return json_schema(cls, cls.SCHEMA_TITLE, "The operating point a block was played at")
 
 
-_UNKNOWN = OperatingPoint(math.nan, math.nan, math.nan)  # what a block without meta says
+#: What a block whose meta names no operating point says: frequency, current and offset not known (NaN).
+UNKNOWN_POINT = OperatingPoint(math.nan, math.nan, math.nan)
 
 
 # --- the estimate ------------------------------------------------------------------------------------------

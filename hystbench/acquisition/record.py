@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 from ..errors import BenchError, RecordingError
 from ..formats.mcaplog import McapRecorder, McapSource, iter_blocks
-from ..messages import OperatingPoint
 from .pipeline import Pipeline
 from .stages import WindowEstimator
 
@@ -71,7 +70,7 @@ def has_measurement(log: str | Path) -> bool:
     first command are no measurement); an unreadable log counts as holding one, so that nothing
     that may hold data is ever deleted on its strength (``hystbench recover`` salvages it)."""
     try:
-        return any(OperatingPoint.from_meta(b.meta).output_on for b in iter_blocks(log))  # no meta: on
+        return any(b.point is None or b.point.output_on for b in iter_blocks(log))  # no meta: on
     except BenchError:
         return True
 

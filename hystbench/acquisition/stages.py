@@ -132,7 +132,7 @@ class WindowEstimator:
     def append(self, block: SampleBlock) -> None:
         if block.n == 0:
             return
-        point = OperatingPoint.from_meta(block.meta, self.nominal)
+        point = block.point if block.point is not None else self.nominal
         if point != self._point or block.first_index != self._end:
             self._begin(block, point)
         self._end = block.end_index

@@ -39,13 +39,12 @@ def format_message(keyexpr: str, payload: bytes) -> str:
     """One line for one zenoh sample (estimate, status, stats, raw block, anything JSON)."""
     if _is_raw(keyexpr):
         from ..formats.raw_block import decode
-        from ..messages import OperatingPoint
 
         b = decode(payload, keyexpr)
         parts = [f"{c} mean {float(x.mean()):.6g} rms {float((x.astype(float) ** 2).mean()) ** 0.5:.6g}"
                  for c, x in b.channels.items()]
-        p = OperatingPoint.from_meta(b.meta)
-        at = "" if not b.meta else f" {p.frequency_hz:g} Hz {p.current_pp_a:g} A-pp" + (
+        p = b.point
+        at = "" if p is None else f" {p.frequency_hz:g} Hz {p.current_pp_a:g} A-pp" + (
             " off" if not p.output_on else " settling" if p.settling else "")
         return f"{keyexpr} [{b.first_index}..{b.end_index}){at} " + "; ".join(parts)
     try:

@@ -289,3 +289,26 @@ def test_the_estimate_schema_in_a_log_is_exactly_the_estimate_type(tmp_path: Pat
         assert all(_conforms(e[k], p) for k, p in schema["properties"].items()), e
         assert json.loads(json.dumps(Estimate.from_json(e).to_json())) == e
         assert e["harmonic"] == 1 and abs(e["delays_s"]["hysteresis"] - 10e-6) < 0.5e-6  # the synthetic flux lag
+
+
+def test_a_block_s_point_survives_the_log(tmp_path: Path) -> None:
+    """The typed point is the meta's reading: what a log hands back is the point each block was
+    recorded with (settling, table and output off included), and no point where a block had none."""
+    from hystbench.messages import OperatingPoint
+
+    played = [OperatingPoint(320.0, 1.4), OperatingPoint(160.0, 0.8, offset_a=0.1, settling=True, table=2),
+              OperatingPoint(160.0, 0.8, output_on=False, table=2)]
+    bl = [SampleBlock(b.first_index, FS, b.channels, meta=p.to_meta()) for b, p in zip(blocks(3), played)]
+    bl.append(SampleBlock(1500, FS, blocks(1, start=1500)[0].channels, meta={"skew_s.force_N": 2e-6}))
+    log = tmp_path / "points.mcap"
+    with McapRecorder(log, metadata={"recording": META}, idle_raw="full") as rec:
+        for b in bl:
+            rec.add_block(b)
+    back = list(iter_blocks(log))
+    assert [b.point for b in back] == [*played, None]
+    assert [dict(b.meta) for b in back] == [dict(b.meta) for b in bl]  # the wire form is the meta, unchanged
+    with McapRecorder(tmp_path / "active.mcap", metadata={"recording": META}, idle_raw="off") as rec:
+        for b in bl:
+            rec.add_block(b)
+    kept = list(iter_blocks(tmp_path / "active.mcap"))  # output off is dropped; no point is taken as on
+    assert [b.point for b in kept] == [played[0], played[1], None]

@@ -27,7 +27,7 @@ from typing import Any, Iterable, Iterator
 
 from ...blocks import BlockFlags, SampleBlock
 from ...errors import RecordingError
-from ...messages import OperatingPoint
+from ...messages import UNKNOWN_POINT, OperatingPoint
 from ..raw_block import decode
 from ..recording import Recording, with_point
 from .chunks import MAGIC, MAX_RECORD_BYTES, chunk_records
@@ -163,7 +163,7 @@ def iter_blocks(path: str | Path) -> Iterator[SampleBlock]:
 
 
 def _point(block: SampleBlock) -> OperatingPoint:
-    return OperatingPoint.from_meta(block.meta)
+    return UNKNOWN_POINT if block.point is None else block.point
 
 
 @dataclass
