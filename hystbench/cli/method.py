@@ -85,13 +85,16 @@ def _print_identify(rep: dict, con) -> None:
         for col in ("parameter", "fitted", "±", "paper"):
             t.add_column(col, justify="left" if col == "parameter" else "right")
         paper = {"fn_Hz": "4450", "zeta_n": "0.012", "f0_Hz": "31000", "zeta_0": "1", "force_constant_N_per_A": "-"}
+        poor = rep.get("poorly_constrained", {})
         for k, v in rep["parameters"].items():
-            t.add_row(k, _fmt(v, 5), _fmt(rep["std"][k], 2), paper.get(k, ""))
+            t.add_row(k, _fmt(v, 5) + (" *" if k in poor else ""), _fmt(rep["std"][k], 2), paper.get(k, ""))
         t.add_row("phase at 320 Hz (deg)", f"{rep['phase_at_320Hz_deg']:.3f}",
                   _fmt(rep["phase_at_320Hz_std_deg"], 2), "about -1.28")
         con.print(t)
         con.print(f"fit residuals: {rep['rms_phase_residual_deg']:.2f} deg, {rep['rms_magnitude_residual_pct']:.2f} % "
                   f"rms (reduced chi2 {rep['reduced_chi2']:.3g})")
+        for k, why in poor.items():
+            con.print(f"* {k} = {_fmt(rep['parameters'][k], 4)} ± {_fmt(rep['std'][k], 2)}: {why}")
         con.print(f"against {rep['reference']}: {rep['eddy']['verdict']}")
         if "note" in rep:
             con.print(f"note: {rep['note']}")

@@ -27,9 +27,36 @@ def _instrument_report(name: str, fit, eddy, reference: str, own_is_model: bool)
            "frequency_range_Hz": [float(fit.response.freq_hz[0]), float(fit.response.freq_hz[-1])],
            "benchmark": own_is_model, "reference": reference, "eddy": eddy.as_dict(),
            "eddy_lag_flag": eddy.significant}
+    out["poorly_constrained"] = _poorly_constrained(fit)
     if not own_is_model:
         out["note"] = ("the two-filter fit above is this coil's own: it absorbs any eddy lag of its magnet, so "
                        "the instrument model is the reference's")
+    return out
+
+
+#: a fitted corner frequency whose standard error exceeds this fraction of it is called poorly constrained
+POOR_REL_STD = 0.25
+#: each corner frequency of the two-filter model, with the damping that goes with it
+_CORNERS = {"fn_Hz": "zeta_n", "f0_Hz": "zeta_0"}
+
+
+def _poorly_constrained(fit) -> dict[str, str]:
+    """The fitted corner frequencies the sweep hardly constrains, each with why: one above the
+    highest measured frequency is an extrapolation of the response's slope (its number is the fit's,
+    not the sweep's); one whose uncertainty is large relative to it is not measured either."""
+    f_max = float(fit.response.freq_hz.max())
+    out = {}
+    for key, damping in _CORNERS.items():
+        value, std = fit.params.get(key), fit.std.get(key)
+        if value is None:
+            continue
+        if value > f_max:
+            why = f"above the sweep (max {f_max:.4g} Hz)"
+        elif std is not None and std > POOR_REL_STD * value:
+            why = f"uncertain by {100 * std / value:.0f} % of itself"
+        else:
+            continue
+        out[key] = f"{why}: poorly constrained ({damping} with it); a sweep beyond it would measure it"
     return out
 
 
