@@ -172,6 +172,7 @@ class Pipeline:
         #: the source's sample index one past the last block written to the ring (None: no block
         #: yet); its own sample clock, however fast or slow it runs against the wall clock
         self.position: int | None = None
+        self.last_meta: Mapping[str, Any] = {}  # that block's meta: the operating point it was played at
         self._index_waits: list[list] = []  # [index or None (from the first block), n, Event]
         self._index_lock = threading.Lock()
         self._queue: queue.Queue = queue.Queue(queue_size)
@@ -340,7 +341,7 @@ class Pipeline:
     def _arrived_at(self, block: SampleBlock) -> None:
         """Move :attr:`position` to the end of ``block`` and set the waits it reached."""
         with self._index_lock:
-            self.position = block.end_index
+            self.position, self.last_meta = block.end_index, block.meta
             if self._index_waits:
                 for w in self._index_waits:
                     if w[0] is None:

@@ -450,4 +450,17 @@ class BenchService:
                 "commands_refused": self.bus.refused if self.bus is not None else 0,
                 "faults": len(self.faults), "trips": self.trips, "last_fault": self.last_fault,
                 "output_refused": self.why_output_off() or None,
-                "pipeline_error": repr(p.error) if p and p.error else None, "last_estimate_error": self.last_error}
+                "pipeline_error": repr(p.error) if p and p.error else None, "last_estimate_error": self.last_error,
+                **self.excitation()}
+
+    def excitation(self) -> dict:
+        """What the generator plays: ``output_on``, ``frequency_hz``, ``current_pp_a``, ``offset_a``,
+        as the last block the pipeline received was played (``as_of`` "played"); before any block,
+        or from a source whose blocks carry no operating point, the last excitation commanded, the
+        output's state unknown (None)."""
+        meta = self.pipeline.last_meta if self.pipeline is not None else {}
+        played = bool(meta)
+        point = OperatingPoint.from_meta(meta, default=self.point)
+        return {"output_on": point.output_on if "output_on" in meta else None,
+                "frequency_hz": point.frequency_hz, "current_pp_a": point.current_pp_a, "offset_a": point.offset_a,
+                "as_of": "played" if played else "commanded"}

@@ -143,7 +143,12 @@ def _format_reply(bench: str, verb: str, reply: dict) -> str:
     if verb == "health":
         return "\n".join(f"{k}: {v}" for k, v in reply.items())
     if verb == "status":
-        parts = [f"{reply.get('state', '?')}", f"source {reply.get('source', '?')}"]
+        on = reply.get("output_on")
+        output = f"output {'on' if on else 'off' if on is False else 'unknown'}"
+        if all(isinstance(reply.get(k), (int, float)) for k in ("frequency_hz", "current_pp_a", "offset_a")):
+            output += (f" at {reply['frequency_hz']:g} Hz, {reply['current_pp_a']:g} A-pp, offset "
+                       f"{reply['offset_a']:g} A" + (" (commanded)" if reply.get("as_of") == "commanded" else ""))
+        parts = [f"{reply.get('state', '?')}", output, f"source {reply.get('source', '?')}"]
         if isinstance(reply.get("uptime_s"), (int, float)):
             parts.append(f"up {reply['uptime_s']:.0f} s")
         parts += [f"{reply.get('samples', 0)} samples", f"{reply.get('estimates', 0)} estimates",
@@ -227,7 +232,8 @@ def _register_ctl(subparsers) -> None:
     v.add_argument("--freq", type=positive_float, help="frequency, Hz")
     v.add_argument("--ipp", type=nonnegative_float, help="peak-to-peak current, A")
     v.add_argument("--offset", type=finite_float, help="DC offset, A")
-    verbs.add_parser("status", parents=[shared], help="one line: state, source, samples, estimates, log")
+    verbs.add_parser("status", parents=[shared], help="one line: state, output on/off with its frequency, current and "
+                                                      "offset, source, samples, estimates, log")
     verbs.add_parser("health", parents=[shared], help="the health queryable, every field")
     verbs.add_parser("config", parents=[shared], help="the running configuration (JSON)")
     p.set_defaults(func=cmd_ctl)

@@ -86,7 +86,7 @@ def test_sweep_refusal_status_and_config(bench, capsys) -> None:
     assert code == 1 and out == ""
     assert "hystbench ctl: bench 't1' refused start_sweep:" in err and "a sweep is running" in err
     code, out, err = run(base + ["status"], capsys)
-    assert code == 0 and out.startswith("t1: sweeping; source ")
+    assert code == 0 and out.startswith("t1: sweeping; output ") and "; source " in out
     code, out, err = run(base + ["stop_sweep", "--json"], capsys)
     assert code == 0 and json.loads(out)["ok"] is True
     code, out, err = run(base + ["config", "--json"], capsys)
