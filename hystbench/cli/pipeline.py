@@ -102,19 +102,24 @@ def cmd_watch(args: argparse.Namespace) -> int:
 
     session = open_client(args.connect, args.zenoh_config)
     sub = Subscription(session, args.keyexpr)
-    n = 0
+    endpoint = describe_endpoint(args.connect, args.zenoh_config)
+    n, stopped = 0, False
     try:
-        for key_, payload in _watch_items(sub, args.keyexpr, describe_endpoint(args.connect, args.zenoh_config),
+        for key_, payload in _watch_items(sub, args.keyexpr, endpoint,
                                           count=args.count, seconds=args.seconds, quiet_after_s=args.quiet_after):
             line = json.dumps({"key": key_, **json.loads(payload)}) if args.json and not _is_raw(key_) \
                 else format_message(key_, payload)
             print(line, flush=True)
             n += 1
-    except KeyboardInterrupt:
-        pass
+    except KeyboardInterrupt:  # the usual way to end a watch: not a failure
+        stopped = True
     finally:
         sub.close()
         session.close()
+    if n == 0 and not stopped:  # the time ran out on silence: a script must not read that as success
+        print(f"hystbench watch: nothing received on {args.keyexpr} via {endpoint} in {args.seconds:g} s",
+              file=sys.stderr)
+        return 1
     if args.count is not None and n < args.count:
         print(f"hystbench watch: {n} of {args.count} messages on {args.keyexpr} before the time ran out",
               file=sys.stderr)
@@ -424,7 +429,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--zenoh-config", metavar="FILE", type=path_arg,
                    help="zenoh json5 config (e.g. with user/password or TLS)")
     p.add_argument("--count", type=positive_int, help="stop after N messages (exit 1 if fewer came in --seconds)")
-    p.add_argument("--seconds", type=positive_float, help="stop after S seconds")
+    p.add_argument("--seconds", type=positive_float, help="stop after S seconds (exit 1 if nothing came)")
     p.add_argument("--json", action="store_true", help="one JSON object per line")
     p.add_argument("--quiet-after", type=nonnegative_float, default=5.0, metavar="S",
                    help="say on stderr when nothing arrived for S seconds (default 5; 0: never)")

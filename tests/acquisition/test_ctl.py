@@ -116,7 +116,7 @@ def test_watch_says_once_that_no_publisher_is_seen(capsys) -> None:
     ep = f"tcp/127.0.0.1:{free_port()}"
     code, out, err = run(["watch", "hystbench/none/estimate", "--connect", ep, "--quiet-after", "0.2",
                           "--seconds", "1"], capsys)
-    assert code == 0 and out == ""
+    assert code == 1 and out == ""  # nothing came: issue 30
     lines = [ln for ln in err.splitlines() if "no publisher seen" in ln]
     assert len(lines) == 1
     assert f"no publisher seen on hystbench/none/estimate via {ep}" in lines[0] and "still waiting" in lines[0]
