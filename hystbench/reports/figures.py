@@ -18,7 +18,8 @@ from ..physics import presets  # noqa: E402
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["plt", "save_figure", "force_map_figure", "loops_figure", "check_ecore"]
+__all__ = ["plt", "save_figure", "force_map_figure", "loops_figure", "draw_nested_loops", "zoom_on_the_middle",
+           "check_ecore"]
 
 
 def save_figure(fig: Figure, path: Path, dpi: int = 110) -> Path:
@@ -51,7 +52,8 @@ def force_map_figure(rig: str, out: Path) -> Path:
     i, z = np.meshgrid(current, airgap * 1e3, indexing="ij")
     fig = plt.figure(figsize=(7, 5))
     ax = fig.add_subplot(projection="3d")
-    ax.plot_surface(i, z, force, cmap="viridis", edgecolor="none")
+    surface = ax.plot_surface(i, z, force, cmap="viridis", edgecolor="none")
+    fig.colorbar(surface, ax=ax, shrink=0.6, pad=0.12, label="$F_z$ (N)")
     ax.set_xticks([-2, -1, 0, 1, 2])
     ax.view_init(elev=25, azim=-130)
     ax.set_xlabel("Current (A)")
@@ -66,11 +68,45 @@ def loops_figure(curves: list[tuple[str, np.ndarray, np.ndarray]], xlabel: str, 
                  title: str, out: Path) -> Path:
     """One panel of loops (label, x, y), e.g. current vs force per frequency (paper Figs. 10, 14)."""
     fig, ax = plt.subplots(figsize=(6.4, 4.6))
-    for label, x, y in curves:
-        ax.plot(x, y, label=label, lw=1.2)
+    draw_nested_loops(ax, curves)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left")
+    zoom_on_the_middle(ax, curves)
     return save_figure(fig, out, dpi=120)
+
+
+def zoom_on_the_middle(ax, curves) -> None:
+    """An inset magnifying the loops' middle (a tenth of the x range), where their openings differ
+    most visibly; skipped when the loops are too few or too flat to need it."""
+    xs = np.concatenate([np.asarray(x, float) for _, x, _ in curves])
+    lo, hi = float(xs.min()), float(xs.max())
+    if len(curves) < 2 or not hi > lo:
+        return
+    mid, half = 0.5 * (lo + hi), 0.05 * (hi - lo)
+    ys = np.concatenate([np.asarray(y, float)[np.abs(np.asarray(x, float) - mid) <= half] for _, x, y in curves])
+    if ys.size < 2 or not np.ptp(ys) > 0:
+        return
+    inset = ax.inset_axes([0.58, 0.07, 0.39, 0.38])
+    draw_nested_loops(inset, curves, width=0.5)
+    pad = 0.08 * float(np.ptp(ys))
+    inset.set_xlim(mid - half, mid + half)
+    inset.set_ylim(float(ys.min()) - pad, float(ys.max()) + pad)
+    inset.tick_params(labelsize=6)
+    inset.set_title("middle, magnified", fontsize=7)
+    ax.indicate_inset_zoom(inset, edgecolor="0.4")
+
+
+def draw_nested_loops(ax, curves, *, width: float = 1.0, **kw) -> None:
+    """Loops that lie almost on one another (one per frequency, each barely wider than the one
+    before) all visible: the first is drawn last and thinnest, on top, each earlier-listed one
+    thinner than the next, so every loop shows as its own coloured band; the legend keeps the
+    given order.  ``width``: the first loop's line width, pt (the others scale with it)."""
+    n = len(curves)
+    colours = [plt.get_cmap("tab10")(k % 10) for k in range(n)]  # neighbours distinct, not a ramp
+    widths = width * np.linspace(1.0, 1.0 + 0.9 * (n - 1), n)
+    for k, (label, x, y) in enumerate(curves):
+        ax.plot(x, y, label=label, lw=float(widths[k]), color=colours[k], zorder=2 + n - k, solid_capstyle="round",
+                **kw)

@@ -10,7 +10,7 @@ import numpy as np
 from ..config import load_rig
 from ..analysis.force_error import ForceError, analytical_model
 from .paper import EcoreRun, PaperResult
-from .figures import plt, save_figure as _save
+from .figures import draw_nested_loops, plt, save_figure as _save, zoom_on_the_middle
 
 __all__ = ["paper_figures"]
 
@@ -101,19 +101,22 @@ def _instrument_model(res: PaperResult, out: Path) -> Path:
 # --- Secs. V-VII: the E-core ---------------------------------------------------------------------
 def _analytic(ax, run: EcoreRun, fe: ForceError):
     i = np.linspace(fe.current_a.min(), fe.current_a.max(), 200)
-    ax.plot(i, analytical_model(run.rig).static_force(i), "k--", lw=1.3, label="Analyt. model")
+    ax.plot(i, analytical_model(run.rig).static_force(i), "k--", lw=1.3, label="Analyt. model", zorder=20)
 
 
 def _loops(run: EcoreRun, out: Path, fig_no: str, title: str) -> Path:
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.4))
     series = run.series()
-    for fe in series:
-        lab = f"{fe.nominal_frequency_hz:g} Hz, meas."
-        a.plot(_closed(fe.current_a), _closed(fe.force_n), lw=1, label=lab)
-        b.plot(_closed(fe.current_a), _closed(fe.errors_n["before"]), lw=1, label=lab)
+    labels = [f"{fe.nominal_frequency_hz:g} Hz, meas." for fe in series]
+    # nested: the loops lie almost on one another, and drawn alike the last hid the first (40 Hz)
+    forces = [(lab, _closed(fe.current_a), _closed(fe.force_n)) for lab, fe in zip(labels, series)]
+    draw_nested_loops(a, forces)
+    draw_nested_loops(b, [(lab, _closed(fe.current_a), _closed(fe.errors_n["before"]))
+                          for lab, fe in zip(labels, series)])
     _analytic(a, run, series[0])
     _sym(b, [fe.errors_n["before"] for fe in series])
     _style(a, _I, _FZ, title="(a) current vs force")
+    zoom_on_the_middle(a, forces)
     _style(b, _I, _DF, title="(b) force error, Eq. 5 (measured - Eq. 1)")
     fig.suptitle(f"Fig. {fig_no}: {title}", fontsize=11)
     return _save(fig, out)
