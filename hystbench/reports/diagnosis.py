@@ -108,7 +108,7 @@ def loops_figure(loops: Loops, path: Path, noise_floor: Mapping[str, float] | No
     floors = {ch: (noise_floor or {}).get(ch) for ch in judged}
     scaled = all(v is not None and v > 0 for v in floors.values())
     fig, axes = plt.subplots(2, len(panels) + 1, figsize=(4.6 * (len(panels) + 1), 7.2), squeeze=False)
-    lim = 0.0
+    lims = [0.0, 0.0]  # the residual's largest |value| before, after
     for row, (label, predicted) in enumerate((("before: calibrated baseline", loops.before),
                                               ("after: with the named effects", loops.after))):
         colour = "C3" if row == 0 else "C2"
@@ -127,7 +127,7 @@ def loops_figure(loops: Loops, path: Path, noise_floor: Mapping[str, float] | No
         for ch, style in zip(judged, ("-", "--")):
             if ch in predicted:
                 r = (np.asarray(m[ch]) - np.asarray(predicted[ch])) / (floors[ch] if scaled else 1.0)
-                lim = max(lim, float(np.max(np.abs(r))))
+                lims[row] = max(lims[row], float(np.max(np.abs(r))))
                 ax.plot(np.append(loops.phase, loops.phase[0] + 1.0), _closed(r), style, color=colour, lw=1.2,
                         label=ch.split("_")[0])
         ax.axhline(0.0, color="grey", lw=0.6)
@@ -135,9 +135,15 @@ def loops_figure(loops: Loops, path: Path, noise_floor: Mapping[str, float] | No
         ax.set_ylabel("measured - predicted" + (" (noise floors)" if scaled else " (channel units)"))
         ax.set_title(f"{label.split(':')[0]}: residual over the period", fontsize=9)
         ax.legend(fontsize=7, loc="best")
-    if lim > 0:
-        for row in range(2):
-            axes[row][-1].set_ylim(-1.1 * lim, 1.1 * lim)  # one scale: the shrink reads at a glance
+    # each residual on its own scale: on the before's, a good after is a flat line that shows nothing;
+    # the after's label says how much smaller its scale is, so the shrink still reads
+    for row, lim in enumerate(lims):
+        if lim > 0:
+            axes[row][-1].set_ylim(-1.1 * lim, 1.1 * lim)
+    if lims[0] > 0 and lims[1] > 0:
+        ax = axes[1][-1]
+        ax.set_ylabel(f"{ax.get_ylabel()}\nits own scale: {lims[1] / lims[0]:.2g} x the before's", fontsize=9)
+        ax.set_title(f"{ax.get_title()} (own scale)", fontsize=9)
     fig.suptitle(f"held-out recording {loops.recording} ({loops.rig}, {loops.frequency_hz:g} Hz, "
                  f"{loops.current_pp_a:g} A-pp)", fontsize=10)
     return save_figure(fig, path)
