@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -10,11 +11,19 @@ from matplotlib.colors import SymLogNorm
 from ..analysis.diagnosis.locate import Located
 from .figures import plt, save_figure
 
-__all__ = ["heat_map"]
+__all__ = ["heat_map", "CAPTION", "NO_CELL"]
 
 #: |z| below this is chance (a few units); the colour scale is linear there, logarithmic above,
 #: so z = 5 and z = 500 are both told apart.
 LINEAR_Z = 3.0
+
+
+#: what a grey cell is
+NO_CELL = "Grey: no such cell (that recording lacks the channel or the harmonic)"
+#: the caption under the map: what its rows and colours mean
+CAPTION = ("Rows: view (channel pair) and k, the harmonic (k x the excitation frequency; k = 0 the mean; "
+           "'line' rows: mains lines). Colour: z, how far the residual lies beyond its noise "
+           "(red: the model leaves something out; blue: fits better than its noise).")
 
 
 def heat_map(located: Located, path: Path) -> Path:
@@ -31,9 +40,9 @@ def heat_map(located: Located, path: Path) -> Path:
     top = float(np.nanmax(np.abs(z))) if np.isfinite(z).any() else LINEAR_Z
     top = max(top, 2 * LINEAR_Z)
     cmap = plt.get_cmap("RdBu_r").with_extremes(bad="0.85")
-    width = min(22.0, 3.5 + 0.28 * len(cols))
+    width = min(22.0, max(6.5, 3.5 + 0.28 * len(cols)))  # at least the caption's and colour bar's room
     height = min(30.0, 2.2 + 0.22 * len(rows))
-    fig, ax = plt.subplots(figsize=(width, height))
+    fig, ax = plt.subplots(figsize=(width, height + 0.8))  # + the caption's lines
     image = ax.imshow(np.ma.masked_invalid(z), aspect="auto", interpolation="nearest", cmap=cmap,
                       norm=SymLogNorm(linthresh=LINEAR_Z, vmin=-top, vmax=top, base=10))
     ax.set_yticks(range(len(rows)), rows, fontsize=8)
@@ -57,5 +66,10 @@ def heat_map(located: Located, path: Path) -> Path:
     if located.floor_note:
         title += f"\n{located.floor_note}"
     ax.set_title(title, fontsize=9)
-    ax.set_xlabel("recording (sweep order)")
+    ax.set_ylabel("view, k = harmonic")
+    # the caption under the map (in the x label, so the layout makes room for it): what k, the
+    # colours and a grey cell mean
+    caption = CAPTION + (" " + NO_CELL + "." if np.isnan(z).any() else "")
+    chars = int(14 * width)  # a line of the caption, in characters of its 8-pt font
+    ax.set_xlabel("recording (sweep order)\n\n" + textwrap.fill(caption, chars), fontsize=8, loc="left")
     return save_figure(fig, path)
