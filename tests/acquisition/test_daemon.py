@@ -22,7 +22,7 @@ from hystbench.formats.mcaplog import RAW, STATUS, iter_blocks, iter_log, log_me
 from hystbench.acquisition.zenoh_bus import free_port, load_zenoh_config, open_session, peer_config, query_json
 from hystbench.deadline import Deadline
 from hystbench.errors import CommandRefused, ConfigError, RecordingError
-from hystbench.messages import Estimate
+from hystbench.messages import CompensatorUpdate, Estimate
 
 from .conftest import HANG_S, ROOT, Daemon, health_when
 
@@ -216,9 +216,8 @@ def test_after_the_compensator_switched_the_output_off_it_stays_off(tmp_path: Pa
     svc = BenchService(load_daemon_config(cfg)).start()
     try:
         assert svc.command("output", {"on": True}) == {"output_on": True}  # nothing tripped yet
-        hook = CompensatorHook(type("Stopped", (), {"update": lambda self, e: {"output_off": True,
-                                                                                "status": "stopped: diverging"}})(),
-                               svc.source)
+        stopped = CompensatorUpdate({"status": "stopped: diverging"}, output_off=True)
+        hook = CompensatorHook(type("Stopped", (), {"update": lambda self, e: stopped})(), svc.source)
         assert hook(Estimate(0, 1000, 0, 320.0, 1.4)) == {"status": "stopped: diverging", "output_switched_off": True}
         # applied by the source before its next block: two blocks on, it is (the timeout bounds a hang)
         assert svc.pipeline.after_samples(2 * svc.source.block_samples).wait(HANG_S)
