@@ -358,16 +358,21 @@ class BenchSource:
         each with its operating point; commands are applied between blocks.
 
         A block is marked ``settling`` while it may hold samples made before the last command took
-        effect.  Where that ends is not where the reading stands (the cursor) but where the
-        instruments' clock stood when the command went out: the streams say so once their readers
-        have caught up with the transports (``Bench.live_index_after``); until then everything is
-        settling, however long a backlog (a starved reader, a full socket) takes to drain."""
+        effect, and for the instruments' response after.  Where the command takes effect is not
+        where the reading stands (the cursor) but where the instruments' clock stood when it went
+        out: the bench tells once the streams' readers have caught up with the transports
+        (``Bench.commanded`` / ``Bench.change_index``, the one way every user of a bench learns
+        it); until then everything is settling, however long a backlog (a starved reader, a full
+        socket) takes to drain.  Nothing is dropped."""
         bench = self.bench
         bench.open_streams()
         left = None if self.duration_s is None else int(round(self.duration_s * self.fs_hz))
-        settle_until = -1  # samples before this index may predate the last command
-        commanded_at: float | None = None  # the last command's time, until its first sample is known
-        settle = int(self.settle_s * self.fs_hz)
+        settle_until = -1  # samples before this index may predate the last command, or ring after it
+        pending = False  # a command went out and the bench does not know its change_index yet
+        # settle_s counts from the live index at the command; change_index includes what was on its
+        # way then (latency_samples): the rest is the instruments' own response
+        lat = bench.latency_samples
+        response = int(self.settle_s * self.fs_hz) - lat
         # The first block is the first one handed out, not the first turn after which the bench
         # knows where the streams start: a turn can learn that and still hand out nothing (a slow
         # stream's backlog ends before another's first sample, as on a loaded machine), and a
@@ -378,11 +383,13 @@ class BenchSource:
             # after the first sample (settling is counted from it), every sample the instruments
             # may still hold is marked settling
             if cursor is not None and self._apply_commands():
-                commanded_at = time.monotonic()
-            if commanded_at is not None and (live := bench.live_index_after(commanded_at)) is not None:
-                settle_until, commanded_at = max(live, cursor) + settle, None
+                bench.commanded()
+                pending = True
+            if pending and (change := bench.change_index()) is not None:
+                # from the change, or from the cursor (plus what is on its way) if the reading is past it
+                settle_until, pending = max(change, cursor + lat) + response, False
             limit = left  # a block ends where settling does, so each has one meta
-            if commanded_at is None and cursor is not None and cursor < settle_until:
+            if not pending and cursor is not None and cursor < settle_until:
                 limit = settle_until - cursor if limit is None else min(limit, settle_until - cursor)
             if cursor is None:  # the first block no longer than the minimum: commands queued before the
                 # streams delivered (the switch-on) apply right after it, not after a whole backlog or burst
@@ -399,7 +406,7 @@ class BenchSource:
             if left is not None:
                 left -= b.n
             g = bench.generator.state
-            settling = commanded_at is not None or b.first_index < settle_until
+            settling = pending or b.first_index < settle_until
             meta = operating_meta(g["frequency_hz"], g["amplitude_vpp"] * self.gain, g["offset_v"] * self.gain,
                                   bool(g["output"]) and self._output, settling=settling, table=self._tables)
             yield SampleBlock(b.first_index, b.fs_hz, b.channels, flags=b.flags, gap_samples=b.gap_samples,

@@ -90,10 +90,12 @@ class BenchActuation:
     gain`` volts to the generator (SCPI ``DATA:ARB``), ``set_sine`` sets its sine, ``output_off`` is
     the bench's safe-off (output off first), ``read`` acquires from the streams and refuses a gap.
 
-    Consecutive reads are consecutive samples.  A new table or sine first drops every sample made
-    before it (``Bench.discard_backlog``: samples of the old excitation, however long the caller
-    computed or far behind the reading fell, and what was still on its way then), so that, as on
-    the rig directly, the next read starts at the change."""
+    Consecutive reads are consecutive samples, but for a new table or sine: it is noted with the
+    bench (``Bench.commanded``), and the next read starts at its ``Bench.change_index`` (the first
+    live sample after the command plus what was still on its way then: the same place the
+    pipeline's bench source marks its settling from), passing over the old excitation's samples,
+    however long the caller computed or far behind the reading fell, so that, as on the rig
+    directly, the next read starts at the change."""
 
     def __init__(self, bench: Bench, current_limit_a: float) -> None:
         if not current_limit_a > 0:
@@ -120,21 +122,21 @@ class BenchActuation:
         self._check(float(np.max(np.abs(table))) if table.size else np.nan, f"a {table.size}-point waveform")
         self.bench.generator.upload_waveform(table / self.gain_a_per_v, float(frequency_hz))
         self._start()
-        self.bench.discard_backlog()
+        self.bench.commanded()
 
     def set_sine(self, frequency_hz: float, current_pp_a: float, offset_a: float = 0.0) -> None:
         self._check(abs(offset_a) + 0.5 * current_pp_a, f"a sine of {current_pp_a:g} A-pp at {offset_a:+g} A")
         self.bench.generator.set_sine(float(frequency_hz), current_pp_a / self.gain_a_per_v,
                                       offset_a / self.gain_a_per_v)
         self._start()
-        self.bench.discard_backlog()
+        self.bench.commanded()
 
     def output_off(self) -> None:
         self.bench.safe_off()
         self.output_on = False
 
     def read(self, n: int) -> SampleBlock:
-        runs = self.bench.acquire(int(n) / self.fs_hz)
+        runs = self.bench.acquire(int(n) / self.fs_hz, since_command=True)
         if len(runs) != 1 or runs[0].n != int(n):
             raise CompensatorError(f"{self.name}: the streams had gaps while measuring: "
                                    f"{[(r.first_index, r.n, r.gap_samples) for r in runs]}")

@@ -15,7 +15,13 @@ The four streams are aligned once, from the moment they open, by the one acquisi
 (nothing is left behind in a stream's queue to pile up), then waits on the stream the aligner needs.
 ``acquire`` (a duration of samples, with a timeout) and the pipeline's ``BenchSource`` (blocks for
 ever, with the operating point) both turn it, so consecutive calls hand out consecutive samples.
-``discard_backlog`` drops what arrived before a change, on purpose and counted.
+
+One way tells where a command's effect starts, whoever sent it: the sender says so
+(:meth:`Bench.commanded`), and :meth:`Bench.change_index` is then the first sample that may show it
+(the first live sample after the command, once the streams' readers have caught up, plus what was
+still on its way).  Nothing is lost to learn it: the pipeline's source marks the samples before it
+(and the instruments' response after it) as settling; ``acquire(..., since_command=True)`` (the
+compensator's actuation, the demo) starts there, passing over the old samples on purpose, counted.
 """
 
 from __future__ import annotations
@@ -46,7 +52,7 @@ if TYPE_CHECKING:
 __all__ = ["Bench", "BenchFault", "build_instruments", "timeout_reason"]
 
 _STEP_S = 0.05  # the longest one turn of the acquisition loop waits for a stream
-#: the longest ``discard_backlog`` waits for the streams' readers to catch up with the instruments
+#: the longest ``wait_change`` waits for the streams' readers to catch up with the instruments
 CATCH_UP_S = 5.0
 
 
@@ -84,7 +90,9 @@ class Bench:
         self.streams: dict[str, SampleStream] = {}
         self._aligner: StreamAligner | None = None  # the streams' samples on the common clock
         self._delivered = dict.fromkeys([*self.instruments, "digitiser"], 0)  # samples each stream gave, ever
-        self.discarded_samples = 0  # dropped by discard_backlog (samples of the common clock)
+        self.discarded_samples = 0  # passed over by acquire(since_command=True) (samples of the common clock)
+        self._commanded_at: float | None = None  # the last command's time, until its change_index is known
+        self._change: int | None = None  # the first sample that may show the last command
         #: samples made before a moment that may still arrive after the readers caught up then
         self.latency_samples = math.ceil(config.latency_s * config.fs_hz - 1e-9)
         self._fault_lock = threading.Lock()
@@ -263,6 +271,39 @@ class Bench:
         found = [i for s in self.streams.values() if (i := s.live_index_after(t)) is not None]
         return min(found) if found else None
 
+    def commanded(self) -> None:
+        """Note that a command to the instruments (a new sine or waveform, the output on or off) has
+        just been sent: :meth:`change_index` is unknown until the streams tell where it starts."""
+        self._commanded_at = time.monotonic()
+        self._change = None
+
+    def change_index(self) -> int | None:
+        """The first sample that may show the last command (:meth:`commanded`): the common clock at
+        the command, as the streams' readers place it once caught up with their transports
+        (:meth:`live_index_after`: however far behind the reading was), plus what may still have
+        been on its way then (``latency_samples``: the instruments' buffers, the emulated rig's
+        tick).  None before any command and until a reader has caught up since; then kept.  Asking
+        reads nothing and drops nothing (the acquisition loop's turns read the streams)."""
+        if self._commanded_at is not None and (live := self.live_index_after(self._commanded_at)) is not None:
+            self._change, self._commanded_at = live + self.latency_samples, None
+        return self._change
+
+    def wait_change(self, timeout_s: float | None = None) -> int | None:
+        """:meth:`change_index`, waiting for it: the streams are read into the aligner meanwhile (not
+        handed out, not dropped).  None if no command was noted.  Raises ``InstrumentTimeout`` if
+        no reader catches up within ``timeout_s`` (default :data:`CATCH_UP_S`): what follows
+        could not be told from the old."""
+        self.open_streams()
+        deadline = Deadline(CATCH_UP_S if timeout_s is None else timeout_s)
+        while (change := self.change_index()) is None and self._commanded_at is not None:
+            if deadline.expired:
+                raise InstrumentTimeout(f"bench: after a change, no stream's reader caught up with its "
+                                        f"instrument within {deadline.elapsed:.2g} s: the samples that follow "
+                                        "cannot be told from the old ones (is the machine overloaded?)")
+            self._read_stream(self._aligner.waiting_for(), deadline.left(_STEP_S))
+        self._drain()
+        return change
+
     def _read_stream(self, name: str, timeout_s: float) -> bool:
         """Move one block of stream ``name`` into the aligner, waiting up to ``timeout_s``; False if
         none came.  A stream that is lost is a fault: the output goes off first, then it raises."""
@@ -329,34 +370,16 @@ class Bench:
         take = n if max_samples is None else min(n, max_samples - block.n)
         return block if take <= 0 else concatenate([block, al.take(take)])
 
-    def discard_backlog(self, timeout_s: float | None = None) -> int:
-        """Drop every sample made before now: after a change (a new waveform, a new frequency) they
-        show the bench as it was.  Not only what the streams delivered: what was still queued in
-        the transports (a reader that fell behind) is dropped too, up to where the streams'
-        readers, once caught up, place the instruments' clock at the call
-        (:meth:`live_index_after`), and past that what may still have been on its way then
-        (``BenchConfig.latency_s``: the instruments' buffers, the emulated rig's tick).  The next
-        ``acquire`` starts there, consecutive with the last sample handed out but for the dropped
-        ones (a gap only if a stream really lost samples).  Raises
-        ``InstrumentTimeout`` if no reader catches up within ``timeout_s`` (default
-        :data:`CATCH_UP_S`): what follows could not be told from the old.  Returns how many
-        samples of the common clock were dropped."""
-        asked = time.monotonic()
-        self.open_streams()
-        deadline = Deadline(CATCH_UP_S if timeout_s is None else timeout_s)
-        while (live := self.live_index_after(asked)) is None:
-            if deadline.expired:
-                raise InstrumentTimeout(f"bench: after a change, no stream's reader caught up with its "
-                                        f"instrument within {deadline.elapsed:.2g} s: the samples that follow "
-                                        "cannot be told from the old ones (is the machine overloaded?)")
-            self._read_stream(self._aligner.waiting_for(), deadline.left(_STEP_S))
-        self._drain()
-        dropped = self._aligner.skip_to(live + self.latency_samples)
-        self.discarded_samples += dropped
-        return dropped
-
-    def acquire(self, duration_s: float, *, timeout_s: float | None = None) -> list[SampleBlock]:
+    def acquire(self, duration_s: float, *, timeout_s: float | None = None,
+                since_command: bool = False) -> list[SampleBlock]:
         """The next ``duration_s`` worth of aligned samples of every channel, as contiguous runs.
+
+        ``since_command``: none made before the last command (:meth:`commanded`) took effect: the
+        samples before its :meth:`change_index` (samples of the bench as it was, however long the
+        caller computed or far behind the reading fell) are passed over, on purpose and counted
+        in ``discarded_samples``; the first run then starts at the change, consecutive with the
+        last sample handed out but for those (a gap only if a stream really lost samples).  Waits
+        for the change as :meth:`wait_change` does.
 
         Missing samples are never filled in: the first run of the first call starts where all
         streams have begun; each later run has ``BlockFlags.GAP`` and ``gap_samples`` = the exact
@@ -365,6 +388,8 @@ class Bench:
         off); so does ``timeout_s`` (default 3 x duration + 5 s) passing, saying why."""
         self.raise_if_faulted()
         n_want = int(round(duration_s * self.config.fs_hz))
+        if since_command and (change := self.wait_change()) is not None:
+            self.discarded_samples += self._aligner.skip_to(change)
         deadline = Deadline(timeout_s if timeout_s is not None else 3 * duration_s + 5.0)
         self.open_streams()
         before = dict(self._delivered)

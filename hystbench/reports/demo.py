@@ -68,8 +68,8 @@ def _sweep_through_drivers(rig_name: str, ipp: float, freqs, advance,
             bench.generator.set_sine(f, vpp, 0.0)
             if n == 0:
                 bench.start_output()
-            bench.discard_backlog()  # samples of the last frequency: the settling starts at the change
-            bench.acquire(SETTLE_S)
+            bench.commanded()
+            bench.acquire(SETTLE_S, since_command=True)  # none of the last frequency: the settling starts at the change
             runs = bench.acquire(DURATION_S)
             if len(runs) != 1:  # a gap: the demo would rather stop than hide it
                 raise RecordingError(f"{rig_name} at {f:g} Hz: the streams had gaps: "

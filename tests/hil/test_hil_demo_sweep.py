@@ -8,9 +8,9 @@ has run on twice the settling time since it was asked for.
 
 What each recording must skip is the bench's own settling (``analysis.settling``: 10 time constants
 of the measurement chain, 30 ms for ecore_pm), not the demo's whole ``SETTLE_S``: samples made before
-the change are dropped up to where the streams' readers, caught up, placed the clock at the change
-(``Bench.discard_backlog``); what was on the wire then counts in the settling read, and ``SETTLE_S``
-leaves room for it.
+the change are passed over up to where the streams' readers, caught up, placed the clock at the
+change, plus what was on its way then (``Bench.change_index``, read from by
+``Bench.acquire(..., since_command=True)``), and ``SETTLE_S`` leaves room for the ringing after it.
 """
 
 from hystbench.analysis.settling import settling_time_s
