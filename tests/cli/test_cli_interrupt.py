@@ -33,6 +33,7 @@ def test_ctrl_c_during_record_leaves_a_closed_valid_log_and_says_where(tmp_path:
 
     monkeypatch.setattr(cli_pipeline, "_print_estimate", ctrl_c_at_first_estimate)
     out = tmp_path / "run.mcap"
+    handler = signal.getsignal(signal.SIGINT)
     # an hour of real time: only the interrupt ends it (a failure to interrupt is a hang, not a pass)
     code = cli_main.main(["record", "--source", "sim", "--rig", "voicecoil_ferrite", "--seconds", "3600",
                           "--freq", "320", "--out", str(out), "-v"])
@@ -41,7 +42,7 @@ def test_ctrl_c_during_record_leaves_a_closed_valid_log_and_says_where(tmp_path:
     lines = cap.err.strip().splitlines()
     assert len(lines) == 1 and "interrupted" in lines[0] and "closed and valid" in lines[0], cap.err
     assert str(out) in lines[0]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler was given back
+    assert signal.getsignal(signal.SIGINT) is handler  # the handler was given back
     samples = sum(b.n for b in iter_blocks(out))  # the reader reads it to its end
     assert 0 < samples < 3600 * 100_000
     assert f"{samples} samples" in lines[0]
