@@ -374,11 +374,28 @@ def test_the_pipeline_gives_back_the_interpreter_switch_interval() -> None:
     import sys
 
     before = sys.getswitchinterval()
-    pipe = Pipeline(RigSource(SimulatedRig("voicecoil_ferrite"), duration_s=0.05, block_samples=1000, pace="max"))
+    source = _HeldSource(SimulatedRig("voicecoil_ferrite"), duration_s=0.05, block_samples=1000, pace="max")
+    pipe = Pipeline(source)
     pipe.start()
-    assert sys.getswitchinterval() < before
+    assert sys.getswitchinterval() < before  # the source holds its first block: the pipeline is running
+    source.release.set()
     assert pipe.join(10.0)
     assert sys.getswitchinterval() == before
+
+
+class _HeldSource(RigSource):
+    """A rig source that gives its first block only once ``release`` is set, so a test sees the
+    pipeline running however late the machine schedules it (a 0.05 s record at full pace used to be
+    over, under load, before the test could look)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.release = threading.Event()
+
+    def blocks(self, stop=None):
+        if not self.release.wait(30.0):
+            raise TimeoutError("the test never released the source")
+        yield from super().blocks(stop)
 
 
 def test_every_change_of_what_the_generator_plays_starts_a_new_run() -> None:
@@ -480,9 +497,11 @@ def test_two_pipelines_whose_lives_overlap_give_back_the_switch_interval() -> No
 
     before = sys.getswitchinterval()
     first = Pipeline(RigSource(SimulatedRig("voicecoil_ferrite"), duration_s=0.05, block_samples=1000, pace="max")).start()
-    second = Pipeline(RigSource(SimulatedRig("voicecoil_ferrite"), duration_s=0.05, block_samples=1000, pace="max")).start()
+    held = _HeldSource(SimulatedRig("voicecoil_ferrite"), duration_s=0.05, block_samples=1000, pace="max")
+    second = Pipeline(held).start()
     assert first.join(10.0)
-    assert sys.getswitchinterval() < before  # the second still runs
+    assert sys.getswitchinterval() < before  # the second still runs (its source holds its first block)
+    held.release.set()
     assert second.join(10.0)
     assert sys.getswitchinterval() == before
 
@@ -493,8 +512,10 @@ def test_a_pipeline_nobody_joins_still_gives_back_the_switch_interval() -> None:
     import sys
 
     before = sys.getswitchinterval()
-    pipe = Pipeline(RigSource(SimulatedRig("voicecoil_ferrite"), duration_s=0.05, block_samples=1000, pace="max")).start()
+    source = _HeldSource(SimulatedRig("voicecoil_ferrite"), duration_s=0.05, block_samples=1000, pace="max")
+    pipe = Pipeline(source).start()
     assert sys.getswitchinterval() < before
+    source.release.set()
     for t in list(pipe._threads):  # wait for the threads themselves, not through the pipeline
         t.join(10.0)
     assert sys.getswitchinterval() == before
