@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test venv clean
+.PHONY: demo test acceptance venv clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -22,8 +22,13 @@ demo: $(STAMP)
 	  --baseline static_hysteresis,lamination_eddy_currents,instrument_filter,sensor_noise,adc_quantisation \
 	  --truth demo-output/independent/truth.json
 
+# Every test on every core; a test file stays on one worker (its module fixtures are computed once).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
+
+# What make test leaves out: the whole acceptance runs (.ci/run runs this after make test).
+acceptance: $(STAMP)
+	$(BIN)/python -m pytest -q -n auto --dist loadfile -m acceptance
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache

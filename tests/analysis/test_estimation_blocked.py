@@ -88,7 +88,7 @@ def _assert_same_delay(new, x, y, fs: float, f: float, *, harmonic: int = 1, har
         assert np.all(fit.converged)
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.acceptance)])
 def test_a_long_record_with_glitches_gives_the_dense_delays_and_outliers(seed: int) -> None:
     # 300 000 samples: five blocks, and a search window wider than half a bin (the grid scan runs)
     x, y = _channels(300_000, seed)
@@ -130,6 +130,7 @@ def test_batches_of_records_give_the_dense_delays(batch, n: int) -> None:
     _assert_same_delay(new, x, y, 10_000.0, 320.0, **kw)
 
 
+@pytest.mark.acceptance  # the dense oracle takes a minute on three long channels
 def test_noiseless_records_and_find_outliers_across_three_channels() -> None:
     t = np.arange(150_000) / FS
     chans = [np.cos(2 * np.pi * 320.0071 * t + p) * a + dc for p, a, dc in ((0.1, 1.0, 0.0), (0.5, 0.02, 1.0),
@@ -157,7 +158,7 @@ def test_covariance_delay_gives_the_dense_lag(shape, f: float) -> None:
         np.testing.assert_allclose(new.covariance[i], cov, rtol=1e-9)
 
 
-@pytest.mark.parametrize(("n", "batch", "ks", "snr_db"), [(1_000_000, (), (1, 2, 3, 4), 50.0), (400_000, (), (2,), 0.0),
+@pytest.mark.parametrize(("n", "batch", "ks", "snr_db"), [pytest.param(1_000_000, (), (1, 2, 3, 4), 50.0, marks=pytest.mark.acceptance), (400_000, (), (2,), 0.0),
                                                        (200_000, (3,), (1, 2, 3, 4), 20.0)])
 def test_the_start_frequency_scan_picks_the_dense_grid_point(n: int, batch, ks, snr_db: float) -> None:
     # the grid over +-200 ppm has ~N points; the chirp-z transform must rank them as the direct sums do

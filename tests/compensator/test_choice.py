@@ -31,6 +31,7 @@ def elliptic_with_magnet(tmp_path_factory):
     return sweeps, _identified(sweeps["fit"], sweeps["voicecoil"])
 
 
+@pytest.mark.acceptance  # 50 s of fitting; the rule itself is tested by the tie below in make test
 def test_every_description_is_judged_and_the_report_says_which_and_why(elliptic_with_magnet):
     _, models = elliptic_with_magnet
     choice = models.report["choice"]
@@ -43,6 +44,7 @@ def test_every_description_is_judged_and_the_report_says_which_and_why(elliptic_
         "within the noise" in choice["why"]
 
 
+@pytest.mark.acceptance
 def test_best_is_as_good_as_the_best_description_on_unseen_recordings_of_elliptic_iron(elliptic_with_magnet):
     """The issue's case: elliptic loops with the magnet, where best (then Preisach) lost to Eq. 6 by
     up to 0.17 points.  Now best is within 0.01 points of Eq. 6 and Eq. 1 on every unseen recording, and

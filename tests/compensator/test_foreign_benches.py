@@ -19,6 +19,14 @@ from hystbench.sim_backend.recordings import simulated_sweep
 from hystbench.sim_backend.rig import SimulatedRig
 
 MAIN = {"ecore": 1.27, "ecore_pm": 1.4}
+#: the benches make test fits (one of each kind: with and without magnet, an elliptic and a Preisach
+#: iron); every other bench runs with ``-m acceptance`` (.ci/run), each fit costing 10-40 s
+IN_SUITE = ("ecore~elliptic", "ecore_pm~m330")
+
+
+def benches(names):
+    """``names`` as parameters, those outside IN_SUITE marked acceptance."""
+    return [n if n in IN_SUITE else pytest.param(n, marks=pytest.mark.acceptance) for n in names]
 PAPER_FACTOR = {"ecore": 2.5, "ecore_pm": 5.0}  # Eq. 6 at 320 Hz (paper Sec. VII)
 _FITTED: dict = {}
 
@@ -39,7 +47,7 @@ def fitted(name: str):
     return _FITTED[name]
 
 
-@pytest.mark.parametrize("name", list(FOREIGN_BENCHES))
+@pytest.mark.parametrize("name", benches(FOREIGN_BENCHES))
 def test_best_model_predicts_a_foreign_bench_within_a_thousandth(name):
     models, judged = fitted(name)
     acc = {k: e["best"]["accuracy_pct"] for k, (_, e) in judged.items()}
@@ -48,7 +56,7 @@ def test_best_model_predicts_a_foreign_bench_within_a_thousandth(name):
         assert e["nonhysteretic"]["max_abs_error_N"] > 1.3 * e["best"]["max_abs_error_N"]
 
 
-@pytest.mark.parametrize("name", [n for n in FOREIGN_BENCHES if n.endswith("~elliptic")])
+@pytest.mark.parametrize("name", benches(n for n in FOREIGN_BENCHES if n.endswith("~elliptic")))
 def test_eq6_reaches_the_papers_factor_where_the_minor_loops_are_elliptic(name):
     """The paper's iron has nearly elliptic minor loops (Fig. 4), and there Eq. 6 with the measured
     delay cuts Eq. 1's error 2.5x without and 5x with the magnet at 320 Hz (Sec. VII)."""
@@ -58,9 +66,10 @@ def test_eq6_reaches_the_papers_factor_where_the_minor_loops_are_elliptic(name):
     assert e["nonhysteretic"]["max_abs_error_N"] / e["paper"]["max_abs_error_N"] >= PAPER_FACTOR[nominal]
 
 
-@pytest.mark.parametrize("name, chosen", [("ecore~elliptic", "describing_function"),
-                                          ("ecore_pm~elliptic", "describing_function"),
-                                          ("ecore_pm~m330", "preisach"), ("ecore~m330", "preisach")])
+@pytest.mark.parametrize("name, chosen", [("ecore~elliptic", "describing_function"), ("ecore_pm~m330", "preisach"),
+                                          pytest.param("ecore_pm~elliptic", "describing_function",
+                                                       marks=pytest.mark.acceptance),
+                                          pytest.param("ecore~m330", "preisach", marks=pytest.mark.acceptance)])
 def test_the_sweep_chooses_the_iron_description_the_bench_has(name, chosen):
     """Elliptic loops are one complex gain per harmonic exactly; a Preisach iron's pointed loops
     are not: held-out error inside the fit sweep tells them apart, and the report says why."""
@@ -75,7 +84,7 @@ def test_the_sweep_chooses_the_iron_description_the_bench_has(name, chosen):
     assert all(j == judged[0] and j for j in judged)
 
 
-@pytest.mark.parametrize("name", ["ecore_pm~elliptic", "ecore~elliptic"])
+@pytest.mark.parametrize("name", benches(["ecore_pm~elliptic", "ecore~elliptic"]))
 def test_identified_static_law_is_the_benchs_not_the_presets(name):
     """On a linear (complex-permeability) iron the static law of Eq. 6 is the MEC with the iron's
     in-phase permeability at the bench's own geometry: the fit finds it within 3 %, although the
@@ -90,7 +99,7 @@ def test_identified_static_law_is_the_benchs_not_the_presets(name):
         assert k0 == pytest.approx(truth[0], rel=0.03)
 
 
-@pytest.mark.parametrize("name", list(FOREIGN_BENCHES))
+@pytest.mark.parametrize("name", benches(FOREIGN_BENCHES))
 def test_learning_reaches_twice_the_noise_floor_on_a_foreign_bench(name):
     """From rest, feed-forward from the fitted best model then learning on the measured,
     instrument-corrected error: within 2x the averaged force's noise floor in <= 10 iterations."""
@@ -107,7 +116,7 @@ def test_learning_reaches_twice_the_noise_floor_on_a_foreign_bench(name):
     assert ratios[-1] <= 2.0, ratios
 
 
-@pytest.mark.parametrize("name", ["ecore~elliptic", "ecore~rayleigh"])
+@pytest.mark.parametrize("name", benches(["ecore~elliptic", "ecore~rayleigh"]))
 def test_each_iron_description_inverts_itself_and_survives_its_model_file(name, tmp_path):
     """The describing function and the Rayleigh loops: the feed-forward (force -> current) and the
     prediction (current -> force) are inverses, and a model file written and read back predicts the same."""

@@ -204,7 +204,6 @@ def test_learning_needs_the_instrument_model(models_pm):
         CompensatorStage(models_pm["best"], ForceReference.parse(REF), current_limit_a=1.8, learning=LearningConfig())
 
 
-@pytest.mark.slow
 def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tmp_path):
     """[compensator] learn = true in the daemon: the windows of the live stream (charge amplifier,
     flux integrator, current monitor, generator output, all over their protocols) correct the

@@ -4,9 +4,9 @@ The whole suites are a benchmark (``hystbench bench diagnose``, which ``.ci/run`
 test``; its figures and confusion tables are in docs/diagnosis.md#results).  Here, one day of each
 kind: from our simulator's suite a single effect and a null on a foreign bench (another iron, geometry
 off its drawing); from the independent bench (its own physics for every block, nothing shared with
-``sim_backend``) a two-effect day and a null on a copy of the bench off nominal.  The diagnosis sees the
-recordings and the baseline, never the truth; each day is diagnosed once per session, one per core, by
-the benchmark's own judge, and each test reads its row.
+``sim_backend``) a two-effect day; its single-effect day is tests/reports/test_demo_diagnosis.py's.
+The diagnosis sees the recordings and the baseline, never the truth; each day is diagnosed once per
+session, one per core, by the benchmark's own judge, and each test reads its row.
 """
 
 from __future__ import annotations
@@ -20,12 +20,11 @@ import pytest
 from benchmarks.bench_diagnose import run_named
 from hystbench.analysis.diagnosis.select import MIN_HELD_OUT_GAIN
 
-pytestmark = pytest.mark.slow
-
-#: (suite, case): a single, a null on a foreign bench, a two-effect day, a null on a bench copy.
+#: (suite, case): a single, a null on a foreign bench, a two-effect day on the independent bench (the
+#: independent bench's nulls and every other day run in the benchmark, after make test in .ci/run)
 SUBSET = (("ours", "magnet_eddy_currents"), ("ours", "foreign_rayleigh"),
-          ("independent", "integrator_leak+distortion"), ("independent", "null_bench_geometry"))
-NULLS = (("ours", "foreign_rayleigh"), ("independent", "null_bench_geometry"))
+          ("independent", "integrator_leak+distortion"))
+NULLS = (("ours", "foreign_rayleigh"),)
 
 
 def _run(job: tuple[str, str]) -> dict:
