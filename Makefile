@@ -16,11 +16,13 @@ venv: $(STAMP)
 
 # The diagnosis at the end is of a day written by the independent bench (tests/independent_bench,
 # nothing shared with the package), its truth kept beside the day where the diagnosis never reads it.
+# Each run writes a folder of its own, demo-output/YYYYmmdd-HHMMSS: nothing an earlier run wrote is replaced.
 demo: $(STAMP)
-	cd tests && ../$(BIN)/python -m independent_bench integrator_leak ../demo-output/independent
-	$(BIN)/hystbench demo --out demo-output --day demo-output/independent/day \
+	@run=demo-output/$$(date +%Y%m%d-%H%M%S) && \
+	(cd tests && ../$(BIN)/python -m independent_bench integrator_leak ../$$run/independent) && \
+	$(BIN)/hystbench demo --out $$run --day $$run/independent/day \
 	  --baseline static_hysteresis,lamination_eddy_currents,instrument_filter,sensor_noise,adc_quantisation \
-	  --truth demo-output/independent/truth.json
+	  --truth $$run/independent/truth.json
 
 # Every test on every core; a test file stays on one worker (its module fixtures are computed once).
 test: $(STAMP)

@@ -1,7 +1,9 @@
-"""hystbench's benchmarks: each ``bench_NAME`` module has ``main(argv) -> exit status`` and is run by
-``hystbench bench NAME [ARGS]``, ``python -m benchmarks.bench_NAME [ARGS]`` or ``python
-benchmarks/bench_NAME.py [ARGS]``.  An installed package of the source checkout (``make test``'s
-editable install), so the command line and the tests import it, never load a file by its path."""
+"""hystbench's benchmarks: the speed, memory and acceptance figures of docs/performance.md.
+
+Each ``bench_NAME`` module has ``main(argv) -> exit status``.  Run one from the checkout's root with
+``python -m benchmarks NAME [ARGS]`` (``python -m benchmarks`` lists them).  They live beside the
+package, not in it: they use the tests' independent bench and are no part of an installed hystbench.
+"""
 
 from __future__ import annotations
 
@@ -9,10 +11,7 @@ import importlib
 import pkgutil
 from types import ModuleType
 
-__all__ = ["names", "load", "HYSTBENCH_BENCHMARKS"]
-
-#: Tells ``hystbench bench`` that a ``benchmarks`` package on the path is this one.
-HYSTBENCH_BENCHMARKS = True
+__all__ = ["names", "load"]
 
 
 def names() -> list[str]:

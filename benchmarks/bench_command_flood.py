@@ -13,7 +13,7 @@ on a loopback port, warms it up with one session of the same commands, reads its
 (``cmd/output`` with a ``--size``-byte JSON payload that the daemon refuses for its unknown
 argument) and waiting for each reply, and reads the RSS after each round.  The clients are plain
 zenoh sessions with zenoh's defaults (shared memory on), as any client's would be.
-Run: ``hystbench bench command_flood [--sessions 20] [--commands 50] [--size 10000] [--rounds 3]
+Run: ``python -m benchmarks command_flood [--sessions 20] [--commands 50] [--size 10000] [--rounds 3]
 [--json]``.
 """
 
@@ -160,7 +160,7 @@ def run(sessions: int = 20, commands: int = 50, size: int = 10_000, rounds: int 
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="hystbench bench command_flood", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks command_flood", description=__doc__.split("\n")[0])
     parser.add_argument("--sessions", type=int, default=20, help="client sessions per round, one after the other")
     parser.add_argument("--commands", type=int, default=50, help="commands per session")
     parser.add_argument("--size", type=int, default=10_000, help="bytes of each command's payload")

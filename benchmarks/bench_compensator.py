@@ -27,7 +27,7 @@ Per E-core rig (presets as shipped: noise at the paper's level, 0.0015 N rms wit
    bench's family (:mod:`benchmarks.compensator_independent`: elliptic and Bouc-Wen iron, with and
    without the magnet, code that shares nothing with hystbench): is ``best`` the best of them?
 
-Run: ``hystbench bench compensator [--json] [--out DIR] [--quick] [--family] [--independent]`` (figures
+Run: ``python -m benchmarks compensator [--json] [--out DIR] [--quick] [--family] [--independent]`` (figures
 in DIR; ``--family`` only the foreign benches' table, ``--independent`` only the independent family's).
 """
 
@@ -383,7 +383,7 @@ def _print(res: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="hystbench bench compensator", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks compensator", description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--out", help="folder for the figures (PNG)")
     ap.add_argument("--quick", action="store_true", help="80 and 320 Hz only, fewer closed loops")

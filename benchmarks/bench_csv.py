@@ -22,7 +22,7 @@ from a working directory outside any checkout (``python -c``/``-m`` put the work
 first on the path, ahead of ``PYTHONPATH``); the children inherit both.  Give ``--keep`` the same
 folder both times to measure the same recordings.  The 60 s case (~580 MB of CSV) takes a few
 minutes on one core; pass ``--durations 10 60``.
-Run: ``hystbench bench csv [--durations 10 60] [--keep DIR] [--json]``.
+Run: ``python -m benchmarks csv [--durations 10 60] [--keep DIR] [--json]``.
 """
 
 from __future__ import annotations
@@ -180,7 +180,7 @@ def _print_table(result: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     """Command line: print the table (or JSON with ``--json``); exit 1 if the reader or estimate misses
     its memory target."""
-    parser = argparse.ArgumentParser(prog="hystbench bench csv", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks csv", description=__doc__.split("\n")[0])
     parser.add_argument("--durations", type=float, nargs="+", default=list(DURATIONS),
                         help="recording lengths in seconds at 100 kS/s (default 10; 60 takes minutes)")
     parser.add_argument("--keep", metavar="DIR", help="write the recordings here and reuse them next time")

@@ -10,7 +10,7 @@
   receives them, seconds to resume
   once room is back, and seconds from SIGTERM to exit, paused and running.
 
-Run: ``hystbench bench daemon_safety [--cases sweep_offset,at_limit,full_disk]``; one JSON line per case.
+Run: ``python -m benchmarks daemon_safety [--cases sweep_offset,at_limit,full_disk]``; one JSON line per case.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ every null case "none", held-out improvement >= 5x in the named effect's own sig
 moves, at held-out operating points; the total beside it), a median under 30 s per bench day (the
 diagnosis's own CPU time, one process: one core; cases run side by side, one per core).
 
-Run: ``hystbench bench diagnose [--suite ours|independent|all] [--json] [--cases NAME,...] [--out DIR] [--quick]``
+Run: ``python -m benchmarks diagnose [--suite ours|independent|all] [--json] [--cases NAME,...] [--out DIR] [--quick]``
 (``--cases``: a bare name selects it in every chosen suite that has it, ``SUITE:NAME`` in that suite only;
 ``--out``: each case's report page and figures, the independent suite's under ``DIR/independent``, and
 results.json; ``--quick``: a short day of our suite, for a first look only; the independent days are
@@ -260,7 +260,7 @@ def _select(ap: argparse.ArgumentParser, spec: str | None, suites: list[str]) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="hystbench bench diagnose", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m benchmarks diagnose", description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--suite", choices=[*SUITES, "all"], default="all",
                     help="ours (sim_backend's concealed suite), independent (the independent bench's), or all")

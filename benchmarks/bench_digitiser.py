@@ -11,7 +11,7 @@ serves from this process) is the second figure.  Rows for several ``points`` per
 
 Target: at least 2x the bench's 100 kS/s per channel (four channels) at the default 100 000
 points per read, so the source keeps up with room to spare.  Exit status 1 when missed.
-Run: ``hystbench bench digitiser [--seconds N] [--json]``.
+Run: ``python -m benchmarks digitiser [--seconds N] [--json]``.
 """
 
 from __future__ import annotations
@@ -81,7 +81,7 @@ def run(seconds: float = 10.0) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="hystbench bench digitiser", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks digitiser", description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=10.0, help="seconds of samples (at 100 kS/s) to read")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     args = parser.parse_args(argv)

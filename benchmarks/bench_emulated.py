@@ -10,7 +10,7 @@ benchmark waits (on the pipeline's sample count, not on time) for ``--seconds`` 
 reads the process's CPU time over the wall time they took: % of one core.  Per thread, the CPU
 time of each ``/proc/self/task/<tid>`` over the same span, named by ``threading.Thread.native_id``
 (Python threads) or the kernel's ``comm`` (zenoh's runtime threads), summed per name.
-Run: ``hystbench bench emulated [--seconds 30] [--json]``.
+Run: ``python -m benchmarks emulated [--seconds 30] [--json]``.
 """
 
 from __future__ import annotations
@@ -120,7 +120,7 @@ def run(seconds: float = 30.0) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="hystbench bench emulated", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks emulated", description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=30.0, help="seconds of samples measured (after a warm-up)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)

@@ -8,7 +8,7 @@ stage is timed, in CPU time of the process (``time.process_time``, "one core"), 
 ``--repeats`` passes, wall time beside it.  Per frequency the windows and ms per second of signal.
 Budget (issue 14: the whole emulated bench <= 20 % of a core): this stage <= ``BUDGET_MS_PER_S``
 (10 % of one core); exit status 1 above it.
-Run: ``hystbench bench estimation_stage [--seconds-each N] [--repeats N] [--json]``.
+Run: ``python -m benchmarks estimation_stage [--seconds-each N] [--repeats N] [--json]``.
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def run(seconds_each: float = 2.0, repeats: int = 3) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="hystbench bench estimation_stage", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks estimation_stage", description=__doc__.split("\n")[0])
     parser.add_argument("--seconds-each", type=float, default=2.0, help="seconds of signal per frequency")
     parser.add_argument("--repeats", type=int, default=3, help="passes over the blocks; the best is reported")
     parser.add_argument("--json", action="store_true")

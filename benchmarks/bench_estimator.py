@@ -193,7 +193,7 @@ def _print_table(result: dict) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Command line: print the table (or JSON with ``--json``); exit 1 if any cell fails."""
-    parser = argparse.ArgumentParser(prog="hystbench bench estimator", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks estimator", description=__doc__.split("\n")[0])
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     parser.add_argument("--trials", type=int, default=TRIALS, help=f"trials per cell (default {TRIALS})")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")

@@ -8,7 +8,7 @@ and the samples dropped per new table (what arrived while the learning computed)
 
 Each iteration reads ``max(0.05, 4/f)`` s to settle and ``--measure`` s to measure (0.3 s of
 samples at 320 Hz with the default 0.25 s), so at real time an iteration cannot take less.
-Run: ``hystbench bench learning_bench [--iterations 100] [--measure 0.25] [--json]``.
+Run: ``python -m benchmarks learning_bench [--iterations 100] [--measure 0.25] [--json]``.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def run(iterations: int = 100, measure_s: float = 0.25) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="hystbench bench learning_bench", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks learning_bench", description=__doc__.split("\n")[0])
     parser.add_argument("--iterations", type=int, default=100)
     parser.add_argument("--measure", type=float, default=0.25, help="seconds averaged per iteration")
     parser.add_argument("--json", action="store_true")

@@ -12,7 +12,7 @@ recording), a raw block missing at the subscriber, a message the recorder queue 
 CPU is the pipeline process's CPU time (zenoh's threads included) over wall time, in % of one
 core; the ratio compares it with a bare MCAP write (same messages, same compression, no
 pipeline).  ``--rates`` runs several per-channel rates to find the limit.
-Run: ``hystbench bench pipeline [--seconds N] [--rates 1e6,2e6,...] [--json]``.
+Run: ``python -m benchmarks pipeline [--seconds N] [--rates 1e6,2e6,...] [--json]``.
 """
 
 from __future__ import annotations
@@ -190,7 +190,7 @@ def run(seconds: float, rates: list[float]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="hystbench bench pipeline", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks pipeline", description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=5.0, help="seconds per run (the target: 60)")
     parser.add_argument("--rates", default="1e6", help="per-channel sample rates, comma-separated (default 1e6)")
     parser.add_argument("--json", action="store_true")

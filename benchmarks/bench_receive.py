@@ -11,7 +11,7 @@ CAN FD is timed twice more: through a python-can virtual bus (``CanFrameSource.r
 messages queued beforehand, so the sender's cost is not counted), and python-can's ``recv`` alone,
 which is the bound of any receiver that takes one message at a time.  Figures are CPU time of the
 process (``time.process_time``, "one core"), best of ``--repeats``; wall time beside it.
-Run: ``hystbench bench receive [--seconds 0.5] [--repeats 5] [--json]``.
+Run: ``python -m benchmarks receive [--seconds 0.5] [--repeats 5] [--json]``.
 """
 
 from __future__ import annotations
@@ -237,7 +237,7 @@ def run(seconds: float = 0.5, repeats: int = 5) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="hystbench bench receive", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks receive", description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=0.5, help="seconds of signal per stream kind and repeat")
     parser.add_argument("--repeats", type=int, default=5, help="repeats; the best is kept")
     parser.add_argument("--json", action="store_true")

@@ -2,7 +2,7 @@
 
 A ~3.2 MB log is written by the project's recorder (raw blocks of 2000 samples and an estimate
 each, zstd chunks of 256 KiB), a copy gets 64 random bytes at 40 % of its length, and ``recover``
-salvages the copy.  Run: ``hystbench bench recover [--seed 26]``; one JSON line.
+salvages the copy.  Run: ``python -m benchmarks recover [--seed 26]``; one JSON line.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ per 10 000 samples: command, actuator, measurement, of which noise generation) a
 ``standard_normal(10000)`` (each channel keeps its own generator, so that cost stays) plus one pass
 over each sample; and the Preisach operator alone on 100 000 samples (budget 5 ms, reported, not judged).
 Exit status 1 when the target is missed.
-Run: ``hystbench bench sim [--seconds N] [--block-size N] [--repeats N] [--json]``.
+Run: ``python -m benchmarks sim [--seconds N] [--block-size N] [--repeats N] [--json]``.
 """
 
 from __future__ import annotations
@@ -195,7 +195,7 @@ def _positive_int(text: str) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="hystbench bench sim", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m benchmarks sim", description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=5.0, help="simulated seconds per rig")
     parser.add_argument("--block-size", type=_positive_int, default=10_000,
                         help="samples per read (default 10000; a row at 1000, the emulated bench's, is added)")

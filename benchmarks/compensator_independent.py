@@ -1,4 +1,4 @@
-"""``hystbench bench compensator``'s independent family (issue 29): every description of the force on
+"""``python -m benchmarks compensator``'s independent family (issue 29): every description of the force on
 benches written by the independent bench (``tests/independent_bench/family.py``: elliptic loops and
 Bouc-Wen's pointed ones, with and without the magnet; nothing shared with hystbench), each fitted as
 a user would (the voice coil's sweep for the instrument, the identification sweep from the nominal

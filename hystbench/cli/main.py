@@ -202,23 +202,8 @@ def _moved(obj, stage):
     return obj
 
 
-def cmd_bench(args: argparse.Namespace) -> int:
-    """`hystbench bench NAME`: a benchmark of the ``benchmarks`` package with its own arguments (the
-    speed and memory targets are proven there, not by timed unit tests)."""
-    import importlib
-
-    try:
-        benchmarks = importlib.import_module("benchmarks")
-    except ImportError:
-        benchmarks = None
-    if not getattr(benchmarks, "HYSTBENCH_BENCHMARKS", False):
-        raise ConfigError("the benchmarks are not installed: they live in the source checkout (`make test` "
-                         "or `pip install -e .` there installs them)")
-    try:
-        module = benchmarks.load(args.name)
-    except LookupError as err:
-        raise ConfigError(str(err.args[0])) from None  # NAME is a command-line value
-    return int(module.main(args.rest) or 0)
+#: what ``hystbench demo`` writes under its --out (anything else there, such as make demo's day, is left alone)
+DEMO_OUTPUTS = ("live", "sweeps", "paper", "diagnosis", "summary.json", "force_map.png")
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -237,6 +222,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file, not a folder")
+    earlier = [name for name in DEMO_OUTPUTS if (out / name).exists()]
+    if earlier and not args.overwrite:
+        raise ConfigError(f"--out {out}: holds an earlier demo's {earlier[0]}; give --overwrite to replace it, "
+                          "or another --out")
     if args.day is None and (args.baseline is not None or args.truth is not None):
         raise ConfigError(f"{'--baseline' if args.baseline is not None else '--truth'}: only with --day")
     if args.day is not None:  # read and checked now, not after a minute of the live part
@@ -331,11 +320,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_fit_material)
 
-    p = sub.add_parser("bench", help="run a benchmark from benchmarks/ (sim, estimator, ...)")
-    p.add_argument("name")
-    p.add_argument("rest", nargs=argparse.REMAINDER, help="arguments for the benchmark (e.g. --json)")
-    p.set_defaults(func=cmd_bench)
-
     from . import bench as commands_bench, compensator as commands_compensator, method as commands_method, pipeline as commands_pipeline
     from . import bench_day as commands_bench_day
 
@@ -350,6 +334,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("demo", help="the main job on the embedded simulated rig")
     p.add_argument("--out", type=path_arg, default="demo-output")
+    p.add_argument("--overwrite", action="store_true", help="replace what an earlier demo wrote in --out")
     p.add_argument("--source", choices=("streams", "digitiser"), default="streams",
                    help="where the samples come from: the instruments' own frame streams, or one SCPI digitiser "
                         "(config/bench_digitiser.toml)")

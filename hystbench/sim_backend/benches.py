@@ -1,5 +1,5 @@
 """Foreign benches: named simulated benches that are NOT our nominal rigs, for the tests and
-``hystbench bench compensator``.
+``python -m benchmarks compensator``.
 
 A real bench differs from the preset it was built after: its dimensions, turns, magnet and airgap
 are off by some percent, its iron is another grade or behaves otherwise than the material model,

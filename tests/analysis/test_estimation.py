@@ -366,7 +366,7 @@ def test_delay_is_invariant_under_gain_and_offset(scale_x, scale_y, dc_x, dc_y):
 
 
 def test_a_100k_sample_record_fits_to_its_delay():
-    """Speed is the benchmarks' business (``hystbench bench estimation_stage`` times these fits on the
+    """Speed is the benchmarks' business (``python -m benchmarks estimation_stage`` times these fits on the
     live windows); CI times nothing."""
     x = signal(100_000, parts=((1, 1.0, 0.3),)) + 0.01 * np.random.default_rng(3).standard_normal(100_000)
     y = signal(100_000, delay_s=1e-4, parts=((1, 1.0, 0.3),))

@@ -1,4 +1,4 @@
-"""``hystbench bench diagnose``: the targets and the confusion table judge the diagnosis's answers
+"""``python -m benchmarks diagnose``: the targets and the confusion table judge the diagnosis's answers
 against the generator's truth as the issue states them; an unknown case is refused naming it."""
 
 from __future__ import annotations

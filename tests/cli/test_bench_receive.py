@@ -1,4 +1,4 @@
-"""``hystbench bench receive``: every stream kind's path delivers every sample it was fed (the run
+"""``python -m benchmarks receive``: every stream kind's path delivers every sample it was fed (the run
 raises otherwise), the figures are consistent with each other, and bad options are one line, exit 2."""
 
 from __future__ import annotations

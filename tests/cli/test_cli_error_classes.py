@@ -12,9 +12,3 @@ from hystbench.cli import main as cli_main
 from hystbench.errors import ConfigError
 
 
-def test_an_unknown_benchmark_name_is_a_config_error(capsys) -> None:
-    with pytest.raises(ConfigError, match="no benchmark 'no_such'; known: "):
-        cli_main.cmd_bench(argparse.Namespace(name="no_such", rest=[]))
-    assert cli_main.main(["bench", "no_such"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("hystbench bench: error: no benchmark 'no_such'") and "\n" not in err

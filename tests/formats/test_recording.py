@@ -82,7 +82,7 @@ def test_write_read_is_bit_identical(tmp_path, n, ncols, data, extra, fs, t0, ri
 
 
 def test_one_second_at_100ks_six_channels_round_trips_exactly(tmp_path):
-    """Speed is the benchmark's job (`hystbench bench csv`); here only the exact round trip."""
+    """Speed is the benchmark's job (`python -m benchmarks csv`); here only the exact round trip."""
     rng = np.random.default_rng(1)
     rec = Recording(path=None, fs_hz=100_000.0, metadata={**META, "sample_rate_Hz": 100_000.0},
                     channels={k: rng.standard_normal(100_000) for k in

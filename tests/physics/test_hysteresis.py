@@ -1,7 +1,7 @@
 """The B-driven Preisach operator: the properties any rate-independent hysteresis of iron has
 (closure, return-point memory, wiping out, minor loops inside the major loop, positive loss that
 grows with amplitude, Rayleigh's law, odd symmetry), block invariance, config errors.  Its speed
-is measured by ``hystbench bench sim``, not here."""
+is measured by ``python -m benchmarks sim``, not here."""
 
 from __future__ import annotations
 

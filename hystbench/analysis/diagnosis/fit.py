@@ -4,7 +4,7 @@ Every number's variance is its standard error squared plus a model-error floor: 
 channel's largest harmonic in that recording (``MODEL_ERROR_FLOOR``, per view).  The floor is what
 keeps a baseline that is merely imperfect (a real iron is never the preset's) from raising alarms;
 it was set on the null cases of the concealed suite, foreign benches included
-(``hystbench bench diagnose``).  Calibration parameters carry their priors as extra rows.
+(``python -m benchmarks diagnose``).  Calibration parameters carry their priors as extra rows.
 
 The score of a candidate is the Bayesian information criterion's difference with the baseline,
 ``chi2_base - chi2_cand - p ln n``: it charges each parameter ln n, so an effect is only worth

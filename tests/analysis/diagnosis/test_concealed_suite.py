@@ -1,6 +1,6 @@
 """Issue 27's targets on a representative subset of both concealed suites.
 
-The whole suites are a benchmark (``hystbench bench diagnose``, which ``.ci/run`` runs after ``make
+The whole suites are a benchmark (``python -m benchmarks diagnose``, which ``.ci/run`` runs after ``make
 test``; its figures and confusion tables are in docs/diagnosis.md#results).  Here, one day of each
 kind: from our simulator's suite a single effect and a null on a foreign bench (another iron, geometry
 off its drawing); from the independent bench (its own physics for every block, nothing shared with
