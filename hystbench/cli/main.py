@@ -10,7 +10,7 @@ import os
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, NoReturn, Sequence
 
 from .. import __version__
 from ..errors import BenchError, ConfigError
@@ -262,7 +262,8 @@ class OneLineParser(argparse.ArgumentParser):
     --help)``, and exit status 2: the usage block argparse prints above it buried the line that
     says what is wrong.  Every subparser is of this class (``add_subparsers`` takes the parent's)."""
 
-    def parse_known_args(self, args=None, namespace=None):
+    def parse_known_args(self, args: Sequence[str] | None = None,  # type: ignore[override]
+                         namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
         # an argument nobody takes is the command's error, named with its own --help: argparse
         # hands a subcommand's leftovers up to ``hystbench``, whose message named the wrong command
         namespace, extras = super().parse_known_args(args, namespace)
@@ -270,7 +271,7 @@ class OneLineParser(argparse.ArgumentParser):
             self.error(f"unrecognized arguments: {' '.join(extras)}")
         return namespace, extras
 
-    def error(self, message: str):
+    def error(self, message: str) -> NoReturn:
         what = " ".join(message.split())  # one line, whatever argparse composed
         self.exit(2, f"{self.prog}: error: {what} (see `{self.prog} --help`)\n")
 

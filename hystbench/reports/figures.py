@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Sequence
 
 import matplotlib
 
@@ -16,6 +16,8 @@ from ..errors import ConfigError  # noqa: E402
 from ..physics import presets  # noqa: E402
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from numpy.typing import ArrayLike
     from matplotlib.figure import Figure
 
 __all__ = ["plt", "save_figure", "force_map_figure", "loops_figure", "draw_nested_loops", "zoom_on_the_middle",
@@ -78,7 +80,7 @@ def loops_figure(curves: list[tuple[str, np.ndarray, np.ndarray]], xlabel: str, 
     return save_figure(fig, out, dpi=120)
 
 
-def zoom_on_the_middle(ax, curves) -> None:
+def zoom_on_the_middle(ax: Axes, curves: Sequence[tuple[str, ArrayLike, ArrayLike]]) -> None:
     """An inset magnifying the loops' middle (a tenth of the x range), where their openings differ
     most visibly; skipped when the loops are too few or too flat to need it."""
     xs = np.concatenate([np.asarray(x, float) for _, x, _ in curves])
@@ -99,7 +101,8 @@ def zoom_on_the_middle(ax, curves) -> None:
     ax.indicate_inset_zoom(inset, edgecolor="0.4")
 
 
-def draw_nested_loops(ax, curves, *, width: float = 1.0, **kw) -> None:
+def draw_nested_loops(ax: Axes, curves: Sequence[tuple[str, ArrayLike, ArrayLike]], *, width: float = 1.0,
+                      **kw: Any) -> None:
     """Loops that lie almost on one another (one per frequency, each barely wider than the one
     before) all visible: the first is drawn last and thinnest, on top, each earlier-listed one
     thinner than the next, so every loop shows as its own coloured band; the legend keeps the
