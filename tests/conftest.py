@@ -1,6 +1,7 @@
 """What every test shares: tests/ on sys.path, so any test imports the independent bench as
 ``independent_bench`` (the suite runs with --import-mode=importlib, which adds nothing to sys.path
-itself); loggers left as the test found them.
+itself); loggers left as the test found them; costly inputs computed once per run (``computed_once``)
+however many workers ``make test`` starts.
 
 import-linter's command line (tests/test_architecture.py, tests/independent_bench) configures
 logging with ``dictConfig``, which disables every logger that exists at that moment, hystbench's
@@ -8,9 +9,12 @@ included; every later test that looks for a log record (``caplog``) then finds n
 
 from __future__ import annotations
 
+import fcntl
 import logging
+import os
 import sys
 from pathlib import Path
+from typing import Callable
 
 import pytest
 
@@ -26,3 +30,32 @@ def _loggers_kept():
     yield
     for lg, was in disabled.items():
         lg.disabled = was
+
+
+@pytest.fixture(scope="session")
+def computed_once(tmp_path_factory) -> Callable[[str, Callable[[Path], object]], Path]:
+    """``computed_once(name, make)``: the path of file ``name``, which ``make(path)`` writes the first
+    time any worker of this run asks (the others wait on its lock, then read it).  For inputs that
+    take many seconds to compute and that several test files read (a fitted model file): under
+    pytest-xdist a session fixture is otherwise computed once per worker."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # one folder per run
+
+    def get(name: str, make: Callable[[Path], object]) -> Path:
+        path = shared / name
+        with open(shared / f"{name}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also on an error
+            if not path.exists():
+                make(path)
+        return path
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def model_file_of(computed_once) -> Callable[[str], Path]:
+    """``model_file_of(rig)``: the model file of a simulated E-core rig, identified from its fit sweep
+    (``quick_models``: 40, 160, 480 Hz x 0.3-1.5 A-pp) once per run."""
+    from hystbench.compensator.sweeps import quick_models
+
+    return lambda rig: computed_once(f"models_{rig}.json", lambda path: quick_models(rig).save(path))

@@ -21,13 +21,9 @@ DEAD = "tcp/127.0.0.1:9"  # nobody listens on the discard port: a request there 
 
 
 @pytest.fixture(scope="module")
-def model_file(tmp_path_factory) -> Path:
-    """A real model file (a small identification sweep of the simulated ecore_pm, fitted)."""
-    root = tmp_path_factory.mktemp("model")
-    assert main(["simulate-sweep", "--rig", "ecore_pm", "--freqs", "80,320", "--ipp", "1.0,1.4", "--duration", "0.1",
-                 "--out", str(root / "sweep")]) == 0
-    assert main(["model", "fit", str(root / "sweep"), "--out", str(root / "m.json"), "--json"]) == 0
-    return root / "m.json"
+def model_file(model_file_of) -> Path:
+    """A real model file (the simulated ecore_pm's, fitted once per run)."""
+    return model_file_of("ecore_pm")
 
 
 SIM = ["simulate", "--rig", "ecore", "--freq", "320", "--ipp", "1", "--duration", "0.01", "--out", "TMP/out/s"]
@@ -181,7 +177,7 @@ def test_records_block_bound_is_the_sources():
 
 
 def test_ctls_timeout_bound_is_the_clients():
-    from hystbench.acquisition.control import MAX_TIMEOUT_S
+    from hystbench.service.control import MAX_TIMEOUT_S
     from hystbench.cli import pipeline
 
     assert pipeline._MAX_TIMEOUT_S == MAX_TIMEOUT_S
