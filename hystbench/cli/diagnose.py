@@ -67,17 +67,27 @@ def _is_loss_table(path: Path) -> bool:
     return path.is_file() and path.suffix.lower() == ".csv"
 
 
+def _rig_folders(path: Path) -> list[Path]:
+    """The subfolders holding recordings, when ``path`` itself holds none: a bench day written one
+    folder per rig; empty otherwise (the folder is then read as a sweep, and refused if empty)."""
+    if any(path.glob("*.csv")):
+        return []
+    return sorted(sub for sub in path.iterdir() if sub.is_dir() and any(sub.glob("*.csv")))
+
+
 def read_inputs(paths: list[Path]) -> list[Any]:
     """The recordings of every sweep folder and MCAP log, in the order given (each folder sorted by
     ``read_sweep``: by rig, then operating point).  A folder may hold a whole bench day, several rigs
-    told apart by the sidecars' ``rig``; a folder or log with fewer than two recordings is refused."""
+    told apart by the sidecars' ``rig``, or one subfolder per rig; a folder or log with fewer than
+    two recordings is refused."""
     from ..analysis.log_recordings import read_mcap_segments
     from ..formats.recording import read_sweep
 
     recs: list[Any] = []
     for path in paths:
         if path.is_dir():
-            part, what = read_sweep(path), "sweep"
+            rigs = _rig_folders(path)  # a day written one folder per rig (simulate-bench-day)
+            part, what = [r for sub in rigs for r in read_sweep(sub)] if rigs else read_sweep(path), "sweep"
         elif path.is_file() and path.suffix.lower() == ".mcap":
             part, what = read_mcap_segments(path), "log"
         elif not path.exists():

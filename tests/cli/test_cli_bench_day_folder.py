@@ -40,6 +40,23 @@ def test_diagnose_reads_both_rigs_of_one_folder(two_rigs):
         ("ecore_pm", 80.0, 0.7), ("ecore_pm", 80.0, 1.4), ("ecore_pm", 320.0, 1.4)]
 
 
+def test_diagnose_reads_a_day_written_one_folder_per_rig(tmp_path):
+    """As ``simulate-bench-day`` writes it: DAY/ecore, DAY/ecore_pm; ``diagnose DAY`` takes both."""
+    write_sweep([_rec("ecore_pm", 320.0, 1.4), _rec("ecore_pm", 80.0, 1.4)], tmp_path / "day" / "ecore_pm")
+    write_sweep([_rec("ecore", 160.0, 1.27), _rec("ecore", 80.0, 1.27)], tmp_path / "day" / "ecore")
+    (tmp_path / "day" / "notes").mkdir()  # a folder without recordings is not a rig's
+    recs = read_inputs([tmp_path / "day"])
+    assert [(r.rig, r.frequency_hz) for r in recs] == [("ecore", 80.0), ("ecore", 160.0), ("ecore_pm", 80.0),
+                                                        ("ecore_pm", 320.0)]
+
+
+def test_an_empty_day_folder_is_still_refused_naming_it(tmp_path):
+    (tmp_path / "day" / "notes").mkdir(parents=True)
+    with pytest.raises(RecordingError, match="no recordings") as info:
+        read_inputs([tmp_path / "day"])
+    assert str(tmp_path / "day") in str(info.value)
+
+
 def test_diagnose_still_refuses_a_folder_of_one_recording(tmp_path):
     write_sweep([_rec("ecore", 80.0, 1.27)], tmp_path / "one")
     with pytest.raises(RecordingError, match="only one recording") as info:
