@@ -70,6 +70,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if taken and not args.overwrite:  # before the simulation, not after it
         raise ConfigError(f"--out {args.out}: {taken[0]} exists; give --overwrite to replace it")
     rec = _simulate_one(args, args.freq, args.ipp, args.seed)
+    stem.parent.mkdir(parents=True, exist_ok=True)  # --out new/run: the folder as simulate-sweep makes its own
     csv_path, json_path = write_recording(rec, args.out, overwrite=args.overwrite)
     print(f"wrote {csv_path} and {json_path} ({rec.n} samples at {rec.fs_hz:g} Hz)")
     return 0
@@ -170,8 +171,12 @@ def cmd_force_map(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {out}: give a file name with its format ({', '.join(sorted(formats))}), "
                           f"e.g. {out.stem if out.suffix else out.name}.png")
     check_ecore(args.rig)  # before a file is touched
-    with output_file(out, overwrite=args.overwrite) as tmp:
-        force_map_figure(args.rig, tmp)
+    try:
+        with output_file(out, overwrite=args.overwrite) as tmp:
+            force_map_figure(args.rig, tmp)
+    except RuntimeError as err:  # a format whose tool is missing (.pgf needs xelatex): nothing written
+        raise ConfigError(f"--out {out}: cannot write {out.suffix}: {' '.join(str(err).split())}; "
+                          "choose another format, e.g. .png or .pdf") from None
     print(f"wrote {out}")
     return 0
 
