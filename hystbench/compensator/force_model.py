@@ -120,7 +120,7 @@ def paper_model(points: Sequence[PeriodData], law: StaticLaw, *, kind: str = "pa
     if not th:
         raise CompensatorError("no theta_hyst measured in the sweep; the paper's Eq. 6 needs it")
     pm = PhaseDelayModel.from_phases(law.coefficients, [f for f, _ in th], [t for _, t in th])
-    return PaperModel(law, tuple(map(float, pm.freq_hz)), tuple(map(float, pm.theta_rad)), kind=kind)
+    return PaperModel(law, tuple(map(float, pm.frequency_hz)), tuple(map(float, pm.theta_rad)), kind=kind)
 
 
 # --- what the load cell reports ------------------------------------------------------------------

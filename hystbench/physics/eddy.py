@@ -21,16 +21,16 @@ __all__ = [
 ]
 
 
-def skin_depth(f_hz: ArrayLike, mu_r: float, sigma_s_per_m: float) -> float | np.ndarray:
+def skin_depth(frequency_hz: ArrayLike, mu_r: float, sigma_s_per_m: float) -> float | np.ndarray:
     """sqrt(2 / (w mu sigma)) (m): a part much thinner than this carries the field whole, so the
     low-frequency eddy model (:func:`lamination_eddy_coefficient`) holds for it."""
-    return np.sqrt(2.0 / (2 * np.pi * np.asarray(f_hz, float) * mu_0 * mu_r * sigma_s_per_m))
+    return np.sqrt(2.0 / (2 * np.pi * np.asarray(frequency_hz, float) * mu_0 * mu_r * sigma_s_per_m))
 
 
-def slab_permeability_factor(f_hz: ArrayLike, mu_r: float, sigma_s_per_m: float, thickness_m: float
+def slab_permeability_factor(frequency_hz: ArrayLike, mu_r: float, sigma_s_per_m: float, thickness_m: float
                              ) -> np.ndarray:
     """mu_eff / mu = tanh(kd/2)/(kd/2) for a lamination of thickness d (complex; phase < 0 = lag)."""
-    f = np.asarray(f_hz, dtype=float)
+    f = np.asarray(frequency_hz, dtype=float)
     k = np.sqrt(1j * 2 * np.pi * f * mu_0 * mu_r * sigma_s_per_m)
     x = k * thickness_m / 2.0
     with np.errstate(invalid="ignore", divide="ignore"):

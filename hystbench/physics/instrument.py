@@ -20,18 +20,19 @@ from scipy import signal
 __all__ = ["InstrumentModel", "second_order_lowpass", "resonance_pair", "bilinear_sos"]
 
 
-def second_order_lowpass(f_hz: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
-    """w^2 / (s^2 + 2 zeta w s + w^2), unity gain at DC."""
-    w = 2 * np.pi * f_hz
+def second_order_lowpass(corner_hz: float, zeta: float) -> tuple[np.ndarray, np.ndarray]:
+    """w^2 / (s^2 + 2 zeta w s + w^2), unity gain at DC, w = 2 pi ``corner_hz``."""
+    w = 2 * np.pi * corner_hz
     return np.array([w * w]), np.array([1.0, 2 * zeta * w, w * w])
 
 
-def resonance_pair(f_hz: float, zeta_pole: float, zeta_zero: float,
+def resonance_pair(resonance_hz: float, zeta_pole: float, zeta_zero: float,
                    f_zero_hz: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """A small mode: unity gain below f, gain zeta_zero/zeta_pole at f, a local phase wiggle.  With its
-    anti-resonance at ``f_zero_hz`` (a frame's two masses: the zero apart from the pole) the gain steps
-    by (f/f_zero)^2 across the mode and its phase swings one way below it, the other above."""
-    w = 2 * np.pi * f_hz
+    """A small mode at f = ``resonance_hz``: unity gain below f, gain zeta_zero/zeta_pole at f, a local
+    phase wiggle.  With its anti-resonance at ``f_zero_hz`` (a frame's two masses: the zero apart from
+    the pole) the gain steps by (f/f_zero)^2 across the mode and its phase swings one way below it,
+    the other above."""
+    w = 2 * np.pi * resonance_hz
     wz = w if f_zero_hz is None else 2 * np.pi * f_zero_hz
     r2 = (w / wz) ** 2  # unity DC gain: (s^2 / wz^2 + 2 zeta_z s / wz + 1) / (s^2 / w^2 + 2 zeta_p s / w + 1)
     return np.array([r2, 2 * zeta_zero * w * w / wz, w * w]), np.array([1.0, 2 * zeta_pole * w, w * w])
@@ -75,24 +76,24 @@ class InstrumentModel:
             out.append((np.array([tau, 0.0]), np.array([tau, 1.0]), None))
         return out
 
-    def frequency_response(self, f_hz: ArrayLike) -> np.ndarray:
+    def frequency_response(self, frequency_hz: ArrayLike) -> np.ndarray:
         """Complex H(j 2 pi f) of the continuous model."""
-        f = np.asarray(f_hz, dtype=float)
+        f = np.asarray(frequency_hz, dtype=float)
         w = 2 * np.pi * np.atleast_1d(f)
         h = np.ones_like(w, dtype=complex)
         for b, a, _ in self.sections():
             h *= signal.freqs(b, a, worN=w)[1]
         return h.reshape(f.shape)
 
-    def phase_deg(self, f_hz: ArrayLike) -> np.ndarray:
+    def phase_deg(self, frequency_hz: ArrayLike) -> np.ndarray:
         """Phase of H in degrees (negative: the measured force lags the actuator's force)."""
-        f = np.asarray(f_hz, dtype=float)
+        f = np.asarray(frequency_hz, dtype=float)
         h = np.atleast_1d(self.frequency_response(f))
         return np.degrees(np.unwrap(np.angle(h))).reshape(f.shape)
 
-    def delay_s(self, f_hz: ArrayLike) -> np.ndarray:
+    def delay_s(self, frequency_hz: ArrayLike) -> np.ndarray:
         """Equivalent time delay -phase/omega (positive: the measured force is late)."""
-        f = np.asarray(f_hz, dtype=float)
+        f = np.asarray(frequency_hz, dtype=float)
         return -np.radians(self.phase_deg(f)) / (2 * np.pi * f)
 
     def sos(self, fs_hz: float) -> np.ndarray:

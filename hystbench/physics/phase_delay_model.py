@@ -65,15 +65,15 @@ def delay_periodic(x: ArrayLike, delay_periods: float) -> np.ndarray:
     return np.fft.irfft(shifted, n)
 
 
-def delay_record(x: ArrayLike, fs_hz: float, delay_s: float, freq_hz: float) -> np.ndarray:
-    """A sampled steady-state periodic record (fundamental ``freq_hz``) delayed by ``delay_s``
+def delay_record(x: ArrayLike, fs_hz: float, delay_s: float, frequency_hz: float) -> np.ndarray:
+    """A sampled steady-state periodic record (fundamental ``frequency_hz``) delayed by ``delay_s``
     (cubic interpolation).  The first samples, which would need times before the record, take the
     value one period later (the signal is periodic), so the record must span one period + delay."""
     x = _as_1d(x, "x")
-    if not fs_hz > 0 or not freq_hz > 0:
-        raise ValueError(f"fs_hz and freq_hz must be > 0, got {fs_hz!r}, {freq_hz!r}")
+    if not fs_hz > 0 or not frequency_hz > 0:
+        raise ValueError(f"fs_hz and frequency_hz must be > 0, got {fs_hz!r}, {frequency_hz!r}")
     t = np.arange(x.size) / fs_hz
-    period = 1.0 / freq_hz
+    period = 1.0 / frequency_hz
     span = t[-1] if x.size > 1 else 0.0
     td = t - delay_s
     td = np.where(td < 0.0, td + period * np.ceil(-td / period), td)
@@ -86,7 +86,7 @@ def delay_record(x: ArrayLike, fs_hz: float, delay_s: float, freq_hz: float) -> 
 
 @dataclass(frozen=True)
 class PhaseDelayModel:
-    """Eq. 6: force coefficients (k0, k1, k2) and theta_hyst measured at ``freq_hz``.
+    """Eq. 6: force coefficients (k0, k1, k2) and theta_hyst measured at ``frequency_hz``.
 
     ``theta(f)`` is piecewise linear through the measured points; below the lowest measured
     frequency it is held (a rate-independent hysteresis loop keeps its phase as f -> 0); above
@@ -99,7 +99,7 @@ class PhaseDelayModel:
     k0_n: float
     k1_n_per_a: float
     k2_n_per_a2: float
-    freq_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    frequency_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
     theta_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))
     theta_se_rad: np.ndarray | None = None
 
@@ -111,18 +111,19 @@ class PhaseDelayModel:
         return cls(k0, k1, k2, np.array([1.0]), np.array([0.0]), np.array([0.0]))
 
     @classmethod
-    def from_phases(cls, coefficients: Sequence[SupportsFloat], freq_hz: ArrayLike, theta_rad: ArrayLike,
+    def from_phases(cls, coefficients: Sequence[SupportsFloat], frequency_hz: ArrayLike, theta_rad: ArrayLike,
                     theta_se_rad: ArrayLike | None = None) -> PhaseDelayModel:
-        """From per-point phase delays theta_hyst (rad, positive: the force lags) at ``freq_hz``."""
-        f = _as_1d(freq_hz, "freq_hz")
+        """From per-point phase delays theta_hyst (rad, positive: the force lags) at ``frequency_hz``."""
+        f = _as_1d(frequency_hz, "frequency_hz")
         th = _as_1d(theta_rad, "theta_rad")
         if f.size == 0 or f.size != th.size:
-            raise ValueError(f"freq_hz and theta_rad must be non-empty and of one length, got {f.size}, {th.size}")
+            raise ValueError("frequency_hz and theta_rad must be non-empty and of one length, "
+                             f"got {f.size}, {th.size}")
         if np.any(f <= 0):
-            raise ValueError("freq_hz must be > 0")
+            raise ValueError("frequency_hz must be > 0")
         se = None if theta_se_rad is None else _as_1d(theta_se_rad, "theta_se_rad")
         if se is not None and (se.size != f.size or np.any(se < 0)):
-            raise ValueError("theta_se_rad must be >= 0 and as long as freq_hz")
+            raise ValueError("theta_se_rad must be >= 0 and as long as frequency_hz")
         grid = np.unique(f)
         th_g, se_g = np.empty(grid.size), np.empty(grid.size)
         for j, fj in enumerate(grid):
@@ -137,40 +138,40 @@ class PhaseDelayModel:
         return cls(k0, k1, k2, grid, th_g, None if se is None else se_g)
 
     @classmethod
-    def from_delays(cls, coefficients: Sequence[SupportsFloat], freq_hz: ArrayLike, delay_s: ArrayLike,
+    def from_delays(cls, coefficients: Sequence[SupportsFloat], frequency_hz: ArrayLike, delay_s: ArrayLike,
                     delay_se_s: ArrayLike | None = None) -> PhaseDelayModel:
-        """From per-point time delays of the flux behind the current (s) at ``freq_hz``."""
-        f = _as_1d(freq_hz, "freq_hz")
+        """From per-point time delays of the flux behind the current (s) at ``frequency_hz``."""
+        f = _as_1d(frequency_hz, "frequency_hz")
         w = 2 * np.pi * f
         se = None if delay_se_s is None else w * _as_1d(delay_se_s, "delay_se_s")
         return cls.from_phases(coefficients, f, w * _as_1d(delay_s, "delay_s"), se)
 
     @classmethod
-    def from_mec(cls, mec: ECoreMEC, freq_hz: ArrayLike, theta_rad: ArrayLike,
+    def from_mec(cls, mec: ECoreMEC, frequency_hz: ArrayLike, theta_rad: ArrayLike,
                  theta_se_rad: ArrayLike | None = None, airgap_m: float | None = None) -> PhaseDelayModel:
         """Coefficients from an :class:`~hystbench.physics.mec.ECoreMEC` at ``airgap_m`` (default:
         its nominal airgap), theta as in :meth:`from_phases`."""
         z = mec.geometry.airgap_m if airgap_m is None else airgap_m
-        return cls.from_phases(mec.force_coefficients(z), freq_hz, theta_rad, theta_se_rad)
+        return cls.from_phases(mec.force_coefficients(z), frequency_hz, theta_rad, theta_se_rad)
 
     # --- the model -----------------------------------------------------------------------------
     @property
     def coefficients(self) -> tuple[float, float, float]:
         return self.k0_n, self.k1_n_per_a, self.k2_n_per_a2
 
-    def theta(self, freq_hz: ArrayLike) -> float | np.ndarray:
-        """theta_hyst (rad) at ``freq_hz`` (array or scalar)."""
-        f = np.asarray(freq_hz, dtype=float)
-        grid, th = self.freq_hz, self.theta_rad
+    def theta(self, frequency_hz: ArrayLike) -> float | np.ndarray:
+        """theta_hyst (rad) at ``frequency_hz`` (array or scalar)."""
+        f = np.asarray(frequency_hz, dtype=float)
+        grid, th = self.frequency_hz, self.theta_rad
         if grid.size == 1:
             return np.full(f.shape, th[0])[()]
         out = np.interp(f, grid, th)  # holds th[0] below grid[0]
         slope = (th[-1] - th[-2]) / (grid[-1] - grid[-2])
         return np.where(f > grid[-1], th[-1] + slope * (f - grid[-1]), out)[()]
 
-    def delay_s(self, freq_hz: ArrayLike) -> float | np.ndarray:
+    def delay_s(self, frequency_hz: ArrayLike) -> float | np.ndarray:
         """theta_hyst as the equivalent time delay of the current (s)."""
-        f = np.asarray(freq_hz, dtype=float)
+        f = np.asarray(frequency_hz, dtype=float)
         return self.theta(f) / (2 * np.pi * f)
 
     def static_force(self, current_a: ArrayLike) -> np.ndarray:
@@ -178,20 +179,20 @@ class PhaseDelayModel:
         i = np.asarray(current_a, dtype=float)
         return self.k0_n + self.k1_n_per_a * i + self.k2_n_per_a2 * i * i
 
-    def force_period(self, current_a: ArrayLike, freq_hz: float) -> np.ndarray:
+    def force_period(self, current_a: ArrayLike, frequency_hz: float) -> np.ndarray:
         """Eq. 6 for one period of a periodic current (uniformly sampled, the compensator's table):
         the table is delayed by theta(f) / 2 pi of a period, then put through Eq. 1."""
-        th = float(self.theta(float(freq_hz)))
+        th = float(self.theta(float(frequency_hz)))
         return self.static_force(delay_periodic(current_a, th / (2 * np.pi)))
 
-    def force(self, current_a: ArrayLike, fs_hz: float, freq_hz: float) -> np.ndarray:
-        """Eq. 6 for a sampled steady-state record of a periodic current at ``freq_hz``."""
-        d = float(self.delay_s(float(freq_hz)))
-        return self.static_force(delay_record(current_a, fs_hz, d, freq_hz))
+    def force(self, current_a: ArrayLike, fs_hz: float, frequency_hz: float) -> np.ndarray:
+        """Eq. 6 for a sampled steady-state record of a periodic current at ``frequency_hz``."""
+        d = float(self.delay_s(float(frequency_hz)))
+        return self.static_force(delay_record(current_a, fs_hz, d, frequency_hz))
 
-    def force_sine(self, t_s: ArrayLike, amplitude_a: float, freq_hz: float, offset_a: float = 0.0,
+    def force_sine(self, t_s: ArrayLike, amplitude_a: float, frequency_hz: float, offset_a: float = 0.0,
                    phase_rad: float = 0.0) -> np.ndarray:
         """Eq. 6 for i(t) = offset + amplitude sin(2 pi f t + phase), in closed form."""
         t = np.asarray(t_s, dtype=float)
-        arg = 2 * np.pi * freq_hz * t + phase_rad - float(self.theta(freq_hz))
+        arg = 2 * np.pi * frequency_hz * t + phase_rad - float(self.theta(frequency_hz))
         return self.static_force(offset_a + amplitude_a * np.sin(arg))

@@ -35,9 +35,9 @@ class VoiceCoil:
         """Static force (N): no eddy lag."""
         return self.force_constant_n_per_a * np.asarray(current_a, dtype=float)
 
-    def frequency_response(self, f_hz: ArrayLike, *, eddy: bool = True) -> complex | np.ndarray:
+    def frequency_response(self, frequency_hz: ArrayLike, *, eddy: bool = True) -> complex | np.ndarray:
         """Complex force per ampere; ``eddy`` switches the magnet's eddy lag."""
-        w = 2 * np.pi * np.asarray(f_hz, dtype=float)
+        w = 2 * np.pi * np.asarray(frequency_hz, dtype=float)
         tau = self.eddy_time_constant_s if eddy else 0.0
         return self.force_constant_n_per_a / (1.0 + 1j * w * tau)
 

@@ -211,7 +211,7 @@ def summary(res: PaperResult, rows: list[dict] | None = None) -> dict:
             "delays": [{**d.as_dict(), "frequency_Hz": r.frequency_hz, "frequency_true_Hz": d.frequency_hz,
                         "current_pp_A": r.current_pp_a, "theta_hyst_deg": d.phase_deg("hysteresis")}
                        for r, d in zip(run.recordings, run.delays)],
-            "phase_delay_model": {f"{ipp:g} A-pp": {"frequency_Hz": m.freq_hz.tolist(),
+            "phase_delay_model": {f"{ipp:g} A-pp": {"frequency_Hz": m.frequency_hz.tolist(),
                                                     "theta_hyst_deg": np.degrees(m.theta_rad).tolist()}
                                   for ipp, m in run.models.items()},
             "force_error": [fe.summary() for fe in run.errors.values()],

@@ -53,7 +53,7 @@ def test_several_amplitudes_at_one_frequency_are_averaged_by_weight():
     model = PhaseDelayModel.from_delays(COEF, [320.0, 320.0, 40.0], [10e-6, 12e-6, 30e-6], [1e-7, 2e-7, 1e-7])
     w = 2 * np.pi * 320.0
     expected = (10e-6 / 1e-14 + 12e-6 / 4e-14) / (1 / 1e-14 + 1 / 4e-14) * w
-    assert model.freq_hz.tolist() == [40.0, 320.0]
+    assert model.frequency_hz.tolist() == [40.0, 320.0]
     assert model.theta(320.0) == pytest.approx(expected)
 
 
@@ -68,7 +68,7 @@ def test_delay_periodic_shifts_a_multi_harmonic_signal_exactly():
 
 
 def test_bad_arguments_are_named():
-    with pytest.raises(ValueError, match="freq_hz"):
+    with pytest.raises(ValueError, match="frequency_hz"):
         PhaseDelayModel.from_phases(COEF, [0.0], [0.1])
     with pytest.raises(ValueError, match="one length"):
         PhaseDelayModel.from_phases(COEF, [40.0, 80.0], [0.1])
