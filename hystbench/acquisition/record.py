@@ -81,8 +81,8 @@ def _run_collecting(pipe: Pipeline, on_message: Listener | None, timeout_s: floa
     pipe.listeners.append(lambda t, o: estimates.append(dict(o)) if t == "/estimate" else None)
     if on_message is not None:
         pipe.listeners.append(on_message)
-    pipe.start()
-    try:
+    try:  # a Ctrl-C while the threads start stops them too, before the caller closes the log under them
+        pipe.start()
         if not pipe.join(timeout_s):
             pipe.stop()
     except KeyboardInterrupt:

@@ -88,3 +88,36 @@ def test_the_command_line_says_a_failed_replay_in_one_line_exit_2(tmp_path: Path
     err = capsys.readouterr().err.strip()
     assert err.startswith(f"hystbench replay: error: {log}: replay failed: ") and "raw message" in err
     assert "\n" not in err and "Traceback" not in err
+
+
+def test_a_ctrl_c_as_the_threads_start_stops_them_before_the_log_is_closed(tmp_path: Path, monkeypatch) -> None:
+    """The interrupt arriving at the end of ``Pipeline.start`` (its threads running): the pipeline is
+    stopped and drained first, then the log is finished; it holds every block the source gave, in
+    order.  It used to escape record_log with the threads still writing into a log being closed."""
+    from hystbench.acquisition.pipeline import Pipeline
+
+    real_start = Pipeline.start
+
+    def start_then_interrupt(self):
+        real_start(self)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Pipeline, "start", start_then_interrupt)
+    src = McapSource(_whole_log(tmp_path))
+    out = tmp_path / "out.mcap"
+    summary = record_log(src, out)
+    got = [b.first_index for b in McapSource(out).blocks()]
+    assert got == sorted(got) and got and got[0] == 0 and summary["samples"] == sum(
+        b.n for b in McapSource(out).blocks())
+
+
+def _whole_log(tmp_path: Path) -> Path:
+    path = tmp_path / "whole_source.mcap"
+    meta = OperatingPoint(320.0, 1.4).to_meta()
+    rng = np.random.default_rng(2)
+    with McapRecorder(path, compression="none", idle_raw="full",
+                      metadata={"recording": {"rig": "ecore_pm", "frequency_Hz": 320.0, "sample_rate_Hz": FS,
+                                              "current_pp_A": 1.4}}) as rec:
+        for k in range(20):
+            rec.add_block(SampleBlock(1000 * k, FS, {"current_A": rng.standard_normal(1000)}, meta=meta))
+    return path
