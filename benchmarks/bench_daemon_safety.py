@@ -33,7 +33,7 @@ HANG_S = 60.0
 
 
 def _service(tmp: Path, bench: str):
-    from hystbench.acquisition.daemon import BenchService, load_daemon_config
+    from hystbench.service.daemon import BenchService, load_daemon_config
 
     toml = tmp / "daemon.toml"
     toml.write_text(f'[daemon]\nbench = "{bench}"\nlog_dir = "{tmp.as_posix()}"\n[source]\nkind = "bench"\n'

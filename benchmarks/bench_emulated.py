@@ -1,7 +1,7 @@
 """The emulated bench in the daemon: CPU of one core at 100 kS/s on all channels, sweep running.
 
 Target (issue 14): <= 20 % of one core.  The daemon's own service is built in this process
-(:class:`hystbench.acquisition.service.BenchService` from the daemon's defaults: ``[source] kind =
+(:class:`hystbench.service.service.BenchService` from the daemon's defaults: ``[source] kind =
 "bench"`` on the shipped bench file, so the four emulated instruments behind their real transports
 (TCP, a pseudo-terminal, the python-can virtual bus), the simulated rig, the drivers, and the
 pipeline with its estimation stage, zenoh publishing on a loopback-only session and the MCAP
@@ -60,7 +60,7 @@ def _by_name(before: dict, after: dict, wall_s: float) -> list[tuple[str, float]
 
 
 def _config(folder: Path, seconds: float):
-    from hystbench.acquisition.daemon import load_daemon_config
+    from hystbench.service.daemon import load_daemon_config
     from hystbench.acquisition.zenoh_bus import free_port
 
     dwell = (seconds + WARMUP_S) / 5 + 2.0  # the sweep outlasts the measurement
@@ -73,7 +73,7 @@ def _config(folder: Path, seconds: float):
 
 
 def run(seconds: float = 30.0) -> dict:
-    from hystbench.acquisition.service import BenchService
+    from hystbench.service.service import BenchService
 
     with tempfile.TemporaryDirectory(prefix="hystbench-bench-emulated-") as tmp:
         cfg = _config(Path(tmp), seconds)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 
 def measure(source: str, policy: str, seconds: float, settle: float) -> dict:
-    from hystbench.acquisition.daemon import BenchService, load_daemon_config
+    from hystbench.service.daemon import BenchService, load_daemon_config
 
     with tempfile.TemporaryDirectory() as tmp:
         cfg = Path(tmp) / "daemon.toml"

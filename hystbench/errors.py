@@ -20,15 +20,15 @@
      │                                   why); sim_backend/actuators/ecore, cli/main (a clipped ADC)
      ├── CommandRefused                  a command the bench cannot carry out now: not running, a sweep is
      │                                   running, the compensator switched the output off, the source takes
-     │                                   no commands (acquisition/service, zenoh_bus); on the client side
-     │                                   (acquisition/control, zenoh_bus.send_command) any ``ok: false``
-     │                                   reply, with the daemon's ``reply``
-     ├── TooManyFaults                   acquisition/service: faults in quick succession, the service stops
+     │                                   no commands (service/service, acquisition/zenoh_bus); on the
+     │                                   client side (service/control, acquisition/zenoh_bus.send_command)
+     │                                   any ``ok: false`` reply, with the daemon's ``reply``
+     ├── TooManyFaults                   service/service: faults in quick succession, the service stops
      │                                   (the daemon exits 1; the last fault is the ``__cause__``)
      ├── NetworkError                    the zenoh network: an endpoint, a reply
      │    ├── ListenError                acquisition/zenoh_bus.open_session: a listen endpoint is taken
-     │    └── NoReply                    nobody answered a command or query in time; acquisition/control,
-     │                                   zenoh_bus.send_command   (also a TimeoutError)
+     │    └── NoReply                    nobody answered a command or query in time; service/control,
+     │                                   acquisition/zenoh_bus.send_command   (also a TimeoutError)
      ├── InstrumentError                 an instrument misbehaves (names the instrument and command)
      │    ├── ConnectionLost             drivers/base, drivers/stream   (also a ConnectionError)
      │    ├── ProtocolError              an answer the protocol does not allow; drivers/base, the drivers'

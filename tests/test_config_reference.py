@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 
-from hystbench.acquisition.daemon import SCHEMA as DAEMON, load_daemon_config
+from hystbench.service.daemon import SCHEMA as DAEMON, load_daemon_config
 from hystbench.config import CONFIG_DIR, load_material, load_rig
 from hystbench.config.effects import CATALOGUE
 from hystbench.config.presets import MATERIAL_SCHEMA, RIG_SCHEMAS

@@ -3,7 +3,7 @@
 
 ``register(subparsers)`` adds the commands to the ``hystbench`` parser (whose ``main`` turns a
 :class:`~hystbench.errors.BenchError` into exit status 2).  The work is done in the library
-(``acquisition.record`` records and replays, ``acquisition.control`` talks to a daemon), imported
+(``acquisition.record`` records and replays, ``service.control`` talks to a daemon), imported
 when a command runs; :func:`format_message` is how a message is printed on the terminal.
 """
 
@@ -22,7 +22,7 @@ from ..errors import BenchError, RecordingError
 __all__ = ["register", "format_message"]
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
-_MAX_TIMEOUT_S = 86_400.0  # acquisition.control.MAX_TIMEOUT_S (not imported here: it loads zenoh)
+_MAX_TIMEOUT_S = 86_400.0  # service.control.MAX_TIMEOUT_S (not imported here: it loads zenoh)
 #: the longest ``record`` runs, s (about 30 years): a bound, so that seconds x rate stays a count of
 #: samples (1e308 s was "cannot convert float infinity to integer"); the daemon is for open-ended runs
 MAX_RECORD_S = 1e9
@@ -97,7 +97,7 @@ def _watch_items(sub, keyexpr: str, endpoint: str, *, count: int | None, seconds
 def cmd_watch(args: argparse.Namespace) -> int:
     """`hystbench watch`: a bench's live messages from zenoh, one line each (estimates by default),
     for a person or a pipe."""
-    from ..acquisition.control import describe_endpoint, open_client
+    from ..service.control import describe_endpoint, open_client
     from ..acquisition.zenoh_bus import Subscription
 
     session = open_client(args.connect, args.zenoh_config)
@@ -168,7 +168,7 @@ def _format_reply(bench: str, verb: str, reply: dict) -> str:
 def cmd_ctl(args: argparse.Namespace) -> int:
     """One command or query to a running daemon; exit 1 if it refuses (its reason on stderr),
     2 if nobody answers within ``--timeout``."""
-    from ..acquisition.control import BenchControl
+    from ..service.control import BenchControl
     from ..errors import CommandRefused
 
     payload = _ctl_payload(args)
@@ -411,7 +411,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
 def cmd_daemon(args: argparse.Namespace) -> int:
     """`hystbench daemon`: the bench service (systemd-ready; SIGHUP reloads its file)."""
-    from ..acquisition.daemon import run_daemon
+    from ..service.daemon import run_daemon
 
     return run_daemon(args.config)
 

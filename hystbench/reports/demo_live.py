@@ -14,8 +14,8 @@ from typing import Any, Callable
 
 from rich.markup import escape
 
-from ..acquisition.control import BenchControl
-from ..acquisition.daemon import BenchService, load_daemon_config
+from ..service.control import BenchControl
+from ..service.daemon import BenchService, load_daemon_config
 from ..acquisition.zenoh_bus import Subscription, free_port, key
 from ..deadline import Deadline
 from ..errors import BenchError

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 from ..deadline import Deadline
 from ..errors import CommandRefused, ConfigError, NoReply
-from .zenoh_bus import COMMANDS, MAX_COMMAND_BYTES, key, load_zenoh_config, open_session, query_json
+from ..acquisition.zenoh_bus import COMMANDS, MAX_COMMAND_BYTES, key, load_zenoh_config, open_session, query_json
 
 if TYPE_CHECKING:
     import zenoh

@@ -37,7 +37,7 @@ from ..config import read_toml
 from ..config.schema import NUM, Key, check_table
 from ..errors import BenchError, ConfigError, InstrumentError
 from ..formats.mcaplog.recorder import COMPRESSIONS, IDLE_RAW
-from .bench_commands import MAX_DWELL_S
+from ..acquisition.bench_commands import MAX_DWELL_S
 from .sd_notify import Notifier
 from .service import BenchService
 from .service_log import check_log_dir
@@ -173,7 +173,7 @@ def load_daemon_config(path: str | Path | None) -> DaemonConfig:
     data = _bench_file_as_daemon_config(data, path, where)
     values = check_table(data, where, SCHEMA)
     given = {(s, k) for s, table in data.items() for k in table}
-    from .zenoh_bus import key
+    from ..acquisition.zenoh_bus import key
 
     try:
         key(values["daemon"]["bench"])
@@ -217,7 +217,7 @@ def _bench_file_as_daemon_config(data: dict[str, Any], path, where: str) -> dict
 def zenoh_config(cfg: DaemonConfig) -> zenoh.Config:
     """The session's config: the [zenoh] config file (or a bare peer) with the daemon file's
     ``listen``/``connect`` on top only where the file names them, so a zenoh file keeps its own."""
-    from .zenoh_bus import load_zenoh_config
+    from ..acquisition.zenoh_bus import load_zenoh_config
 
     z = cfg["zenoh"]
     src = z["config"] or None
@@ -371,7 +371,7 @@ def _endpoints(cfg: DaemonConfig) -> list[str]:
 def _open_session(cfg: DaemonConfig):
     if not cfg["zenoh"]["enabled"]:
         return None
-    from .zenoh_bus import ListenError, open_session
+    from ..acquisition.zenoh_bus import ListenError, open_session
 
     try:
         return open_session(zenoh_config(cfg))

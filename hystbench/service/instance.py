@@ -117,7 +117,7 @@ def _describe(info: dict[str, Any]) -> str:
 def claim_on_zenoh(session: zenoh.Session, bench: str, *, timeout_s: float = 1.0) -> zenoh.LivelinessToken:
     """Refuse if a daemon of ``bench`` is alive on the zenoh network ``session`` reaches; else
     declare this daemon's liveliness token (returned: keep it, undeclare it at stop)."""
-    from .zenoh_bus import key, query_json
+    from ..acquisition.zenoh_bus import key, query_json
 
     alive = key(bench, ALIVE)
     replies = [r for r in session.liveliness().get(alive, timeout=timeout_s) if r.ok is not None]

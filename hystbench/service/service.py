@@ -30,7 +30,7 @@ from ..drivers.base import FaultLatched
 from ..drivers.safety import SafetyLimitError
 from ..errors import BenchError, CommandRefused, ConfigError
 from ..messages import OperatingPoint
-from .bench_commands import MIN_FREQUENCY_HZ, Limits, check_command, check_current
+from ..acquisition.bench_commands import MIN_FREQUENCY_HZ, Limits, check_command, check_current
 from .service_log import ServiceLog, check_log_dir
 from .source_config import build_source
 
@@ -84,7 +84,7 @@ def _load_compensator(c: dict, source):
     ``factory = "module:callable"`` for anything else."""
     import importlib
 
-    from .pipeline import CompensatorHook
+    from ..acquisition.pipeline import CompensatorHook
 
     factory = c["factory"]
     if not factory:
@@ -164,7 +164,7 @@ class BenchService:
 
     # --- life cycle ------------------------------------------------------------------------------
     def start(self) -> "BenchService":
-        from .zenoh_bus import ZenohBus
+        from ..acquisition.zenoh_bus import ZenohBus
 
         c = self.cfg
         try:
@@ -201,8 +201,8 @@ class BenchService:
         return meta
 
     def _start_pipeline(self, tripped: str = "") -> None:
-        from .pipeline import Pipeline
-        from .stages import WindowEstimator
+        from ..acquisition.pipeline import Pipeline
+        from ..acquisition.stages import WindowEstimator
 
         c = self.cfg
         e = c["estimation"]
@@ -316,7 +316,7 @@ class BenchService:
 
     # --- commands (zenoh cmd/<verb>) -------------------------------------------------------------
     def _controllable(self):
-        from .sources import Controllable
+        from ..acquisition.sources import Controllable
 
         if not isinstance(self.source, Controllable):
             raise CommandRefused(f"source {self.source.name!r} takes no commands")

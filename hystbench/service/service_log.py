@@ -1,7 +1,7 @@
 """The daemon's MCAP log as part of the service: its parts, its folder's cap, and what a full disk does.
 
 A disk that refuses a write (full, an I/O error, remounted read-only) must not stop the bench
-service, nor leave it hanging: the record stage lets the log go (:class:`~.pipeline.Pipeline`),
+service, nor leave it hanging: the record stage lets the log go (:class:`~hystbench.acquisition.pipeline.Pipeline`),
 :meth:`ServiceLog.failed` says why (the part, the folder, its free space) and the service switches
 the output off and refuses ``output on`` while :attr:`ServiceLog.fault` is set.  Every turn of the
 daemon's loop calls :meth:`ServiceLog.housekeeping`, which resumes logging in a new part by itself

@@ -10,7 +10,7 @@
 - ``kind = "synthetic"``: precomputed sines; ``bench_file`` and ``effects`` are refused.
 
 Effects are checked by the effect catalogue (:func:`~hystbench.config.effects.validate_effects`),
-the excitation and the sweep against the bench's limits (:mod:`.bench_commands`): a value the
+the excitation and the sweep against the bench's limits (:mod:`hystbench.acquisition.bench_commands`): a value the
 daemon would refuse as a command is refused in its file already.
 """
 
@@ -21,11 +21,11 @@ from typing import TYPE_CHECKING, Any
 from ..drivers.protocols.bench_config import load_bench_config
 from ..errors import ConfigError
 from ..messages import OperatingPoint
-from .bench_commands import Limits, check_current, check_frequency
+from ..acquisition.bench_commands import Limits, check_current, check_frequency
 
 if TYPE_CHECKING:
     from .daemon import DaemonConfig
-    from .sources import BenchSource, RigSource, SyntheticSource
+    from ..acquisition.sources import BenchSource, RigSource, SyntheticSource
 
 __all__ = ["check_source", "build_source", "bench_file_limits"]
 
@@ -77,7 +77,7 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
             refuse("effects", 'synthetic sines have no physical effects; use kind = "sim" or "bench"')
         if kind == "sim":
             _validate_effects(s["effects"], where, s["fs_hz"])
-        from .sources import MAX_BLOCK_SAMPLES
+        from ..acquisition.sources import MAX_BLOCK_SAMPLES
 
         if s["block_samples"] > MAX_BLOCK_SAMPLES:
             refuse("block_samples", f"must be at most {MAX_BLOCK_SAMPLES:.0e} (a block is computed and held whole), "
@@ -103,7 +103,7 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
 def build_source(cfg: DaemonConfig, *, clear_faults: bool = False) -> RigSource | SyntheticSource | BenchSource:
     """The configured source (``cfg``: a checked :class:`~.daemon.DaemonConfig`); the output is off.
     ``clear_faults``: a restart after a fault (latched amplifier faults are cleared, output off)."""
-    from .sources import RigSource, SyntheticSource, bench_source
+    from ..acquisition.sources import RigSource, SyntheticSource, bench_source
 
     s = cfg["source"]
     if s["kind"] == "synthetic":

@@ -20,7 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hystbench.acquisition.bench_commands import ARGUMENTS, COMMANDS, Limits, check_command
-from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.formats.mcaplog import iter_blocks
 from hystbench.acquisition.zenoh_bus import free_port, key, load_zenoh_config, open_session, peer_config
 from hystbench.errors import BenchError, ConfigError

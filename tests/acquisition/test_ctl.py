@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from hystbench.cli.main import main
-from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config, open_session
 
 SAFETY_S = 60.0  # turns a hang into a failure; nothing waits for it on success

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config, open_session
 from hystbench.cli.main import main
 from hystbench.formats.raw_block import decode

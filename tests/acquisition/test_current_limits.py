@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hystbench.acquisition.daemon import BenchService, load_daemon_config
-from hystbench.acquisition.service import MAX_FAULTS
+from hystbench.service.daemon import BenchService, load_daemon_config
+from hystbench.service.service import MAX_FAULTS
 from hystbench.drivers.safety import DEFAULT_MARGIN, CurrentBudget, SafetyLimitError
 from hystbench.errors import CommandRefused, ConfigError
 from hystbench.formats.mcaplog import iter_blocks

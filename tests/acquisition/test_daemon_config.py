@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hystbench.acquisition.daemon import BenchService, load_daemon_config
-from hystbench.acquisition.instance import default_log_dir, state_dir
+from hystbench.service.daemon import BenchService, load_daemon_config
+from hystbench.service.instance import default_log_dir, state_dir
 from hystbench.formats.mcaplog import iter_blocks
 from hystbench.config import CONFIG_DIR
 from hystbench.errors import ConfigError, InstrumentError

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from hystbench.acquisition.daemon import BenchService, load_daemon_config
-from hystbench.acquisition.retention import bench_logs
-from hystbench.acquisition.service_log import RESUME_FREE_BYTES
+from hystbench.service.daemon import BenchService, load_daemon_config
+from hystbench.service.retention import bench_logs
+from hystbench.service.service_log import RESUME_FREE_BYTES
 from hystbench.acquisition.zenoh_bus import (Subscription, free_port, load_zenoh_config, open_session, peer_config,
                                              send_command)
 from hystbench.errors import CommandRefused, LogWriteError

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.errors import CommandRefused, ConfigError
 
 

@@ -12,7 +12,7 @@ import signal
 import socket
 from pathlib import Path
 
-from hystbench.acquisition.instance import BenchLock
+from hystbench.service.instance import BenchLock
 from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config, open_session, peer_config
 
 from .conftest import HANG_S, Daemon, health_when

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from hystbench.acquisition.daemon import BenchService, load_daemon_config
-from hystbench.acquisition.service import MAX_FAULTS, TooManyFaults
+from hystbench.service.daemon import BenchService, load_daemon_config
+from hystbench.service.service import MAX_FAULTS, TooManyFaults
 from hystbench.errors import BenchError
 from hystbench.formats.mcaplog import STATUS, iter_log
 from hystbench.acquisition.zenoh_bus import (Subscription, free_port, load_zenoh_config, open_session, peer_config,

@@ -13,8 +13,8 @@ import threading
 from collections import Counter
 from pathlib import Path
 
-from hystbench.acquisition import service
-from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.service import service
+from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.formats.mcaplog import iter_blocks
 
 HANG_S = 120.0  # a safety timeout: waits end on their event, only a hang takes this long

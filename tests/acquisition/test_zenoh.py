@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hystbench.acquisition.daemon import BenchService, load_daemon_config
+from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.acquisition.zenoh_bus import (Subscription, ZenohBus, free_port, key, load_zenoh_config, open_session,
                                              peer_config, query_json, send_command)
 from hystbench.blocks import BlockFlags, SampleBlock

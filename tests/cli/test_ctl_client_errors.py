@@ -91,7 +91,7 @@ def test_a_zenoh_config_that_is_no_file_is_named(tmp_path: Path, capsys):
 
 def test_arguments_over_the_cap_are_refused_before_they_are_sent():
     """The daemon refuses them (or, over MAX_MESSAGE_BYTES, zenoh drops them: no reply at all)."""
-    from hystbench.acquisition.control import BenchControl
+    from hystbench.service.control import BenchControl
     from hystbench.acquisition.zenoh_bus import MAX_COMMAND_BYTES
     from hystbench.errors import ConfigError
 

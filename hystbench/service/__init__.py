@@ -1,0 +1,8 @@
+"""The bench daemon as a service: the process and its configuration (``daemon``), one configuration
+running (``service``: sweeps, commands, faults, restarts), the source it builds (``source_config``),
+its log (``service_log``, ``retention``), one daemon per bench (``instance``), systemd's notify
+protocol (``sd_notify``), and the client side of ``hystbench ctl`` (``control``).
+
+It runs the live chain and may import it (``hystbench.acquisition``: ring, sources, stages, pipeline,
+zenoh bus, the command vocabulary) and what lies below it (the compensator, drivers, formats, the
+vocabulary); the live chain never imports the service."""
