@@ -215,7 +215,7 @@ class WindowEstimator:
             if chans.get(c) is not None:
                 r = self._phase_delay(x, chans[c], fs, self._f)
                 delays[name], stds[name] = float(r.delay_s), float(r.delay_se_s)
-                f, fse = float(r.freq_hz), float(r.freq_se_hz)
+                f, fse = float(r.frequency_hz), float(r.frequency_se_hz)
                 found.setdefault("current_A", set()).update(r.x.outliers.tolist())
                 found.setdefault(c, set()).update(r.y.outliers.tolist())
         return f, fse, 1, delays, stds, {c: sorted(v) for c, v in found.items()}

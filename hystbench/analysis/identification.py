@@ -95,7 +95,7 @@ def frequency_response(recs: list[Recording], *, dropped: list | None = None) ->
             ch = check_channels(rec, ("current_A", "force_N"))
             with estimation_errors(where):
                 pd = phase_delay(ch["current_A"], ch["force_N"], rec.fs_hz, rec.frequency_hz)
-            f = float(pd.freq_hz)
+            f = float(pd.frequency_hz)
             check_fit_quality(rec, f, {"current_A": (pd.x, 1), "force_N": (pd.y, 1)})
         except EstimationError as err:
             if dropped is None:

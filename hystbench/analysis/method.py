@@ -354,7 +354,7 @@ def _measure(rec: Recording | _Window, magnet: bool) -> MethodDelays:
     fs, f0 = rec.fs_hz, rec.frequency_hz
     with estimation_errors(where):
         hyst = phase_delay(current, flux, fs, f0, harmonic=1, harmonics=HARMONICS)
-        f_true = float(hyst.freq_hz)
+        f_true = float(hyst.frequency_hz)
         force_fit = sine_fit(force, fs, f_true, harmonics=HARMONICS, fit_freq=False)
     m_i, m_phi, m_f = hyst.x.excluded, hyst.y.excluded, force_fit.excluded
     masks = {"current_A": m_i, "flux_Wb": m_phi, "force_N": m_f}
@@ -369,7 +369,7 @@ def _measure(rec: Recording | _Window, magnet: bool) -> MethodDelays:
     stds = {"hysteresis": float(hyst.delay_se_s), "instrument": float(instr.delay_se_s),
             "total": float(total.delay_se_s)}
     outliers = {c: np.flatnonzero(m).tolist() for c, m in masks.items() if m.any()}
-    return MethodDelays(f_true, float(hyst.freq_se_hz), k, delays, stds, f0, rec.current_pp_a, where, explained,
+    return MethodDelays(f_true, float(hyst.frequency_se_hz), k, delays, stds, f0, rec.current_pp_a, where, explained,
                         outliers)
 
 

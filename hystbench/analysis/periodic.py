@@ -66,7 +66,7 @@ def estimate_frequency(x: ArrayLike, fs_hz: float, nominal_hz: float, *, harmoni
     if not (math.isfinite(nominal_hz) and nominal_hz > 0):
         raise ValueError(f"nominal_hz must be finite and > 0 Hz, got {nominal_hz!r}")
     ks = tuple(k for k in range(1, max(1, int(harmonics)) + 1) if k * nominal_hz < 0.5 * fs_hz) or (1,)
-    return float(sine_fit(np.asarray(x, float), fs_hz, nominal_hz, harmonics=ks).freq_hz)
+    return float(sine_fit(np.asarray(x, float), fs_hz, nominal_hz, harmonics=ks).frequency_hz)
 
 
 def period_average(channels: Mapping[str, ArrayLike], fs_hz: float, frequency_hz: float, n_points: int = 1000,

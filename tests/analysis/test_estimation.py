@@ -59,7 +59,7 @@ def test_sine_fit_recovers_noiseless_parameters(parts, freq, fit_freq):
     fit = sine_fit(x, FS, F0, harmonics=[k for k, _, _ in parts], fit_freq=fit_freq)
     assert fit.converged
     assert fit.t_ref_s == pytest.approx((n - 1) / (2 * FS))
-    assert fit.freq_hz == pytest.approx(freq, rel=1e-12)
+    assert fit.frequency_hz == pytest.approx(freq, rel=1e-12)
     assert fit.offset == pytest.approx(0.75, abs=1e-10)
     for k, amp, ph in parts:
         comp = fit.component(k)
@@ -75,12 +75,12 @@ def test_sine_fit_works_record_by_record_along_axis():
     fit = sine_fit(x, FS, F0, axis=0)
     assert fit.phase_rad.shape == (4, 1)
     np.testing.assert_allclose(fit.phase_rad[:, 0], phases, atol=1e-9)
-    np.testing.assert_allclose(fit.freq_hz, F_TRUE, rtol=1e-12)
+    np.testing.assert_allclose(fit.frequency_hz, F_TRUE, rtol=1e-12)
 
 
 def test_sine_fit_starts_from_the_spectrum_without_a_nominal_frequency():
     fit = sine_fit(signal(900, freq=F_TRUE, parts=((1, 1.0, -0.7),)), FS, None)
-    assert fit.freq_hz == pytest.approx(F_TRUE, rel=1e-12)
+    assert fit.frequency_hz == pytest.approx(F_TRUE, rel=1e-12)
     assert fit.phase_rad[0] == pytest.approx(-0.7, abs=1e-9)
 
 
@@ -88,14 +88,14 @@ def test_gauss_newton_alone_converges_from_most_of_a_bin_away():
     n = 2000  # bin fs/n = 5 Hz
     fit = sine_fit(signal(n, freq=F_TRUE, parts=((1, 1.0, 0.2),)), FS, F_TRUE + 0.8 * FS / n, search_ppm=0)
     assert fit.converged
-    assert fit.freq_hz == pytest.approx(F_TRUE, rel=1e-12)
+    assert fit.frequency_hz == pytest.approx(F_TRUE, rel=1e-12)
 
 
 def test_long_record_far_off_nominal_is_found_by_the_start_search():
     n, f_true = 20_000, F0 * (1 + 3000e-6)  # 0.96 Hz off: two bins of a 2 s record
     x = signal(n, freq=f_true, parts=((1, 1.0, 0.2),))
     fit = sine_fit(x, FS, F0, search_ppm=5000)
-    assert fit.freq_hz == pytest.approx(f_true, rel=1e-12)
+    assert fit.frequency_hz == pytest.approx(f_true, rel=1e-12)
     assert fit.phase_rad[0] == pytest.approx(0.2, abs=1e-9)
 
 
@@ -107,8 +107,8 @@ def test_phase_delay_recovers_fractional_delays_exactly(delay_samples):
     r = phase_delay(x, y, FS, F0)
     assert r.delay_s == pytest.approx(d, abs=1e-13)
     assert r.phase_rad == pytest.approx(2 * np.pi * F_TRUE * d, abs=1e-9)
-    assert r.freq_hz == pytest.approx(F_TRUE, rel=1e-12)
-    assert r.x.freq_hz == r.y.freq_hz
+    assert r.frequency_hz == pytest.approx(F_TRUE, rel=1e-12)
+    assert r.x.frequency_hz == r.y.frequency_hz
 
 
 @pytest.mark.parametrize("harmonic", [1, 2, 3])
@@ -160,8 +160,8 @@ def test_standard_errors_match_the_spread_over_noisy_trials():
     # single-channel errors: amplitude, frequency and noise level
     fit = r.x
     assert fit.amplitude[:, 0].std(ddof=1) == pytest.approx(np.mean(fit.amplitude_se[:, 0]), rel=0.12)
-    assert fit.freq_hz.std(ddof=1) == pytest.approx(np.mean(fit.freq_se_hz), rel=0.12)
-    assert abs(fit.freq_hz.mean() - F_TRUE) < 4 * np.mean(fit.freq_se_hz) / math.sqrt(m)
+    assert fit.frequency_hz.std(ddof=1) == pytest.approx(np.mean(fit.frequency_se_hz), rel=0.12)
+    assert abs(fit.frequency_hz.mean() - F_TRUE) < 4 * np.mean(fit.frequency_se_hz) / math.sqrt(m)
     assert np.mean(fit.noise_std) == pytest.approx(sig, rel=0.01)
 
 
@@ -211,7 +211,7 @@ def test_crlb_values():
         (lambda: phase_difference_crlb(10.5, 1.0, 1.0), "n"),
         (lambda: phase_difference_crlb(10, 0.0, 1.0), "eta_x"),
         (lambda: phase_difference_crlb(10, 1.0, np.nan), "eta_y"),
-        (lambda: delay_crlb(10, 1.0, 1.0, -5.0), "freq_hz"),
+        (lambda: delay_crlb(10, 1.0, 1.0, -5.0), "frequency_hz"),
         (lambda: delay_crlb(10, 1.0, 1.0, 5.0, harmonic=0), "harmonic"),
         (lambda: sine_snr(-1.0, 1.0), "amplitude"),
         (lambda: sine_snr(1.0, 0.0), "noise_std"),
@@ -233,14 +233,14 @@ def _bad_cases():
     nan[17], inf[3] = np.nan, -np.inf
     flat = np.full_like(GOOD, 0.3)
     cases = {
-        "fs zero": (dict(fs=0.0), "fs"),
-        "fs negative": (dict(fs=-FS), "fs"),
-        "fs nan": (dict(fs=np.nan), "fs"),
-        "fs text": (dict(fs="fast"), "fs"),
-        "freq above nyquist": (dict(freq_hz=6000.0), "freq_hz"),
-        "freq at nyquist": (dict(freq_hz=FS / 2), "freq_hz"),
-        "freq zero": (dict(freq_hz=0.0), "freq_hz"),
-        "freq inf": (dict(freq_hz=np.inf), "freq_hz"),
+        "fs zero": (dict(fs_hz=0.0), "fs_hz"),
+        "fs negative": (dict(fs_hz=-FS), "fs_hz"),
+        "fs nan": (dict(fs_hz=np.nan), "fs_hz"),
+        "fs text": (dict(fs_hz="fast"), "fs_hz"),
+        "freq above nyquist": (dict(frequency_hz=6000.0), "frequency_hz"),
+        "freq at nyquist": (dict(frequency_hz=FS / 2), "frequency_hz"),
+        "freq zero": (dict(frequency_hz=0.0), "frequency_hz"),
+        "freq inf": (dict(frequency_hz=np.inf), "frequency_hz"),
         "x short": (dict(x=SHORT, y=SHORT), "x"),
         "x nan": (dict(x=nan), "x"),
         "y inf": (dict(y=inf), "y"),
@@ -254,10 +254,10 @@ def _bad_cases():
     return cases
 
 
-def _call(func, x=GOOD, y=GOOD, fs=FS, freq_hz=F0, **kw):
+def _call(func, x=GOOD, y=GOOD, fs_hz=FS, frequency_hz=F0, **kw):
     if func is sine_fit:
-        return sine_fit(x, fs, freq_hz, **kw)
-    return func(x, y, fs, freq_hz, **kw)
+        return sine_fit(x, fs_hz, frequency_hz, **kw)
+    return func(x, y, fs_hz, frequency_hz, **kw)
 
 
 @pytest.mark.parametrize(
@@ -278,7 +278,7 @@ def test_bad_input_raises_value_error_naming_the_parameter(func, case):
 @pytest.mark.parametrize(
     ("kwargs", "name"),
     [
-        (dict(harmonics=(1, 16)), "freq_hz"),  # 16 x 320 Hz is above fs/2
+        (dict(harmonics=(1, 16)), "frequency_hz"),  # 16 x 320 Hz is above fs/2
         (dict(harmonics=(0,)), "harmonics"),
         (dict(harmonics=(1, 1)), "harmonics"),
         (dict(harmonics=()), "harmonics"),
@@ -286,7 +286,7 @@ def test_bad_input_raises_value_error_naming_the_parameter(func, case):
         (dict(tol=0.0), "tol"),
         (dict(tol="small"), "tol"),
         (dict(search_ppm=-1.0), "search_ppm"),
-        (dict(fit_freq=False, freq_hz=None), "freq_hz"),
+        (dict(fit_freq=False, frequency_hz=None), "frequency_hz"),
         (dict(axis=3), "axis"),
     ],
 )

@@ -70,12 +70,12 @@ def _assert_same_delay(new, x, y, fs: float, f: float, *, harmonic: int = 1, har
     assert np.all(gap <= np.maximum(1e-9 * np.abs(want["delay"]), 1e-5 * se)), np.max(gap / se)
     # the search keeps a step only if sum log S does not grow; that sum is flat to its rounding over
     # ~1e-5 standard errors (seen: 2e-5 on 5 000 samples), where the oracle finds the derivative's root
-    f_gap = np.abs(new.freq_hz - want["freq"])
+    f_gap = np.abs(new.frequency_hz - want["freq"])
     assert np.all(f_gap <= np.maximum(1e-12 * want["freq"], 1e-4 * want["freq_se"])), np.max(f_gap / want["freq_se"])
     # standard errors: evaluated at those frequencies (an error is itself known to ~1/sqrt(2N) only);
     # on noiseless data they are the noise variance's rounding floor, known to its order only
     np.testing.assert_allclose(new.delay_se_s, want["delay_se"], rtol=1e-4, atol=1e-12 / (harmonic * f))
-    np.testing.assert_allclose(new.freq_se_hz, want["freq_se"], rtol=1e-4, atol=1e-12 * f)
+    np.testing.assert_allclose(new.frequency_se_hz, want["freq_se"], rtol=1e-4, atol=1e-12 * f)
     for c, fit in enumerate((new.x, new.y)):
         np.testing.assert_array_equal(fit.excluded, excluded[..., c, :])
         # rounding: relative to the value, or to the record's scale (noiseless data: se ~ eps)

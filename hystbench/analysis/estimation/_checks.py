@@ -10,14 +10,14 @@ import numpy as np
 MIN_PERIODS = 2.0  # shortest record the estimators accept, in periods of the fundamental
 
 
-def check_fs(fs: float) -> float:
+def check_fs(fs_hz: float) -> float:
     """Sample rate: finite and > 0 (Hz)."""
     try:
-        value = float(fs)
+        value = float(fs_hz)
     except (TypeError, ValueError):
-        raise ValueError(f"fs must be a number (Hz), got {fs!r}") from None
+        raise ValueError(f"fs_hz must be a number (Hz), got {fs_hz!r}") from None
     if not math.isfinite(value) or value <= 0.0:
-        raise ValueError(f"fs must be finite and > 0 Hz, got {fs!r}")
+        raise ValueError(f"fs_hz must be finite and > 0 Hz, got {fs_hz!r}")
     return value
 
 
@@ -32,17 +32,18 @@ def check_nonnegative(value: float, name: str, *, allow_zero: bool = False) -> f
     return out
 
 
-def check_freq(freq_hz: float, fs: float, highest_harmonic: int = 1, *, name: str = "freq_hz") -> float:
-    """Excitation frequency: finite, > 0, and ``highest_harmonic * freq_hz`` below Nyquist."""
+def check_freq(frequency_hz: float, fs_hz: float, highest_harmonic: int = 1, *,
+               name: str = "frequency_hz") -> float:
+    """Excitation frequency: finite, > 0, and ``highest_harmonic * frequency_hz`` below Nyquist."""
     try:
-        value = float(freq_hz)
+        value = float(frequency_hz)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number (Hz), got {freq_hz!r}") from None
+        raise ValueError(f"{name} must be a number (Hz), got {frequency_hz!r}") from None
     if not math.isfinite(value) or value <= 0.0:
-        raise ValueError(f"{name} must be finite and > 0 Hz, got {freq_hz!r}")
-    if highest_harmonic * value >= fs / 2.0:
+        raise ValueError(f"{name} must be finite and > 0 Hz, got {frequency_hz!r}")
+    if highest_harmonic * value >= fs_hz / 2.0:
         what = name if highest_harmonic == 1 else f"{name} ({highest_harmonic} x {value:g} Hz)"
-        raise ValueError(f"{what} is at or above the Nyquist frequency fs/2 = {fs / 2.0:g} Hz")
+        raise ValueError(f"{what} is at or above the Nyquist frequency fs/2 = {fs_hz / 2.0:g} Hz")
     return value
 
 
@@ -78,13 +79,13 @@ def as_record(x: object, name: str, axis: int) -> np.ndarray:
     return arr
 
 
-def check_length(arr: np.ndarray, name: str, fs: float, freq_hz: float, n_params: int = 0) -> int:
-    """At least two periods of ``freq_hz`` and more samples than fitted parameters."""
+def check_length(arr: np.ndarray, name: str, fs_hz: float, frequency_hz: float, n_params: int = 0) -> int:
+    """At least two periods of ``frequency_hz`` and more samples than fitted parameters."""
     n = arr.shape[-1]
-    need = max(math.ceil(MIN_PERIODS * fs / freq_hz - 1e-9), n_params + 2)
+    need = max(math.ceil(MIN_PERIODS * fs_hz / frequency_hz - 1e-9), n_params + 2)
     if n < need:
         raise ValueError(
-            f"{name} has {n} samples, shorter than two periods of {freq_hz:g} Hz at fs = {fs:g} Hz "
+            f"{name} has {n} samples, shorter than two periods of {frequency_hz:g} Hz at fs = {fs_hz:g} Hz "
             f"(need >= {need})"
         )
     return n

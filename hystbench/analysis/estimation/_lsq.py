@@ -92,14 +92,14 @@ def basis_reference(f: np.ndarray, ks: np.ndarray, tau: np.ndarray) -> np.ndarra
     return basis
 
 
-def _basis(f: np.ndarray, ks: np.ndarray, sl: slice, n: int, fs: float) -> np.ndarray:
+def _basis(f: np.ndarray, ks: np.ndarray, sl: slice, n: int, fs_hz: float) -> np.ndarray:
     """Regressors (b, p, L) of samples ``sl`` of an ``n``-sample record: a row of ones, then cos,
     sin for each harmonic: :func:`basis_reference`'s numbers, bit for bit (the same operations in
     the same order), with the harmonics written straight into their rows."""
     nr, length = f.shape[0], sl.stop - sl.start
     basis = np.empty((nr, 1 + 2 * ks.size, length))
     basis[:, 0] = 1.0
-    phase = (_TWO_PI * f)[:, None] * times(sl, n, fs)[None, :]
+    phase = (_TWO_PI * f)[:, None] * times(sl, n, fs_hz)[None, :]
     c1, s1 = np.cos(phase), np.sin(phase)
     rows = {int(k): j for j, k in enumerate(ks)}
     top = int(ks[-1])
@@ -130,10 +130,10 @@ def blocks(n: int, records: int) -> list[slice]:
     return [slice(s, min(s + step, n)) for s in range(0, n, step)]
 
 
-def times(sl: slice, n: int, fs: float) -> np.ndarray:
+def times(sl: slice, n: int, fs_hz: float) -> np.ndarray:
     """Time of samples ``sl`` from the centre of an ``n``-sample record (s); the same numbers,
     element by element, as the whole record's time axis."""
-    return (np.arange(sl.start, sl.stop) - (n - 1) / 2.0) / fs
+    return (np.arange(sl.start, sl.stop) - (n - 1) / 2.0) / fs_hz
 
 
 class Bases:
@@ -142,8 +142,8 @@ class Bases:
     same for every channel when no sample is left out): an evaluation's two passes share them,
     and so do later fits at the same frequency (see :func:`bases`).  Read-only."""
 
-    def __init__(self, f: np.ndarray, ks: np.ndarray, n: int, fs: float) -> None:
-        self.f, self.ks, self.n, self.fs = f, ks, n, fs
+    def __init__(self, f: np.ndarray, ks: np.ndarray, n: int, fs_hz: float) -> None:
+        self.f, self.ks, self.n, self.fs_hz = f, ks, n, fs_hz
         self.slices = blocks(n, f.shape[0])
         self.floats = f.shape[0] * (1 + 2 * ks.size) * n
         self.kept = self.floats <= KEEP_FLOATS
@@ -168,8 +168,8 @@ class Bases:
         rounding), else :func:`_basis`."""
         if KERNEL and enabled():
             return _lsq_kernel.basis(np.ascontiguousarray(self.f, dtype=np.float64), self._rowk, int(self.ks[-1]),
-                                     1 + 2 * self.ks.size, sl.start, sl.stop, self.n, float(self.fs))
-        return _basis(self.f, self.ks, sl, self.n, self.fs)
+                                     1 + 2 * self.ks.size, sl.start, sl.stop, self.n, float(self.fs_hz))
+        return _basis(self.f, self.ks, sl, self.n, self.fs_hz)
 
     def gram(self, i: int, basis: np.ndarray) -> np.ndarray:
         """Gram matrices (b, p, p) of block ``i``'s regressors ``basis`` (as iteration gave them)."""
@@ -185,7 +185,7 @@ class Bases:
         """2 pi times the sample times of block ``i`` (s): d(phase)/df, for the frequency column."""
         r = self._rates.get(i)
         if r is None:
-            r = _TWO_PI * times(self.slices[i], self.n, self.fs)
+            r = _TWO_PI * times(self.slices[i], self.n, self.fs_hz)
             if self.kept:
                 r.flags.writeable = False
                 self._rates[i] = r
@@ -195,7 +195,7 @@ class Bases:
 _recent = threading.local()  # per thread: the latest Bases, most recent last
 
 
-def bases(f: np.ndarray, ks: np.ndarray, n: int, fs: float) -> Bases:
+def bases(f: np.ndarray, ks: np.ndarray, n: int, fs_hz: float) -> Bases:
     """The :class:`Bases` at frequencies ``f``: the same object as a recent call's when the
     arguments are equal (bit for bit), else a new one, remembered when small.
 
@@ -205,7 +205,7 @@ def bases(f: np.ndarray, ks: np.ndarray, n: int, fs: float) -> Bases:
     thread's last :data:`RECENT_FLOATS` floats of regressors are kept (per thread: nothing is
     shared, so no lock)."""
     f = np.array(f, dtype=np.float64)
-    key = (f.tobytes(), ks.tobytes(), int(n), float(fs), KERNEL and enabled())  # kernel's or numpy's regressors
+    key = (f.tobytes(), ks.tobytes(), int(n), float(fs_hz), KERNEL and enabled())  # kernel's or numpy's regressors
     recent: OrderedDict[tuple, Bases] | None = getattr(_recent, "lru", None)
     if recent is None:
         recent = _recent.lru = OrderedDict()
@@ -213,7 +213,7 @@ def bases(f: np.ndarray, ks: np.ndarray, n: int, fs: float) -> Bases:
     if hit is not None:
         recent.move_to_end(key)
         return hit
-    made = Bases(f, ks, n, fs)
+    made = Bases(f, ks, n, fs_hz)
     if made.kept:  # the kept floats are counted as they come and go, not summed over the LRU each call
         recent[key] = made
         _recent.floats = getattr(_recent, "floats", 0) + made.floats
@@ -305,19 +305,19 @@ def _residual_sums(x, mask, rows, regs: Bases, coef, grad: bool):
     return ssq, gb, gg, gr
 
 
-def residual_rows(x: np.ndarray, coef: np.ndarray, freq: np.ndarray, ks: np.ndarray, fs: float) -> np.ndarray:
+def residual_rows(x: np.ndarray, coef: np.ndarray, freq: np.ndarray, ks: np.ndarray, fs_hz: float) -> np.ndarray:
     """Residuals (R, N) of 1-D records ``x`` (R, N) from fits ``coef`` (R, p) at ``freq`` (R,),
     computed block by block: the only N-sized array is the result."""
     n = x.shape[-1]
     out = np.empty(x.shape)
-    for sl, basis in bases(freq, ks, n, fs):
+    for sl, basis in bases(freq, ks, n, fs_hz):
         out[:, sl] = x[:, sl] - (coef[:, None, :] @ basis)[:, 0]
     return out
 
 
 def solve(
     x: np.ndarray,
-    fs: float,
+    fs_hz: float,
     f0: np.ndarray,
     harmonics: tuple[int, ...],
     *,
@@ -338,7 +338,7 @@ def solve(
         mask = None
     ks = np.asarray(harmonics, dtype=np.float64)
     p = 1 + 2 * ks.size
-    duration = n / fs
+    duration = n / fs_hz
     max_step = 0.25 / (ks[-1] * duration)  # a quarter DFT bin of the highest harmonic
     used = np.full((nb, nc), float(n)) if mask is None else n - mask.sum(axis=-1).astype(np.float64)
     # rounding floor of S_c, keeps log S and the weights finite for noiseless data
@@ -355,7 +355,7 @@ def solve(
     converged = np.zeros(nb, dtype=bool)
 
     if not fit_freq:
-        bases_f = bases(freq, ks, n, fs)
+        bases_f = bases(freq, ks, n, fs_hz)
         gram, proj = _normal(x, mask, slice(None), bases_f)
         coef = _gram_solve(gram, proj)
         ssq = _residual_sums(x, mask, slice(None), bases_f, coef, grad=False)[0]
@@ -373,7 +373,7 @@ def solve(
             # case, and always for a single record) or some
             rows = slice(None) if active.size == nb else active
             f_try = freq[rows] + step[rows]
-            bases_f = bases(f_try, ks, n, fs)
+            bases_f = bases(f_try, ks, n, fs_hz)
             g_try, proj = _normal(x, mask, rows, bases_f)
             c_try = _gram_solve(g_try, proj)
             s_try, g_b, g_g, g_r = _residual_sums(x, mask, rows, bases_f, c_try, grad=True)
@@ -432,7 +432,7 @@ def solve(
     return Solution(freq, coef, dof, cov, sigma2, iterations, converged)
 
 
-def fft_peak_freq(x: np.ndarray, fs: float) -> np.ndarray:
+def fft_peak_freq(x: np.ndarray, fs_hz: float) -> np.ndarray:
     """Strongest spectral line of records (B, C, N), summed over channels (Hz, per record).
 
     Hann window, 4x zero padding, parabolic interpolation of the log power around the peak;
@@ -452,10 +452,10 @@ def fft_peak_freq(x: np.ndarray, fs: float) -> np.ndarray:
     den = lm - 2.0 * l0 + lq
     with np.errstate(divide="ignore", invalid="ignore"):
         delta = np.where(den < 0.0, 0.5 * (lm - lq) / den, 0.0)
-    return (i + np.clip(delta, -0.5, 0.5)) * fs / nfft
+    return (i + np.clip(delta, -0.5, 0.5)) * fs_hz / nfft
 
 
-def grid_start(x: np.ndarray, fs: float, f_c: float, harmonics: tuple[int, ...], half_width_hz: float,
+def grid_start(x: np.ndarray, fs_hz: float, f_c: float, harmonics: tuple[int, ...], half_width_hz: float,
                mask: np.ndarray | None = None, fill: np.ndarray | None = None) -> np.ndarray:
     """Best start frequency per record within ``f_c +- half_width_hz`` (Hz).
 
@@ -471,7 +471,7 @@ def grid_start(x: np.ndarray, fs: float, f_c: float, harmonics: tuple[int, ...],
     """
     nb, nc, n = x.shape
     ks = np.asarray(harmonics, dtype=np.float64)
-    bin_hz = fs / (n * ks[-1])
+    bin_hz = fs_hz / (n * ks[-1])
     if half_width_hz <= 0.5 * bin_hz:
         return np.full(nb, f_c)
     spacing = 0.25 * bin_hz
@@ -494,12 +494,12 @@ def grid_start(x: np.ndarray, fs: float, f_c: float, harmonics: tuple[int, ...],
     acc = np.zeros((nb * nc, ks.size, grid.size), dtype=np.complex128)
     for sl in parts:
         xc = ((filled(sl) - mean) / norm).reshape(nb * nc, -1)
-        tau_s = (sl.start - (n - 1) / 2.0) / fs
+        tau_s = (sl.start - (n - 1) / 2.0) / fs_hz
         for j, k in enumerate(ks):
             key = (xc.shape[-1], j)
             if key not in transforms:
-                transforms[key] = CZT(xc.shape[-1], grid.size, w=np.exp(-2j * np.pi * k * spacing / fs),
-                                      a=np.exp(2j * np.pi * k * grid[0] / fs))
+                transforms[key] = CZT(xc.shape[-1], grid.size, w=np.exp(-2j * np.pi * k * spacing / fs_hz),
+                                      a=np.exp(2j * np.pi * k * grid[0] / fs_hz))
             acc[:, j] += transforms[key](xc) * np.exp(-2j * np.pi * k * grid * tau_s)
     power = np.sum((acc.real ** 2 + acc.imag ** 2).reshape(nb, -1, grid.size), axis=1)  # (B, grid)
     return grid[np.argmax(power, axis=-1)]

@@ -29,7 +29,7 @@ _TWO_PI = 2.0 * math.pi
 
 @njit(cache=True, nogil=True)
 def basis(f: np.ndarray, rowk: np.ndarray, kmax: int, p: int, start: int, stop: int, n: int,
-          fs: float) -> np.ndarray:
+          fs_hz: float) -> np.ndarray:
     """Regressors (b, p, stop - start) of samples ``start .. stop`` of ``n``-sample records at
     frequencies ``f`` (b,): a row of ones, then cos, sin of each fitted harmonic k (``rowk[k]`` its
     index, -1 if not fitted) of ``2 pi k f tau``, tau the time from the record's centre."""
@@ -41,7 +41,7 @@ def basis(f: np.ndarray, rowk: np.ndarray, kmax: int, p: int, start: int, stop: 
     st = np.empty(CHUNK)
     for r in range(nr):
         w = _TWO_PI * f[r]
-        dphi = w / fs
+        dphi = w / fs_hz
         for m in range(CHUNK):
             ct[m] = math.cos(m * dphi)
             st[m] = math.sin(m * dphi)
@@ -50,7 +50,7 @@ def basis(f: np.ndarray, rowk: np.ndarray, kmax: int, p: int, start: int, stop: 
         for i in range(length):
             m = i % CHUNK
             if m == 0:  # exact anchor: the numpy path's phase of this sample
-                phase = w * ((start + i - centre) / fs)
+                phase = w * ((start + i - centre) / fs_hz)
                 ca = math.cos(phase)
                 sa = math.sin(phase)
             c1 = ca * ct[m] - sa * st[m]  # angle addition from the anchor: ~2 roundings, no drift

@@ -195,7 +195,7 @@ def _check_left(data: np.ndarray, mask: np.ndarray | None, names: tuple[str, ...
                              "sample(s): it carries no phase")
 
 
-def _flag(data: np.ndarray, sol: _lsq.Solution, ks: tuple[int, ...], fs: float, mask: np.ndarray | None,
+def _flag(data: np.ndarray, sol: _lsq.Solution, ks: tuple[int, ...], fs_hz: float, mask: np.ndarray | None,
           sigmas: float) -> np.ndarray:
     """Samples (B, C, N) whose residual from the fit ``sol`` lies more than ``sigmas`` robust
     standard deviations (from the samples ``mask`` leaves in) off the channel's median residual,
@@ -208,7 +208,7 @@ def _flag(data: np.ndarray, sol: _lsq.Solution, ks: tuple[int, ...], fs: float, 
     for rows in _row_chunks(nb, n):
         for c in range(nc):
             with np.errstate(invalid="ignore", over="ignore"):
-                resid = _lsq.residual_rows(data[rows, c], sol.coef[rows, c], sol.freq[rows], kf, fs)
+                resid = _lsq.residual_rows(data[rows, c], sol.coef[rows, c], sol.freq[rows], kf, fs_hz)
                 if mask is None and _within(resid, sigmas * _MAD_TO_SIGMA):
                     continue  # every residual finite and certainly within (sigma >= 1.4826 MAD)
                 if mask is None:
@@ -224,7 +224,7 @@ def _flag(data: np.ndarray, sol: _lsq.Solution, ks: tuple[int, ...], fs: float, 
     return flagged
 
 
-def robust_solve(data: np.ndarray, fs: float, f0: np.ndarray, ks: tuple[int, ...], *, fit_freq: bool,
+def robust_solve(data: np.ndarray, fs_hz: float, f0: np.ndarray, ks: tuple[int, ...], *, fit_freq: bool,
                  max_iter: int, tol: float, exclude: np.ndarray | None, mask: np.ndarray | None,
                  sigmas: float | None, names: tuple[str, ...]) -> tuple[_lsq.Solution, np.ndarray | None]:
     """Fit, flag the outliers of each channel, refit without them, until the flags settle.
@@ -235,10 +235,10 @@ def robust_solve(data: np.ndarray, fs: float, f0: np.ndarray, ks: tuple[int, ...
     n_params = data.shape[1] * (1 + 2 * len(ks)) + int(fit_freq)
     for k in range(MAX_PASSES):
         _check_left(data, mask, names, n_params)
-        sol = _lsq.solve(data, fs, f0, ks, fit_freq=fit_freq, max_iter=max_iter, tol=tol, mask=mask)
+        sol = _lsq.solve(data, fs_hz, f0, ks, fit_freq=fit_freq, max_iter=max_iter, tol=tol, mask=mask)
         if sigmas is None or k == MAX_PASSES - 1:
             break
-        new = _flag(data, sol, ks, fs, mask, sigmas)
+        new = _flag(data, sol, ks, fs_hz, mask, sigmas)
         if exclude is not None:
             new |= exclude
         new_mask = new if new.any() else None

@@ -32,13 +32,13 @@ class CovarianceDelay:
     lag_samples : ndarray of int
         Lag of the covariance maximum (samples); positive: y lags x.
     delay_s : ndarray
-        ``lag_samples / fs`` (s).
+        ``lag_samples / fs_hz`` (s).
     phase_rad : ndarray
-        ``2 pi freq_hz lag_samples / fs`` (rad).
+        ``2 pi frequency_hz lag_samples / fs_hz`` (rad).
     covariance : ndarray
         The maximum covariance (product of the two signals' units).
     lags : ndarray of int
-        The searched lags: one period, ``-(P // 2) .. P - P // 2 - 1`` with ``P = round(fs / freq_hz)``.
+        The searched lags: one period, ``-(P // 2) .. P - P // 2 - 1`` with ``P = round(fs_hz / frequency_hz)``.
     """
 
     lag_samples: np.ndarray
@@ -48,11 +48,12 @@ class CovarianceDelay:
     lags: np.ndarray
 
 
-def covariance_delay(x: np.ndarray, y: np.ndarray, fs: float, freq_hz: float, *, axis: int = -1) -> CovarianceDelay:
+def covariance_delay(x: np.ndarray, y: np.ndarray, fs_hz: float, frequency_hz: float, *,
+                     axis: int = -1) -> CovarianceDelay:
     """Delay of ``y`` behind ``x`` as the lag of maximum covariance (the paper's Eq. 3).
 
     ``x`` is cut to a window of ``W = N - P + 1`` samples that leaves room for every lag in one
-    period ``P = round(fs / freq_hz)`` (a lag range centred on zero); ``y`` slides along it.
+    period ``P = round(fs_hz / frequency_hz)`` (a lag range centred on zero); ``y`` slides along it.
     Every lag thus uses the same number of sample pairs, and the largest covariance wins (the
     first one on a tie).
 
@@ -60,10 +61,10 @@ def covariance_delay(x: np.ndarray, y: np.ndarray, fs: float, freq_hz: float, *,
     ----------
     x, y : array_like
         Reference and delayed channel, same shape.  For the E-core without magnet the paper
-        compares force with *squared* flux; pass ``freq_hz`` of the signals themselves (2f).
-    fs : float
+        compares force with *squared* flux; pass ``frequency_hz`` of the signals themselves (2f).
+    fs_hz : float
         Sample rate (Hz).
-    freq_hz : float
+    frequency_hz : float
         Frequency of the signals' common period (Hz), below fs/2.
     axis : int, optional
         Time axis (default -1).
@@ -76,29 +77,29 @@ def covariance_delay(x: np.ndarray, y: np.ndarray, fs: float, freq_hz: float, *,
     Raises
     ------
     ValueError
-        Naming the parameter: bad ``fs`` or ``freq_hz`` (at or above fs/2), ``x``/``y`` shorter
+        Naming the parameter: bad ``fs_hz`` or ``frequency_hz`` (at or above fs/2), ``x``/``y`` shorter
         than two periods, NaN or inf in them, a flat channel, or ``y`` of another shape.
 
     Examples
     --------
     >>> import numpy as np
     >>> from hystbench.analysis.estimation import covariance_delay
-    >>> fs, f = 10_000.0, 320.0
-    >>> t = np.arange(2000) / fs
-    >>> r = covariance_delay(np.sin(2 * np.pi * f * t), np.sin(2 * np.pi * f * (t - 2.4 / fs)), fs, f)
+    >>> fs_hz, f = 10_000.0, 320.0
+    >>> t = np.arange(2000) / fs_hz
+    >>> r = covariance_delay(np.sin(2 * np.pi * f * t), np.sin(2 * np.pi * f * (t - 2.4 / fs_hz)), fs_hz, f)
     >>> int(r.lag_samples), round(float(r.delay_s) * 1e6, 1)
     (2, 200.0)
     """
-    fs = _checks.check_fs(fs)
-    freq_hz = _checks.check_freq(freq_hz, fs)
+    fs_hz = _checks.check_fs(fs_hz)
+    frequency_hz = _checks.check_freq(frequency_hz, fs_hz)
     xa = _checks.as_record(x, "x", axis)
     ya = _checks.as_record(y, "y", axis)
     _checks.check_same_shape(xa, ya)
-    n = _checks.check_length(xa, "x", fs, freq_hz)
+    n = _checks.check_length(xa, "x", fs_hz, frequency_hz)
     _checks.check_not_flat(xa, "x")
     _checks.check_not_flat(ya, "y")
 
-    period = max(int(round(fs / freq_hz)), 1)
+    period = max(int(round(fs_hz / frequency_hz)), 1)
     half = period // 2
     width = n - period + 1
     xw = xa[..., half : half + width]
@@ -118,8 +119,8 @@ def covariance_delay(x: np.ndarray, y: np.ndarray, fs: float, freq_hz: float, *,
     lag = lags[j]
     return CovarianceDelay(
         lag_samples=lag[()],
-        delay_s=(lag / fs)[()],
-        phase_rad=(2.0 * np.pi * freq_hz * lag / fs)[()],
+        delay_s=(lag / fs_hz)[()],
+        phase_rad=(2.0 * np.pi * frequency_hz * lag / fs_hz)[()],
         covariance=np.take_along_axis(cov, j[..., None], axis=-1)[..., 0][()],
         lags=lags,
     )

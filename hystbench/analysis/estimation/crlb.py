@@ -95,18 +95,18 @@ def delay_crlb(
     n: int | np.ndarray,
     eta_x: float | np.ndarray,
     eta_y: float | np.ndarray,
-    freq_hz: float | np.ndarray,
+    frequency_hz: float | np.ndarray,
     harmonic: int = 1,
 ) -> np.ndarray:
     """Lower bound on the variance of the time delay read at harmonic k (s^2).
 
-    ``phase_difference_crlb(n, eta_x, eta_y) / (2 pi k freq_hz)^2``.
+    ``phase_difference_crlb(n, eta_x, eta_y) / (2 pi k frequency_hz)^2``.
 
     Parameters
     ----------
     n, eta_x, eta_y
         As :func:`phase_difference_crlb` (the etas at harmonic k).
-    freq_hz : float or array_like
+    frequency_hz : float or array_like
         Fundamental frequency f (Hz), > 0.
     harmonic : int, optional
         Harmonic k at which the phase is read (default 1).
@@ -123,7 +123,7 @@ def delay_crlb(
     >>> print(f"{np.sqrt(delay_crlb(1000, 100.0, 100.0, 320.0)) * 1e6:.3f} us")
     2.224 us
     """
-    f = _positive(freq_hz, "freq_hz")
+    f = _positive(frequency_hz, "frequency_hz")
     if isinstance(harmonic, bool) or not isinstance(harmonic, (int, np.integer)) or harmonic < 1:
         raise ValueError(f"harmonic must be a positive integer, got {harmonic!r}")
     return (phase_difference_crlb(n, eta_x, eta_y) / (2.0 * np.pi * harmonic * f) ** 2)[()]

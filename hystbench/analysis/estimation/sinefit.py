@@ -52,7 +52,7 @@ class SineFit:
 
     Attributes
     ----------
-    freq_hz, freq_se_hz : ndarray
+    frequency_hz, frequency_se_hz : ndarray
         Fundamental frequency and its standard error (Hz); the error is 0 when the frequency was
         given (``fit_freq=False``).
     harmonics : tuple of int
@@ -78,8 +78,8 @@ class SineFit:
         Samples left out of the fit (outliers found, or excluded by the caller), time last.
     """
 
-    freq_hz: np.ndarray
-    freq_se_hz: np.ndarray
+    frequency_hz: np.ndarray
+    frequency_se_hz: np.ndarray
     harmonics: tuple[int, ...]
     amplitude: np.ndarray
     amplitude_se: np.ndarray
@@ -123,8 +123,8 @@ class PhaseDelay:
         Phase of x minus phase of y at harmonic k, wrapped to (-pi, pi], and its standard error
         (rad).  Positive: y lags x.
     delay_s, delay_se_s : ndarray
-        Equivalent time delay ``phase_rad / (2 pi k freq_hz)`` and its standard error (s).
-    freq_hz, freq_se_hz : ndarray
+        Equivalent time delay ``phase_rad / (2 pi k frequency_hz)`` and its standard error (s).
+    frequency_hz, frequency_se_hz : ndarray
         The fundamental frequency shared by both fits and its standard error (Hz).
     x, y : SineFit
         The two channels' fits (same frequency).
@@ -135,8 +135,8 @@ class PhaseDelay:
     phase_se_rad: np.ndarray
     delay_s: np.ndarray
     delay_se_s: np.ndarray
-    freq_hz: np.ndarray
-    freq_se_hz: np.ndarray
+    frequency_hz: np.ndarray
+    frequency_se_hz: np.ndarray
     x: SineFit
     y: SineFit
 
@@ -166,29 +166,29 @@ def _exclusions(exclude, arrays, names, axis) -> np.ndarray | None:
     return mask if mask.any() else None
 
 
-def _prepare(records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis, exclude,
+def _prepare(records, names, fs_hz, frequency_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis, exclude,
              outlier_sigmas):
-    """Validate; return (B, C, N) data, batch shape, start frequencies, fs, harmonics, tol, the
+    """Validate; return (B, C, N) data, batch shape, start frequencies, fs_hz, harmonics, tol, the
     caller's exclusions and the first fit's mask (both (B, C, N) or None) and the threshold."""
-    fs = _checks.check_fs(fs)
+    fs_hz = _checks.check_fs(fs_hz)
     ks = _checks.check_harmonics(harmonics)
-    if freq_hz is not None:
-        freq_hz = _checks.check_freq(freq_hz, fs, ks[-1])
+    if frequency_hz is not None:
+        frequency_hz = _checks.check_freq(frequency_hz, fs_hz, ks[-1])
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
     search_ppm = _checks.check_nonnegative(search_ppm, "search_ppm", allow_zero=True)
     tol = _checks.check_nonnegative(tol, "tol")
     if outlier_sigmas is not None:
         outlier_sigmas = _checks.check_nonnegative(outlier_sigmas, "outlier_sigmas")
-    if freq_hz is None and not fit_freq:
-        raise ValueError("freq_hz must be given when fit_freq is False")
+    if frequency_hz is None and not fit_freq:
+        raise ValueError("frequency_hz must be given when fit_freq is False")
     arrays = [_checks.as_record(r, name, axis) for r, name in zip(records, names)]
     for other in arrays[1:]:
         _checks.check_same_shape(arrays[0], other)
     n_params = len(arrays) * (1 + 2 * len(ks)) + int(fit_freq)
-    if freq_hz is not None:
+    if frequency_hz is not None:
         for arr, name in zip(arrays, names):
-            _checks.check_length(arr, name, fs, freq_hz, n_params)
+            _checks.check_length(arr, name, fs_hz, frequency_hz, n_params)
     for arr, name in zip(arrays, names):
         _checks.check_not_flat(arr, name)
     batch = arrays[0].shape[:-1]
@@ -196,36 +196,37 @@ def _prepare(records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_i
     excluded = _exclusions(exclude, arrays, names, axis)
     mask = _outliers.initial_mask(data, excluded, outlier_sigmas)
     fill = None  # for the start frequency's search a left-out sample takes its channel's median
-    if mask is not None and (freq_hz is None or fit_freq):
+    if mask is not None and (frequency_hz is None or fit_freq):
         fill = _outliers.row_median(data)[..., 0]
-    if freq_hz is None:
+    if frequency_hz is None:
         clean = data if mask is None else np.where(mask, fill[..., None], data)
-        f0 = _lsq.fft_peak_freq(clean, fs) / ks[0]
+        f0 = _lsq.fft_peak_freq(clean, fs_hz) / ks[0]
         f_max = float(np.max(f0))
-        if ks[-1] * f_max >= fs / 2.0:
-            raise ValueError(f"harmonics: {ks[-1]} x the estimated {f_max:g} Hz is above fs/2 = {fs / 2:g} Hz")
+        if ks[-1] * f_max >= fs_hz / 2.0:
+            raise ValueError(f"harmonics: {ks[-1]} x the estimated {f_max:g} Hz is above fs/2 = {fs_hz / 2:g} Hz")
         for arr, name in zip(arrays, names):
-            _checks.check_length(arr, name, fs, float(np.min(f0)), n_params)
+            _checks.check_length(arr, name, fs_hz, float(np.min(f0)), n_params)
     elif fit_freq:
-        f0 = _lsq.grid_start(data, fs, freq_hz, ks, 1e-6 * search_ppm * freq_hz, mask, fill)
+        f0 = _lsq.grid_start(data, fs_hz, frequency_hz, ks, 1e-6 * search_ppm * frequency_hz, mask, fill)
     else:
-        f0 = np.full(data.shape[0], freq_hz)
-    return data, batch, f0, fs, ks, tol, excluded, mask, outlier_sigmas
+        f0 = np.full(data.shape[0], frequency_hz)
+    return data, batch, f0, fs_hz, ks, tol, excluded, mask, outlier_sigmas
 
 
-def _solve(records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis, exclude,
+def _solve(records, names, fs_hz, frequency_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis, exclude,
            outlier_sigmas):
-    """Validate, fit (leaving out outliers and exclusions); (solution, mask, data, batch, fs, ks)."""
-    data, batch, f0, fs, ks, tol, excluded, mask, sigmas = _prepare(
-        records, names, fs, freq_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis, exclude, outlier_sigmas)
-    sol, mask = _outliers.robust_solve(data, fs, f0, ks, fit_freq=fit_freq, max_iter=int(max_iter), tol=tol,
+    """Validate, fit (leaving out outliers and exclusions); (solution, mask, data, batch, fs_hz, ks)."""
+    data, batch, f0, fs_hz, ks, tol, excluded, mask, sigmas = _prepare(
+        records, names, fs_hz, frequency_hz, harmonics, fit_freq, search_ppm, max_iter, tol, axis, exclude,
+        outlier_sigmas)
+    sol, mask = _outliers.robust_solve(data, fs_hz, f0, ks, fit_freq=fit_freq, max_iter=int(max_iter), tol=tol,
                                        exclude=excluded, mask=mask, sigmas=sigmas, names=tuple(names))
     if mask is None:
         mask = np.zeros(data.shape, dtype=bool)
-    return sol, mask, data, batch, fs, ks
+    return sol, mask, data, batch, fs_hz, ks
 
 
-def _channel_fit(sol: _lsq.Solution, c: int, ks, fs, n, batch, fit_freq, mask) -> SineFit:
+def _channel_fit(sol: _lsq.Solution, c: int, ks, fs_hz, n, batch, fit_freq, mask) -> SineFit:
     p = 1 + 2 * len(ks)
     coef = sol.coef[:, c]
     cov = sol.cov[:, c * p : (c + 1) * p, c * p : (c + 1) * p]
@@ -243,8 +244,8 @@ def _channel_fit(sol: _lsq.Solution, c: int, ks, fs, n, batch, fit_freq, mask) -
         return v.reshape(batch + ((len(ks),) if per_k else ()))[()]
 
     return SineFit(
-        freq_hz=shaped(sol.freq),
-        freq_se_hz=shaped(freq_se),
+        frequency_hz=shaped(sol.freq),
+        frequency_se_hz=shaped(freq_se),
         harmonics=tuple(ks),
         amplitude=shaped(amp, True),
         amplitude_se=shaped(amp_se, True),
@@ -253,7 +254,7 @@ def _channel_fit(sol: _lsq.Solution, c: int, ks, fs, n, batch, fit_freq, mask) -
         offset=shaped(coef[:, 0]),
         offset_se=shaped(np.sqrt(cov[:, 0, 0])),
         noise_std=shaped(np.sqrt(sol.sigma2[:, c])),
-        t_ref_s=(n - 1) / (2.0 * fs),
+        t_ref_s=(n - 1) / (2.0 * fs_hz),
         n_samples=n,
         iterations=shaped(sol.iterations),
         converged=shaped(sol.converged),
@@ -263,8 +264,8 @@ def _channel_fit(sol: _lsq.Solution, c: int, ks, fs, n, batch, fit_freq, mask) -
 
 def sine_fit(
     x: np.ndarray,
-    fs: float,
-    freq_hz: float | None,
+    fs_hz: float,
+    frequency_hz: float | None,
     *,
     harmonics: int | Iterable[int] = 1,
     fit_freq: bool = True,
@@ -279,26 +280,26 @@ def sine_fit(
 
     With ``fit_freq=False`` this is the linear three-parameter fit of IEEE Std 1057 (or its
     multi-harmonic extension) at the given frequency; with ``fit_freq=True`` (default) the
-    frequency is estimated too (four-parameter fit), by Gauss-Newton from ``freq_hz``.
+    frequency is estimated too (four-parameter fit), by Gauss-Newton from ``frequency_hz``.
 
     Parameters
     ----------
     x : array_like
         Samples (signal units).  N-D input is fitted record by record along ``axis``.
-    fs : float
+    fs_hz : float
         Sample rate (Hz).
-    freq_hz : float or None
+    frequency_hz : float or None
         Nominal fundamental frequency (Hz), or the exact one when ``fit_freq`` is False.  None
         starts from the interpolated peak of the spectrum, taken to be the lowest harmonic.
     harmonics : int or iterable of int, optional
-        Harmonics k of ``freq_hz`` to fit (default 1; e.g. ``(2,)`` for an E-core's force
+        Harmonics k of ``frequency_hz`` to fit (default 1; e.g. ``(2,)`` for an E-core's force
         without magnet, ``(1, 2, 3)`` for a distorted sine).  All must lie below fs/2.
     fit_freq : bool, optional
         Estimate the frequency (default True).  Leave it on when the sampling and generator
         clocks are independent: a 30 ppm error over 200 periods already moves the phase at the
         record ends by 0.04 rad.
     search_ppm : float, optional
-        How far (ppm) the true frequency may be from ``freq_hz`` (default 200; generator and
+        How far (ppm) the true frequency may be from ``frequency_hz`` (default 200; generator and
         sampling clocks differ by tens of ppm).  Gauss-Newton converges from within about half a
         DFT bin ``fs / (k N)`` (k the highest harmonic); for records so long that the window
         is wider, the start is the best point of a quarter-bin grid over it.
@@ -326,7 +327,7 @@ def sine_fit(
     Raises
     ------
     ValueError
-        Naming the parameter: ``fs`` not finite and positive; ``freq_hz`` (times the highest
+        Naming the parameter: ``fs_hz`` not finite and positive; ``frequency_hz`` (times the highest
         harmonic) at or above fs/2; ``x`` shorter than two periods, containing NaN or inf, or
         flat; bad ``harmonics``, ``max_iter`` or ``tol``.
 
@@ -334,23 +335,24 @@ def sine_fit(
     --------
     >>> import numpy as np
     >>> from hystbench.analysis.estimation import sine_fit
-    >>> fs, f = 10_000.0, 320.01
-    >>> t = np.arange(2000) / fs
+    >>> fs_hz, f = 10_000.0, 320.01
+    >>> t = np.arange(2000) / fs_hz
     >>> x = 0.5 + 2.0 * np.cos(2 * np.pi * f * (t - t[-1] / 2) + 0.3)
-    >>> fit = sine_fit(x, fs, 320.0)
-    >>> print(f"{fit.freq_hz:.4f} Hz  A={fit.amplitude[0]:.6f}  phi={fit.phase_rad[0]:.6f}  dc={fit.offset:.6f}")
+    >>> fit = sine_fit(x, fs_hz, 320.0)
+    >>> print(f"{fit.frequency_hz:.4f} Hz  A={fit.amplitude[0]:.6f}  phi={fit.phase_rad[0]:.6f}  dc={fit.offset:.6f}")
     320.0100 Hz  A=2.000000  phi=0.300000  dc=0.500000
     """
-    sol, mask, data, batch, fs, ks = _solve((x,), ("x",), fs, freq_hz, harmonics, fit_freq, search_ppm, max_iter,
-                                            tol, axis, None if exclude is None else (exclude,), outlier_sigmas)
-    return _channel_fit(sol, 0, ks, fs, data.shape[-1], batch, fit_freq, mask)
+    sol, mask, data, batch, fs_hz, ks = _solve((x,), ("x",), fs_hz, frequency_hz, harmonics, fit_freq, search_ppm,
+                                               max_iter, tol, axis, None if exclude is None else (exclude,),
+                                               outlier_sigmas)
+    return _channel_fit(sol, 0, ks, fs_hz, data.shape[-1], batch, fit_freq, mask)
 
 
 def phase_delay(
     x: np.ndarray,
     y: np.ndarray,
-    fs: float,
-    freq_hz: float | None,
+    fs_hz: float,
+    frequency_hz: float | None,
     *,
     harmonic: int = 1,
     harmonics: int | Iterable[int] | None = None,
@@ -376,9 +378,9 @@ def phase_delay(
     ----------
     x, y : array_like
         Reference and delayed channel, same shape (signal units, may differ between channels).
-    fs : float
+    fs_hz : float
         Sample rate (Hz).
-    freq_hz : float or None
+    frequency_hz : float or None
         Fundamental frequency, start of the search (Hz); see :func:`sine_fit`.
     harmonic : int, optional
         Harmonic k at which the delay is read (default 1; 2 for force against squared flux).
@@ -405,11 +407,11 @@ def phase_delay(
     --------
     >>> import numpy as np
     >>> from hystbench.analysis.estimation import phase_delay
-    >>> fs, f, d = 10_000.0, 320.0, 123.4e-6
-    >>> t = np.arange(3000) / fs
+    >>> fs_hz, f, d = 10_000.0, 320.0, 123.4e-6
+    >>> t = np.arange(3000) / fs_hz
     >>> x = np.sin(2 * np.pi * f * t)
     >>> y = 3.0 * np.sin(2 * np.pi * f * (t - d)) + 1.0
-    >>> r = phase_delay(x, y, fs, 320.0)
+    >>> r = phase_delay(x, y, fs_hz, 320.0)
     >>> print(f"{r.delay_s * 1e6:.4f} us, {np.degrees(r.phase_rad):.4f} deg")
     123.4000 us, 14.2157 deg
     """
@@ -418,11 +420,11 @@ def phase_delay(
     ks = _checks.check_harmonics(harmonic if harmonics is None else harmonics)
     if harmonic not in ks:
         raise ValueError(f"harmonic {harmonic} is not among the fitted harmonics {ks}")
-    sol, mask, data, batch, fs, ks = _solve((x, y), ("x", "y"), fs, freq_hz, ks, fit_freq, search_ppm, max_iter, tol,
-                                            axis, exclude, outlier_sigmas)
+    sol, mask, data, batch, fs_hz, ks = _solve((x, y), ("x", "y"), fs_hz, frequency_hz, ks, fit_freq, search_ppm,
+                                               max_iter, tol, axis, exclude, outlier_sigmas)
     n = data.shape[-1]
-    fit_x = _channel_fit(sol, 0, ks, fs, n, batch, fit_freq, mask)
-    fit_y = _channel_fit(sol, 1, ks, fs, n, batch, fit_freq, mask)
+    fit_x = _channel_fit(sol, 0, ks, fs_hz, n, batch, fit_freq, mask)
+    fit_y = _channel_fit(sol, 1, ks, fs_hz, n, batch, fit_freq, mask)
 
     # gradient of the phase difference with respect to (cos, sin) coefficients of both channels
     p = 1 + 2 * len(ks)
@@ -455,8 +457,8 @@ def phase_delay(
         phase_se_rad=shaped(np.sqrt(np.maximum(var_phi, 0.0))),
         delay_s=shaped(delay),
         delay_se_s=shaped(np.sqrt(np.maximum(var_d, 0.0))),
-        freq_hz=fit_x.freq_hz,
-        freq_se_hz=fit_x.freq_se_hz,
+        frequency_hz=fit_x.frequency_hz,
+        frequency_se_hz=fit_x.frequency_se_hz,
         x=fit_x,
         y=fit_y,
     )
@@ -469,33 +471,34 @@ def delay_between(x: SineFit, y: SineFit, harmonic: int) -> PhaseDelay:
     What :func:`phase_delay` gives at a known frequency, without fitting again: the method fits
     each channel once at the frequency its current and flux found, and reads every delay off those
     fits, so the three delays share one frequency and ``hysteresis + instrument = total`` holds to
-    rounding (with magnet).  The phases' variances add; ``freq_se_hz`` is the larger of the two
+    rounding (with magnet).  The phases' variances add; ``frequency_se_hz`` is the larger of the two
     fits' (the one that estimated the frequency; a fit at a given frequency has 0).
 
     >>> import numpy as np
-    >>> fs, f, d = 10_000.0, 320.0, 123.4e-6
-    >>> t = np.arange(3000) / fs
-    >>> fx = sine_fit(np.sin(2 * np.pi * f * t), fs, f, fit_freq=False)
-    >>> fy = sine_fit(3.0 * np.sin(2 * np.pi * f * (t - d)) + 1.0, fs, f, fit_freq=False)
+    >>> fs_hz, f, d = 10_000.0, 320.0, 123.4e-6
+    >>> t = np.arange(3000) / fs_hz
+    >>> fx = sine_fit(np.sin(2 * np.pi * f * t), fs_hz, f, fit_freq=False)
+    >>> fy = sine_fit(3.0 * np.sin(2 * np.pi * f * (t - d)) + 1.0, fs_hz, f, fit_freq=False)
     >>> print(f"{delay_between(fx, fy, 1).delay_s * 1e6:.4f} us")
     123.4000 us
     """
-    if not np.array_equal(x.freq_hz, y.freq_hz):
-        raise ValueError(f"delay_between: the fits are at different frequencies, {x.freq_hz} and {y.freq_hz} Hz")
+    if not np.array_equal(x.frequency_hz, y.frequency_hz):
+        raise ValueError(f"delay_between: the fits are at different frequencies, {x.frequency_hz} and "
+                         f"{y.frequency_hz} Hz")
     hx, hy = x.component(harmonic), y.component(harmonic)
     dphi = np.angle(np.exp(1j * (hx.phase_rad - hy.phase_rad)))
     dphi = np.where(dphi <= -np.pi, dphi + _TWO_PI, dphi)
     se = np.hypot(hx.phase_se_rad, hy.phase_se_rad)
-    omega = _TWO_PI * harmonic * np.asarray(x.freq_hz)
+    omega = _TWO_PI * harmonic * np.asarray(x.frequency_hz)
     return PhaseDelay(harmonic=int(harmonic), phase_rad=dphi[()], phase_se_rad=se[()], delay_s=(dphi / omega)[()],
-                      delay_se_s=(se / omega)[()], freq_hz=x.freq_hz,
-                      freq_se_hz=np.maximum(x.freq_se_hz, y.freq_se_hz)[()], x=x, y=y)
+                      delay_se_s=(se / omega)[()], frequency_hz=x.frequency_hz,
+                      frequency_se_hz=np.maximum(x.frequency_se_hz, y.frequency_se_hz)[()], x=x, y=y)
 
 
 def find_outliers(
     records: Sequence[np.ndarray],
-    fs: float,
-    freq_hz: float | None,
+    fs_hz: float,
+    frequency_hz: float | None,
     *,
     harmonics: int | Iterable[int] = 1,
     names: Sequence[str] | None = None,
@@ -522,8 +525,8 @@ def find_outliers(
         raise ValueError(f"names must name each of the {len(records)} records, got {list(names)}")
     if any(np.ndim(r) != 1 for r in records):
         raise ValueError("find_outliers takes 1-D records (one recording's channels)")
-    sol, mask, *_ = _solve(tuple(records), names, fs, freq_hz, harmonics, True, search_ppm, 50, 1e-10, -1, None,
-                           outlier_sigmas)
+    sol, mask, *_ = _solve(tuple(records), names, fs_hz, frequency_hz, harmonics, True, search_ppm, 50, 1e-10, -1,
+                           None, outlier_sigmas)
     return [mask[0, c] for c in range(len(records))], float(sol.freq[0])
 
 

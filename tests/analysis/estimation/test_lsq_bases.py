@@ -102,12 +102,12 @@ def _fits(x: np.ndarray):
     """What the live estimator does to a window: a joint fit with outliers, a fit at the frequency
     found, a joint fit of other channels starting there."""
     d = phase_delay(x[0, 0], x[0, 1], FS, 40.0, harmonics=(1, 2, 3, 4))
-    s = sine_fit(x[0, 1], FS, float(d.freq_hz), harmonics=(1, 2, 3, 4), fit_freq=False)
-    e = phase_delay(x[0, 1], x[0, 0] ** 2, FS, float(d.freq_hz), harmonic=2, harmonics=(1, 2, 3, 4),
+    s = sine_fit(x[0, 1], FS, float(d.frequency_hz), harmonics=(1, 2, 3, 4), fit_freq=False)
+    e = phase_delay(x[0, 1], x[0, 0] ** 2, FS, float(d.frequency_hz), harmonic=2, harmonics=(1, 2, 3, 4),
                     outlier_sigmas=None)
-    return [np.asarray(v) for v in (d.delay_s, d.delay_se_s, d.freq_hz, d.freq_se_hz, d.x.amplitude,
+    return [np.asarray(v) for v in (d.delay_s, d.delay_se_s, d.frequency_hz, d.frequency_se_hz, d.x.amplitude,
                                     d.y.phase_rad, d.y.outliers, d.x.iterations, s.amplitude, s.phase_se_rad,
-                                    s.noise_std, e.delay_s, e.delay_se_s, e.freq_hz, e.y.noise_std)]
+                                    s.noise_std, e.delay_s, e.delay_se_s, e.frequency_hz, e.y.noise_std)]
 
 
 @pytest.mark.parametrize("n", [25_000, 200_000])
