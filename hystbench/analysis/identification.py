@@ -57,7 +57,7 @@ class FrequencyResponse:
     """Force per current of one voice-coil sweep, one point per recording, sorted by frequency."""
 
     rig: str
-    freq_hz: np.ndarray  # estimated true frequencies
+    frequency_hz: np.ndarray  # estimated true frequencies
     h: np.ndarray  # complex, N/A
     ln_mag_se: np.ndarray  # standard error of ln|H|
     phase_se_rad: np.ndarray
@@ -138,15 +138,15 @@ class InstrumentFit:
         p = self.params
         return InstrumentModel(fn_hz=p["fn_Hz"], zeta_n=p["zeta_n"], f0_hz=p["f0_Hz"], zeta_0=p["zeta_0"])
 
-    def phase_deg(self, f_hz: ArrayLike) -> np.ndarray:
+    def phase_deg(self, frequency_hz: ArrayLike) -> np.ndarray:
         """Phase of the fitted model (negative: the measured force lags), degrees."""
-        return self.model.phase_deg(f_hz)
+        return self.model.phase_deg(frequency_hz)
 
-    def phase_std_deg(self, f_hz: float) -> float:
+    def phase_std_deg(self, frequency_hz: float) -> float:
         """Standard error of :meth:`phase_deg` at one frequency (from the parameter covariance)."""
         p = np.log([self.params[k] for k in PARAMS])
         grad = np.zeros(p.size)
-        f = np.array([float(f_hz)])
+        f = np.array([float(frequency_hz)])
         for j in range(p.size):
             dp = np.zeros(p.size)
             dp[j] = 1e-6
@@ -169,7 +169,7 @@ def _residuals(p, f, h, w_mag, w_ph):
 
 def fit_instrument(resp: FrequencyResponse) -> InstrumentFit:
     """Fit K, fn, zeta_n, f0, zeta_0 to a voice-coil response (see the module docstring)."""
-    f, h = resp.freq_hz, resp.h
+    f, h = resp.frequency_hz, resp.h
     if f.size < 8:
         raise EstimationError(f"{resp.rig} sweep: {f.size} frequencies; the 5-parameter instrument fit needs >= 8")
     mag = np.abs(h)
@@ -204,7 +204,7 @@ class EddyLag:
 
     rig: str
     reference: str
-    freq_hz: np.ndarray
+    frequency_hz: np.ndarray
     residual_deg: np.ndarray  # arg H - arg H_reference (negative: extra lag)
     tau_s: float
     tau_std_s: float
@@ -232,12 +232,12 @@ class EddyLag:
 
 def eddy_lag(resp: FrequencyResponse, reference: InstrumentModel, reference_name: str) -> EddyLag:
     """Fit -atan(2 pi f tau) to the phase of ``resp`` beyond ``reference`` below 0.8 fn."""
-    resid = _wrap(resp.phase_rad - np.radians(reference.phase_deg(resp.freq_hz)))
+    resid = _wrap(resp.phase_rad - np.radians(reference.phase_deg(resp.frequency_hz)))
     f_max = 0.8 * reference.fn_hz
-    sel = resp.freq_hz <= f_max
+    sel = resp.frequency_hz <= f_max
     if sel.sum() < 3:
         raise EstimationError(f"{resp.rig} sweep: fewer than 3 points below {f_max:.0f} Hz to fit an eddy lag")
-    f, r = resp.freq_hz[sel], resid[sel]
+    f, r = resp.frequency_hz[sel], resid[sel]
     w = np.hypot(resp.phase_se_rad[sel], PHASE_FLOOR_RAD)
 
     def res(p):
@@ -250,7 +250,7 @@ def eddy_lag(resp: FrequencyResponse, reference: InstrumentModel, reference_name
     x = 2 * np.pi * EDDY_CHECK_HZ
     lag = float(np.degrees(np.arctan(x * tau)))
     lag_se = float(np.degrees(x * tau_se / (1 + (x * tau) ** 2)))
-    return EddyLag(resp.rig, reference_name, resp.freq_hz, np.degrees(resid), tau, tau_se, lag, lag_se, f_max)
+    return EddyLag(resp.rig, reference_name, resp.frequency_hz, np.degrees(resid), tau, tau_se, lag, lag_se, f_max)
 
 
 def is_benchmark(rig: str) -> bool:

@@ -192,10 +192,10 @@ def check_channels(rec: Recording, names: tuple[str, ...]) -> dict[str, np.ndarr
     return out
 
 
-def _fft_peak_hz(x: np.ndarray, fs: float) -> float:
+def _fft_peak_hz(x: np.ndarray, fs_hz: float) -> float:
     spec = np.abs(np.fft.rfft(x - x.mean()))
     spec[0] = 0.0
-    return float(np.argmax(spec) * fs / x.size)
+    return float(np.argmax(spec) * fs_hz / x.size)
 
 
 def _explained(fit, k: int, x: np.ndarray) -> float:
@@ -272,12 +272,12 @@ def _drives(current: np.ndarray, flux: np.ndarray, magnet: bool) -> tuple[np.nda
     return (current - current.mean()) ** 2, (flux - flux.mean()) ** 2
 
 
-def _drive_fits(current: np.ndarray, flux: np.ndarray, m_i: np.ndarray, m_phi: np.ndarray, fs: float,
+def _drive_fits(current: np.ndarray, flux: np.ndarray, m_i: np.ndarray, m_phi: np.ndarray, fs_hz: float,
                 f_true: float) -> PhaseDelay:
     """Without magnet the force follows i^2 and phi^2 (its 2f component): their fits at the
     frequency found (``.x``: i^2, ``.y``: phi^2), the outliers found in i and phi left out."""
     drive_i, drive_phi = _drives(_filled(current, m_i), _filled(flux, m_phi), magnet=False)
-    return phase_delay(drive_i, drive_phi, fs, f_true, harmonic=2, harmonics=HARMONICS, fit_freq=False,
+    return phase_delay(drive_i, drive_phi, fs_hz, f_true, harmonic=2, harmonics=HARMONICS, fit_freq=False,
                        exclude=(m_i, m_phi), outlier_sigmas=None)
 
 

@@ -102,15 +102,15 @@ def period_average(channels: Mapping[str, ArrayLike], fs_hz: float, frequency_hz
     return PeriodAverage(float(frequency_hz), periods, phase, avg, noise, alt)
 
 
-def _average_one(x: np.ndarray, fs_hz: float, f_hz: float, phase: np.ndarray, chunks: list[tuple[int, int]],
-                 periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _average_one(x: np.ndarray, fs_hz: float, frequency_hz: float, phase: np.ndarray,
+                 chunks: list[tuple[int, int]], periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mean, sum of squared deviations from it, alternating mean) at each phase, chunk by chunk
     (the chunks' means and deviations merged as Chan et al. do, exact to rounding)."""
     even = periods - periods % 2
     mean, m2, alt = np.zeros(phase.size), np.zeros(phase.size), np.zeros(phase.size)
     count = 0
     for p0, p1 in chunks:
-        when = (np.arange(p0, p1)[:, None] + phase[None, :]) / f_hz
+        when = (np.arange(p0, p1)[:, None] + phase[None, :]) / frequency_hz
         lo = max(0, int(np.floor(when[0, 0] * fs_hz)) - _MARGIN)
         hi = min(x.size, int(np.ceil(when[-1, -1] * fs_hz)) + 1 + _MARGIN)
         grid = CubicSpline(np.arange(lo, hi) / fs_hz, x[lo:hi])(when)

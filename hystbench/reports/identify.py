@@ -23,8 +23,8 @@ __all__ = ["identify_folder"]
 
 def _instrument_report(name: str, fit, eddy, reference: str, own_is_model: bool) -> dict[str, Any]:
     out = {"kind": "instrument", "sweep": name, **fit.as_dict(),
-           "points": int(fit.response.freq_hz.size),
-           "frequency_range_Hz": [float(fit.response.freq_hz[0]), float(fit.response.freq_hz[-1])],
+           "points": int(fit.response.frequency_hz.size),
+           "frequency_range_Hz": [float(fit.response.frequency_hz[0]), float(fit.response.frequency_hz[-1])],
            "benchmark": own_is_model, "reference": reference, "eddy": eddy.as_dict(),
            "eddy_lag_flag": eddy.significant}
     out["poorly_constrained"] = _poorly_constrained(fit)
@@ -44,7 +44,7 @@ def _poorly_constrained(fit) -> dict[str, str]:
     """The fitted corner frequencies the sweep hardly constrains, each with why: one above the
     highest measured frequency is an extrapolation of the response's slope (its number is the fit's,
     not the sweep's); one whose uncertainty is large relative to it is not measured either."""
-    f_max = float(fit.response.freq_hz.max())
+    f_max = float(fit.response.frequency_hz.max())
     out = {}
     for key, damping in _CORNERS.items():
         value, std = fit.params.get(key), fit.std.get(key)

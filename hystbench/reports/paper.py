@@ -239,7 +239,7 @@ def comparison(res: PaperResult) -> list[dict]:
     s = res.instrument.std
     rows = [
         ("frame + load cell resonance fn (Hz)", "4450", _pm(p["fn_Hz"], s["fn_Hz"], ".0f"),
-         f"two-filter fit to the {res.benchmark} sweep ({len(fit.response.freq_hz)} points)"),
+         f"two-filter fit to the {res.benchmark} sweep ({len(fit.response.frequency_hz)} points)"),
         ("its damping zeta_n", "0.012", _pm(p["zeta_n"], s["zeta_n"], ".4f"), ""),
         ("charge amplifier f0 (Hz)", "31000 (data sheet)", _pm(p["f0_Hz"], s["f0_Hz"], ".0f"),
          "fitted here; the paper took it from the data sheet"),

@@ -55,7 +55,7 @@ def _bode(res: PaperResult, out: Path) -> Path:
     seen: dict[str, np.ndarray] = {}
     for rig, rf in res.fits.items():
         r = rf.response
-        ph_ref = np.interp(np.log(r.freq_hz), np.log(f_mod), ph_mod)
+        ph_ref = np.interp(np.log(r.frequency_hz), np.log(f_mod), ph_mod)
         ph = ph_ref + np.degrees(np.angle(np.exp(1j * (np.angle(r.h) - np.radians(ph_ref)))))
         lab = names.get(rig, rig)
         twin = next((n for n, p in seen.items() if p.shape == ph.shape and np.median(np.abs(p - ph)) < 0.5), None)
@@ -63,10 +63,10 @@ def _bode(res: PaperResult, out: Path) -> Path:
             lab += f" (on the {twin} curve)"
         seen[names.get(rig, rig).split()[0]] = ph
         mk = marks.get(rig, "o-")
-        ax_a.semilogx(r.freq_hz, 20 * np.log10(np.abs(r.h)), mk, ms=3.5, lw=0.9, label=lab)
-        ax_b.semilogx(r.freq_hz, ph, mk, ms=3.5, lw=0.9, label=lab)
-        z = (r.freq_hz >= 100) & (r.freq_hz <= 4500)
-        ax_c.plot(r.freq_hz[z], ph[z], mk, ms=4, lw=0.9, label=lab)
+        ax_a.semilogx(r.frequency_hz, 20 * np.log10(np.abs(r.h)), mk, ms=3.5, lw=0.9, label=lab)
+        ax_b.semilogx(r.frequency_hz, ph, mk, ms=3.5, lw=0.9, label=lab)
+        z = (r.frequency_hz >= 100) & (r.frequency_hz <= 4500)
+        ax_c.plot(r.frequency_hz[z], ph[z], mk, ms=4, lw=0.9, label=lab)
     lab = f"Modeled instr. resp. (fit to {names.get(res.benchmark, res.benchmark).lower()})"
     ax_a.semilogx(f_mod, 20 * np.log10(np.abs(h_mod)), "k--", lw=1, label=lab)
     ax_b.semilogx(f_mod, ph_mod, "k--", lw=1, label=lab)
@@ -215,7 +215,7 @@ def _fig18(res: PaperResult, out: Path) -> Path:
     r = fit.response
     f_mod = np.geomspace(10, 45000, 2000)
     ph_mod = fit.model.phase_deg(f_mod)
-    ph_ref = np.interp(np.log(r.freq_hz), np.log(f_mod), ph_mod)
+    ph_ref = np.interp(np.log(r.frequency_hz), np.log(f_mod), ph_mod)
     ph = ph_ref + np.degrees(np.angle(np.exp(1j * (np.angle(r.h) - np.radians(ph_ref)))))
     pts = []
     for run in res.ecore.values():
@@ -224,9 +224,9 @@ def _fig18(res: PaperResult, out: Path) -> Path:
             pts.append((ff, -360.0 * ff * d.delays_s["instrument"], "ecore_pm" in run.rig))
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.4))
     for ax, zoom in ((a, False), (b, True)):
-        sel = (r.freq_hz >= 100) & (r.freq_hz <= 2000) if zoom else np.ones(r.freq_hz.size, bool)
+        sel = (r.frequency_hz >= 100) & (r.frequency_hz <= 2000) if zoom else np.ones(r.frequency_hz.size, bool)
         fm = (f_mod >= 100) & (f_mod <= 2000) if zoom else np.ones(f_mod.size, bool)
-        ax.plot(r.freq_hz[sel], ph[sel], "o-", ms=3.5, lw=0.8, label="Ferrite magnet (voice coil)")
+        ax.plot(r.frequency_hz[sel], ph[sel], "o-", ms=3.5, lw=0.8, label="Ferrite magnet (voice coil)")
         ax.plot(f_mod[fm], ph_mod[fm], "k--", lw=1, label="Modeled instrument resp.")
         for magnet, mk, lab in ((False, "x", "Phase angle $F_z$-$\\Phi^2$ (E-core, no magnet)"),
                                 (True, "+", "Phase angle $F_z$-$\\Phi$ (E-core, magnet)")):

@@ -78,7 +78,7 @@ def test_points_too_near_nyquist_are_left_out_and_reported():
         frequency_response(recs)
     dropped = []
     resp = frequency_response(recs, dropped=dropped)
-    assert resp.freq_hz.size == 2 and len(dropped) == 1 and "20000 Hz" in dropped[0][0]
+    assert resp.frequency_hz.size == 2 and len(dropped) == 1 and "20000 Hz" in dropped[0][0]
 
 
 def test_read_sweeps_splits_a_bench_day_folder_by_rig(tmp_path):

@@ -37,7 +37,7 @@ def test_a_corner_above_the_sweep_is_called_poorly_constrained(sweep_to_8khz, ca
 
 def _fit(fn, fn_std, f0, f0_std, f_max):
     return SimpleNamespace(params={"fn_Hz": fn, "f0_Hz": f0}, std={"fn_Hz": fn_std, "f0_Hz": f0_std},
-                           response=SimpleNamespace(freq_hz=np.array([10.0, f_max])))
+                           response=SimpleNamespace(frequency_hz=np.array([10.0, f_max])))
 
 
 def test_corners_inside_the_sweep_and_well_measured_are_not_flagged():

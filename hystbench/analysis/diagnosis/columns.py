@@ -112,8 +112,8 @@ CATALOGUE_FRAME = Probe("frame_resonance", "depth", 0.2, lambda u: {"depth": u},
 FRAME_BAND_HZ = (300.0, 8000.0)
 
 
-def _in_band(f_hz: float) -> float:
-    return min(max(f_hz, FRAME_BAND_HZ[0]), FRAME_BAND_HZ[1])
+def _in_band(frequency_hz: float) -> float:
+    return min(max(frequency_hz, FRAME_BAND_HZ[0]), FRAME_BAND_HZ[1])
 
 
 #: Time constants (s) simulated first for the high-pass effects: a day's transients to beyond it.

@@ -90,32 +90,34 @@ def record_features(rec: Recording, harmonics: int = 7, lines_hz: Sequence[float
     if CURRENT not in rec.channels:
         raise ValueError(f"{name}: no {CURRENT} channel; features are referenced to the current "
                          f"(channels: {', '.join(rec.channels)})")
-    K, fs, n = int(harmonics), rec.fs_hz, rec.n
+    K, fs_hz, n = int(harmonics), rec.fs_hz, rec.n
     if K < 1:
         raise ValueError(f"harmonics must be >= 1, got {harmonics!r}")
     try:
-        f = float(frequency_hz) if frequency_hz else estimate_frequency(rec.channels[CURRENT], fs, rec.frequency_hz)
+        f = (float(frequency_hz) if frequency_hz
+             else estimate_frequency(rec.channels[CURRENT], fs_hz, rec.frequency_hz))
     except ValueError as err:
         raise ValueError(f"{name}: {err}") from err
-    if f >= NYQUIST_SHARE * fs:
-        raise ValueError(f"{name}: the fundamental {f:g} Hz is above {NYQUIST_SHARE} of the sample rate {fs:g} Hz")
-    spp = fs / f  # samples per period
+    if f >= NYQUIST_SHARE * fs_hz:
+        raise ValueError(f"{name}: the fundamental {f:g} Hz is above {NYQUIST_SHARE} of the sample rate "
+                         f"{fs_hz:g} Hz")
+    spp = fs_hz / f  # samples per period
     n_grid = max(int(n_points), 2 * K + 2, int(math.ceil(1.25 * spp)))
     names = tuple(rec.channels)
     try:
-        pa = period_average(rec.channels, fs, f, n_grid, names=names)
+        pa = period_average(rec.channels, fs_hz, f, n_grid, names=names)
     except ValueError as err:
         raise ValueError(f"{name}: {err}") from err
     P = pa.periods
     if P < 2:
         raise ValueError(f"{name}: {rec.duration_s:g} s hold {P} whole period of {f:g} Hz; features need two")
     X = np.stack([pa.channels[c] for c in names])  # (C, n_grid)
-    t = np.arange(n) / fs
+    t = np.arange(n) / fs_hz
     cycles = t * f
     phase = cycles - np.floor(cycles)
     n_whole = min(n, int(math.floor(P * spp)) + 1)
     freqs = np.fft.rfftfreq(n_grid, 1.0 / n_grid) * f  # harmonic k at k f Hz
-    gain = np.where(freqs < 0.5 * fs, spline_gain(2 * np.pi * freqs / fs), np.inf)
+    gain = np.where(freqs < 0.5 * fs_hz, spline_gain(2 * np.pi * freqs / fs_hz), np.inf)
 
     def extend(grid: np.ndarray) -> np.ndarray:
         """Periodic extension of grid values (rows) at every sample's phase, band-limited like the
@@ -132,7 +134,7 @@ def record_features(rec: Recording, harmonics: int = 7, lines_hz: Sequence[float
     # each line (minus what leaked of it into the average).
     grid_phase = pa.phase
     ramp_grid = (grid_phase - 0.5) / f
-    kept = [float(h) for h in lines_hz if _separable(float(h), f, fs, n / fs)]
+    kept = [float(h) for h in lines_hz if _separable(float(h), f, fs_hz, n / fs_hz)]
     omegas = 2 * np.pi * np.asarray(kept)
     p_idx = np.arange(P)
     leak = np.exp(1j * np.outer(omegas, p_idx / f)).mean(axis=1)  # D_l: a line's share in the average
@@ -153,12 +155,12 @@ def record_features(rec: Recording, harmonics: int = 7, lines_hz: Sequence[float
 
     # The periodic part alone: the average minus its drift ramp and the lines' leaks.
     clean = X - slope[:, None] * ramp_grid[None] - (line_amp.T @ line_grid).real
-    valid = freqs[:K + 1] < NYQUIST_SHARE * fs
+    valid = freqs[:K + 1] < NYQUIST_SHARE * fs_hz
     scale = np.r_[1.0, np.full(K, 2.0)] / n_grid
     spec = np.fft.rfft(clean, axis=-1)[:, :K + 1] * scale / gain[:K + 1]
     N = P * spp
     se_white = sigma[:, None] * np.r_[1.0 / math.sqrt(N), np.full(K, math.sqrt(2.0 / N))][None]
-    ratio = _coloured_ratio(left, sigma, f, fs, K)
+    ratio = _coloured_ratio(left, sigma, f, fs_hz, K)
     se = se_white * ratio
 
     ci = names.index(CURRENT)
@@ -175,10 +177,10 @@ def record_features(rec: Recording, harmonics: int = 7, lines_hz: Sequence[float
     spec[:, ~valid] = np.nan
     se[:, ~valid] = np.nan
 
-    dc = _dc_slopes(data, fs, spp, P, line_amp, omegas, f)
+    dc = _dc_slopes(data, fs_hz, spp, P, line_amp, omegas, f)
     return RecordFeatures(
         name=name, rig=rec.rig, frequency_hz=float(f), current_pp_a=rec.current_pp_a, start_time_s=_start_time(rec),
-        duration_s=rec.duration_s, fs_hz=fs, periods=P,
+        duration_s=rec.duration_s, fs_hz=fs_hz, periods=P,
         harmonics={c: spec[i].copy() for i, c in enumerate(names)},
         se={c: se[i].copy() for i, c in enumerate(names)},
         dc_slope={c: dc[i] for i, c in enumerate(names)},
@@ -187,15 +189,15 @@ def record_features(rec: Recording, harmonics: int = 7, lines_hz: Sequence[float
         noise_rms={c: float(sigma[i]) for i, c in enumerate(names)})
 
 
-def _separable(line_hz: float, f: float, fs: float, duration_s: float) -> bool:
+def _separable(line_hz: float, f: float, fs_hz: float, duration_s: float) -> bool:
     """A line can be told from the periodic part only 2/duration away from every harmonic k f
     (any k: every harmonic is in the average), and below NYQUIST_SHARE of fs."""
-    if not (math.isfinite(line_hz) and 0 < line_hz < NYQUIST_SHARE * fs):
+    if not (math.isfinite(line_hz) and 0 < line_hz < NYQUIST_SHARE * fs_hz):
         return False
     return abs(line_hz - round(line_hz / f) * f) >= 2.0 / duration_s
 
 
-def _coloured_ratio(left: np.ndarray, sigma: np.ndarray, f: float, fs: float, K: int) -> np.ndarray:
+def _coloured_ratio(left: np.ndarray, sigma: np.ndarray, f: float, fs_hz: float, K: int) -> np.ndarray:
     """(C, K+1): how far the noise density near each harmonic exceeds white noise of the same rms.
 
     Drift, mains and 1/f noise are coloured: dense near the low harmonics, thin elsewhere, so the
@@ -208,8 +210,8 @@ def _coloured_ratio(left: np.ndarray, sigma: np.ndarray, f: float, fs: float, K:
     C, n = left.shape
     with np.errstate(divide="ignore", invalid="ignore"):  # a constant channel: no noise, ratio 1
         power = np.abs(np.fft.rfft(left, axis=1)) ** 2 / (n * sigma ** 2)[:, None]
-    nu = np.fft.rfftfreq(n, 1.0 / fs)
-    near = min(2.0 * fs / n, 0.5 * f)
+    nu = np.fft.rfftfreq(n, 1.0 / fs_hz)
+    near = min(2.0 * fs_hz / n, 0.5 * f)
     ratio = np.ones((C, K + 1))
     for k in range(K + 1):
         d = np.abs(nu - k * f)
@@ -222,7 +224,7 @@ def _coloured_ratio(left: np.ndarray, sigma: np.ndarray, f: float, fs: float, K:
     return ratio
 
 
-def _dc_slopes(data: np.ndarray, fs: float, spp: float, P: int, line_amp: np.ndarray, omegas: np.ndarray,
+def _dc_slopes(data: np.ndarray, fs_hz: float, spp: float, P: int, line_amp: np.ndarray, omegas: np.ndarray,
                f: float) -> list[tuple[float, float]]:
     """Least-squares line through the per-period means (the lines' share of each removed) against
     the periods' mid times: (slope per s, its SE from the residuals); NaN under three periods."""
