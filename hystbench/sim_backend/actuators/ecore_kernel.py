@@ -219,7 +219,7 @@ def passes(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, first: int, max_p
 
 @njit(cache=True, nogil=True)
 def final_run(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, length: float, lag: np.ndarray, y_start: np.ndarray,
-              cold: bool, nd: np.ndarray, fs: float, dlam: np.ndarray, d2lam: np.ndarray, outer: np.ndarray,
+              cold: bool, nd: np.ndarray, fs_hz: float, dlam: np.ndarray, d2lam: np.ndarray, outer: np.ndarray,
               douter: np.ndarray, compliance: float, turns: float, dcur: np.ndarray, dfm: float, prev_drop: np.ndarray,
               force: np.ndarray, flux: np.ndarray, dflux: np.ndarray, iron_b: np.ndarray, lag_end: np.ndarray) -> None:
     """The linear run with the converged remainder, straight into force, flux and its rate
@@ -249,8 +249,8 @@ def final_run(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, length: float,
         yb = lam1 * yb + (q10 * u0 + q11 * u1)
         x0 = v00 * ya + v01 * yb
         x1 = v10 * ya + v11 * yb
-        dx0 = (x0 - xa) * fs
-        dx1 = (x1 - xb) * fs
+        dx0 = (x0 - xa) * fs_hz
+        dx1 = (x1 - xb) * fs_hz
         s0 = u0 - (n00 * x0 + d00 * dx0)  # u - (N x + D dx/dt)
         s1 = u1 - d11 * dx1
         xa, xb = x0, x1
@@ -267,7 +267,7 @@ def final_run(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, length: float,
         r1 = u1 - s1
         if k == 0 and pd0 != pd0:  # NaN: no block before
             pd0, pd1 = r0, r1
-        dflux[k] = o0 * (turns * dcur[k] - (r0 - pd0) * fs) + o1 * (dfm - (r1 - pd1) * fs)
+        dflux[k] = o0 * (turns * dcur[k] - (r0 - pd0) * fs_hz) + o1 * (dfm - (r1 - pd1) * fs_hz)
         pd0, pd1 = r0, r1
     prev_drop[0], prev_drop[1] = pd0, pd1
     lag_end[0], lag_end[1], lag_end[2], lag_end[3] = ya, yb, xa, xb
