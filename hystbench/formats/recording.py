@@ -349,9 +349,9 @@ def _max_time_deviation(t: np.ndarray, period: float) -> float:
     return worst
 
 
-def _check_time(t: np.ndarray, fs: float, where: str, sidecar: str) -> None:
-    """time_s must sit on t[0] + i / fs within TIME_TOL_PERIODS; say which line leaves it, and why."""
-    period = 1.0 / fs
+def _check_time(t: np.ndarray, fs_hz: float, where: str, sidecar: str) -> None:
+    """time_s must sit on t[0] + i / fs_hz within TIME_TOL_PERIODS; say which line leaves it, and why."""
+    period = 1.0 / fs_hz
     tol = TIME_TOL_PERIODS * period
     if t.size < 2 or _max_time_deviation(t, period) <= tol:
         return
@@ -372,7 +372,7 @@ def _check_time(t: np.ndarray, fs: float, where: str, sidecar: str) -> None:
     i = int(np.argmax(np.abs(dev) > tol))
     rate = (t.size - 1) / (t[-1] - t[0])
     raise RecordingError(f"{where}:{i + 2}: time_s is sampled at {rate:.9g} Hz but {sidecar} says "
-                         f"sample_rate_Hz {fs:.9g}; here time_s is {dev[i] / period:+.3g} periods of "
+                         f"sample_rate_Hz {fs_hz:.9g}; here time_s is {dev[i] / period:+.3g} periods of "
                          f"1/sample_rate_Hz off (steps of {step:.9g} s, not {period:.9g} s)")
 
 
