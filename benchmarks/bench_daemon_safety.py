@@ -33,7 +33,8 @@ HANG_S = 60.0
 
 
 def _service(tmp: Path, bench: str):
-    from hystbench.service.daemon import BenchService, load_daemon_config
+    from hystbench.service.daemon_config import load_daemon_config
+    from hystbench.service.service import BenchService
 
     toml = tmp / "daemon.toml"
     toml.write_text(f'[daemon]\nbench = "{bench}"\nlog_dir = "{tmp.as_posix()}"\n[source]\nkind = "bench"\n'

@@ -60,8 +60,8 @@ def _by_name(before: dict, after: dict, wall_s: float) -> list[tuple[str, float]
 
 
 def _config(folder: Path, seconds: float):
-    from hystbench.service.daemon import load_daemon_config
     from hystbench.acquisition.zenoh_bus import free_port
+    from hystbench.service.daemon_config import load_daemon_config
 
     dwell = (seconds + WARMUP_S) / 5 + 2.0  # the sweep outlasts the measurement
     path = folder / "daemon.toml"

@@ -18,7 +18,8 @@ from pathlib import Path
 
 
 def measure(source: str, policy: str, seconds: float, settle: float) -> dict:
-    from hystbench.service.daemon import BenchService, load_daemon_config
+    from hystbench.service.daemon_config import load_daemon_config
+    from hystbench.service.service import BenchService
 
     with tempfile.TemporaryDirectory() as tmp:
         cfg = Path(tmp) / "daemon.toml"

@@ -13,7 +13,6 @@ from typing import Any
 
 import pytest
 
-from hystbench.service.daemon import SCHEMA as DAEMON, load_daemon_config
 from hystbench.config import CONFIG_DIR, load_material, load_rig
 from hystbench.config.effects import CATALOGUE
 from hystbench.config.presets import MATERIAL_SCHEMA, RIG_SCHEMAS
@@ -21,6 +20,7 @@ from hystbench.config.schema import Key, tables
 from hystbench.drivers.protocols.bench_config import DEFAULT_BENCH, SCHEMA as BENCH, load_bench_config
 from hystbench.errors import ConfigError
 from hystbench.reports.config_reference import DOC_PATH, main, render
+from hystbench.service.daemon_config import SCHEMA as DAEMON, load_daemon_config
 
 
 def test_committed_reference_is_the_generated_one() -> None:

@@ -97,8 +97,8 @@ def _watch_items(sub, keyexpr: str, endpoint: str, *, count: int | None, seconds
 def cmd_watch(args: argparse.Namespace) -> int:
     """`hystbench watch`: a bench's live messages from zenoh, one line each (estimates by default),
     for a person or a pipe."""
-    from ..service.control import describe_endpoint, open_client
     from ..acquisition.zenoh_bus import Subscription
+    from ..service.control import describe_endpoint, open_client
 
     session = open_client(args.connect, args.zenoh_config)
     sub = Subscription(session, args.keyexpr)
@@ -168,8 +168,8 @@ def _format_reply(bench: str, verb: str, reply: dict) -> str:
 def cmd_ctl(args: argparse.Namespace) -> int:
     """One command or query to a running daemon; exit 1 if it refuses (its reason on stderr),
     2 if nobody answers within ``--timeout``."""
-    from ..service.control import BenchControl
     from ..errors import CommandRefused
+    from ..service.control import BenchControl
 
     payload = _ctl_payload(args)
     with BenchControl(args.bench, connect=args.connect, zenoh_config=args.zenoh_config,

@@ -14,11 +14,12 @@ from typing import Any, Callable
 
 from rich.markup import escape
 
-from ..service.control import BenchControl
-from ..service.daemon import BenchService, load_daemon_config
 from ..acquisition.zenoh_bus import Subscription, free_port, key
 from ..deadline import Deadline
 from ..errors import BenchError
+from ..service.control import BenchControl
+from ..service.daemon_config import load_daemon_config
+from ..service.service import BenchService
 
 __all__ = ["demo_live"]
 

@@ -1,4 +1,5 @@
-"""The bench daemon as a service: the process and its configuration (``daemon``), one configuration
+"""The bench daemon as a service: the process (``daemon``: signals, reload, the watchdog), its
+configuration (``daemon_config``: the daemon file's schema, loader and checks), one configuration
 running (``service``: sweeps, commands, faults, restarts), the source it builds (``source_config``),
 its log (``service_log``, ``retention``), one daemon per bench (``instance``), systemd's notify
 protocol (``sd_notify``), and the client side of ``hystbench ctl`` (``control``).

@@ -13,9 +13,9 @@ import json
 import threading
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
+from ..acquisition.zenoh_bus import COMMANDS, MAX_COMMAND_BYTES, key, load_zenoh_config, open_session, query_json
 from ..deadline import Deadline
 from ..errors import CommandRefused, ConfigError, NoReply
-from ..acquisition.zenoh_bus import COMMANDS, MAX_COMMAND_BYTES, key, load_zenoh_config, open_session, query_json
 
 if TYPE_CHECKING:
     import zenoh

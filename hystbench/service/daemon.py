@@ -1,6 +1,6 @@
 """The bench daemon: the pipeline, its log and its zenoh face, run as a systemd service.
 
-``hystbench daemon --config daemon.toml``: every key is checked (a misspelt or mistyped one is
+``hystbench daemon --config daemon.toml``: every key is checked (:mod:`.daemon_config`; a misspelt or mistyped one is
 refused with the file and key named; a key the source's kind does not use is refused, naming
 why), the source is the simulated rig unless instruments are configured, and the process speaks
 systemd's notify protocol (READY, RELOADING, STOPPING, WATCHDOG).  ``--config`` also takes a
@@ -21,7 +21,6 @@ fault the daemon could not recover from, or instruments that cannot be reached a
 
 from __future__ import annotations
 
-import copy
 import logging
 import os
 import signal
@@ -29,201 +28,23 @@ import socket
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
-from ..config import read_toml
-from ..config.schema import NUM, Key, check_table
 from ..errors import BenchError, ConfigError, InstrumentError
-from ..formats.mcaplog.recorder import COMPRESSIONS, IDLE_RAW
-from ..acquisition.bench_commands import MAX_DWELL_S
+from .daemon_config import DaemonConfig, load_daemon_config, zenoh_config
 from .sd_notify import Notifier
 from .service import BenchService
 from .service_log import check_log_dir
-from .source_config import build_source, check_source
+from .source_config import build_source
 
-if TYPE_CHECKING:
-    import zenoh
-
-__all__ = ["load_daemon_config", "DaemonConfig", "BenchService", "run_daemon", "DEFAULTS", "build_source"]
+__all__ = ["run_daemon", "STALL_S", "STOP_S"]
 
 log = logging.getLogger("hystbench.daemon")
 
-_NUM = NUM
-_ENDPOINT = Key(str, None, "endpoints like 'tcp/127.0.0.1:7447'")
 #: No new samples for this long and the watchdog is no longer fed.
 STALL_S = 5.0
 #: SIGTERM ends the daemon within this long in every state; past it, the process ends at once.
 STOP_S = 4.5
-#: section -> key -> :class:`Key` (type, default, unit, legal range, meaning).  The file is checked
-#: against it by :func:`~hystbench.config.schema.check_table`, and docs/config.md is generated from
-#: it (``python -m hystbench.reports.config_reference``).
-DEFAULTS: dict[str, dict[str, Key]] = {
-    "daemon": {
-        "bench": Key(str, "bench1", "the bench's name: the zenoh key space is hystbench/<bench>/... (no / * $ ? #)"),
-        "log_dir": Key(str, "", "folder of the MCAP logs, one per session: <bench>-<start time>-NNNN.mcap; \"\": "
-                       "the state directory's logs folder ($STATE_DIRECTORY under systemd, else "
-                       "$XDG_STATE_HOME/hystbench or ~/.local/state/hystbench)"),
-        "stats_interval_s": Key(_NUM, 1.0, "period of the pipeline counters on hystbench/<bench>/stats", "s", gt=0,
-                                le=3600),
-    },
-    "source": {
-        "kind": Key(str, "bench", "bench: the instruments of bench_file through the drivers; sim: the simulated "
-                    "rig directly (cheap); synthetic: precomputed sines", choices=("bench", "sim", "synthetic")),
-        "rig": Key(str, "ecore_pm", "the rig preset (hystbench/config/rigs) or a .toml path; names the recordings; "
-                   "kind = bench: the emulated rig (default: the bench file's [sim] rig)"),
-        "fs_hz": Key(_NUM, 100_000.0, "sample rate (kind = sim, synthetic; a bench file sets its own)", "Hz", gt=0),
-        "block_samples": Key(int, 1000, "samples per block (kind = sim, synthetic)", "samples", gt=0),
-        "seed": Key(int, 0, "random seed of the simulated rig's noise (kind = bench: emulated only)", ge=0),
-        "frequency_hz": Key(_NUM, 320.0, "excitation frequency when the output is switched on without a sweep "
-                            "(checked against the bench: 1 Hz to fs/10)", "Hz", gt=0),
-        "current_pp_a": Key(_NUM, 1.4, "excitation current, peak to peak, without a sweep (at most twice the "
-                            "bench's current limit)", "A", ge=0),
-        "pace": Key(str, "realtime", "realtime: blocks at the sample clock; max: as fast as computed",
-                    choices=("realtime", "max")),
-        "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false } (kind = bench: "
-                       "emulated only, replacing the bench file's [sim] effects)"),
-        "ring_seconds": Key(_NUM, 2.0, "how far a stage may fall behind before it loses samples", "s", gt=0,
-                            le=60),
-        "bench_file": Key(str, "", "kind = bench only: the bench file (\"\": hystbench/config/bench.toml, every "
-                          "instrument emulated)"),
-    },
-    "estimation": {
-        "enabled": Key(bool, True, "estimate the delays live (hystbench/<bench>/estimate)"),
-        "periods": Key(_NUM, 10.0, "window length in whole periods of the excitation", "periods", ge=2,
-                       le=1000),
-        "hop_periods": Key(_NUM, 10.0, "one estimate per this many periods ...", "periods", gt=0, le=1000),
-        "min_hop_s": Key(_NUM, 0.1, "... but at most one per this time", "s", ge=0, le=3600),
-        "settle_periods": Key(_NUM, 2.0, "skipped after each change of operating point", "periods", ge=0,
-                              le=1000),
-        "max_fs_hz": Key(_NUM, 100_000.0, "above this rate channels are averaged down before fitting", "Hz",
-                         ge=1000),
-    },
-    "recording": {
-        "enabled": Key(bool, True, "write the MCAP log"),
-        "compression": Key(str, "zstd", "chunk compression", choices=COMPRESSIONS),
-        "chunk_kib": Key(int, 256, "chunk size: a crash loses at most the open chunk", "KiB", gt=0),
-        "flush_interval_s": Key(_NUM, 0.5, "the open chunk is written at least this often", "s", gt=0),
-        "rotate_mib": Key(_NUM, 1024.0, "a new log part when the current one reaches this size", "MiB", gt=0),
-        "rotate_minutes": Key(_NUM, 60.0, "... or this age", "min", gt=0),
-        "idle_raw": Key(str, "decimated", "raw samples while the output is off: off (none), decimated (the first "
-                        "10 ms of every second: offsets, noise, pickup) or full", choices=IDLE_RAW),
-        "keep_days": Key(_NUM, 0.0, "retention: delete this bench's log parts older than this (0: keep them)",
-                         "days", ge=0),
-        "max_total_gib": Key(_NUM, 100.0, "retention: delete this bench's oldest log parts while they add up to "
-                             "more than this (0: no limit); the open part is never deleted", "GiB", ge=0),
-    },
-    "zenoh": {
-        "enabled": Key(bool, True, "publish on zenoh and answer queries and commands"),
-        "config": Key(str, "", "a zenoh json5 file (e.g. hystbench/config/zenoh-acl.json5); \"\": an embedded "
-                      "peer, multicast scouting off"),
-        "listen": Key(list, ["tcp/127.0.0.1:7447"], "endpoints to listen on (replace the config file's when given)",
-                      items=_ENDPOINT),
-        "connect": Key(list, [], "endpoints to connect to (replace the config file's when given)", items=_ENDPOINT),
-        "publish_raw": Key(bool, True, "raw blocks on hystbench/<bench>/raw, one message per block"),
-        "raw_per_channel": Key(bool, False, "... or one per channel on hystbench/<bench>/raw/<channel>"),
-    },
-    "sweep": {
-        "frequencies_hz": Key(list, [40.0, 80.0, 160.0, 320.0, 480.0], "what cmd/start_sweep runs when not told "
-                              "otherwise", "Hz", items=Key(_NUM, None, "frequencies", "Hz", gt=0), nonempty=True),
-        "current_pp_a": Key(_NUM, 1.4, "sweep current, peak to peak", "A", ge=0),
-        "dwell_s": Key(_NUM, 1.0, "time at each frequency", "s", gt=0, le=MAX_DWELL_S),
-        "autostart": Key(bool, False, "start one sweep when the daemon starts"),
-    },
-    "compensator": {
-        "enabled": Key(bool, False, "feed-forward: follows the live hysteresis delay, uploads its current table"),
-        "factory": Key(str, "", "or \"module:callable\" returning an object with update(estimate) -> state"),
-        "model": Key(str, "", "a file from `hystbench model fit SWEEP_DIR --out MODEL.json`"),
-        "kind": Key(str, "best", "which model of the file", choices=("nonhysteretic", "paper", "best")),
-        "force": Key(str, "", "the force reference, e.g. \"offset=170,amp=40,freq=320\""),
-        "current_limit_a": Key(_NUM, 0.0, "the compensator never commands more than this (0: the bench's command "
-                               "limit, its trip level less [bench] current_margin)", "A", ge=0),
-        "learn": Key(bool, False, "repetitive control on each estimate window's period-averaged force"),
-        "learning_gain": Key(_NUM, 0.8, "gain of the learning loop; it stops itself, output off, if it diverges",
-                             gt=0, le=1.5),
-    },
-}
-
-
-@dataclass(frozen=True)
-class DaemonConfig:
-    """The checked configuration: ``values[section][key]``, every key present; ``given`` holds the
-    keys the file set (so a zenoh config file keeps its endpoints unless the TOML names them)."""
-
-    values: dict[str, dict[str, Any]]
-    given: frozenset[tuple[str, str]]
-    source: str
-
-    def __getitem__(self, section: str) -> dict[str, Any]:
-        return self.values[section]
-
-    def as_dict(self) -> dict[str, Any]:
-        return copy.deepcopy(self.values)
-
-
-#: The daemon file's schema: one table per section of :data:`DEFAULTS`, each optional.
-SCHEMA: dict[str, Key] = {s: Key(dict, {}, f"[{s}]", table=keys) for s, keys in DEFAULTS.items()}
-
-
-def load_daemon_config(path: str | Path | None) -> DaemonConfig:
-    """Read and check a daemon TOML file (None: the defaults)."""
-    where = str(path) if path is not None else "(defaults)"
-    data = read_toml(path) if path is not None else {}
-    data = _bench_file_as_daemon_config(data, path, where)
-    values = check_table(data, where, SCHEMA)
-    given = {(s, k) for s, table in data.items() for k in table}
-    from ..acquisition.zenoh_bus import key
-
-    try:
-        key(values["daemon"]["bench"])
-    except ConfigError as err:
-        raise ConfigError(f"{where} [daemon] bench: {err}") from None
-    from ..config import load_rig
-
-    try:  # every kind: the rig names the recordings (the interchange format's 'rig' key)
-        load_rig(values["source"]["rig"])
-    except ConfigError as err:
-        raise ConfigError(f"{where} [source] rig: {err}") from None
-    if values["compensator"]["enabled"] and not values["estimation"]["enabled"]:
-        raise ConfigError(f"{where} [compensator] enabled needs [estimation] enabled: the compensator follows "
-                          "the live estimates (and learns on their windows)")
-    for k in ("bench_file",):  # relative paths: from where the daemon was started, made absolute now
-        if values["source"][k]:
-            values["source"][k] = str(Path(values["source"][k]).expanduser().absolute())
-    check_source(values, given, where)
-    d = values["daemon"]
-    if d["log_dir"]:
-        d["log_dir"] = str(Path(d["log_dir"]).expanduser().absolute())
-    else:
-        from .instance import default_log_dir
-
-        d["log_dir"] = str(default_log_dir()[0])
-    return DaemonConfig(values, frozenset(given), where)
-
-
-def _bench_file_as_daemon_config(data: dict[str, Any], path, where: str) -> dict[str, Any]:
-    """A bench file given as the daemon's config (it has a [bench] table): the daemon's defaults
-    with ``[source] kind = "bench"`` and that file, which is checked as a bench file."""
-    if "bench" not in data or path is None:
-        return data
-    mixed = sorted(set(data) & set(DEFAULTS))
-    if mixed:
-        raise ConfigError(f"{where}: has a bench file's [bench] table and the daemon's [{mixed[0]}]; keep them "
-                          "apart and name the bench file in the daemon file's [source] bench_file")
-    return {"source": {"kind": "bench", "bench_file": str(path)}}
-
-
-def zenoh_config(cfg: DaemonConfig) -> zenoh.Config:
-    """The session's config: the [zenoh] config file (or a bare peer) with the daemon file's
-    ``listen``/``connect`` on top only where the file names them, so a zenoh file keeps its own."""
-    from ..acquisition.zenoh_bus import load_zenoh_config
-
-    z = cfg["zenoh"]
-    src = z["config"] or None
-    listen = z["listen"] if (src is None or ("zenoh", "listen") in cfg.given) else None
-    connect = z["connect"] if (src is None or ("zenoh", "connect") in cfg.given) else None
-    return load_zenoh_config(src, listen=listen, connect=connect, serve=True)  # bounded, listening or not
 
 
 def run_daemon(config_path: str | Path | None) -> int:

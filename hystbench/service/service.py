@@ -26,11 +26,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import __version__
+from ..acquisition.bench_commands import MIN_FREQUENCY_HZ, Limits, check_command, check_current
 from ..drivers.base import FaultLatched
 from ..drivers.safety import SafetyLimitError
 from ..errors import BenchError, CommandRefused, ConfigError
 from ..messages import OperatingPoint
-from ..acquisition.bench_commands import MIN_FREQUENCY_HZ, Limits, check_command, check_current
+from .daemon_config import DaemonConfig, zenoh_config
 from .service_log import ServiceLog, check_log_dir
 from .source_config import build_source
 
@@ -38,8 +39,6 @@ if TYPE_CHECKING:
     import zenoh
 
     from ..formats.mcaplog.recorder import McapRecorder
-
-    from .daemon import DaemonConfig
 
 __all__ = ["BenchService", "TooManyFaults", "MAX_FAULTS", "FAULT_WINDOW_S", "COMMAND_FAULTS", "caused_by_command"]
 
@@ -172,8 +171,6 @@ class BenchService:
                 check_log_dir(self.log_dir, c.source)
                 self.log.start()
             if c["zenoh"]["enabled"]:
-                from .daemon import zenoh_config
-
                 self.bus = ZenohBus(c["daemon"]["bench"], None if self.session else zenoh_config(c),
                                     on_command=self.command, config_provider=c.as_dict,
                                     health_provider=self.health, session=self.session,

@@ -20,11 +20,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hystbench.acquisition.bench_commands import ARGUMENTS, COMMANDS, Limits, check_command
-from hystbench.service.daemon import BenchService, load_daemon_config
-from hystbench.formats.mcaplog import iter_blocks
 from hystbench.acquisition.zenoh_bus import free_port, key, load_zenoh_config, open_session, peer_config
 from hystbench.errors import BenchError, ConfigError
+from hystbench.formats.mcaplog import iter_blocks
 from hystbench.messages import OperatingPoint
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.service import BenchService
 
 LIMITS = Limits(fs_hz=100_000.0, max_current_a=1.8)  # the shipped bench: amplifier current_limit_a 1.8 A
 HERE = OperatingPoint(320.0, 1.4, 0.0)

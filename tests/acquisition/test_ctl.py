@@ -7,9 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from hystbench.cli.main import main
-from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config, open_session
+from hystbench.cli.main import main
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.service import BenchService
 
 SAFETY_S = 60.0  # turns a hang into a failure; nothing waits for it on success
 SAFETY = str(SAFETY_S)  # ctl --timeout where a reply is expected: it returns as soon as one comes

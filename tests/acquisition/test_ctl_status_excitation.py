@@ -9,11 +9,12 @@ from pathlib import Path
 
 import pytest
 
-from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config, open_session
 from hystbench.cli.main import main
 from hystbench.formats.raw_block import decode
 from hystbench.messages import OperatingPoint
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.service import BenchService
 
 SAFETY_S = 60.0  # turns a hang into a failure; nothing waits for it on success
 SAFETY = str(SAFETY_S)

@@ -13,11 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hystbench.service.daemon import BenchService, load_daemon_config
-from hystbench.service.service import MAX_FAULTS
 from hystbench.drivers.safety import DEFAULT_MARGIN, CurrentBudget, SafetyLimitError
 from hystbench.errors import CommandRefused, ConfigError
 from hystbench.formats.mcaplog import iter_blocks
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.service import BenchService
+from hystbench.service.service import MAX_FAULTS
 from hystbench.sim_backend.rig import SimulatedRig
 
 HANG_S = 60.0  # waits end on their event; only a hang takes this long

@@ -16,13 +16,13 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from hystbench.service import sd_notify
-from hystbench.service.daemon import load_daemon_config
-from hystbench.formats.mcaplog import RAW, STATUS, iter_blocks, iter_log, log_metadata, recover
 from hystbench.acquisition.zenoh_bus import free_port, load_zenoh_config, open_session, peer_config, query_json
 from hystbench.deadline import Deadline
 from hystbench.errors import CommandRefused, ConfigError, RecordingError
+from hystbench.formats.mcaplog import RAW, STATUS, iter_blocks, iter_log, log_metadata, recover
 from hystbench.messages import CompensatorUpdate, Estimate
+from hystbench.service import sd_notify
+from hystbench.service.daemon_config import load_daemon_config
 
 from .conftest import HANG_S, ROOT, Daemon, health_when
 
@@ -207,8 +207,8 @@ def test_daemon_default_source_is_the_emulated_bench(tmp_path: Path) -> None:
 def test_after_the_compensator_switched_the_output_off_it_stays_off(tmp_path: Path) -> None:
     """A learning loop that stopped itself switched the output off: a sweep point or an 'output on'
     command must not drive the bench open loop; a reload (a new service) clears it."""
-    from hystbench.service.daemon import BenchService
     from hystbench.acquisition.pipeline import CompensatorHook
+    from hystbench.service.service import BenchService
 
     cfg = tmp_path / "c.toml"
     cfg.write_text('[source]\nkind = "sim"\npace = "max"\n[zenoh]\nenabled = false\n[recording]\nenabled = false\n'

@@ -13,11 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hystbench.service.daemon import BenchService, load_daemon_config
-from hystbench.service.instance import default_log_dir, state_dir
-from hystbench.formats.mcaplog import iter_blocks
 from hystbench.config import CONFIG_DIR
 from hystbench.errors import ConfigError, InstrumentError
+from hystbench.formats.mcaplog import iter_blocks
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.instance import default_log_dir, state_dir
+from hystbench.service.service import BenchService
 
 
 def _cfg(tmp_path: Path, text: str) -> Path:

@@ -13,12 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hystbench.service.daemon import BenchService, load_daemon_config
-from hystbench.formats.mcaplog import STATUS, iter_blocks, iter_log
-from hystbench.formats.mcaplog.recorder import McapRecorder
-from hystbench.service.retention import apply_retention
 from hystbench.acquisition.sources import operating_meta
 from hystbench.blocks import SampleBlock
+from hystbench.formats.mcaplog import STATUS, iter_blocks, iter_log
+from hystbench.formats.mcaplog.recorder import McapRecorder
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.retention import apply_retention
+from hystbench.service.service import BenchService
 
 FS = 100_000.0
 

@@ -15,15 +15,16 @@ from pathlib import Path
 
 import pytest
 
-from hystbench.service.daemon import BenchService, load_daemon_config
-from hystbench.service.retention import bench_logs
-from hystbench.service.service_log import RESUME_FREE_BYTES
 from hystbench.acquisition.zenoh_bus import (Subscription, free_port, load_zenoh_config, open_session, peer_config,
                                              send_command)
 from hystbench.errors import CommandRefused, LogWriteError
 from hystbench.formats.mcaplog import McapRecorder
 from hystbench.formats.raw_block import decode
 from hystbench.messages import OperatingPoint
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.retention import bench_logs
+from hystbench.service.service import BenchService
+from hystbench.service.service_log import RESUME_FREE_BYTES
 
 from .conftest import HANG_S, Daemon, health_when
 

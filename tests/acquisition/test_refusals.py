@@ -10,8 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.errors import CommandRefused, ConfigError
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.service import BenchService
 
 
 def bench(tmp_path: Path, kind: str = "sim") -> BenchService:

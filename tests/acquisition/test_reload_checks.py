@@ -12,8 +12,8 @@ import signal
 import socket
 from pathlib import Path
 
-from hystbench.service.instance import BenchLock
 from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config, open_session, peer_config
+from hystbench.service.instance import BenchLock
 
 from .conftest import HANG_S, Daemon, health_when
 

@@ -14,12 +14,13 @@ from pathlib import Path
 
 import pytest
 
-from hystbench.service.daemon import BenchService, load_daemon_config
-from hystbench.service.service import MAX_FAULTS, TooManyFaults
-from hystbench.errors import BenchError
-from hystbench.formats.mcaplog import STATUS, iter_log
 from hystbench.acquisition.zenoh_bus import (Subscription, free_port, load_zenoh_config, open_session, peer_config,
                                              send_command)
+from hystbench.errors import BenchError
+from hystbench.formats.mcaplog import STATUS, iter_log
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.service import BenchService
+from hystbench.service.service import MAX_FAULTS, TooManyFaults
 
 
 def test_a_fault_restarts_the_source_output_off_in_a_new_log_part(tmp_path: Path) -> None:

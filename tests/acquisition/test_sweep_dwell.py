@@ -13,9 +13,10 @@ import threading
 from collections import Counter
 from pathlib import Path
 
-from hystbench.service import service
-from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.formats.mcaplog import iter_blocks
+from hystbench.service import service
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.service import BenchService
 
 HANG_S = 120.0  # a safety timeout: waits end on their event, only a hang takes this long
 FS = 100_000.0

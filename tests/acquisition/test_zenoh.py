@@ -17,7 +17,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hystbench.service.daemon import BenchService, load_daemon_config
 from hystbench.acquisition.zenoh_bus import (Subscription, ZenohBus, free_port, key, load_zenoh_config, open_session,
                                              peer_config, query_json, send_command)
 from hystbench.blocks import BlockFlags, SampleBlock
@@ -28,6 +27,8 @@ from hystbench.formats.mcaplog import RAW, iter_blocks
 from hystbench.formats.mcaplog.schemas import SCHEMAS, schema_bytes
 from hystbench.formats.raw_block import decode, encode_binary
 from hystbench.messages import Estimate, OperatingPoint
+from hystbench.service.daemon_config import load_daemon_config
+from hystbench.service.service import BenchService
 
 ROOT = Path(__file__).resolve().parents[2]
 HANG_S = 60.0  # a safety timeout: waits end on their event, only a hang takes this long

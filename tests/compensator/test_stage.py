@@ -88,8 +88,9 @@ def test_stage_with_the_live_estimator(models_pm):
 def test_the_daemon_runs_the_compensator_from_its_config_and_logs_its_state(models_pm, tmp_path):
     """Online: the daemon's pipeline feeds live estimates to the stage, which uploads its current
     table to the source and whose state lands in the MCAP log's /compensator topic."""
-    from hystbench.service.daemon import BenchService, load_daemon_config
     from hystbench.formats.mcaplog import COMPENSATOR, iter_log
+    from hystbench.service.daemon_config import load_daemon_config
+    from hystbench.service.service import BenchService
 
     model = models_pm.save(tmp_path / "models.json")
     cfg = tmp_path / "daemon.toml"
@@ -110,8 +111,9 @@ def test_the_daemon_runs_the_compensator_from_its_config_and_logs_its_state(mode
 
 
 def test_a_compensator_without_model_or_force_is_refused_naming_the_key(tmp_path):
-    from hystbench.service.daemon import BenchService, load_daemon_config
     from hystbench.errors import ConfigError
+    from hystbench.service.daemon_config import load_daemon_config
+    from hystbench.service.service import BenchService
 
     cfg = tmp_path / "daemon.toml"
     cfg.write_text('[source]\nkind = "sim"\n[zenoh]\nenabled = false\n[recording]\nenabled = false\n'
@@ -123,7 +125,8 @@ def test_a_compensator_without_model_or_force_is_refused_naming_the_key(tmp_path
 def test_the_daemon_compensator_drives_the_generator_through_its_driver(models_pm, tmp_path):
     """The same, with the daemon's default source: the table reaches the emulated signal generator
     as an arbitrary waveform over SCPI."""
-    from hystbench.service.daemon import BenchService, load_daemon_config
+    from hystbench.service.daemon_config import load_daemon_config
+    from hystbench.service.service import BenchService
 
     model = models_pm.save(tmp_path / "models.json")
     cfg = tmp_path / "daemon.toml"
@@ -209,8 +212,9 @@ def test_the_daemon_learns_online_through_the_emulated_instruments(models_pm, tm
     flux integrator, current monitor, generator output, all over their protocols) correct the
     table the generator plays; the error must reach 2x the window's noise floor, the state (with
     its learning report) is logged."""
-    from hystbench.service.daemon import BenchService, load_daemon_config
     from hystbench.formats.mcaplog import COMPENSATOR, ESTIMATE, iter_log
+    from hystbench.service.daemon_config import load_daemon_config
+    from hystbench.service.service import BenchService
 
     model = models_pm.save(tmp_path / "models.json")
     cfg = tmp_path / "daemon.toml"
