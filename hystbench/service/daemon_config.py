@@ -123,7 +123,8 @@ DEFAULTS: dict[str, dict[str, Key]] = {
     },
     "compensator": {
         "enabled": Key(bool, False, "feed-forward: follows the live hysteresis delay, uploads its current table"),
-        "factory": Key(str, "", "or \"module:callable\" returning an object with update(estimate) -> state"),
+        "factory": Key(str, "", "or \"module:callable\" returning an object with update(estimate) -> "
+                       "hystbench.messages.CompensatorUpdate (state, output_off, waveform_a, frequency_hz) or None"),
         "model": Key(str, "", "a file from `hystbench model fit SWEEP_DIR --out MODEL.json`"),
         "kind": Key(str, "best", "which model of the file", choices=("nonhysteretic", "paper", "best")),
         "force": Key(str, "", "the force reference, e.g. \"offset=170,amp=40,freq=320\""),
