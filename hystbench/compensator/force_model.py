@@ -74,14 +74,14 @@ class PaperModel:
     the static inverse by theta (the phase lead for the actuator's delay)."""
 
     law: StaticLaw
-    freq_hz: tuple[float, ...]
+    frequency_hz: tuple[float, ...]
     theta_rad: tuple[float, ...]
     kind: str = "paper"
     name: str = "eq6_phase_delay"
 
     @property
     def phase(self) -> PhaseDelayModel:
-        return PhaseDelayModel.from_phases(self.law.coefficients, self.freq_hz, self.theta_rad)
+        return PhaseDelayModel.from_phases(self.law.coefficients, self.frequency_hz, self.theta_rad)
 
     def theta(self, frequency_hz: float) -> float:
         return float(self.phase.theta(float(frequency_hz)))
@@ -98,7 +98,7 @@ class PaperModel:
 
     def with_theta(self, frequency_hz: float, theta_rad: float) -> "PaperModel":
         """The model with theta at ``frequency_hz`` replaced (the live estimate)."""
-        f, th = list(self.freq_hz), list(self.theta_rad)
+        f, th = list(self.frequency_hz), list(self.theta_rad)
         near = [k for k, x in enumerate(f) if abs(x - frequency_hz) <= 1e-3 * frequency_hz]
         if near:
             th[near[0]] = float(theta_rad)
@@ -106,11 +106,12 @@ class PaperModel:
             f.append(float(frequency_hz))
             th.append(float(theta_rad))
         order = np.argsort(f)
-        return replace(self, freq_hz=tuple(float(f[k]) for k in order), theta_rad=tuple(float(th[k]) for k in order))
+        return replace(self, frequency_hz=tuple(float(f[k]) for k in order),
+                       theta_rad=tuple(float(th[k]) for k in order))
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "name": self.name, "law": self.law.to_dict(),
-                "frequency_Hz": list(self.freq_hz), "theta_hyst_rad": list(self.theta_rad)}
+                "frequency_Hz": list(self.frequency_hz), "theta_hyst_rad": list(self.theta_rad)}
 
 
 def paper_model(points: Sequence[PeriodData], law: StaticLaw, *, kind: str = "paper") -> PaperModel:

@@ -87,7 +87,7 @@ class LearningController:
                  current_limit_a: float, config: LearningConfig = LearningConfig()) -> None:
         self.model, self.reference, self.instrument = model, reference, instrument
         self.limit_a, self.config = float(current_limit_a), config
-        self.f_hz = reference.frequency_hz
+        self.frequency_hz = reference.frequency_hz
         self.command_force_n = reference.force_n.copy()
         self.current_a = self.current_for(self.command_force_n)  # UnreachableReference for a bad reference
         self.best_error_n = np.inf
@@ -97,13 +97,13 @@ class LearningController:
         """The current table for a force command (with ``model``, default the controller's),
         refused beyond the current limit."""
         model = model or self.model
-        i = model.current_period(force_n, self.f_hz, current_limit_a=self.limit_a)
+        i = model.current_period(force_n, self.frequency_hz, current_limit_a=self.limit_a)
         peak = float(np.max(np.abs(i)))
         if peak > self.limit_a:
             lo, hi = model.law.reachable_n(self.limit_a)
             raise UnreachableReference(
-                f"the reference ({force_n.min():.4g} to {force_n.max():.4g} N at {self.f_hz:g} Hz) needs a peak "
-                f"current of {peak:.4g} A with the {model.kind} model, above the {self.limit_a:g} A limit; "
+                f"the reference ({force_n.min():.4g} to {force_n.max():.4g} N at {self.frequency_hz:g} Hz) needs a "
+                f"peak current of {peak:.4g} A with the {model.kind} model, above the {self.limit_a:g} A limit; "
                 f"reachable statically {lo:.4g} to {hi:.4g} N, a little less at speed (the iron's share and "
                 "the eddy lead)", (lo, hi))
         return i
@@ -118,7 +118,7 @@ class LearningController:
     @property
     def band_harmonic(self) -> int:
         band = self.config.band_hz if self.config.band_hz is not None else 1.5 * self.instrument.fn_hz
-        return int(max(1, min(self.config.max_harmonic, np.floor(band / self.f_hz))))
+        return int(max(1, min(self.config.max_harmonic, np.floor(band / self.frequency_hz))))
 
     def error(self, m: PeriodMeasurement) -> np.ndarray:
         """e_k of the module docstring, on the measurement's points."""
