@@ -206,14 +206,14 @@ class WindowEstimator:
                         phases_std_deg={k: 360.0 * f * v for k, v in stds.items()}, outliers=outliers,
                         outliers_excluded=bool(outliers)), window
 
-    def _phase_delays(self, chans: Mapping[str, np.ndarray], fs: float) -> tuple:
+    def _phase_delays(self, chans: Mapping[str, np.ndarray], fs_hz: float) -> tuple:
         """Rigs other than E-cores: force (total) and flux (hysteresis) behind current."""
         x = chans["current_A"]
         delays, stds, f, fse = {}, {}, self._f, 0.0
         found: dict[str, set[int]] = {}
         for name, c in (("total", "force_N"), ("hysteresis", "flux_Wb")):
             if chans.get(c) is not None:
-                r = self._phase_delay(x, chans[c], fs, self._f)
+                r = self._phase_delay(x, chans[c], fs_hz, self._f)
                 delays[name], stds[name] = float(r.delay_s), float(r.delay_se_s)
                 f, fse = float(r.frequency_hz), float(r.frequency_se_hz)
                 found.setdefault("current_A", set()).update(r.x.outliers.tolist())
