@@ -50,9 +50,9 @@ def operating_point(preset: Mapping[str, Any], current_pp_a: float, frequency_hz
             "b_leg_min_t": float(b.min()), "b_leg_max_t": float(b.max())}
 
 
-def _amp(x: np.ndarray, fs: float, f: float) -> float:
-    t = np.arange(x.size) / fs
-    return float(abs(2.0 * np.mean((x - x.mean()) * np.exp(-2j * np.pi * f * t))))
+def _amp(x: np.ndarray, fs_hz: float, frequency_hz: float) -> float:
+    t = np.arange(x.size) / fs_hz
+    return float(abs(2.0 * np.mean((x - x.mean()) * np.exp(-2j * np.pi * frequency_hz * t))))
 
 
 def iron_share(preset: Mapping[str, Any], current_pp_a: float, frequency_hz: float = FREQUENCY_HZ) -> float:

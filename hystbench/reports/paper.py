@@ -115,8 +115,8 @@ class EcoreRun:
     models: dict = field(default_factory=dict)  # A-pp -> PhaseDelayModel
     errors: dict = field(default_factory=dict)  # (f, A-pp) -> ForceError
 
-    def error(self, f_hz: float, ipp_a: float | None = None) -> ForceError:
-        return self.errors[(f_hz, self.main_ipp_a if ipp_a is None else ipp_a)]
+    def error(self, frequency_hz: float, ipp_a: float | None = None) -> ForceError:
+        return self.errors[(frequency_hz, self.main_ipp_a if ipp_a is None else ipp_a)]
 
     def series(self, ipp_a: float | None = None) -> list[ForceError]:
         ipp = self.main_ipp_a if ipp_a is None else ipp_a
