@@ -45,14 +45,14 @@ def _check_size(args, recordings: int = 1) -> None:
                           "(`hystbench record` streams long runs to a log)")
 
 
-def _simulate_one(args, freq_hz: float, ipp_a: float, seed: int):
+def _simulate_one(args, frequency_hz: float, ipp_a: float, seed: int):
     """One recording of the simulated rig; a clipped one is refused before anything is written (a
     channel beyond its ADC full scale is not a measurement), naming the option to change."""
     from ..config.effects import parse_effect_args
     from ..sim_backend.recordings import simulate_recording
     from .bench_day import refuse_clipped
 
-    rec = simulate_recording(args.rig, freq_hz, ipp_a, args.duration, fs_hz=args.fs, seed=seed,
+    rec = simulate_recording(args.rig, frequency_hz, ipp_a, args.duration, fs_hz=args.fs, seed=seed,
                              effects=parse_effect_args(args.effect))
     refuse_clipped(rec)
     return rec
