@@ -44,13 +44,13 @@ BIAS_LIMIT = 0.1  # |bias| / sqrt(CRLB)
 _BATCH_SAMPLES = 2_000_000  # samples per channel in one vectorised call
 
 
-def _cell(rng, *, snr_db, periods, trials, fs, freq_hz, freq_offset_ppm, delay_samples) -> dict:
-    f_true = freq_hz * (1.0 + 1e-6 * freq_offset_ppm)
-    n = math.ceil(periods * fs / freq_hz)
-    delay_s = delay_samples / fs
+def _cell(rng, *, snr_db, periods, trials, fs_hz, frequency_hz, freq_offset_ppm, delay_samples) -> dict:
+    f_true = frequency_hz * (1.0 + 1e-6 * freq_offset_ppm)
+    n = math.ceil(periods * fs_hz / frequency_hz)
+    delay_s = delay_samples / fs_hz
     eta = 10.0 ** (snr_db / 10.0)
     amp_x, amp_y = 1.0, 0.7
-    t = np.arange(n) / fs
+    t = np.arange(n) / fs_hz
     err_ls, err_cov, se = [], [], []
     converged = 0
     batch = max(1, _BATCH_SAMPLES // n)
@@ -61,11 +61,11 @@ def _cell(rng, *, snr_db, periods, trials, fs, freq_hz, freq_offset_ppm, delay_s
         y = amp_y * np.cos(2 * np.pi * f_true * (t - delay_s) + phi0) - 0.2
         x += rng.standard_normal((m, n)) * (amp_x / math.sqrt(2 * eta))
         y += rng.standard_normal((m, n)) * (amp_y / math.sqrt(2 * eta))
-        est = phase_delay(x, y, fs, freq_hz)
+        est = phase_delay(x, y, fs_hz, frequency_hz)
         err_ls.append(est.delay_s - delay_s)
         se.append(est.delay_se_s)
         converged += int(np.count_nonzero(est.x.converged))
-        err_cov.append(covariance_delay(x, y, fs, freq_hz).delay_s - delay_s)
+        err_cov.append(covariance_delay(x, y, fs_hz, frequency_hz).delay_s - delay_s)
     e, c = np.concatenate(err_ls), np.concatenate(err_cov)
     bound = float(np.sqrt(delay_crlb(n, eta, eta, f_true)))
     rms, bias = float(np.sqrt(np.mean(e * e))), float(np.mean(e))
@@ -97,8 +97,8 @@ def run(
     seed: int = 0,
     snr_db: tuple[float, ...] = SNR_DB,
     periods: tuple[int, ...] = PERIODS,
-    fs: float = 10_000.0,
-    freq_hz: float = 320.0,
+    fs_hz: float = 10_000.0,
+    frequency_hz: float = 320.0,
     freq_offset_ppm: float = 30.0,
     delay_samples: float = 2.37,
 ) -> dict:
@@ -120,8 +120,8 @@ def run(
                     snr_db=float(snr),
                     periods=int(per),
                     trials=int(trials),
-                    fs=fs,
-                    freq_hz=freq_hz,
+                    fs_hz=fs_hz,
+                    frequency_hz=frequency_hz,
                     freq_offset_ppm=freq_offset_ppm,
                     delay_samples=delay_samples,
                 )
@@ -130,11 +130,11 @@ def run(
         "config": {
             "trials": trials,
             "seed": seed,
-            "fs_hz": fs,
-            "nominal_freq_hz": freq_hz,
+            "fs_hz": fs_hz,
+            "nominal_freq_hz": frequency_hz,
             "freq_offset_ppm": freq_offset_ppm,
             "delay_samples": delay_samples,
-            "delay_s": delay_samples / fs,
+            "delay_s": delay_samples / fs_hz,
             "rms_limit": RMS_LIMIT,
             "bias_limit": BIAS_LIMIT,
             "estimator": "phase_delay (4-parameter joint LS fit)",
