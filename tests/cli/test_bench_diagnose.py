@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from benchmarks.bench_diagnose import confusion, targets
-from hystbench.cli.main import main
+from benchmarks.__main__ import main
 
 
 def _row(case, truth, named, signature, seconds=5.0):
@@ -45,7 +45,7 @@ def test_the_confusion_table_counts_truth_against_named():
 
 def test_an_unknown_case_is_refused_naming_it(capsys):
     with pytest.raises(SystemExit) as stop:
-        main(["bench", "diagnose", "--cases", "null_seed1,no_such_case"])
+        main(["diagnose", "--cases", "null_seed1,no_such_case"])
     assert stop.value.code == 2
     err = capsys.readouterr().err
     assert "--cases" in err and "no_such_case" in err and "null_seed1" in err

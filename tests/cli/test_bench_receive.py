@@ -8,11 +8,11 @@ import json
 import pytest
 
 from benchmarks import bench_receive
-from hystbench.cli.main import main
+from benchmarks.__main__ import main
 
 
 def test_a_short_run_reports_every_kind_with_consistent_figures(capsys):
-    main(["bench", "receive", "--seconds", "0.02", "--repeats", "1", "--json"])
+    main(["receive", "--seconds", "0.02", "--repeats", "1", "--json"])
     result = json.loads(capsys.readouterr().out)
     kinds = {k["kind"]: k for k in result["kinds"]}
     assert set(kinds) == {"tcp", "serial_cobs", "canfd", "canfd_bus", "canfd_recv_only"}
@@ -32,6 +32,6 @@ def test_a_signal_like_the_instruments_has_the_zero_bytes_cobs_stuffs():
 @pytest.mark.parametrize("args", [["--seconds", "0"], ["--repeats", "0"]])
 def test_bad_options_are_refused(args, capsys):
     with pytest.raises(SystemExit) as exit_:
-        main(["bench", "receive", *args])
+        main(["receive", *args])
     assert exit_.value.code == 2
     assert "--seconds must be > 0" in capsys.readouterr().err
