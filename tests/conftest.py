@@ -1,5 +1,5 @@
-"""What every test shares: tests/ on sys.path, so any test imports the independent bench as
-``independent_bench`` (the suite runs with --import-mode=importlib, which adds nothing to sys.path
+"""What every test shares: tests/ and the checkout on sys.path, so any test imports the independent
+bench as ``independent_bench`` and the benchmarks as ``benchmarks`` (the suite runs with --import-mode=importlib, which adds nothing to sys.path
 itself); loggers left as the test found them; costly inputs computed once per run (``computed_once``)
 however many workers ``make test`` starts.
 
@@ -19,8 +19,10 @@ from typing import Callable
 import pytest
 
 _TESTS = str(Path(__file__).resolve().parent)
-if _TESTS not in sys.path:
-    sys.path.insert(0, _TESTS)
+_ROOT = str(Path(__file__).resolve().parents[1])  # the checkout: ``benchmarks`` beside the package
+for _path in (_TESTS, _ROOT):
+    if _path not in sys.path:
+        sys.path.insert(0, _path)
 
 
 @pytest.fixture(autouse=True)
