@@ -1,7 +1,8 @@
 """What every test shares: tests/ and the checkout on sys.path, so any test imports the independent
-bench as ``independent_bench`` and the benchmarks as ``benchmarks`` (the suite runs with --import-mode=importlib, which adds nothing to sys.path
-itself); loggers left as the test found them; costly inputs computed once per run (``computed_once``)
-however many workers ``make test`` starts.
+bench as ``independent_bench`` and the benchmarks as ``benchmarks`` (the suite runs with
+--import-mode=importlib, which adds nothing to sys.path itself); loggers left as the test found
+them; costly inputs computed once per run (``computed_once``) however many workers ``make test``
+starts.
 
 import-linter's command line (tests/test_architecture.py, tests/independent_bench) configures
 logging with ``dictConfig``, which disables every logger that exists at that moment, hystbench's
