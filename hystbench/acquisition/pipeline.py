@@ -165,6 +165,10 @@ class Pipeline:
         cap = max(int(ring_seconds * source.fs_hz), 1024)
         self.ring = RingBuffer(source.channels, cap, fs_hz=source.fs_hz, dtype=dtype)
         self.listeners: list[Callable[[str, Mapping[str, Any]], None]] = []
+        #: called with each source block in the source thread, after the ring has it: each must only
+        #: hand it on (a bounded queue, drop when full), e.g. the daemon's Foxglove view; one that
+        #: raises is logged and counted (``publish`` errors), never fatal
+        self.block_listeners: list[Callable[[SampleBlock], None]] = []
         self.stats = {n: StageStats(n) for n in ("source", "estimate", "record", "publish")}
         self._arr_pos = np.zeros(8192, dtype=np.int64)  # ring end position of each source block...
         self._arr_t = np.zeros(8192)  # ...and its monotonic arrival time (a circular log)
@@ -314,6 +318,12 @@ class Pipeline:
                 else:
                     self.ring.write(block)
                 self._arrived_at(block)
+                for fn in self.block_listeners:
+                    try:
+                        fn(block)
+                    except Exception:
+                        pub.errors += 1
+                        log.exception("block listener failed at sample %d", block.first_index)
                 st.blocks += 1
                 st.samples += block.n
                 now = time.monotonic()

@@ -235,6 +235,11 @@ def _check_reload(new: DaemonConfig, cfg: DaemonConfig, claim: _Claim) -> None:
             if endpoint not in held and (why := _endpoint_free(endpoint)):
                 raise ConfigError(f"{new.source} [zenoh] listen: cannot listen on {endpoint}: {why}; change "
                                   "[zenoh] listen")
+    f, old = new["foxglove"], cfg["foxglove"]
+    if f["enabled"] and not (old["enabled"] and (old["host"], old["port"]) == (f["host"], f["port"])):
+        if why := _endpoint_free(f"tcp/{f['host']}:{f['port']}"):
+            raise ConfigError(f"{new.source} [foxglove] port: cannot serve Foxglove on {f['host']}:{f['port']}: {why}; "
+                              "change [foxglove] port (or host)")
 
 
 def _reload(path, svc: BenchService, cfg: DaemonConfig, claim: _Claim):

@@ -114,6 +114,15 @@ DEFAULTS: dict[str, dict[str, Key]] = {
         "publish_raw": Key(bool, True, "raw blocks on hystbench/<bench>/raw, one message per block"),
         "raw_per_channel": Key(bool, False, "... or one per channel on hystbench/<bench>/raw/<channel>"),
     },
+    "foxglove": {
+        "enabled": Key(bool, False, "serve the live view to Foxglove (WebSocket, protocol foxglove.sdk.v1): the "
+                       "decimated sample channels, estimates, compensator, status; docs/foxglove.md"),
+        "host": Key(str, "127.0.0.1", "address to listen on (127.0.0.1: this PC only; the server has no "
+                    "authentication, so reach it from elsewhere through an SSH tunnel)"),
+        "port": Key(int, 8765, "TCP port of ws://<host>:<port> (Foxglove's default is 8765)", ge=1, le=65535),
+        "plot_hz": Key(_NUM, 250.0, "points per second of each /plot/<channel>: samples are cut into bins of "
+                       "round(fs_hz / plot_hz)", "Hz", ge=1, le=5000),
+    },
     "sweep": {
         "frequencies_hz": Key(list, [40.0, 80.0, 160.0, 320.0, 480.0], "what cmd/start_sweep runs when not told "
                               "otherwise", "Hz", items=Key(_NUM, None, "frequencies", "Hz", gt=0), nonempty=True),

@@ -32,6 +32,7 @@ from ..drivers.safety import SafetyLimitError
 from ..errors import BenchError, CommandRefused, ConfigError
 from ..messages import OperatingPoint
 from .daemon_config import DaemonConfig, zenoh_config
+from .foxglove_live import FoxgloveLive
 from .service_log import ServiceLog, check_log_dir
 from .source_config import build_source
 
@@ -125,6 +126,7 @@ class BenchService:
         self.session = session
         self.pipeline = None
         self.bus = None
+        self.foxglove = None  # the live view (FoxgloveLive), with [foxglove] enabled
         self._said: list[tuple] = []  # statuses told before the pipeline runs
         self.log = ServiceLog(cfg, self._metadata, self._status)
         self.started = time.monotonic()
@@ -175,6 +177,11 @@ class BenchService:
                                     on_command=self.command, config_provider=c.as_dict,
                                     health_provider=self.health, session=self.session,
                                     per_channel=c["zenoh"]["raw_per_channel"]).open()
+            if c["foxglove"]["enabled"]:  # a taken port: ConfigError naming [foxglove] port
+                f = c["foxglove"]
+                self.foxglove = FoxgloveLive(f["host"], f["port"], name=c["daemon"]["bench"],
+                                             channels=list(self.source.channels), fs_hz=self.source.fs_hz,
+                                             plot_hz=f["plot_hz"], where=f"{c.source} [foxglove]").start()
             self._start_pipeline()
         except BaseException:
             self.stop()
@@ -215,6 +222,8 @@ class BenchService:
                                  publish_raw=c["zenoh"]["publish_raw"], on_log_error=self._log_failed,
                                  epoch_ns=self.log.epoch_ns)
         self.pipeline.listeners.append(self._count)
+        if self.foxglove is not None:  # the same server across restarts: its clients stay
+            self.foxglove.attach(self.pipeline)
         self.pipeline.start()
 
     def _count(self, topic: str, obj: dict) -> None:
@@ -239,6 +248,8 @@ class BenchService:
         paths = self.log.finish()
         if self.bus is not None:
             self.bus.close()
+        if self.foxglove is not None:
+            self.foxglove.close()
         self.state = "stopped"
         return paths
 
@@ -448,6 +459,7 @@ class BenchService:
                 "faults": len(self.faults), "trips": self.trips, "last_fault": self.last_fault,
                 "output_refused": self.why_output_off() or None,
                 "pipeline_error": repr(p.error) if p and p.error else None, "last_estimate_error": self.last_error,
+                "foxglove": self.foxglove.health() if self.foxglove is not None else None,
                 **self.excitation()}
 
     def excitation(self) -> dict:

@@ -1,0 +1,254 @@
+"""The daemon's live view in Foxglove: a WebSocket server (the ``foxglove-sdk`` package, protocol
+``foxglove.sdk.v1``) fed by the pipeline's messages and its raw blocks (``[foxglove]`` in the
+daemon file; docs/foxglove.md).
+
+Channels, every one JSON with a ``jsonschema`` schema:
+
+- ``/estimate``, ``/compensator``, ``/status``, ``/stats``: the MCAP log's channels, with the log's
+  schemas (:mod:`hystbench.formats.mcaplog.schemas`) and the same bytes zenoh sends, so a layout made
+  on a log shows the live bench too;
+- ``/plot/<channel>`` (``current_A``, ``force_N``, ``flux_Wb``, ``command_V``, ...): each sample
+  channel cut into bins of ``round(fs_hz / plot_hz)`` samples, one message per bin (a few hundred
+  per second, which the Plot panel follows): the bin's ``mean``, ``min`` and ``max`` (the envelope
+  of the waveform) and ``value``, its first sample (an instantaneous value, so that two channels'
+  ``value`` pairs lie on the true current-force loop however the excitation aliases against the
+  bin rate);
+- ``/plot/samples``: those first samples of every channel in one message, for an x-y plot (the
+  current-force loop).  The log has no such channels: it keeps every sample in ``/raw``.
+
+Nothing here may hold the pipeline up: the pipeline's listener and block listener only put into a
+bounded queue (full: the item is dropped and counted); the decimation (numpy, per block) and the
+sending run on this module's own thread.  A failure here is logged and counted (:meth:`health`),
+never raised into the pipeline: the service goes on without its live view.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import re
+import threading
+import time
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from ..blocks import SampleBlock
+from ..errors import ConfigError
+from ..formats.mcaplog.schemas import COMPENSATOR, ESTIMATE, SCHEMAS, STATS, STATUS
+from ..messages import json_bytes
+
+__all__ = ["FoxgloveLive", "PLOT_PREFIX", "PLOT_SAMPLES", "PLOT_POINT_SCHEMA", "plot_samples_schema",
+           "LIVE_TOPICS", "QUEUE_ITEMS", "decimate"]
+
+log = logging.getLogger("hystbench.foxglove")
+
+PLOT_PREFIX = "/plot/"
+PLOT_SAMPLES = "/plot/samples"
+#: the log's channels that are also served live, with the log's schemas
+LIVE_TOPICS = (ESTIMATE, COMPENSATOR, STATUS, STATS)
+#: items (raw blocks and messages) waiting for the sending thread; beyond it they are dropped
+QUEUE_ITEMS = 256
+
+PLOT_POINT_SCHEMA: dict[str, Any] = {
+    "title": "hystbench.PlotPoint",
+    "description": "One bin of a sample channel, decimated for plotting: samples [index, index + n)",
+    "type": "object",
+    "properties": {
+        "t_ns": {"type": "integer", "description": "time of the bin's first sample, on the log's clock"},
+        "index": {"type": "integer", "description": "sample index of the bin's first sample"},
+        "n": {"type": "integer", "description": "samples in the bin"},
+        "value": {"type": ["number", "null"], "description": "the bin's first sample (instantaneous)"},
+        "mean": {"type": ["number", "null"]},
+        "min": {"type": ["number", "null"]},
+        "max": {"type": ["number", "null"]},
+    },
+    "required": ["t_ns", "index", "n", "value", "mean", "min", "max"],
+}
+
+
+def plot_samples_schema(channels: list[str]) -> dict[str, Any]:
+    """``/plot/samples``: every channel's instantaneous value at one sample index."""
+    props: dict[str, Any] = {"t_ns": {"type": "integer"}, "index": {"type": "integer"}}
+    props.update({c: {"type": ["number", "null"]} for c in channels})
+    return {"title": "hystbench.PlotSamples", "description": "Every channel at one sample index (the first of "
+            "each plot bin): x-y plots such as the current-force loop", "type": "object", "properties": props,
+            "required": ["t_ns", "index", *channels]}
+
+
+def decimate(x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``x`` (a whole number of bins of ``k`` samples) as per-bin (first, mean, min, max), vectorised."""
+    b = x.reshape(-1, k)
+    return b[:, 0], b.mean(axis=1, dtype=np.float64), b.min(axis=1), b.max(axis=1)
+
+
+class FoxgloveLive:
+    """The Foxglove WebSocket server of one running service and the thread that feeds it.
+
+    ``start()`` binds ``host:port`` (a taken port is a :class:`ConfigError` naming ``[foxglove]
+    port``); :meth:`attach` hooks a pipeline (again after each restart: the server and its clients
+    stay); :meth:`close` stops the thread and the server, freeing the port."""
+
+    def __init__(self, host: str, port: int, *, name: str, channels: list[str], fs_hz: float,
+                 plot_hz: float = 250.0, where: str = "[foxglove]") -> None:
+        self.host, self.port, self.name, self.where = host, int(port), name, where
+        self.channels = list(channels)
+        self.fs_hz = float(fs_hz)
+        self.bin = max(1, round(self.fs_hz / float(plot_hz)))
+        self._queue: queue.Queue = queue.Queue(QUEUE_ITEMS)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._server = None
+        self._context = None
+        self._chan: dict[str, Any] = {}
+        self._time_ns: Callable[[int], int] = lambda i: round(i * 1e9 / self.fs_hz)
+        self._carry: dict[str, np.ndarray] = {}
+        self._carry_index: int | None = None  # sample index of the carried samples' first
+        self.sent = 0
+        self.dropped_blocks = 0
+        self.dropped_messages = 0
+        self.errors = 0
+        self.last_error = ""
+        self._logged: set[str] = set()
+
+    # --- life cycle ------------------------------------------------------------------------------
+    def start(self) -> "FoxgloveLive":
+        import foxglove
+
+        self._context = foxglove.Context()
+        for topic in LIVE_TOPICS:
+            self._chan[topic] = foxglove.Channel(topic, schema=SCHEMAS[topic][1],
+                                                 context=self._context)
+        for c in self.channels:
+            self._chan[PLOT_PREFIX + c] = foxglove.Channel(PLOT_PREFIX + c, schema=PLOT_POINT_SCHEMA,
+                                                           context=self._context, metadata={"unit_of": c})
+        self._chan[PLOT_SAMPLES] = foxglove.Channel(PLOT_SAMPLES, schema=plot_samples_schema(self.channels),
+                                                    context=self._context)
+        try:
+            self._server = foxglove.start_server(name=f"hystbench {self.name}", host=self.host, port=self.port,
+                                                 context=self._context)
+        except Exception as err:  # the SDK says RuntimeError("FoxgloveError: Failed to bind port: ...")
+            why = re.sub(r"\s*\(os error \d+\)", "", str(err).split("Failed to bind port:", 1)[-1]).strip()
+            hint = " (another hystbench daemon, or a Foxglove bridge?)" if "in use" in why.lower() else ""
+            raise ConfigError(f"{self.where} port: cannot serve Foxglove on {self.host}:{self.port}: {why}{hint}; "
+                              "change [foxglove] port (or host)") from None
+        self.port = self._server.port
+        self._thread = threading.Thread(target=self._run, name="foxglove-live", daemon=True)
+        self._thread.start()
+        log.info("Foxglove live view on %s", self.url)
+        return self
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        if self._server is not None:
+            try:
+                self._server.stop()
+            except Exception:  # stopping a server that failed: nothing left to free
+                log.exception("stopping the Foxglove server")
+            self._server = None
+        for ch in self._chan.values():
+            try:
+                ch.close()
+            except Exception:
+                pass
+        self._chan.clear()
+
+    def attach(self, pipeline: Any) -> None:
+        """Feed from ``pipeline``: its messages (a listener) and its raw blocks (a block listener),
+        on its clock (the log's: ``index_time_ns``)."""
+        self._time_ns = pipeline.index_time_ns
+        self._carry, self._carry_index = {}, None
+        pipeline.listeners.append(self.on_message)
+        pipeline.block_listeners.append(self.on_block)
+
+    def health(self) -> dict[str, Any]:
+        return {"url": self.url, "messages_sent": self.sent, "dropped_blocks": self.dropped_blocks,
+                "dropped_messages": self.dropped_messages, "errors": self.errors,
+                "last_error": self.last_error or None,
+                "alive": bool(self._thread is not None and self._thread.is_alive())}
+
+    # --- what the pipeline calls: never blocks -----------------------------------------------------
+    def on_message(self, topic: str, obj: Mapping[str, Any]) -> None:
+        if topic in self._chan:
+            try:
+                self._queue.put_nowait((topic, obj))
+            except queue.Full:
+                self.dropped_messages += 1
+
+    def on_block(self, block: SampleBlock) -> None:
+        try:  # copied: a source may reuse its buffers once the ring has its samples
+            self._queue.put_nowait((None, (block.first_index, {c: np.array(x) for c, x in block.channels.items()})))
+        except queue.Full:
+            self.dropped_blocks += 1
+
+    # --- the sending thread ----------------------------------------------------------------------
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                topic, item = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
+                if topic is None:
+                    self._send_block(*item)
+                else:
+                    self._send_message(topic, item)
+            except Exception as err:  # ours to report, never the pipeline's to die of
+                self.errors += 1
+                self.last_error = f"{type(err).__name__}: {err}"
+                kind = type(err).__name__
+                if kind not in self._logged:  # a traceback once per kind, then counted
+                    self._logged.add(kind)
+                    log.exception("Foxglove live view: %s", self.last_error)
+
+    def _send_message(self, topic: str, obj: Mapping[str, Any]) -> None:
+        ch = self._chan[topic]
+        if ch.has_sinks():
+            t = obj.get("t_ns")
+            ch.log(json_bytes(dict(obj)), log_time=int(t) if isinstance(t, int) else time.time_ns())
+            self.sent += 1
+
+    def _send_block(self, first_index: int, data: dict[str, np.ndarray]) -> None:
+        k = self.bin
+        if self._carry_index is None or self._carry_index + len(next(iter(self._carry.values()), ())) != first_index:
+            self._carry, self._carry_index = {}, first_index  # the first block, or after a gap: bins start here
+        joined = {c: np.concatenate((self._carry[c], x)) if c in self._carry else x for c, x in data.items()}
+        n = len(next(iter(joined.values()), ()))
+        whole = n // k * k
+        start = self._carry_index
+        self._carry = {c: x[whole:] for c, x in joined.items()}
+        self._carry_index = start + whole
+        if whole == 0:
+            return
+        index = start + np.arange(0, whole, k, dtype=np.int64)
+        t_ns = [self._time_ns(int(i)) for i in index]
+        index_list = index.tolist()
+        firsts: dict[str, list] = {}
+        for c, x in joined.items():
+            first, mean, lo, hi = decimate(x[:whole], k)
+            firsts[c] = _floats(first)
+            ch = self._chan.get(PLOT_PREFIX + c)
+            if ch is None or not ch.has_sinks():
+                continue
+            for i, t, v, m, a, b in zip(index_list, t_ns, firsts[c], _floats(mean), _floats(lo), _floats(hi)):
+                ch.log(f'{{"t_ns":{t},"index":{i},"n":{k},"value":{v},"mean":{m},"min":{a},"max":{b}}}'.encode(),
+                       log_time=t)
+                self.sent += 1
+        ch = self._chan[PLOT_SAMPLES]
+        if ch.has_sinks():
+            names = list(firsts)
+            for j, (i, t) in enumerate(zip(index_list, t_ns)):
+                body = ",".join(f'"{c}":{firsts[c][j]}' for c in names)
+                ch.log(f'{{"t_ns":{t},"index":{i},{body}}}'.encode(), log_time=t)
+                self.sent += 1
+
+
+def _floats(x: np.ndarray) -> list[str]:
+    """JSON numbers of ``x``; NaN and infinities (which JSON has no numbers for) as ``null``."""
+    return [r if r[-1].isdigit() else "null" for r in map(repr, np.asarray(x, dtype=np.float64).tolist())]
