@@ -118,6 +118,14 @@ def load_zenoh_config(source: str | Path | Mapping | None, *, listen: list[str] 
       daemon's does) reassembles messages of at most :data:`MAX_MESSAGE_BYTES`; a client's
       (``serve=False``) keeps zenoh's limit, as a raw block may be larger.
 
+    A session that serves (``serve=True``: the daemon's) but listens nowhere and connects
+    somewhere (``[zenoh] listen = []``, ``connect = [a router]``) is opened in zenoh's ``client``
+    mode: a zenoh router routes between its clients and its peers, but not between two peers
+    that do not gossip (ours do not: nothing is found that was not configured), so two peer
+    daemons behind one router would not see each other's clients (docs/zenoh.md, "A fleet").
+    A client needs its endpoint reachable when it opens (:func:`open_session` then raises a
+    :class:`NetworkError`); it reconnects by itself when that router restarts later.
+
     A bad endpoint or file is a :class:`ConfigError` of one line naming it."""
     import zenoh
 
@@ -146,6 +154,9 @@ def load_zenoh_config(source: str | Path | Mapping | None, *, listen: list[str] 
         if serve if serve is not None else bool(_config_endpoints(cfg, "listen")):
             limit = json.loads(cfg.get_json("transport/link/rx/max_message_size"))
             cfg.insert_json5("transport/link/rx/max_message_size", str(min(int(limit), MAX_MESSAGE_BYTES)))
+        if serve and _mode(cfg) == "peer" and not _config_endpoints(cfg, "listen") \
+                and _config_endpoints(cfg, "connect"):
+            cfg.insert_json5("mode", '"client"')  # see the docstring: a router routes for clients
         return cfg
     except ConfigError:
         raise
@@ -170,12 +181,17 @@ def _check_endpoints(role: str, endpoints) -> None:
             raise ConfigError(f"{role} endpoint {show(ep, 80)}: {why} ({_ENDPOINT_FORM})") from None
 
 
+def _mode(cfg: zenoh.Config) -> str:
+    """The session's zenoh mode: "peer" (zenoh's default), "client" or "router"."""
+    return json.loads(cfg.get_json("mode")) or "peer"
+
+
 def _config_endpoints(cfg: zenoh.Config, role: str) -> list[str]:
     """The endpoints ``cfg`` will ``role`` ("listen", "connect") on in its mode (the value may
     be one list or one per mode)."""
     value = json.loads(cfg.get_json(f"{role}/endpoints"))
     if isinstance(value, dict):
-        value = value.get(json.loads(cfg.get_json("mode")) or "peer") or []
+        value = value.get(_mode(cfg)) or []
     return [str(v) for v in value or []]
 
 
@@ -202,8 +218,9 @@ def _plain(message: str) -> str:
 
 
 def open_session(config: zenoh.Config) -> zenoh.Session:
-    """A zenoh session; a taken listening port is a :class:`ListenError` naming the endpoint; any
-    other refusal a :class:`ConfigError` of one line naming the endpoints."""
+    """A zenoh session; a taken listening port is a :class:`ListenError` naming the endpoint; a
+    client whose endpoints cannot be reached a :class:`NetworkError` naming them; any other
+    refusal a :class:`ConfigError` of one line naming the endpoints."""
     import zenoh
 
     try:
@@ -221,6 +238,9 @@ def open_session(config: zenoh.Config) -> zenoh.Session:
                               if (eps := _config_endpoints(config, role)))
         except Exception:
             where = ""
+        if text.startswith("Unable to connect to any of"):  # a client: its router (or peer) is not there
+            raise NetworkError(f"cannot reach {where.removeprefix('connect ') or 'any endpoint'} (a zenoh "
+                               "client connects when it opens: is `hystbench router` running there?)") from None
         raise ConfigError(f"cannot open a zenoh session ({where or 'no endpoints'}): {text}") from None
 
 
@@ -261,8 +281,10 @@ class ZenohBus:
             self.session = open_session(self._zconfig)
         s = self.session
         self._cc_drop = zenoh.CongestionControl.DROP
-        self._decls.append(s.declare_queryable(key(self.bench, "config"), self._reply(lambda q: self.config_provider() if self.config_provider else {})))
-        self._decls.append(s.declare_queryable(key(self.bench, "health"), self._reply(lambda q: self.health_provider() if self.health_provider else {})))
+        self._decls.append(s.declare_queryable(key(self.bench, "config"), self._reply(
+            lambda q: self.config_provider() if self.config_provider else {}, key(self.bench, "config"))))
+        self._decls.append(s.declare_queryable(key(self.bench, "health"), self._reply(
+            lambda q: self.health_provider() if self.health_provider else {}, key(self.bench, "health"))))
         self._decls.append(s.declare_queryable(key(self.bench, "cmd", "*"), self._command))
         return self
 
@@ -320,11 +342,13 @@ class ZenohBus:
         except Exception:  # a closed session during shutdown, a full queue: count, never raise
             self.put_errors += 1
 
-    def _reply(self, make: Callable[[Any], dict]) -> Callable[[Any], None]:
+    def _reply(self, make: Callable[[Any], dict], own_key: str) -> Callable[[Any], None]:
+        """Answers on ``own_key`` (this bench's), not on the query's key: a query on
+        ``hystbench/*/health`` then gets one reply per bench, each saying whose it is."""
         def handler(query) -> None:
             with query:
                 try:
-                    query.reply(query.key_expr, json_bytes(make(query)), encoding="application/json")
+                    query.reply(own_key, json_bytes(make(query)), encoding="application/json")
                 except Exception as err:
                     query.reply_err(json_bytes({"error": str(err)}))
         return handler

@@ -16,7 +16,8 @@ switches the output off when the heartbeat stops).  SIGHUP: the file is read aga
 everything it needs (its log folder, its bench's lock, its ports) is checked before the running
 service is touched; a bad one is refused and the running configuration stays; a good one
 restarts the pipeline (a new log part) and, if its [zenoh] section changed, the zenoh session.  Exit 2: a bad configuration (systemd does not restart into it); exit 1: a
-fault the daemon could not recover from, or instruments that cannot be reached at start.
+fault the daemon could not recover from, or instruments (or, with ``[zenoh] listen = []``, the
+router it connects to) that cannot be reached at start.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import threading
 import time
 from pathlib import Path
 
-from ..errors import BenchError, ConfigError, InstrumentError
+from ..errors import BenchError, ConfigError, InstrumentError, NetworkError
 from .daemon_config import DaemonConfig, load_daemon_config, zenoh_config
 from .sd_notify import Notifier
 from .service import BenchService
@@ -67,7 +68,11 @@ def run_daemon(config_path: str | Path | None) -> int:
 
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, on_signal)
-    claim = _Claim().take(cfg)
+    try:
+        claim = _Claim().take(cfg)
+    except NetworkError as err:  # [zenoh] connect: the router is not up (yet): systemd may try again (exit 1)
+        print(f"hystbench daemon: error: {cfg.source} [zenoh] connect: {err}", file=sys.stderr)
+        return 1
     try:
         svc = BenchService(cfg, session=claim.session).start()
     except InstrumentError as err:  # not the file's fault: systemd may try again (exit 1)
