@@ -337,6 +337,9 @@ def build_parser() -> argparse.ArgumentParser:
     from . import diagnose as commands_diagnose
 
     commands_diagnose.register(sub)  # diagnose
+    from . import router as commands_router
+
+    commands_router.register(sub)  # router
 
     p = sub.add_parser("demo", help="the main job on the embedded simulated rig")
     p.add_argument("--out", type=path_arg, default="demo-output")
