@@ -169,8 +169,10 @@ def cmd_ctl(args: argparse.Namespace) -> int:
     """One command or query to a running daemon; exit 1 if it refuses (its reason on stderr),
     2 if nobody answers within ``--timeout``."""
     from ..errors import CommandRefused
-    from ..service.control import BenchControl
+    from ..service.control import BenchControl, is_bench_pattern
 
+    if is_bench_pattern(args.bench):
+        return _ctl_fleet(args)
     payload = _ctl_payload(args)
     with BenchControl(args.bench, connect=args.connect, zenoh_config=args.zenoh_config,
                       timeout_s=args.timeout) as ctl:
@@ -182,6 +184,38 @@ def cmd_ctl(args: argparse.Namespace) -> int:
             print(f"hystbench ctl: {err}", file=sys.stderr)
             return 1
     print(json.dumps(reply) if args.json else _format_reply(args.bench, args.verb, reply), flush=True)
+    return 0
+
+
+def _ctl_fleet(args: argparse.Namespace) -> int:
+    """``ctl --bench PATTERN status|health``: every bench that answers within ``--timeout``, one line
+    each (with ``--json`` one object each), sorted by name; exit 0 when at least one answered, 2
+    when none did.  Commands go to one bench only: refused in one line, nothing sent."""
+    from ..errors import ConfigError, NoReply
+    from ..service.control import FLEET_VERBS, describe_endpoint, fleet_health, open_client
+
+    if args.verb not in FLEET_VERBS:
+        raise ConfigError(f"--bench {args.bench!r} names several benches: only {' and '.join(FLEET_VERBS)} may go to "
+                          f"several; {args.verb} goes to one bench (--bench NAME)")
+    session = open_client(args.connect, args.zenoh_config)
+    try:
+        benches = fleet_health(args.bench, session, timeout_s=args.timeout)
+    finally:
+        session.close()
+    endpoint = describe_endpoint(args.connect, args.zenoh_config)
+    if not any(h is not None for h in benches.values()):
+        raise NoReply(f"no daemon answered on hystbench/{args.bench}/health via {endpoint} within {args.timeout:g} s")
+    for bench, h in benches.items():
+        if h is None:
+            print(json.dumps({"bench": bench, "ok": False, "error": "alive, no health reply"}) if args.json else
+                  f"{bench}: alive, but no health reply within {args.timeout:g} s", flush=True)
+        elif args.json:
+            print(json.dumps({"bench": bench, **h}), flush=True)
+        elif args.verb == "health":
+            print(f"{bench}: " + "; ".join(f"{k} {json.dumps(v)}" for k, v in h.items() if k != "bench"), flush=True)
+        else:
+            issues = any(h.get(k) for k in ("output_refused", "last_fault", "pipeline_error", "last_estimate_error"))
+            print(_format_reply(bench, "status", h) + ("" if issues else "; healthy"), flush=True)
     return 0
 
 
@@ -206,7 +240,9 @@ def _register_ctl(subparsers) -> None:
 
     def client_options(p, top: bool) -> None:
         keep = (lambda v: v) if top else (lambda v: argparse.SUPPRESS)  # given after the verb: still taken
-        p.add_argument("--bench", default=keep("bench1"), help="the daemon's [daemon] bench (default bench1)")
+        p.add_argument("--bench", default=keep("bench1"),
+                       help="the daemon's [daemon] bench (default bench1); '*' (or 'lab-*'): every bench reached, "
+                            "for status and health only")
         p.add_argument("--connect", action="append", metavar="ENDPOINT", default=keep(None),
                        help=f"endpoint of the daemon (default {DEFAULT_CONNECT}; repeatable)")
         p.add_argument("--zenoh-config", metavar="FILE", type=path_arg, default=keep(None),

@@ -13,14 +13,16 @@ import json
 import threading
 from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
-from ..acquisition.zenoh_bus import COMMANDS, MAX_COMMAND_BYTES, key, load_zenoh_config, open_session, query_json
+from ..acquisition.zenoh_bus import (COMMANDS, MAX_COMMAND_BYTES, PREFIX, _json_object, key, load_zenoh_config,
+                                     open_session, query_json)
 from ..deadline import Deadline
 from ..errors import CommandRefused, ConfigError, NoReply
 
 if TYPE_CHECKING:
     import zenoh
 
-__all__ = ["DEFAULT_CONNECT", "QUERIES", "MAX_TIMEOUT_S", "BenchControl", "open_client", "describe_endpoint"]
+__all__ = ["DEFAULT_CONNECT", "QUERIES", "FLEET_VERBS", "MAX_TIMEOUT_S", "BenchControl", "open_client",
+           "describe_endpoint", "is_bench_pattern", "bench_pattern", "fleet_health"]
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
 #: queryables that take no arguments and change nothing
@@ -28,6 +30,8 @@ QUERIES = ("health", "config")
 #: the longest a request may wait (a day): a bound, so that no timeout overflows zenoh's clock
 MAX_TIMEOUT_S = 86_400.0
 _RETRY_S = 0.05  # a session still connecting answers "nobody" at once: ask again after this
+#: what may go to several benches at once (``--bench '*'``): the read-only ones; a command goes to one bench
+FLEET_VERBS = ("status", "health")
 
 
 def describe_endpoint(connect: Sequence[str] | None, zenoh_config: str | None) -> str:
@@ -114,3 +118,59 @@ class BenchControl:
 
     def config(self) -> dict:
         return self.request("config")
+
+
+# --- several benches at once (``hystbench ctl --bench '*' status``) ------------------------------------
+def is_bench_pattern(bench: str) -> bool:
+    """Whether ``bench`` names several benches (it has a ``*``)."""
+    return "*" in bench
+
+
+def bench_pattern(bench: str) -> str:
+    """``bench`` as one chunk of a zenoh key expression: ``*`` alone is every bench, a ``*`` inside
+    a name (``lab-*``) any text there (zenoh's ``$*``); a :class:`ConfigError` if it cannot be one."""
+    if not bench or any(ch in bench for ch in "/$?#"):
+        raise ConfigError(f"bench pattern {bench!r} must be non-empty and contain none of / $ ? # "
+                          "(* stands for any text)")
+    chunk = bench if bench == "*" else "$*".join(part for part in bench.split("*"))
+    chunk = chunk.replace("$*$*", "$*") if "$*$*" in chunk else chunk
+    import zenoh
+
+    try:
+        zenoh.KeyExpr(f"{PREFIX}/{chunk}/health")
+    except Exception:
+        raise ConfigError(f"bench pattern {bench!r} is not a zenoh key chunk") from None
+    return chunk
+
+
+def fleet_health(pattern: str, session: zenoh.Session, *, timeout_s: float = 2.0) -> dict[str, dict | None]:
+    """The health of every bench matching ``pattern`` (:func:`bench_pattern`) that answers within
+    ``timeout_s``: ``{bench: health}``, sorted by name.  A bench whose daemon is alive (its
+    liveliness token ``hystbench/<bench>/alive`` is seen) but whose health did not come in time
+    (access control, a daemon too busy) is listed with None.  Asked again while nobody has
+    answered, or an alive bench has not, and time is left: a fresh session may not know every
+    daemon yet.  Bounded by ``timeout_s`` in every case."""
+    import zenoh
+
+    from .instance import ALIVE
+
+    if not 0 < timeout_s <= MAX_TIMEOUT_S:
+        raise ConfigError(f"timeout must be in (0, {MAX_TIMEOUT_S:g}] s, got {timeout_s!r}")
+    chunk = bench_pattern(pattern)
+    deadline, pause = Deadline(timeout_s), threading.Event()
+    alive: set[str] = set()
+    answered: dict[str, dict] = {}
+    while True:
+        for reply in session.liveliness().get(f"{PREFIX}/{chunk}/{ALIVE}", timeout=max(deadline.left(0.5), 0.01)):
+            if reply.ok is not None:
+                alive.add(str(reply.ok.key_expr).split("/")[1])
+        for reply in session.get(f"{PREFIX}/{chunk}/health", target=zenoh.QueryTarget.ALL,
+                                 consolidation=zenoh.ConsolidationMode.NONE, timeout=max(deadline.left(), 0.01)):
+            if reply.ok is not None:
+                obj = _json_object(reply.ok.payload.to_bytes())
+                if obj is not None:  # whose: the bench it names (daemons before issue 31 replied on the query's key)
+                    answered[str(obj.get("bench") or str(reply.ok.key_expr).split("/")[1])] = obj
+        if (answered and alive <= set(answered)) or deadline.left() <= _RETRY_S:
+            break
+        pause.wait(_RETRY_S)
+    return {b: answered.get(b) for b in sorted(alive | set(answered))}

@@ -1,0 +1,105 @@
+"""A fleet through zenoh's own router (issue 31): a real router session on a free loopback port,
+two real daemons (subprocesses, simulated rig, sweeping) that listen nowhere and connect to it;
+a subscriber on the router gets the estimates of both, ``ctl --bench '*' status`` lists both,
+a command to '*' is refused before anything is sent, a taken router port is one line naming
+--listen, and a daemon whose router is not there exits 1 (systemd tries again), naming it.
+Every wait ends on its event; HANG_S only turns a hang into a failure."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from hystbench.acquisition.zenoh_bus import Subscription, free_port
+from hystbench.cli.main import main
+from hystbench.deadline import Deadline
+from hystbench.service.router import Router
+
+from .conftest import HANG_S, ROOT, Daemon
+
+
+def daemon_file(path: Path, bench: str, router: str, logs: Path) -> Path:
+    path.write_text(f'[daemon]\nbench = "{bench}"\nlog_dir = "{logs.as_posix()}"\n[source]\nkind = "sim"\n'
+                    '[recording]\nenabled = false\n'
+                    f'[zenoh]\nlisten = []\nconnect = ["{router}"]\n'
+                    '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 30.0\nautostart = true\n', encoding="utf-8")
+    return path
+
+
+def run(args: list[str], capsys) -> tuple[int, str, str]:
+    code = main(args)
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def test_two_daemons_through_one_router(tmp_path: Path, capsys) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with Router([endpoint]) as router:
+        sub = Subscription(router.session, "hystbench/*/estimate")
+        daemons = [Daemon(tmp_path, daemon_file(tmp_path / f"{b}.toml", b, endpoint, tmp_path / "logs"), name=b)
+                   for b in ("f1", "f2")]
+        try:
+            for d in daemons:
+                d.wait_for("READY=1")
+            seen: set[str] = set()
+            for key_, _payload, _t in sub.iter(seconds=HANG_S):  # ends as soon as both benches were heard
+                seen.add(key_.split("/")[1])
+                if seen == {"f1", "f2"}:
+                    break
+            assert seen == {"f1", "f2"}, f"estimates only from {seen}"
+
+            code, out, err = run(["ctl", "--connect", endpoint, "--bench", "*", "--timeout", str(HANG_S), "status"],
+                                 capsys)
+            assert code == 0, err
+            lines = out.splitlines()
+            assert [ln.split(":")[0] for ln in lines] == ["f1", "f2"], out
+            for ln in lines:
+                assert "sweeping; output on at 320 Hz, 1.4 A-pp, offset 0 A" in ln and "healthy" in ln, ln
+
+            for verb in (["output", "off"], ["start_sweep"]):
+                code, out, err = run(["ctl", "--connect", endpoint, "--bench", "*", verb[0], *verb[1:]], capsys)
+                assert code == 2 and out == ""
+                assert err.count("\n") == 1 and "only status and health may go to several" in err, err
+            # one bench by its name, through the same router: the command still reaches it
+            code, out, err = run(["ctl", "--connect", endpoint, "--bench", "f2", "--timeout", str(HANG_S),
+                                  "output", "off"], capsys)
+            assert code == 0 and out.startswith("f2: output ok"), err
+        finally:
+            sub.close()
+            for d in daemons:
+                d.close()
+
+
+def test_a_taken_router_port_names_listen(capsys) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with Router([endpoint]):
+        code, out, err = run(["router", "--listen", endpoint], capsys)
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and f"cannot listen on {endpoint}" in err and "--listen" in err, err
+
+
+def test_a_daemon_whose_router_is_not_there_exits_1_naming_it(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"  # nobody listens there
+    cfg = daemon_file(tmp_path / "d.toml", "f3", endpoint, tmp_path / "logs")
+    proc = subprocess.run([sys.executable, "-m", "hystbench", "daemon", "--config", str(cfg)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=HANG_S,
+                          env={**os.environ, "STATE_DIRECTORY": str(tmp_path / "state")})
+    assert proc.returncode == 1, proc.stderr
+    assert f"[zenoh] connect: cannot reach {endpoint}" in proc.stderr and "hystbench router" in proc.stderr
+
+
+def test_the_router_runs_until_sigterm_and_says_where_it_listens() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([sys.executable, "-m", "hystbench", "router", "--listen", endpoint], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()  # the first line: printed once it listens
+        assert f"listening on {endpoint}" in line, (line, proc.stderr.read() if proc.poll() is not None else "")
+        proc.terminate()
+        assert proc.wait(timeout=Deadline(HANG_S).left()) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
