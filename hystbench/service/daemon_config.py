@@ -108,7 +108,8 @@ DEFAULTS: dict[str, dict[str, Key]] = {
         "enabled": Key(bool, True, "publish on zenoh and answer queries and commands"),
         "config": Key(str, "", "a zenoh json5 file (e.g. hystbench/config/zenoh-acl.json5); \"\": an embedded "
                       "peer, multicast scouting off"),
-        "listen": Key(list, ["tcp/127.0.0.1:7447"], "endpoints to listen on (replace the config file's when given)",
+        "listen": Key(list, ["tcp/127.0.0.1:7447"], "endpoints to listen on (replace the config file's when given); "
+                      "[] with a connect: a client of that zenoh router (a fleet, docs/zenoh.md)",
                       items=_ENDPOINT),
         "connect": Key(list, [], "endpoints to connect to (replace the config file's when given)", items=_ENDPOINT),
         "publish_raw": Key(bool, True, "raw blocks on hystbench/<bench>/raw, one message per block"),
