@@ -101,6 +101,7 @@ class FoxgloveLive:
         self._server = None
         self._context = None
         self._chan: dict[str, Any] = {}
+        self._plot_chans: tuple = ()  # /plot/...: a block is taken only while a client plots one
         self._time_ns: Callable[[int], int] = lambda i: round(i * 1e9 / self.fs_hz)
         self._carry: dict[str, np.ndarray] = {}
         self._carry_index: int | None = None  # sample index of the carried samples' first
@@ -132,6 +133,7 @@ class FoxgloveLive:
             hint = " (another hystbench daemon, or a Foxglove bridge?)" if "in use" in why.lower() else ""
             raise ConfigError(f"{self.where} port: cannot serve Foxglove on {self.host}:{self.port}: {why}{hint}; "
                               "change [foxglove] port (or host)") from None
+        self._plot_chans = tuple(ch for t, ch in self._chan.items() if t.startswith(PLOT_PREFIX))
         self.port = self._server.port
         self._thread = threading.Thread(target=self._run, name="foxglove-live", daemon=True)
         self._thread.start()
@@ -182,6 +184,8 @@ class FoxgloveLive:
                 self.dropped_messages += 1
 
     def on_block(self, block: SampleBlock) -> None:
+        if not any(ch.has_sinks() for ch in self._plot_chans):
+            return  # no client plots: nothing copied (the next block then starts the bins afresh)
         try:  # copied: a source may reuse its buffers once the ring has its samples
             self._queue.put_nowait((None, (block.first_index, {c: np.array(x) for c, x in block.channels.items()})))
         except queue.Full:

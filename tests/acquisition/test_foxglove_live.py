@@ -217,25 +217,46 @@ def test_the_bridge_drops_what_it_cannot_take_and_survives_its_own_failure() -> 
     live = FoxgloveLive("127.0.0.1", free_port(), name="t", channels=["current_A", "force_N"], fs_hz=FS)
     p = _Pipeline()
     live.attach(p)
-    for k in range(QUEUE_ITEMS + 10):  # not started: nothing takes from the queue, nothing may block
-        p.block_listeners[0](_block(k * 1000, 1000))
-    assert live.dropped_blocks == 10
+    p.block_listeners[0](_block(0, 1000))  # no client plots: not even taken
+    assert live._queue.qsize() == 0 and live.dropped_blocks == 0
     live.start()
     try:
-        calls, failing = threading.Event(), live._send_block
+        with connect(f"ws://127.0.0.1:{live.port}", subprotocols=[SUBPROTOCOL], open_timeout=HANG_S) as ws:
+            client = Client(ws)
+            client.advertised(Deadline(HANG_S))
+            client.subscribe("/plot/current_A")
+            deadline, first = Deadline(HANG_S), None
+            k = 0
+            while first is None and not deadline.expired:  # blocks until the subscription shows
+                p.block_listeners[0](_block(k * 1000, 1000))
+                k += 1
+                first = next(client.messages(Deadline(0.05)), None)
+            assert first is not None and first[0] == "/plot/current_A"
 
-        def broken(*args):  # the sending fails: counted and logged, the thread goes on
-            calls.set()
-            raise RuntimeError("the view broke")
+            taken, release = threading.Event(), threading.Event()
 
-        live._send_block = broken
-        deadline = Deadline(HANG_S)
-        while live.errors < 3 and not deadline.expired:
-            calls.wait(deadline.left(1.0))
-            calls.clear()
-        assert live.errors >= 3 and live.health()["alive"] and "the view broke" in live.health()["last_error"]
-        live._send_block = failing
-        p.listeners[0]("/status", {"t_ns": 1, "level": "info", "event": "x", "message": ""})
+            def stuck(*args):  # a sending thread held up: the pipeline's side must not wait for it
+                taken.set()
+                release.wait(HANG_S)
+                raise RuntimeError("the view broke")
+
+            live._send_block = stuck
+            while not taken.is_set() and not deadline.expired:
+                p.block_listeners[0](_block(k * 1000, 1000))
+                k += 1
+                taken.wait(0.05)
+            assert taken.is_set()
+            dropped, queued = live.dropped_blocks, live._queue.qsize()
+            for _ in range(QUEUE_ITEMS - queued + 10):
+                p.block_listeners[0](_block(k * 1000, 1000))
+                k += 1
+            assert live.dropped_blocks - dropped == 10  # full: dropped and counted, never waited for
+            release.set()  # now every block fails: counted and logged, the thread goes on
+            while live._queue.qsize() and not deadline.expired:
+                taken.clear()
+                taken.wait(1.0)
+            assert live.errors >= QUEUE_ITEMS and live.health()["alive"]
+            assert live.health()["last_error"] == "RuntimeError: the view broke"
     finally:
         live.close()
     assert not live.health()["alive"]
