@@ -109,7 +109,7 @@ def _read_info(fd: int) -> dict[str, Any]:
 
 def _describe(info: dict[str, Any]) -> str:
     pid = info.get("pid", "?")
-    ends = ", ".join(info.get("endpoints") or []) or "no zenoh endpoint"
+    ends = ", ".join(info.get("endpoints") or []) or "listening nowhere"
     cfg = info.get("config") or "built-in defaults"
     return f"PID {pid} (zenoh {ends}; config {cfg})"
 

@@ -1,7 +1,8 @@
 """A fleet through zenoh's own router (issue 31): a real router session on a free loopback port,
 two real daemons (subprocesses, simulated rig, sweeping) that listen nowhere and connect to it;
 a subscriber on the router gets the estimates of both, ``ctl --bench '*' status`` lists both,
-a command to '*' is refused before anything is sent, a taken router port is one line naming
+a command to '*' is refused before anything is sent, ``watch`` sees both through the router, a
+second daemon of one bench name is refused through it, a taken router port is one line naming
 --listen, and a daemon whose router is not there exits 1 (systemd tries again), naming it.
 Every wait ends on its event; HANG_S only turns a hang into a failure."""
 
@@ -12,9 +13,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from hystbench.acquisition.zenoh_bus import Subscription, free_port
 from hystbench.cli.main import main
 from hystbench.deadline import Deadline
+from hystbench.errors import ConfigError
+from hystbench.service.control import bench_pattern
 from hystbench.service.router import Router
 
 from .conftest import HANG_S, ROOT, Daemon
@@ -62,6 +67,15 @@ def test_two_daemons_through_one_router(tmp_path: Path, capsys) -> None:
                 code, out, err = run(["ctl", "--connect", endpoint, "--bench", "*", verb[0], *verb[1:]], capsys)
                 assert code == 2 and out == ""
                 assert err.count("\n") == 1 and "only status and health may go to several" in err, err
+            # watch through the router: estimates of both benches, as on one daemon's endpoint
+            code, out, err = run(["watch", "--connect", endpoint, "--count", "8", "--seconds", str(HANG_S)], capsys)
+            assert code == 0, err
+            assert {ln.split("/")[1] for ln in out.splitlines()} == {"f1", "f2"}, out
+            # a second daemon of f1 on another "PC" (its own state folder): f1's token is seen through the router
+            again = subprocess.run([sys.executable, "-m", "hystbench", "daemon", "--config", str(tmp_path / "f1.toml")],
+                                   cwd=ROOT, capture_output=True, text=True, timeout=HANG_S,
+                                   env={**os.environ, "STATE_DIRECTORY": str(tmp_path / "other-pc")})
+            assert again.returncode == 2 and "already served on the zenoh network" in again.stderr, again.stderr
             # one bench by its name, through the same router: the command still reaches it
             code, out, err = run(["ctl", "--connect", endpoint, "--bench", "f2", "--timeout", str(HANG_S),
                                   "output", "off"], capsys)
@@ -103,3 +117,11 @@ def test_the_router_runs_until_sigterm_and_says_where_it_listens() -> None:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_a_bench_pattern_is_one_key_chunk() -> None:
+    assert bench_pattern("*") == "*"
+    assert bench_pattern("lab-*") == "lab-$*"
+    for bad in ("a/b", "lab$", "x?", ""):
+        with pytest.raises(ConfigError, match="bench pattern"):
+            bench_pattern(bad)
