@@ -132,8 +132,7 @@ def bench_pattern(bench: str) -> str:
     if not bench or any(ch in bench for ch in "/$?#"):
         raise ConfigError(f"bench pattern {bench!r} must be non-empty and contain none of / $ ? # "
                           "(* stands for any text)")
-    chunk = bench if bench == "*" else "$*".join(part for part in bench.split("*"))
-    chunk = chunk.replace("$*$*", "$*") if "$*$*" in chunk else chunk
+    chunk = bench if bench == "*" else bench.replace("*", "$*")
     import zenoh
 
     try:
