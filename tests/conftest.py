@@ -62,3 +62,10 @@ def model_file_of(computed_once) -> Callable[[str], Path]:
     from hystbench.compensator.sweeps import quick_models
 
     return lambda rig: computed_once(f"models_{rig}.json", lambda path: quick_models(rig).save(path))
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Files with a ``slow`` test run first (stable otherwise): ``make test`` hands whole files to its
+    workers in this order, and a slow file that came last kept one worker busy while the other idled."""
+    slow = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow)

@@ -175,7 +175,7 @@ def test_retention_keeps_the_cap_as_the_log_grows(tmp_path: Path) -> None:
     svc.log._grew = grew
     svc.start()
     try:
-        svc.pipeline.after_samples(4_000_000).wait(HANG_S)  # 64 MB of samples: 30 times the cap
+        svc.pipeline.after_samples(1_500_000).wait(HANG_S)  # 24 MB of samples: 11 times the cap
     finally:
         svc.stop()
     assert len(totals) > 100 and svc.log.deleted > 5

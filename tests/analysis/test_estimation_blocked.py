@@ -25,6 +25,8 @@ from hystbench.analysis.estimation import _lsq
 
 from . import dense_oracle as dense
 
+pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+
 HARMONICS = (1, 2, 3, 4)  # what the method fits
 FS = 100_000.0
 
@@ -120,7 +122,7 @@ def test_the_method_s_second_fits_with_exclusions_and_a_given_frequency() -> Non
     assert new.outliers.tolist() == [5, 150_001, 150_002]  # the exclusions; the noise has no outlier
 
 
-@pytest.mark.parametrize(("batch", "n"), [((40,), 5_000), ((3, 700), 63)])
+@pytest.mark.parametrize(("batch", "n"), [((40,), 5_000), ((3, 140), 63)])
 def test_batches_of_records_give_the_dense_delays(batch, n: int) -> None:
     x, y = _channels(n, 3, batch=batch, snr_db=30.0, fs=10_000.0)  # 63 samples: two periods
     x.reshape(-1, n)[::7, n // 3] += 50.0  # a glitch in every seventh record

@@ -17,6 +17,8 @@ from hystbench.formats.recording import read_sweep
 from independent_bench.bench import BASELINE, write_bench_day
 from independent_bench.family import fit_plan, voice_coil_plan, write_family_bench
 
+pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+
 
 def _identified(fit_folder, voice_coil_folder):
     """What a user of the bench does: the instrument from the voice coil, the models from the sweep."""

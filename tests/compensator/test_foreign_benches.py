@@ -18,6 +18,8 @@ from hystbench.sim_backend.benches import FOREIGN_BENCHES, bench_truth, foreign_
 from hystbench.sim_backend.recordings import simulated_sweep
 from hystbench.sim_backend.rig import SimulatedRig
 
+pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+
 MAIN = {"ecore": 1.27, "ecore_pm": 1.4}
 #: the benches make test fits (one of each kind: with and without magnet, an elliptic and a Preisach
 #: iron); every other bench runs with ``-m acceptance`` (.ci/run), each fit costing 10-40 s

@@ -10,6 +10,8 @@ from hystbench.compensator import (CompensatorError, ForceReference, ModelSet, P
 from hystbench.config import load_rig
 from hystbench.errors import ConfigError
 
+pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+
 
 def test_model_file_round_trip(models_pm, tmp_path):
     path = models_pm.save(tmp_path / "m.json")

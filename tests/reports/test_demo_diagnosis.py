@@ -15,6 +15,8 @@ from hystbench.cli.main import main
 from hystbench.reports.demo_diagnosis import demo_diagnosis
 from independent_bench.__main__ import main as write_independent_day
 
+pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+
 BASELINE = ["static_hysteresis", "lamination_eddy_currents", "instrument_filter", "sensor_noise", "adc_quantisation"]
 
 

@@ -20,6 +20,8 @@ import pytest
 from benchmarks.bench_diagnose import run_named
 from hystbench.analysis.diagnosis.select import MIN_HELD_OUT_GAIN
 
+pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+
 #: (suite, case): a single, a null on a foreign bench, a two-effect day on the independent bench (the
 #: independent bench's nulls and every other day run in the benchmark, after make test in .ci/run)
 SUBSET = (("ours", "magnet_eddy_currents"), ("ours", "foreign_rayleigh"),
