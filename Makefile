@@ -24,13 +24,15 @@ demo: $(STAMP)
 	  --baseline static_hysteresis,lamination_eddy_currents,instrument_filter,sensor_noise,adc_quantisation \
 	  --truth $$run/independent/truth.json
 
-# Every test on every core; a test file stays on one worker (its module fixtures are computed once).
+# Four workers, a test file on one worker (its module fixtures are computed once): many tests wait on a
+# daemon, a socket or a subprocess, so on this 2-core machine four keep both cores busy where two left
+# a third of the time idle (docs/performance.md, section 1).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n auto --dist loadfile
+	$(BIN)/python -m pytest -q -n 4 --dist loadfile
 
 # What make test leaves out: the whole acceptance runs (.ci/run runs this after make test).
 acceptance: $(STAMP)
-	$(BIN)/python -m pytest -q -n auto --dist loadfile -m acceptance
+	$(BIN)/python -m pytest -q -n 4 --dist loadfile -m acceptance
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache

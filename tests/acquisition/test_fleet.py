@@ -68,9 +68,15 @@ def test_two_daemons_through_one_router(tmp_path: Path, capsys) -> None:
                 assert code == 2 and out == ""
                 assert err.count("\n") == 1 and "only status and health may go to several" in err, err
             # watch through the router: estimates of both benches, as on one daemon's endpoint
-            code, out, err = run(["watch", "--connect", endpoint, "--count", "8", "--seconds", str(HANG_S)], capsys)
-            assert code == 0, err
-            assert {ln.split("/")[1] for ln in out.splitlines()} == {"f1", "f2"}, out
+            # (a few runs of 8 messages: on a loaded machine one daemon's estimates may come in a burst)
+            heard: set[str] = set()
+            for _ in range(10):
+                code, out, err = run(["watch", "--connect", endpoint, "--count", "8", "--seconds", str(HANG_S)], capsys)
+                assert code == 0, err
+                heard |= {ln.split("/")[1] for ln in out.splitlines()}
+                if heard == {"f1", "f2"}:
+                    break
+            assert heard == {"f1", "f2"}, out
             # a second daemon of f1 on another "PC" (its own state folder): f1's token is seen through the router
             again = subprocess.run([sys.executable, "-m", "hystbench", "daemon", "--config", str(tmp_path / "f1.toml")],
                                    cwd=ROOT, capture_output=True, text=True, timeout=HANG_S,

@@ -90,7 +90,8 @@ def _assert_same_delay(new, x, y, fs: float, f: float, *, harmonic: int = 1, har
         assert np.all(fit.converged)
 
 
-@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.acceptance)])
+@pytest.mark.acceptance  # the dense oracle on 300 000 samples; make test: 200 000 in the next test
+@pytest.mark.parametrize("seed", [0, 1])
 def test_a_long_record_with_glitches_gives_the_dense_delays_and_outliers(seed: int) -> None:
     # 300 000 samples: five blocks, and a search window wider than half a bin (the grid scan runs)
     x, y = _channels(300_000, seed)
