@@ -44,7 +44,8 @@ log = logging.getLogger("hystbench.daemon")
 
 #: No new samples for this long and the watchdog is no longer fed.
 STALL_S = 5.0
-#: SIGTERM ends the daemon within this long in every state; past it, the process ends at once.
+#: SIGTERM ends the daemon within this long in every state by default (``[daemon] stop_timeout_s``);
+#: past it, the process ends at once.
 STOP_S = 4.5
 
 
@@ -60,7 +61,8 @@ def run_daemon(config_path: str | Path | None) -> int:
 
     def on_signal(signum, _frame) -> None:
         if signum != signal.SIGHUP and not flags["stop"]:  # whatever the main loop is busy with
-            timer = threading.Timer(STOP_S, _stop_now, args=(signal.Signals(signum).name,))
+            bound = float(cfg["daemon"]["stop_timeout_s"])  # the running configuration's (a reload may change it)
+            timer = threading.Timer(bound, _stop_now, args=(signal.Signals(signum).name, bound))
             timer.daemon = True  # also ends an interpreter whose shutdown waits on another library's threads
             timer.start()
         flags["reload" if signum == signal.SIGHUP else "stop"] = True
@@ -119,11 +121,11 @@ def run_daemon(config_path: str | Path | None) -> int:
     return status
 
 
-def _stop_now(signame: str) -> None:
-    """SIGTERM came ``STOP_S`` ago and the service has not stopped: end the process now.  The
+def _stop_now(signame: str, bound_s: float) -> None:
+    """SIGTERM came ``bound_s`` ago and the service has not stopped: end the process now.  The
     kernel frees the bench's lock and ports; with the heartbeat gone, the amplifier's watchdog
     switches the output off (the drivers tried first, in the stop that is hanging)."""
-    log.error("%s: the service did not stop within %g s; exiting now", signame, STOP_S)
+    log.error("%s: the service did not stop within %g s ([daemon] stop_timeout_s); exiting now", signame, bound_s)
     logging.shutdown()
     os._exit(1)
 

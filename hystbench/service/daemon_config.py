@@ -57,6 +57,9 @@ DEFAULTS: dict[str, dict[str, Key]] = {
                        "$XDG_STATE_HOME/hystbench or ~/.local/state/hystbench)"),
         "stats_interval_s": Key(_NUM, 1.0, "period of the pipeline counters on hystbench/<bench>/stats", "s", gt=0,
                                 le=3600),
+        "stop_timeout_s": Key(_NUM, 4.5, "SIGTERM/SIGINT end the daemon within this long in every state (output off "
+                              "first); past it the process ends at once with exit status 1. Keep it below "
+                              "systemd's TimeoutStopSec", "s", gt=0, le=300),
     },
     "source": {
         "kind": Key(str, "bench", "bench: the instruments of bench_file through the drivers; sim: the simulated "
