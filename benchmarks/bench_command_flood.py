@@ -27,6 +27,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from benchmarks.processes import stop_process
+
 HANG_S = 120.0  #: a daemon that has not answered by then is a failure (start-up, a reply)
 BENCH = "flood"
 WARMUP_SESSIONS = 5  #: sessions of the same commands before the baseline (threads, buffers made once)
@@ -95,14 +97,7 @@ class Daemon:
 
     def stop(self) -> int | None:
         """SIGTERM, then SIGKILL if it has not exited within HANG_S; its exit status."""
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(HANG_S)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(HANG_S)
-        return self.proc.returncode
+        return stop_process(self.proc, HANG_S)
 
 
 def payload(size: int) -> bytes:

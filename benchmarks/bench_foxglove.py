@@ -24,6 +24,8 @@ import time
 from collections import Counter
 from pathlib import Path
 
+from benchmarks.processes import stop_process
+
 HANG_S = 120.0
 BENCH = "fgbench"
 FREQUENCIES = (40.0, 80.0, 160.0, 320.0, 480.0)
@@ -76,14 +78,8 @@ class Daemon:
                            f"{self.stderr_path.read_text(errors='replace')[-2000:]}")
 
     def stop(self) -> int | None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(HANG_S)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(HANG_S)
-        return self.proc.returncode
+        """SIGTERM, then SIGKILL if it has not exited within HANG_S; its exit status."""
+        return stop_process(self.proc, HANG_S)
 
 
 def listen(port: int, seconds: float) -> dict:

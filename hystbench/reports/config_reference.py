@@ -8,13 +8,13 @@ schema), so the reference cannot drift from what is refused.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 from typing import Any, Mapping
 
 from ..config.schema import OPTIONAL, Key, Schema, tables
+from .generated import generated_file_main
 
 __all__ = ["render", "DOC_PATH", "main"]
 
@@ -153,20 +153,8 @@ def render() -> str:
 def main(argv: list[str] | None = None) -> int:
     """Write docs/config.md from the schemas (``--check``: exit 1 when it is out of date), so the
     reference cannot drift from what the validator accepts."""
-    ap = argparse.ArgumentParser(prog=COMMAND, description=__doc__.splitlines()[0])
-    ap.add_argument("path", nargs="?", type=Path, default=DOC_PATH, help="where to write (default: docs/config.md)")
-    ap.add_argument("--check", action="store_true", help="only compare; exit 1 if the file is out of date")
-    a = ap.parse_args(argv)
-    text = render()
-    if a.check:
-        current = a.path.read_text(encoding="utf-8") if a.path.exists() else ""
-        if current != text:
-            print(f"{a.path} is out of date: run {COMMAND}", file=sys.stderr)
-            return 1
-        return 0
-    a.path.write_text(text, encoding="utf-8")
-    print(f"wrote {a.path}")
-    return 0
+    return generated_file_main(argv, command=COMMAND, description=__doc__.splitlines()[0], default=DOC_PATH,
+                               render=render)
 
 
 if __name__ == "__main__":

@@ -19,11 +19,12 @@ What it shows, on the daemon's live view and (the delays and the status) on an M
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 from typing import Any
+
+from .generated import generated_file_main
 
 __all__ = ["layout", "LAYOUT_PATH", "main", "BANDS_TOPIC", "STATUS_LOG_TOPIC"]
 
@@ -144,19 +145,8 @@ def render() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog=COMMAND, description=__doc__.splitlines()[0])
-    ap.add_argument("path", nargs="?", type=Path, default=LAYOUT_PATH, help="where to write (default: the shipped file)")
-    ap.add_argument("--check", action="store_true", help="only compare; exit 1 if the file is out of date")
-    a = ap.parse_args(argv)
-    text = render()
-    if a.check:
-        if (a.path.read_text(encoding="utf-8") if a.path.exists() else "") != text:
-            print(f"{a.path} is out of date: run {COMMAND}", file=sys.stderr)
-            return 1
-        return 0
-    a.path.write_text(text, encoding="utf-8")
-    print(f"wrote {a.path}")
-    return 0
+    return generated_file_main(argv, command=COMMAND, description=__doc__.splitlines()[0], default=LAYOUT_PATH,
+                               render=render)
 
 
 if __name__ == "__main__":

@@ -50,14 +50,7 @@ def test_an_unreadable_log_counts_as_a_measurement(tmp_path: Path) -> None:
 def cut_log(tmp_path: Path) -> Path:
     """A log of 20 blocks whose 15th raw message has a character base64 does not allow: the reader
     gives the first blocks, then fails in the pipeline's source thread (what a damaged disk does)."""
-    path = tmp_path / "damaged.mcap"
-    meta = OperatingPoint(320.0, 1.4).to_meta()
-    rng = np.random.default_rng(1)
-    with McapRecorder(path, compression="none", idle_raw="full",
-                      metadata={"recording": {"rig": "ecore_pm", "frequency_Hz": 320.0, "sample_rate_Hz": FS,
-                                              "current_pp_A": 1.4}}) as rec:
-        for k in range(20):
-            rec.add_block(SampleBlock(1000 * k, FS, {"current_A": rng.standard_normal(1000)}, meta=meta))
+    path = _whole_log(tmp_path / "damaged.mcap", seed=1)
     data = path.read_bytes()
     at = -1
     for _ in range(15):  # the 15th block's data
@@ -103,7 +96,7 @@ def test_a_ctrl_c_as_the_threads_start_stops_them_before_the_log_is_closed(tmp_p
         raise KeyboardInterrupt
 
     monkeypatch.setattr(Pipeline, "start", start_then_interrupt)
-    src = McapSource(_whole_log(tmp_path))
+    src = McapSource(_whole_log(tmp_path / "whole_source.mcap", seed=2))
     out = tmp_path / "out.mcap"
     summary = record_log(src, out)
     got = [b.first_index for b in McapSource(out).blocks()]
@@ -111,10 +104,10 @@ def test_a_ctrl_c_as_the_threads_start_stops_them_before_the_log_is_closed(tmp_p
         b.n for b in McapSource(out).blocks())
 
 
-def _whole_log(tmp_path: Path) -> Path:
-    path = tmp_path / "whole_source.mcap"
+def _whole_log(path: Path, seed: int) -> Path:
+    """A log of 20 blocks of 1000 noise samples of one channel, the output on."""
     meta = OperatingPoint(320.0, 1.4).to_meta()
-    rng = np.random.default_rng(2)
+    rng = np.random.default_rng(seed)
     with McapRecorder(path, compression="none", idle_raw="full",
                       metadata={"recording": {"rig": "ecore_pm", "frequency_Hz": 320.0, "sample_rate_Hz": FS,
                                               "current_pp_A": 1.4}}) as rec:
