@@ -223,7 +223,10 @@ def test_a_refused_record_leaves_no_stub_log_and_the_retry_works(tmp_path, capsy
     args = ["record", "--seconds", "0.2", "--out", log]
     code, out, err = run(args + ["--freq", "60000"], capsys)
     assert code == 2 and "60000" in error_line(err) and str(log) in error_line(err)
-    assert err.count("\n") == 1  # one line: no traceback, no second report from the pipeline's log
+    # one line: no traceback, no second report from the pipeline's log (a starved machine may add the
+    # drivers' warnings that a stream fell behind: true, and not a report of this failure)
+    said = [ln for ln in err.splitlines() if ": warning: " not in ln]
+    assert len(said) == 1 and "Traceback" not in err, err
     assert not log.exists()
     code, out, err = run(args + ["--freq", "320"], capsys)
     assert code == 0 and log.stat().st_size > 0 and f"wrote {log}" in out
