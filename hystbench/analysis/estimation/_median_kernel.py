@@ -169,6 +169,8 @@ def within_mads(x: np.ndarray, k: float) -> bool:
     if not (span > 0.0 and math.isfinite(span)):
         return False
     scale = BINS / span  # bins per signal unit
+    if not math.isfinite(scale):  # a span of subnormals: the bins would be 0 * inf
+        return False
     counts = np.zeros(BINS, dtype=np.int64)
     for i in range(n):
         b = int((x[i] - lo) * scale)

@@ -62,6 +62,12 @@ def test_within_holds_for_any_row(values, k):
         assert _ratio(x) <= k
 
 
+def test_a_row_spanning_subnormals_is_not_settled():
+    """A span so small that bins per unit overflow (found by hypothesis): MAD 0, the largest deviation
+    beyond any k; the bound must say 'unknown'."""
+    assert not _median_kernel.within_mads(np.array([0.0, 0.0, 2.225073858507203e-309]), 1.0)
+
+
 def test_clean_rows_are_settled():
     rng = np.random.default_rng(7)
     n = 3125
