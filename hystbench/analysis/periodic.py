@@ -32,7 +32,7 @@ from .method import recording_name
 
 __all__ = ["PeriodAverage", "estimate_frequency", "period_average", "synchronous_average"]
 
-#: Resampled values evaluated at once (8 MiB of float64); longer records go in period chunks.
+#: Resampled values evaluated at once per channel (8 MiB of float64 each); longer records go in period chunks.
 CHUNK_VALUES = 1 << 20
 #: Samples on each side of a chunk that its spline also spans: the end conditions of a cubic
 #: spline fade by 2 - sqrt(3) = 0.27 per knot, so 32 knots in they are below 1e-18 of themselves.
@@ -95,25 +95,28 @@ def period_average(channels: Mapping[str, ArrayLike], fs_hz: float, frequency_hz
     phase = np.arange(n_points) / n_points
     step = max(1, CHUNK_VALUES // n_points)
     chunks = [(p0, min(periods, p0 + step)) for p0 in range(0, periods, step)]
-    avg, noise, alt = {}, {}, {}
-    for name, x in data.items():
-        avg[name], m2, alt[name] = _average_one(x, fs_hz, frequency_hz, phase, chunks, periods)
-        noise[name] = float(np.sqrt(np.sum(m2) / (periods * n_points))) if periods > 1 else math.nan
-    return PeriodAverage(float(frequency_hz), periods, phase, avg, noise, alt)
+    mean, m2, alt = _average_all(np.stack(list(data.values()), axis=-1), fs_hz, frequency_hz, phase, chunks, periods)
+    avg = {name: mean[:, c] for c, name in enumerate(data)}
+    alts = {name: alt[:, c] for c, name in enumerate(data)}
+    noise = {name: float(np.sqrt(np.sum(m2[:, c]) / (periods * n_points))) if periods > 1 else math.nan
+             for c, name in enumerate(data)}
+    return PeriodAverage(float(frequency_hz), periods, phase, avg, noise, alts)
 
 
-def _average_one(x: np.ndarray, fs_hz: float, frequency_hz: float, phase: np.ndarray,
+def _average_all(x: np.ndarray, fs_hz: float, frequency_hz: float, phase: np.ndarray,
                  chunks: list[tuple[int, int]], periods: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(mean, sum of squared deviations from it, alternating mean) at each phase, chunk by chunk
-    (the chunks' means and deviations merged as Chan et al. do, exact to rounding)."""
+    """(mean, sum of squared deviations from it, alternating mean) at each phase (rows) of each
+    channel (the columns of ``x``), chunk by chunk (the chunks' means and deviations merged as Chan
+    et al. do, exact to rounding); one spline through every channel, so one banded solve."""
     even = periods - periods % 2
-    mean, m2, alt = np.zeros(phase.size), np.zeros(phase.size), np.zeros(phase.size)
+    shape = (phase.size, x.shape[1])
+    mean, m2, alt = np.zeros(shape), np.zeros(shape), np.zeros(shape)
     count = 0
     for p0, p1 in chunks:
         when = (np.arange(p0, p1)[:, None] + phase[None, :]) / frequency_hz
         lo = max(0, int(np.floor(when[0, 0] * fs_hz)) - _MARGIN)
-        hi = min(x.size, int(np.ceil(when[-1, -1] * fs_hz)) + 1 + _MARGIN)
-        grid = CubicSpline(np.arange(lo, hi) / fs_hz, x[lo:hi])(when)
+        hi = min(x.shape[0], int(np.ceil(when[-1, -1] * fs_hz)) + 1 + _MARGIN)
+        grid = CubicSpline(np.arange(lo, hi) / fs_hz, x[lo:hi], axis=0)(when)  # (periods, phases, channels)
         m_c = grid.mean(axis=0)
         k = p1 - p0
         delta = m_c - mean
@@ -122,9 +125,9 @@ def _average_one(x: np.ndarray, fs_hz: float, frequency_hz: float, phase: np.nda
         count += k
         rows = max(0, min(p1, even) - p0)
         if rows:
-            signs = np.where(np.arange(p0, p0 + rows) % 2 == 0, 1.0, -1.0)[:, None]
+            signs = np.where(np.arange(p0, p0 + rows) % 2 == 0, 1.0, -1.0)[:, None, None]
             alt += (grid[:rows] * signs).sum(axis=0)
-    return mean, m2, (alt / even if even else np.full(phase.size, math.nan))
+    return mean, m2, (alt / even if even else np.full(shape, math.nan))
 
 
 def synchronous_average(rec: Recording, frequency_hz: float, n_points: int = 1000,
