@@ -141,9 +141,10 @@ def record_features(rec: Recording, harmonics: int = 7, lines_hz: Sequence[float
     line_grid = leak[:, None] * np.exp(1j * np.outer(omegas, grid_phase / f))  # (L, n_grid) complex
     model_grid = np.concatenate([ramp_grid[None], line_grid.real, line_grid.imag])  # Re(L e) = Lr cos - Li sin
     raw_cols = np.concatenate([(t - P / (2 * f))[None], np.cos(np.outer(omegas, t)), np.sin(np.outer(omegas, t))])
-    A = (raw_cols - extend(model_grid)).T  # (n, 1 + 2L)
+    extended = extend(np.concatenate([model_grid, X]))  # one pass for the model's columns and the channels
+    A = (raw_cols - extended[:len(model_grid)]).T  # (n, 1 + 2L)
     data = np.stack([rec.channels[c] for c in names])
-    resid = data - extend(X)  # (C, n)
+    resid = data - extended[len(model_grid):]  # (C, n)
     cov_unit = np.linalg.pinv(A.T @ A)  # normal equations: A has 1 + 2L well-separated columns
     coef = cov_unit @ (A.T @ resid.T)  # (1 + 2L, C)
     left = resid - (A @ coef).T
@@ -212,16 +213,17 @@ def _coloured_ratio(left: np.ndarray, sigma: np.ndarray, f: float, fs_hz: float,
         power = np.abs(np.fft.rfft(left, axis=1)) ** 2 / (n * sigma ** 2)[:, None]
     nu = np.fft.rfftfreq(n, 1.0 / fs_hz)
     near = min(2.0 * fs_hz / n, 0.5 * f)
-    ratio = np.ones((C, K + 1))
+    r2 = np.zeros((C, K + 1))
+    m = np.zeros(K + 1, dtype=np.int64)
     for k in range(K + 1):
         d = np.abs(nu - k * f)
         band = (d >= near * (1 - 1e-9)) & (d <= 0.5 * f * (1 + 1e-9)) & (nu > 0)
-        m = int(band.sum())
-        if m == 0:
-            continue
-        r2 = power[:, band].mean(axis=1)
-        ratio[:, k] = np.where(r2 > chi2.ppf(1.0 - COLOURED_P, 2 * m) / (2 * m), np.sqrt(r2), 1.0)
-    return ratio
+        m[k] = int(band.sum())
+        if m[k]:
+            r2[:, k] = power[:, band].mean(axis=1)
+    dof = 2 * np.maximum(m, 1)
+    beyond = (m > 0)[None] & (r2 > (chi2.ppf(1.0 - COLOURED_P, dof) / dof)[None])  # one ppf for every harmonic
+    return np.where(beyond, np.sqrt(r2), 1.0)
 
 
 def _dc_slopes(data: np.ndarray, fs_hz: float, spp: float, P: int, line_amp: np.ndarray, omegas: np.ndarray,
