@@ -1,7 +1,8 @@
 """``hystbench router``: a zenoh router for a fleet of benches (zenoh's routing, not ours).
 
-Prints on its first line of stdout where it listens, then routes until SIGINT or SIGTERM (exit
-0).  A taken port is one line on stderr naming ``--listen`` (exit 2).
+Prints on its first line of stdout where it listens (and, with ``--foxglove``, on its second where
+the Foxglove view of every bench is served), then routes until SIGINT or SIGTERM (exit 0).  A taken
+port is one line on stderr naming ``--listen`` or ``--foxglove`` (exit 2).
 """
 
 from __future__ import annotations
@@ -12,7 +13,19 @@ import threading
 
 from .args import path_arg
 
-__all__ = ["register", "cmd_router"]
+__all__ = ["register", "cmd_router", "foxglove_address"]
+
+#: where ``--foxglove PORT`` serves when no host is given: this PC only (the server has no access control)
+FOXGLOVE_HOST = "127.0.0.1"
+
+
+def foxglove_address(text: str) -> tuple[str, int]:
+    """``[HOST:]PORT`` as (host, port); anything else is a one-line error naming ``--foxglove``."""
+    host, _, port = text.rpartition(":")
+    host = host.strip("[]") or FOXGLOVE_HOST
+    if not port.isdigit() or not 0 <= int(port) <= 65535 or any(c.isspace() for c in host):
+        raise argparse.ArgumentTypeError(f"{text!r} is not [HOST:]PORT (e.g. 8765 or 127.0.0.1:8765)")
+    return host, int(port)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,6 +40,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--config", type=path_arg, metavar="FILE",
                    help="zenoh json5 config (access control, TLS); opened in router mode, --listen replaces its "
                         "listen endpoints")
+    p.add_argument("--foxglove", type=foxglove_address, metavar="[HOST:]PORT",
+                   help="also serve one Foxglove WebSocket view of every bench reached through the router "
+                        f"(/<bench>/estimate, /compensator, /status, /stats); HOST defaults to {FOXGLOVE_HOST}")
     p.set_defaults(func=cmd_router)
 
 
@@ -41,13 +57,26 @@ def cmd_router(args: argparse.Namespace) -> int:
         router.open()
     except ListenError as err:
         raise ConfigError(f"{err}; choose another --listen") from None
+    view = None
+    if getattr(args, "foxglove", None) is not None:
+        from ..service.foxglove_live import FoxgloveFleet
+
+        try:
+            view = FoxgloveFleet(*args.foxglove).start(router.session)
+        except BaseException:
+            router.close()
+            raise
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         print(f"hystbench router: listening on {', '.join(router.endpoints) or '(nothing)'} (zid {router.zid}); "
               "daemons: [zenoh] connect = [that endpoint], listen = []; SIGINT or SIGTERM stops it", flush=True)
+        if view is not None:
+            print(f"hystbench router: Foxglove view of every bench on {view.url}", flush=True)
         router.run(stop)
     finally:
+        if view is not None:
+            view.close()
         router.close()
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -20,10 +20,15 @@ Nothing here may hold the pipeline up: the pipeline's listener and block listene
 bounded queue (full: the item is dropped and counted); the decimation (numpy, per block) and the
 sending run on this module's own thread.  A failure here is logged and counted (:meth:`health`),
 never raised into the pipeline: the service goes on without its live view.
+
+:class:`FoxgloveFleet` is the same view over a fleet (``hystbench router --foxglove``): the
+estimates, compensator states, status and stats of every bench a zenoh session reaches, on
+``/<bench>/estimate`` etc., with the same schemas.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import queue
 import re
@@ -38,7 +43,7 @@ from ..errors import ConfigError
 from ..formats.mcaplog.schemas import COMPENSATOR, ESTIMATE, SCHEMAS, STATS, STATUS
 from ..messages import json_bytes
 
-__all__ = ["FoxgloveLive", "PLOT_PREFIX", "PLOT_SAMPLES", "PLOT_POINT_SCHEMA", "plot_samples_schema",
+__all__ = ["FoxgloveLive", "FoxgloveFleet", "FLEET_MAX_CHANNELS", "serve", "PLOT_PREFIX", "PLOT_SAMPLES", "PLOT_POINT_SCHEMA", "plot_samples_schema",
            "LIVE_TOPICS", "QUEUE_ITEMS", "decimate"]
 
 log = logging.getLogger("hystbench.foxglove")
@@ -74,6 +79,19 @@ def plot_samples_schema(channels: list[str]) -> dict[str, Any]:
     return {"title": "hystbench.PlotSamples", "description": "Every channel at one sample index (the first of "
             "each plot bin): x-y plots such as the current-force loop", "type": "object", "properties": props,
             "required": ["t_ns", "index", *channels]}
+
+
+def serve(context: Any, name: str, host: str, port: int, *, key: str, fix: str) -> Any:
+    """foxglove-sdk's server for ``context`` on ``host:port``; one that cannot bind (a taken port) is a
+    :class:`ConfigError` of one line: ``<key>: cannot serve Foxglove on HOST:PORT: why; <fix>``."""
+    import foxglove
+
+    try:
+        return foxglove.start_server(name=name, host=host, port=port, context=context)
+    except Exception as err:  # the SDK says RuntimeError("FoxgloveError: Failed to bind port: ...")
+        why = re.sub(r"\s*\(os error \d+\)", "", str(err).split("Failed to bind port:", 1)[-1]).strip()
+        hint = " (another hystbench daemon, or a Foxglove bridge?)" if "in use" in why.lower() else ""
+        raise ConfigError(f"{key}: cannot serve Foxglove on {host}:{port}: {why}{hint}; {fix}") from None
 
 
 def decimate(x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -125,14 +143,8 @@ class FoxgloveLive:
                                                            context=self._context, metadata={"unit_of": c})
         self._chan[PLOT_SAMPLES] = foxglove.Channel(PLOT_SAMPLES, schema=plot_samples_schema(self.channels),
                                                     context=self._context)
-        try:
-            self._server = foxglove.start_server(name=f"hystbench {self.name}", host=self.host, port=self.port,
-                                                 context=self._context)
-        except Exception as err:  # the SDK says RuntimeError("FoxgloveError: Failed to bind port: ...")
-            why = re.sub(r"\s*\(os error \d+\)", "", str(err).split("Failed to bind port:", 1)[-1]).strip()
-            hint = " (another hystbench daemon, or a Foxglove bridge?)" if "in use" in why.lower() else ""
-            raise ConfigError(f"{self.where} port: cannot serve Foxglove on {self.host}:{self.port}: {why}{hint}; "
-                              "change [foxglove] port (or host)") from None
+        self._server = serve(self._context, f"hystbench {self.name}", self.host, self.port,
+                             key=f"{self.where} port", fix="change [foxglove] port (or host)")
         self._plot_chans = tuple(ch for t, ch in self._chan.items() if t.startswith(PLOT_PREFIX))
         self.port = self._server.port
         self._thread = threading.Thread(target=self._run, name="foxglove-live", daemon=True)
@@ -256,3 +268,145 @@ class FoxgloveLive:
 def _floats(x: np.ndarray) -> list[str]:
     """JSON numbers of ``x``; NaN and infinities (which JSON has no numbers for) as ``null``."""
     return [r if r[-1].isdigit() else "null" for r in map(repr, np.asarray(x, dtype=np.float64).tolist())]
+
+
+# --- one view over a fleet: every bench a zenoh session reaches ---------------------------------------
+#: channels one fleet view creates at most (a publisher inventing bench names cannot grow it further)
+FLEET_MAX_CHANNELS = 1024
+
+
+class FoxgloveFleet:
+    """One Foxglove WebSocket server showing every bench a zenoh session reaches: the router's
+    (``hystbench router --foxglove``, docs/fleet.md), so a lab opens one connection for all benches.
+
+    It subscribes to what the daemons already publish, ``hystbench/*/estimate``, ``compensator``,
+    ``status`` and ``stats``, and re-publishes each payload unchanged on ``/<bench>/estimate`` etc.,
+    with the log's schemas (the per-daemon view's :data:`LIVE_TOPICS`).  A bench's channel is created
+    when its first message arrives, so benches that join later appear then.  No ``/plot`` channels:
+    they are cut from raw blocks (megabytes per second per bench), which the router is not made to
+    carry for a view; each daemon's own ``[foxglove]`` view has them.
+
+    zenoh's callback only puts into a bounded queue (full: dropped and counted); channels are created
+    and messages sent on this view's own thread.  A payload that is not a JSON object is not
+    forwarded (counted as ``rejected``)."""
+
+    def __init__(self, host: str, port: int, *, where: str = "--foxglove", queue_items: int = 4 * QUEUE_ITEMS,
+                 max_channels: int = FLEET_MAX_CHANNELS) -> None:
+        self.host, self.port, self.where = host, int(port), where
+        self.max_channels = max_channels
+        self._queue: queue.Queue = queue.Queue(queue_items)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._server = None
+        self._context = None
+        self._subs: list = []
+        self._chan: dict[str, Any] = {}
+        self.benches: set[str] = set()
+        self.sent = self.dropped = self.rejected = self.errors = 0
+        self.last_error = ""
+        self._logged: set[str] = set()
+
+    def start(self, session: Any) -> "FoxgloveFleet":
+        """Serve on ``host:port`` (taken: a :class:`ConfigError` naming ``where``), then subscribe on
+        ``session``."""
+        import foxglove
+
+        from ..acquisition.zenoh_bus import PREFIX
+
+        self._context = foxglove.Context()
+        self._server = serve(self._context, "hystbench fleet", self.host, self.port, key=self.where,
+                             fix=f"choose another {self.where}")
+        self.port = self._server.port
+        self._thread = threading.Thread(target=self._run, name="foxglove-fleet", daemon=True)
+        self._thread.start()
+        try:
+            self._subs = [session.declare_subscriber(f"{PREFIX}/*{topic}", self._on_sample) for topic in LIVE_TOPICS]
+        except Exception:
+            self.close()
+            raise
+        log.info("Foxglove view of the fleet on %s", self.url)
+        return self
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    def close(self, timeout_s: float = 2.0) -> None:
+        for sub in self._subs:
+            try:
+                sub.undeclare()
+            except Exception:  # the session closed first: nothing left to undeclare
+                pass
+        self._subs = []
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        if self._server is not None:
+            try:
+                self._server.stop()
+            except Exception:
+                log.exception("stopping the Foxglove server")
+            self._server = None
+        for ch in self._chan.values():
+            try:
+                ch.close()
+            except Exception:
+                pass
+        self._chan.clear()
+
+    def health(self) -> dict[str, Any]:
+        return {"url": self.url, "benches": sorted(self.benches), "channels": len(self._chan),
+                "messages_sent": self.sent, "dropped": self.dropped, "rejected": self.rejected,
+                "errors": self.errors, "last_error": self.last_error or None,
+                "alive": bool(self._thread is not None and self._thread.is_alive())}
+
+    # --- zenoh's callback: never blocks ----------------------------------------------------------------
+    def _on_sample(self, sample: Any) -> None:
+        self.take(str(sample.key_expr), sample.payload.to_bytes())
+
+    def take(self, key: str, payload: bytes) -> None:
+        """Queue ``payload`` published on ``key`` (``hystbench/<bench>/<topic>``) for sending."""
+        try:
+            self._queue.put_nowait((key, payload))
+        except queue.Full:
+            self.dropped += 1
+
+    # --- the sending thread ----------------------------------------------------------------------------
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                key, payload = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
+                self._send(key, payload)
+            except Exception as err:  # counted, logged once per kind: the router goes on routing
+                self.errors += 1
+                self.last_error = f"{type(err).__name__}: {err}"
+                if type(err).__name__ not in self._logged:  # a traceback once per kind, then counted
+                    self._logged.add(type(err).__name__)
+                    log.exception("Foxglove fleet view: %s", self.last_error)
+
+    def _send(self, key: str, payload: bytes) -> None:
+        import foxglove
+
+        _, bench, name = key.split("/", 2)
+        topic = f"/{bench}/{name}"
+        try:
+            obj = json.loads(payload)
+        except ValueError:
+            obj = None
+        if not isinstance(obj, dict):
+            self.rejected += 1
+            return
+        ch = self._chan.get(topic)
+        if ch is None:
+            if len(self._chan) >= self.max_channels:
+                self.rejected += 1
+                return
+            ch = self._chan[topic] = foxglove.Channel(topic, schema=SCHEMAS["/" + name][1], context=self._context)
+            self.benches.add(bench)
+        if ch.has_sinks():
+            t = obj.get("t_ns")
+            ch.log(payload, log_time=t if isinstance(t, int) and t >= 0 else time.time_ns())
+            self.sent += 1

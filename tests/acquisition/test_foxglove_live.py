@@ -49,17 +49,26 @@ class Client:
         self.channels: dict[str, dict] = {}
         self.topic_of: dict[int, str] = {}
 
-    def advertised(self, deadline: Deadline) -> dict[str, dict]:
-        """Read until the server has advertised its channels."""
-        while not self.channels:
-            msg = self.ws.recv(timeout=deadline.left(1.0))
-            if isinstance(msg, str):
-                j = json.loads(msg)
-                if j["op"] == "advertise":
-                    self.channels.update({c["topic"]: c for c in j["channels"]})
+    def advertised(self, deadline: Deadline, topics: tuple[str, ...] = ()) -> dict[str, dict]:
+        """Read until the server has advertised channels (and, if given, all of ``topics``: a server
+        advertises a channel made later when it is made)."""
+        while not self.channels or not set(topics) <= set(self.channels):
             if deadline.expired:
-                raise AssertionError("no advertise")
+                raise AssertionError(f"no advertise of {sorted(set(topics) - set(self.channels))}; "
+                                     f"advertised: {sorted(self.channels)}")
+            try:
+                msg = self.ws.recv(timeout=max(0.01, deadline.left(1.0)))
+            except TimeoutError:
+                continue
+            if isinstance(msg, str):
+                self.on_text(json.loads(msg))
         return self.channels
+
+    def on_text(self, j: dict) -> None:
+        if j["op"] == "advertise":
+            self.channels.update({c["topic"]: c for c in j["channels"]})
+        elif j["op"] == "unadvertise":
+            self.channels = {t: c for t, c in self.channels.items() if c["id"] not in j["channelIds"]}
 
     def subscribe(self, *topics: str) -> None:
         subs = []
@@ -78,6 +87,8 @@ class Client:
             if isinstance(msg, bytes) and msg[0] == 0x01:
                 sub, t_ns = struct.unpack_from("<IQ", msg, 1)
                 yield self.topic_of[sub], t_ns, json.loads(msg[13:])
+            elif isinstance(msg, str):  # channels advertised meanwhile
+                self.on_text(json.loads(msg))
 
 
 def _check(obj: dict, schema: dict) -> None:
