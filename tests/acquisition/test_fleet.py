@@ -25,10 +25,13 @@ from hystbench.service.router import Router
 from .conftest import HANG_S, ROOT, Daemon
 
 
-def daemon_file(path: Path, bench: str, router: str, logs: Path) -> Path:
+def daemon_file(path: Path, bench: str, router: str, logs: Path, *, zenoh_config: Path | None = None) -> Path:
+    """A daemon of ``bench`` on the simulated rig, sweeping at 320 Hz, a client of ``router``
+    (``zenoh_config``: its zenoh file, e.g. its credentials there)."""
+    zfile = f'config = "{zenoh_config.as_posix()}"\n' if zenoh_config is not None else ""
     path.write_text(f'[daemon]\nbench = "{bench}"\nlog_dir = "{logs.as_posix()}"\n[source]\nkind = "sim"\n'
                     '[recording]\nenabled = false\n'
-                    f'[zenoh]\nlisten = []\nconnect = ["{router}"]\n'
+                    f'[zenoh]\n{zfile}listen = []\nconnect = ["{router}"]\n'
                     '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 30.0\nautostart = true\n', encoding="utf-8")
     return path
 
