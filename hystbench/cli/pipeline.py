@@ -380,17 +380,69 @@ def _noting_ctrl_c() -> Iterator[list[bool]]:
         signal.signal(signal.SIGINT, before)
 
 
+#: how long ``replay --foxglove`` waits for a Foxglove client to subscribe before it gives up
+REPLAY_WAIT_S = 600.0
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     """`hystbench replay`: a log through the same pipeline again, with the settings it was recorded
     with, so a replay gives what the live run gave."""
     from ..acquisition.record import replay_log
 
-    ests = replay_log(args.log, speed=args.speed, out=args.out, overwrite=args.overwrite,
+    if args.foxglove is not None:
+        return _replay_to_foxglove(args)
+    ests = replay_log(args.log, speed=args.speed or "max", out=args.out, overwrite=args.overwrite,
                       on_message=None if args.json else _print_estimate)
     if args.json:
         print(json.dumps(ests, indent=2))
     else:
         print(f"{len(ests)} estimates from {args.log}")
+    return 0
+
+
+def _replay_to_foxglove(args: argparse.Namespace) -> int:
+    """`hystbench replay LOG --foxglove [HOST:]PORT`: the replay served on the daemon's live view
+    (:class:`~hystbench.service.foxglove_live.FoxgloveLive`: ``/plot/<channel>``, ``/plot/samples``,
+    ``/estimate``, ... on the log's clock), so a layout made live shows the replay.  It starts once a
+    client has subscribed (at most :data:`REPLAY_WAIT_S`), at the log's own pace unless ``--speed max``;
+    at its end ``/status`` says ``replay_finished`` and the view is served until its clients have left
+    (at most :data:`REPLAY_WAIT_S`), so that they get everything and can look at it."""
+    from ..acquisition.pipeline import Pipeline
+    from ..acquisition.record import _run_collecting, estimation_settings
+    from ..acquisition.stages import WindowEstimator
+    from ..errors import ConfigError
+    from ..formats.mcaplog import McapSource
+    from ..service.foxglove_live import FoxgloveLive
+
+    if args.out is not None:
+        raise ConfigError("--out: not with --foxglove (record the replay without a view, or view it unrecorded)")
+    host, port = args.foxglove
+    src = McapSource(args.log, pace="max" if args.speed == "max" else "realtime")
+    view = None
+    try:
+        est = WindowEstimator(src.fs_hz, src.metadata(), **estimation_settings(src.config))
+        pipe = Pipeline(src, estimator=est, dtype=src.dtype)
+        view = FoxgloveLive(host, port, name=f"replay {Path(args.log).name}", channels=list(src.channels),
+                            fs_hz=src.fs_hz, where="--foxglove").start()
+        view.attach(pipe)
+        print(f"hystbench replay: Foxglove view on {view.url}; the replay starts when a client subscribes "
+              f"(at most {REPLAY_WAIT_S:g} s; Ctrl-C stops)", flush=True)
+        if not view.wait_for_client(REPLAY_WAIT_S):
+            raise ConfigError(f"--foxglove: no Foxglove client subscribed on {view.url} within {REPLAY_WAIT_S:g} s; "
+                              "nothing replayed")
+        ests = _run_collecting(pipe, None if args.json else _print_estimate, None, f"{args.log}: replay failed")
+        # said on /status (after every estimate: one queue, one thread), then served until the clients leave
+        view.on_message("/status", {"t_ns": ests[-1]["t_ns"] if ests else 0, "level": "info", "event": "replay_finished",
+                                    "message": f"{len(ests)} estimates from {args.log}", "estimates": len(ests)})
+        view.drain(REPLAY_WAIT_S)
+        print(f"hystbench replay: finished ({len(ests)} estimates); serving until every Foxglove client has left "
+              f"(at most {REPLAY_WAIT_S:g} s; Ctrl-C stops)", file=sys.stderr, flush=True)
+        view.wait_for_clients_to_leave(REPLAY_WAIT_S)
+    finally:
+        if view is not None:
+            view.close()
+        src.close()
+    print(json.dumps(ests, indent=2) if args.json else f"{len(ests)} estimates from {args.log}", flush=True)
     return 0
 
 
@@ -456,6 +508,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     """Add watch, record, replay, export, recover and daemon to the ``hystbench`` parser."""
     from .args import (SIM_MAX_IPP_A, float_in, int_in, nonnegative_float, nonnegative_int, path_arg,
                        positive_float, positive_int)
+    from .router import foxglove_address
 
     p = subparsers.add_parser("watch", help="print live messages of a bench from zenoh (estimates by default)")
     p.add_argument("keyexpr", nargs="?", type=_keyexpr, default="hystbench/*/estimate",
@@ -499,10 +552,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = subparsers.add_parser("replay", help="feed an MCAP log through the pipeline again")
     p.add_argument("log", type=path_arg)
-    p.add_argument("--speed", choices=("realtime", "max"), default="max")
+    p.add_argument("--speed", choices=("realtime", "max"), default=None,
+                   help="the log's own pace, or as fast as the pipeline goes (default max; realtime with --foxglove)")
     p.add_argument("--out", type=path_arg, help="record the replay (with its estimates) to this log")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--json", action="store_true", help="print the estimates as JSON")
+    p.add_argument("--foxglove", type=foxglove_address, metavar="[HOST:]PORT",
+                   help="serve the replay on a Foxglove WebSocket view, the daemon's channels (/plot/<channel>, "
+                        "/estimate, ...); starts when a client subscribes; HOST defaults to 127.0.0.1")
     p.set_defaults(func=cmd_replay)
 
     p = subparsers.add_parser("export", help="write an MCAP log's segments as interchange-format recordings")

@@ -81,13 +81,13 @@ def plot_samples_schema(channels: list[str]) -> dict[str, Any]:
             "required": ["t_ns", "index", *channels]}
 
 
-def serve(context: Any, name: str, host: str, port: int, *, key: str, fix: str) -> Any:
+def serve(context: Any, name: str, host: str, port: int, *, key: str, fix: str, listener: Any = None) -> Any:
     """foxglove-sdk's server for ``context`` on ``host:port``; one that cannot bind (a taken port) is a
     :class:`ConfigError` of one line: ``<key>: cannot serve Foxglove on HOST:PORT: why; <fix>``."""
     import foxglove
 
     try:
-        return foxglove.start_server(name=name, host=host, port=port, context=context)
+        return foxglove.start_server(name=name, host=host, port=port, context=context, server_listener=listener)
     except Exception as err:  # the SDK says RuntimeError("FoxgloveError: Failed to bind port: ...")
         why = re.sub(r"\s*\(os error \d+\)", "", str(err).split("Failed to bind port:", 1)[-1]).strip()
         hint = " (another hystbench daemon, or a Foxglove bridge?)" if "in use" in why.lower() else ""
@@ -129,6 +129,9 @@ class FoxgloveLive:
         self.errors = 0
         self.last_error = ""
         self._logged: set[str] = set()
+        #: set once a client has subscribed to a channel (a replay waits for it before it starts)
+        self.subscribed = threading.Event()
+        self._listener = _Subscribed(self.subscribed)
 
     # --- life cycle ------------------------------------------------------------------------------
     def start(self) -> "FoxgloveLive":
@@ -143,8 +146,10 @@ class FoxgloveLive:
                                                            context=self._context, metadata={"unit_of": c})
         self._chan[PLOT_SAMPLES] = foxglove.Channel(PLOT_SAMPLES, schema=plot_samples_schema(self.channels),
                                                     context=self._context)
-        self._server = serve(self._context, f"hystbench {self.name}", self.host, self.port,
-                             key=f"{self.where} port", fix="change [foxglove] port (or host)")
+        key, fix = ((self.where, f"choose another {self.where}") if self.where.startswith("--")  # an option
+                    else (f"{self.where} port", "change [foxglove] port (or host)"))  # the daemon file's table
+        self._server = serve(self._context, f"hystbench {self.name}", self.host, self.port, key=key, fix=fix,
+                             listener=self._listener)
         self._plot_chans = tuple(ch for t, ch in self._chan.items() if t.startswith(PLOT_PREFIX))
         self.port = self._server.port
         self._thread = threading.Thread(target=self._run, name="foxglove-live", daemon=True)
@@ -172,6 +177,36 @@ class FoxgloveLive:
             except Exception:
                 pass
         self._chan.clear()
+
+    def wait_for_client(self, timeout_s: float) -> bool:
+        """Whether a client subscribed within ``timeout_s``, and what it subscribed to (in that
+        subscribe message) is routed to it.  foxglove-sdk 0.30.3 calls the listener's ``on_subscribe``
+        before it routes the message's channels to the client, so the event alone would let the
+        first messages go to nobody: the channels are then asked (every 10 ms, within the same
+        bound) until each subscribed one has its client."""
+        deadline = time.monotonic() + timeout_s
+        if not self.subscribed.wait(timeout_s):
+            return False
+        while not all(self._chan[t].has_sinks() for t in list(self._listener.topics) if t in self._chan):
+            if time.monotonic() > deadline:
+                return False
+            self._stop.wait(0.01)
+        return True
+
+    def drain(self, timeout_s: float) -> bool:
+        """Whether everything queued so far was sent (or failed) within ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        with self._queue.all_tasks_done:
+            while self._queue.unfinished_tasks:
+                left = deadline - time.monotonic()
+                if left <= 0 or not (self._thread is not None and self._thread.is_alive()):
+                    return False
+                self._queue.all_tasks_done.wait(min(left, 0.5))
+        return True
+
+    def wait_for_clients_to_leave(self, timeout_s: float) -> bool:
+        """Whether every subscription was gone (its client unsubscribed or disconnected) within ``timeout_s``."""
+        return self._listener.left.wait(timeout_s)
 
     def attach(self, pipeline: Any) -> None:
         """Feed from ``pipeline``: its messages (a listener) and its raw blocks (a block listener),
@@ -222,6 +257,8 @@ class FoxgloveLive:
                 if kind not in self._logged:  # a traceback once per kind, then counted
                     self._logged.add(kind)
                     log.exception("Foxglove live view: %s", self.last_error)
+            finally:
+                self._queue.task_done()  # what drain() waits for
 
     def _send_message(self, topic: str, obj: Mapping[str, Any]) -> None:
         ch = self._chan[topic]
@@ -263,6 +300,31 @@ class FoxgloveLive:
                 body = ",".join(f'"{c}":{firsts[c][j]}' for c in names)
                 ch.log(f'{{"t_ns":{t},"index":{i},{body}}}'.encode(), log_time=t)
                 self.sent += 1
+
+
+class _Subscribed:
+    """foxglove-sdk's server listener: notes each topic a client subscribes to and sets ``event``;
+    sets ``left`` once every subscription is gone again (unsubscribed, or its client disconnected)."""
+
+    def __init__(self, event: threading.Event) -> None:
+        self.event = event
+        self.left = threading.Event()
+        self.topics: set[str] = set()
+        self.active = 0
+        self._lock = threading.Lock()
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        with self._lock:
+            self.topics.add(channel.topic)
+            self.active += 1
+            self.left.clear()
+        self.event.set()
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        with self._lock:
+            self.active -= 1
+            if self.active <= 0:
+                self.left.set()
 
 
 def _floats(x: np.ndarray) -> list[str]:
