@@ -249,12 +249,18 @@ def run(n: int, seconds: float, foxglove: bool = False) -> dict:
         "daemons_rss_mb": round(rss),
         "machine_busy": round((busy1[0] - busy0[0]) / max(1, busy1[1] - busy0[1]), 2),
         "cores": os.cpu_count(), "per_bench": rows,
-        **({"foxglove": {"per_channel_per_s": {t: round((c - fox0.get(t, 0)) / window, 2) for t, c in sorted(fox1.items())},
-                         "estimates_received_per_s_per_bench": [
-                             min((fox1.get(f"/{b}/estimate", 0) - fox0.get(f"/{b}/estimate", 0)) / window for b in benches),
-                             max((fox1.get(f"/{b}/estimate", 0) - fox0.get(f"/{b}/estimate", 0)) / window for b in benches)],
-                         "view": view_health, "client_resubscribed": counter.resubscribed}} if foxglove else {}),
+        **({"foxglove": _foxglove_rates(fox0, fox1, window, benches, view_health, counter.resubscribed)}
+           if foxglove else {}),
     }
+
+
+def _foxglove_rates(before: dict[str, int], after: dict[str, int], window: float, benches: list[str],
+                    view: dict | None, resubscribed: int) -> dict:
+    """What the Foxglove client received per channel per second over the window, and the view's counters."""
+    per_s = {t: round((c - before.get(t, 0)) / window, 2) for t, c in sorted(after.items())}
+    estimates = [per_s.get(f"/{b}/estimate", 0.0) for b in benches]
+    return {"per_channel_per_s": per_s, "estimates_received_per_s_per_bench": [min(estimates), max(estimates)],
+            "view": view, "client_resubscribed": resubscribed}
 
 
 def main(argv: list[str] | None = None) -> int:

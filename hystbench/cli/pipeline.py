@@ -432,8 +432,9 @@ def _replay_to_foxglove(args: argparse.Namespace) -> int:
                               "nothing replayed")
         ests = _run_collecting(pipe, None if args.json else _print_estimate, None, f"{args.log}: replay failed")
         # said on /status (after every estimate: one queue, one thread), then served until the clients leave
-        view.on_message("/status", {"t_ns": ests[-1]["t_ns"] if ests else 0, "level": "info", "event": "replay_finished",
-                                    "message": f"{len(ests)} estimates from {args.log}", "estimates": len(ests)})
+        view.on_message("/status", {"t_ns": ests[-1]["t_ns"] if ests else 0, "level": "info",
+                                    "event": "replay_finished", "message": f"{len(ests)} estimates from {args.log}",
+                                    "estimates": len(ests)})
         view.drain(REPLAY_WAIT_S)
         print(f"hystbench replay: finished ({len(ests)} estimates); serving until every Foxglove client has left "
               f"(at most {REPLAY_WAIT_S:g} s; Ctrl-C stops)", file=sys.stderr, flush=True)

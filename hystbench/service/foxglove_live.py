@@ -43,8 +43,8 @@ from ..errors import ConfigError
 from ..formats.mcaplog.schemas import COMPENSATOR, ESTIMATE, SCHEMAS, STATS, STATUS
 from ..messages import json_bytes
 
-__all__ = ["FoxgloveLive", "FoxgloveFleet", "FLEET_MAX_CHANNELS", "serve", "PLOT_PREFIX", "PLOT_SAMPLES", "PLOT_POINT_SCHEMA", "plot_samples_schema",
-           "LIVE_TOPICS", "QUEUE_ITEMS", "decimate"]
+__all__ = ["FoxgloveLive", "FoxgloveFleet", "FLEET_MAX_CHANNELS", "serve", "PLOT_PREFIX", "PLOT_SAMPLES",
+           "PLOT_POINT_SCHEMA", "plot_samples_schema", "LIVE_TOPICS", "QUEUE_ITEMS", "decimate"]
 
 log = logging.getLogger("hystbench.foxglove")
 
@@ -187,7 +187,7 @@ class FoxgloveLive:
         deadline = time.monotonic() + timeout_s
         if not self.subscribed.wait(timeout_s):
             return False
-        while not all(self._chan[t].has_sinks() for t in list(self._listener.topics) if t in self._chan):
+        while not all(self._chan[t].has_sinks() for t in self._listener.subscribed_topics() if t in self._chan):
             if time.monotonic() > deadline:
                 return False
             self._stop.wait(0.01)
@@ -319,6 +319,10 @@ class _Subscribed:
             self.active += 1
             self.left.clear()
         self.event.set()
+
+    def subscribed_topics(self) -> set[str]:
+        with self._lock:
+            return set(self.topics)
 
     def on_unsubscribe(self, client: Any, channel: Any) -> None:
         with self._lock:

@@ -43,7 +43,8 @@ def sine_log(path: Path) -> Path:
                                               "current_pp_A": 1.4}}) as rec:
         for k in range(BLOCKS):
             t = (N * k + np.arange(N)) / FS
-            rec.add_block(SampleBlock(N * k, FS, {"current_A": 0.7 * np.sin(w * t), "flux_Wb": 1e-4 * np.sin(w * t - 0.05),
+            rec.add_block(SampleBlock(N * k, FS, {"current_A": 0.7 * np.sin(w * t),
+                                                  "flux_Wb": 1e-4 * np.sin(w * t - 0.05),
                                                   "force_N": 20 * np.sin(w * t - 0.1)},
                                       meta=OperatingPoint(320.0, 1.4).to_meta()))
     return path
