@@ -450,6 +450,7 @@ class BenchService:
         z = self.cfg["zenoh"]
         return {"bench": self.cfg["daemon"]["bench"], "state": self.state, "version": __version__, "pid": os.getpid(),
                 "uptime_s": time.monotonic() - self.started, "source": self.source.name,
+                "recording": self.source.metadata(), "channels": list(self.source.channels),
                 "listen": list(z["listen"]) if z["enabled"] else [], "config": self.cfg.source,
                 "log_dir": str(self.log_dir), **self.log.health(), "idle_raw": self.cfg["recording"]["idle_raw"],
                 "limits": {"max_current_a": self.limits.max_current_a,

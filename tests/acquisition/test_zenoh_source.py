@@ -1,0 +1,75 @@
+"""Recording a bench on another PC through the router (issue 31: a live log to diagnose, wherever the
+bench is): ``ZenohSource`` subscribes to the bench's raw blocks through a real router, a real daemon
+(subprocess, simulated rig, sweeping) publishing them; the log it records holds exactly the samples
+the daemon published, in order, with the daemon's own recording metadata; ``replay`` estimates from
+it and ``export`` writes the recordings of its rig that ``diagnose`` takes.  A bench nobody serves is one clear error naming it.
+Every wait ends on its event; HANG_S only turns a hang into a failure."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hystbench.acquisition.record import record_log, replay_log
+from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config
+from hystbench.acquisition.zenoh_source import ZenohSource
+from hystbench.cli.main import main
+from hystbench.errors import NetworkError
+from hystbench.formats.mcaplog import log_metadata
+from hystbench.formats.mcaplog.reader import iter_blocks
+from hystbench.formats.raw_block import decode
+from hystbench.service.router import Router
+
+from .conftest import HANG_S, Daemon
+from .test_fleet import daemon_file
+
+
+def client_config(endpoint: str):
+    return load_zenoh_config(None, listen=[], connect=[endpoint], serve=False)  # as `ctl` opens one
+
+
+def test_a_bench_is_recorded_through_the_router_sample_for_sample(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with Router([endpoint]) as router:
+        published = Subscription(router.session, "hystbench/r1/raw")  # what the daemon put, as the router saw it
+        daemon = Daemon(tmp_path, daemon_file(tmp_path / "r1.toml", "r1", endpoint, tmp_path / "logs"), name="r1")
+        try:
+            daemon.wait_for("READY=1")
+            src = ZenohSource("r1", client_config(endpoint), duration_s=0.5, timeout_s=HANG_S, stall_timeout_s=HANG_S)
+            try:
+                summary = record_log(src, tmp_path / "remote.mcap")
+            finally:
+                src.close()
+        finally:
+            daemon.close()
+        seen = {}
+        while (item := published.get(0.0)) is not None:
+            b = decode(item[1])
+            seen[b.first_index] = b
+    kept = list(iter_blocks(tmp_path / "remote.mcap"))
+    assert kept and summary["samples"] == sum(b.n for b in kept) >= 50_000  # 0.5 s at 100 kHz
+    for prev, b in zip(kept, kept[1:]):  # in order; a loss would be a flagged gap, never a silent one
+        assert b.first_index == prev.end_index + b.gap_samples
+    assert src.lost_samples == sum(b.gap_samples for b in kept)
+    for b in kept:
+        if b.first_index in seen:  # what the router also saw: the same samples, bit for bit
+            for name, x in b.channels.items():
+                np.testing.assert_array_equal(x, seen[b.first_index].channels[name].astype(x.dtype))
+    assert sum(b.first_index in seen for b in kept) >= len(kept) // 2
+    meta = log_metadata(tmp_path / "remote.mcap")["recording"]
+    assert meta["rig"] == "ecore_pm" and meta["sample_rate_Hz"] == 100_000.0 and meta["source"] == "zenoh hystbench/r1/raw"
+    assert main(["export", str(tmp_path / "remote.mcap"), "--out", str(tmp_path / "export")]) == 0
+    (sidecar,) = [p for p in (tmp_path / "export").glob("*.json") if json.loads(p.read_text()).get("output_on") is not False]
+    assert json.loads(sidecar.read_text())["rig"] == "ecore_pm"  # a recording `diagnose` takes, of the right rig
+    fitted = [e["frequency_hz"] for e in replay_log(tmp_path / "remote.mcap") if not e.get("error")]
+    assert fitted and fitted == pytest.approx([320.0] * len(fitted), rel=1e-4)  # the daemon's sweep point
+
+
+def test_a_bench_nobody_serves_is_named(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with Router([endpoint]):
+        with pytest.raises(NetworkError, match="bench 'nobody': no daemon answered hystbench/nobody/health"):
+            ZenohSource("nobody", client_config(endpoint), timeout_s=0.5)
