@@ -283,6 +283,12 @@ def _register_ctl(subparsers) -> None:
 def _source_from_args(args):
     from ..acquisition.sources import RigSource, SyntheticSource
 
+    if args.source == "zenoh":
+        from ..acquisition.zenoh_source import ZenohSource
+        from ..service.control import client_config
+
+        return ZenohSource(args.bench, client_config(args.connect, args.zenoh_config), duration_s=args.seconds)
+
     if args.source == "synthetic":
         return SyntheticSource(fs_hz=args.fs, frequency_hz=args.freq, block_samples=args.block, pace=args.pace,
                                duration_s=args.seconds, rig=args.rig, current_pp_a=args.ipp, seed=args.seed)
@@ -530,12 +536,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=path_arg, required=True, help="the log, e.g. run.mcap")
     p.add_argument("--seconds", type=float_in(0.0, MAX_RECORD_S), default=2.0,
                    help=f"how long (default 2, at most {MAX_RECORD_S:g})")
-    p.add_argument("--source", choices=("bench", "sim", "synthetic"), default="bench",
+    p.add_argument("--source", choices=("bench", "sim", "synthetic", "zenoh"), default="bench",
                    help="bench (default): the instruments of --bench-file through the drivers, emulated when the "
                         "file says backend = \"sim\" (the shipped one does); sim: the simulated rig directly; "
-                        "synthetic: precomputed sines")
+                        "synthetic: precomputed sines; zenoh: what the daemon of --bench publishes, wherever it "
+                        "runs (through --connect, e.g. a router)")
     p.add_argument("--bench-file", type=path_arg,
                    help="bench file for --source bench (default: hystbench/config/bench.toml)")
+    p.add_argument("--bench", default="bench1", help="--source zenoh: the daemon's bench name (default bench1)")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="--source zenoh: where to reach it (repeatable; default tcp/127.0.0.1:7447)")
+    p.add_argument("--zenoh-config", metavar="FILE", type=path_arg, help="--source zenoh: a zenoh json5 file instead")
     p.add_argument("--rig", default="ecore_pm")
     p.add_argument("--freq", type=positive_float, default=320.0, help="excitation frequency, Hz (default 320)")
     p.add_argument("--ipp", type=float_in(0.0, SIM_MAX_IPP_A), default=1.4,

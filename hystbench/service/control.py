@@ -21,7 +21,7 @@ from ..errors import CommandRefused, ConfigError, NoReply
 if TYPE_CHECKING:
     import zenoh
 
-__all__ = ["DEFAULT_CONNECT", "QUERIES", "FLEET_VERBS", "MAX_TIMEOUT_S", "BenchControl", "open_client",
+__all__ = ["DEFAULT_CONNECT", "client_config", "QUERIES", "FLEET_VERBS", "MAX_TIMEOUT_S", "BenchControl", "open_client",
            "describe_endpoint", "is_bench_pattern", "bench_pattern", "fleet_health"]
 
 DEFAULT_CONNECT = "tcp/127.0.0.1:7447"
@@ -41,15 +41,19 @@ def describe_endpoint(connect: Sequence[str] | None, zenoh_config: str | None) -
     return f"the endpoints of zenoh config {zenoh_config}" if zenoh_config else DEFAULT_CONNECT
 
 
-def open_client(connect: Sequence[str] | None = None, zenoh_config: str | None = None) -> zenoh.Session:
-    """A client session: a peer that listens nowhere and connects to ``connect`` (default
+def client_config(connect: Sequence[str] | None = None, zenoh_config: str | None = None) -> zenoh.Config:
+    """A client's configuration: a peer that listens nowhere and connects to ``connect`` (default
     :data:`DEFAULT_CONNECT`, or the endpoints of ``zenoh_config`` when one is given).  Not a
     serving one: it takes messages as large as zenoh does (a raw block may be megabytes).  A bad
     endpoint or file is a one-line :class:`~hystbench.errors.ConfigError` naming it."""
     endpoints = list(connect or ([] if zenoh_config else [DEFAULT_CONNECT]))
-    cfg = load_zenoh_config(zenoh_config, listen=[] if not zenoh_config else None, connect=endpoints or None,
-                            serve=False)
-    return open_session(cfg)
+    return load_zenoh_config(zenoh_config, listen=[] if not zenoh_config else None, connect=endpoints or None,
+                             serve=False)
+
+
+def open_client(connect: Sequence[str] | None = None, zenoh_config: str | None = None) -> zenoh.Session:
+    """A session of :func:`client_config`."""
+    return open_session(client_config(connect, zenoh_config))
 
 
 class BenchControl:

@@ -14,21 +14,18 @@ import numpy as np
 import pytest
 
 from hystbench.acquisition.record import record_log, replay_log
-from hystbench.acquisition.zenoh_bus import Subscription, free_port, load_zenoh_config
+from hystbench.acquisition.zenoh_bus import Subscription, free_port
 from hystbench.acquisition.zenoh_source import ZenohSource
 from hystbench.cli.main import main
 from hystbench.errors import NetworkError
 from hystbench.formats.mcaplog import log_metadata
 from hystbench.formats.mcaplog.reader import iter_blocks
 from hystbench.formats.raw_block import decode
+from hystbench.service.control import client_config
 from hystbench.service.router import Router
 
 from .conftest import HANG_S, Daemon
 from .test_fleet import daemon_file
-
-
-def client_config(endpoint: str):
-    return load_zenoh_config(None, listen=[], connect=[endpoint], serve=False)  # as `ctl` opens one
 
 
 def test_a_bench_is_recorded_through_the_router_sample_for_sample(tmp_path: Path) -> None:
@@ -38,11 +35,16 @@ def test_a_bench_is_recorded_through_the_router_sample_for_sample(tmp_path: Path
         daemon = Daemon(tmp_path, daemon_file(tmp_path / "r1.toml", "r1", endpoint, tmp_path / "logs"), name="r1")
         try:
             daemon.wait_for("READY=1")
-            src = ZenohSource("r1", client_config(endpoint), duration_s=0.5, timeout_s=HANG_S, stall_timeout_s=HANG_S)
+            src = ZenohSource("r1", client_config([endpoint]), duration_s=0.5, timeout_s=HANG_S, stall_timeout_s=HANG_S)
             try:
                 summary = record_log(src, tmp_path / "remote.mcap")
             finally:
                 src.close()
+            # the same as a user types it, on the analyst's PC
+            assert main(["record", "--source", "zenoh", "--bench", "r1", "--connect", endpoint, "--seconds", "0.2",
+                         "--out", str(tmp_path / "cli.mcap")]) == 0
+            assert log_metadata(tmp_path / "cli.mcap")["recording"]["rig"] == "ecore_pm"
+            assert sum(b.n for b in iter_blocks(tmp_path / "cli.mcap")) >= 20_000
         finally:
             daemon.close()
         seen = {}
@@ -72,4 +74,4 @@ def test_a_bench_nobody_serves_is_named(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with Router([endpoint]):
         with pytest.raises(NetworkError, match="bench 'nobody': no daemon answered hystbench/nobody/health"):
-            ZenohSource("nobody", client_config(endpoint), timeout_s=0.5)
+            ZenohSource("nobody", client_config([endpoint]), timeout_s=0.5)
