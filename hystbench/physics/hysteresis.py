@@ -32,6 +32,7 @@ from scipy.special import erf
 
 from ..config.presets import check_material
 from ..errors import ConfigError
+from ..jit import enabled as jit_enabled
 
 __all__ = ["PreisachParams", "HysteresisState", "PreisachHysteresis", "mu_0"]
 
@@ -361,14 +362,19 @@ class PreisachHysteresis:
         db = dmax * (np.arange(k + 1) / k) ** 2
         psi = np.empty((rows.size, k + 2))  # one spare column: the lookup never needs a clip
         x, h = self._x, self._h
-        for r, j in enumerate(rows):
-            e = self._K[j:] - self._K[j] - self._G[j] * (self._F[j:] - self._F[j])
-            g = 2 * e + self._brev[j:] - self._brev[j]
-            g = np.maximum.accumulate(g)
-            xs = np.interp(db, g, x[j:])
-            hh = np.where(db <= g[-1], self._h0 * np.sinh(xs), h[-1] + (db - g[-1]) / self._s_end)
-            psi[r, :-1] = hh
-            psi[r, -1] = hh[-1]
+        if jit_enabled():
+            from .hysteresis_kernel import ascending_branches
+
+            ascending_branches(rows, db, x, self._K, self._G, self._F, self._brev, float(h[-1]), float(self._h0),
+                               float(self._s_end), psi)
+        else:
+            for r, j in enumerate(rows):
+                e = self._K[j:] - self._K[j] - self._G[j] * (self._F[j:] - self._F[j])
+                g = 2 * e + self._brev[j:] - self._brev[j]
+                g = np.maximum.accumulate(g)
+                xs = np.interp(db, g, x[j:])
+                psi[r, :-1] = np.where(db <= g[-1], self._h0 * np.sinh(xs), h[-1] + (db - g[-1]) / self._s_end)
+        psi[:, -1] = psi[:, -2]
         # virgin curve and anhysteretic curve, inverted on a uniform B grid (odd functions)
         iv = slice(p.fine_nodes // 2, None)
         hv = h[iv]
@@ -403,10 +409,8 @@ class PreisachHysteresis:
         hh, G = self._h, self._G
         f = np.gradient(self._F, hh)
         coarse = np.append(h[::8], h[-1])
-        out = np.empty_like(coarse)
-        for i, hv in enumerate(coarse):
-            gi = np.interp(np.minimum(hh, 2 * hv - hh), hh, G, left=0.0)
-            out[i] = 2 * np.trapezoid(f * gi, hh) - self.params.j_irr_t
+        gi = np.interp(np.minimum(hh[None, :], 2 * coarse[:, None] - hh[None, :]), hh, G, left=0.0)
+        out = 2 * np.trapezoid(f * gi, hh, axis=1) - self.params.j_irr_t
         return np.interp(h, coarse, out)
 
     def field(self, b_t: ArrayLike, state: HysteresisState, *, irreversible: bool = True, saturation: bool = True,
