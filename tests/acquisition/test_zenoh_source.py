@@ -8,6 +8,7 @@ Every wait ends on its event; HANG_S only turns a hang into a failure."""
 from __future__ import annotations
 
 import json
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from hystbench.acquisition.record import record_log, replay_log
 from hystbench.acquisition.zenoh_bus import Subscription, free_port
 from hystbench.acquisition.zenoh_source import ZenohSource
 from hystbench.cli.main import main
-from hystbench.errors import NetworkError
+from hystbench.errors import NetworkError, RecordingError
 from hystbench.formats.mcaplog import log_metadata
 from hystbench.formats.mcaplog.reader import iter_blocks
 from hystbench.formats.raw_block import decode
@@ -75,3 +76,43 @@ def test_a_bench_nobody_serves_is_named(tmp_path: Path) -> None:
     with Router([endpoint]):
         with pytest.raises(NetworkError, match="bench 'nobody': no daemon answered hystbench/nobody/health"):
             ZenohSource("nobody", client_config([endpoint]), timeout_s=0.5)
+
+
+def test_a_daemon_that_stops_ends_the_log_closed_with_what_came(tmp_path: Path) -> None:
+    """The daemon goes away mid-recording: after ``stall_timeout_s`` without a block the recording
+    fails naming the bench and the key, and the log is closed and valid with every block that came."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with Router([endpoint]):
+        daemon = Daemon(tmp_path, daemon_file(tmp_path / "r2.toml", "r2", endpoint, tmp_path / "logs"), name="r2")
+        try:
+            daemon.wait_for("READY=1")
+            src = ZenohSource("r2", client_config([endpoint]), timeout_s=HANG_S, stall_timeout_s=1.0)
+            estimated = threading.Event()
+            failure: list[BaseException] = []
+            windows: list[tuple[int, int]] = []
+
+            def on_message(topic: str, obj: dict) -> None:
+                if topic == "/estimate" and not obj.get("error"):
+                    windows.append((obj["first_index"], obj["end_index"]))
+                    estimated.set()
+
+            def record() -> None:
+                try:
+                    record_log(src, tmp_path / "cut.mcap", on_message=on_message)
+                except BaseException as err:  # what the recording says, for the test to read
+                    failure.append(err)
+
+            worker = threading.Thread(target=record)
+            worker.start()
+            assert estimated.wait(HANG_S), "no estimate from the recorded blocks"
+        finally:
+            daemon.close()  # the bench goes away mid-recording
+        worker.join(HANG_S)
+        src.close()
+    assert not worker.is_alive()
+    assert len(failure) == 1 and isinstance(failure[0], RecordingError), failure
+    said = str(failure[0]) + str(failure[0].__cause__)
+    assert "bench 'r2'" in said and "hystbench/r2/raw" in said, said
+    kept = list(iter_blocks(tmp_path / "cut.mcap"))  # the reference reader opens it: closed and valid
+    first, end = windows[0]  # at least the samples of the estimates that came
+    assert kept[0].first_index <= first and kept[-1].end_index >= end
