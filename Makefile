@@ -26,13 +26,20 @@ demo: $(STAMP)
 
 # Four workers, a test file on one worker (its module fixtures are computed once): many tests wait on a
 # daemon, a socket or a subprocess, so on this 2-core machine four keep both cores busy where two left
-# a third of the time idle (docs/performance.md, section 1).
+# a third of the time idle (docs/performance.md, section 1).  Bytecode is cached even where the
+# environment says PYTHONDONTWRITEBYTECODE: the suite starts some sixty Python processes (workers,
+# daemons, command lines), and each compiled the package and rewrote the tests from source (a worker
+# took 10 s to collect, 5 s with the cache).  --no-loadscope-reorder keeps the order tests/conftest.py
+# gives the files (longest first); xdist's default reorders them by their number of tests, which sent
+# the 70 s diagnosis file out last, to run alone at the end.
+PYTEST := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -q -n 4 --dist loadfile --no-loadscope-reorder
+
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 4 --dist loadfile
+	$(PYTEST)
 
 # What make test leaves out: the whole acceptance runs (.ci/run runs this after make test).
 acceptance: $(STAMP)
-	$(BIN)/python -m pytest -q -n 4 --dist loadfile -m acceptance
+	$(PYTEST) -m acceptance
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache

@@ -65,7 +65,12 @@ def model_file_of(computed_once) -> Callable[[str], Path]:
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Files with a ``slow`` test run first (stable otherwise): ``make test`` hands whole files to its
-    workers in this order, and a slow file that came last kept one worker busy while the other idled."""
-    slow = {item.path for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: item.path not in slow)
+    """Files run longest first, by their ``slow(seconds)`` marker (stable otherwise): ``make test``
+    hands whole files to its workers in this order, and a long file that came last kept one worker
+    busy while the others idled (the longest-first rule of scheduling jobs on machines)."""
+    seconds: dict = {}
+    for item in items:
+        mark = item.get_closest_marker("slow")
+        if mark is not None:
+            seconds[item.path] = max(seconds.get(item.path, 0.0), float(mark.args[0]) if mark.args else 20.0)
+    items.sort(key=lambda item: -seconds.get(item.path, 0.0))

@@ -26,6 +26,8 @@ from hystbench.service.daemon_config import load_daemon_config
 
 from .conftest import HANG_S, ROOT, Daemon, health_when
 
+pytestmark = pytest.mark.slow(45)  # ~45 s: handed to a worker before lighter files (tests/conftest.py)
+
 FS = 100_000.0
 
 

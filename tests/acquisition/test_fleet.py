@@ -24,6 +24,8 @@ from hystbench.service.router import Router
 
 from .conftest import HANG_S, ROOT, Daemon
 
+pytestmark = pytest.mark.slow(15)  # ~15 s: handed to a worker before lighter files (tests/conftest.py)
+
 
 def daemon_file(path: Path, bench: str, router: str, logs: Path, *, zenoh_config: Path | None = None) -> Path:
     """A daemon of ``bench`` on the simulated rig, sweeping at 320 Hz, a client of ``router``

@@ -29,6 +29,8 @@ from hystbench.service.foxglove_live import PLOT_POINT_SCHEMA, QUEUE_ITEMS, Foxg
 
 from .conftest import HANG_S, ROOT, Daemon
 
+pytestmark = pytest.mark.slow(15)  # ~15 s: handed to a worker before lighter files (tests/conftest.py)
+
 SUBPROTOCOL = "foxglove.sdk.v1"
 UNKNOWN_CHANNEL = "Unknown channel ID: "  #: the server's status when a subscribe names a channel it does not know
 FS = 100_000.0

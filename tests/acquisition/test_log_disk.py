@@ -28,6 +28,8 @@ from hystbench.service.service_log import RESUME_FREE_BYTES
 
 from .conftest import HANG_S, Daemon, health_when
 
+pytestmark = pytest.mark.slow(30)  # ~30 s: handed to a worker before lighter files (tests/conftest.py)
+
 
 @pytest.fixture
 def small_disk(tmp_path: Path):

@@ -28,6 +28,8 @@ from hystbench.service.router import Router
 from .conftest import HANG_S, Daemon
 from .test_fleet import daemon_file
 
+pytestmark = pytest.mark.slow(15)  # ~15 s: handed to a worker before lighter files (tests/conftest.py)
+
 
 def test_a_bench_is_recorded_through_the_router_sample_for_sample(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"

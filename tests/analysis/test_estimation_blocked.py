@@ -25,7 +25,7 @@ from hystbench.analysis.estimation import _lsq
 
 from . import dense_oracle as dense
 
-pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+pytestmark = pytest.mark.slow(12)  # ~12 s: handed to a worker before lighter files (tests/conftest.py)
 
 HARMONICS = (1, 2, 3, 4)  # what the method fits
 FS = 100_000.0

@@ -14,6 +14,8 @@ from hystbench.formats.recording import write_sweep
 from hystbench.sim_backend.bench_day import BenchDayPlan, RigBlock, simulate_bench_day
 from hystbench.sim_backend.recordings import simulate_recording
 
+pytestmark = pytest.mark.slow(30)  # ~30 s: handed to a worker before lighter files (tests/conftest.py)
+
 #: The stable keys of ``--json`` (the issue's list).
 ISSUE_KEYS = {"effect", "effects", "candidates", "parameters", "recalibrated", "located", "residual_before",
               "residual_after", "improvement", "noise_floor", "seconds"}

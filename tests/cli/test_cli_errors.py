@@ -16,7 +16,7 @@ import pytest
 
 from hystbench.cli.main import main
 
-pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+pytestmark = pytest.mark.slow(25)  # ~25 s: handed to a worker before lighter files (tests/conftest.py)
 
 GARBAGE = bytes(range(256)) * 4  # not UTF-8: a binary file given where text is expected
 DEAD = "tcp/127.0.0.1:9"  # nobody listens on the discard port: a request there finds no daemon

@@ -20,6 +20,8 @@ from hystbench.config import CONFIG_DIR, load_material
 from hystbench.errors import ConfigError
 from hystbench.sim_backend.rig import SimulatedRig
 
+pytestmark = pytest.mark.slow(35)  # ~35 s: handed to a worker before lighter files (tests/conftest.py)
+
 
 def run(args: list[str], capsys) -> tuple[int, str, str]:
     code = main([str(a) for a in args])

@@ -17,7 +17,7 @@ from hystbench.formats.recording import read_sweep
 from independent_bench.bench import BASELINE, write_bench_day
 from independent_bench.family import fit_plan, voice_coil_plan, write_family_bench
 
-pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+pytestmark = pytest.mark.slow(25)  # ~25 s: handed to a worker before lighter files (tests/conftest.py)
 
 
 def _identified(fit_folder, voice_coil_folder):

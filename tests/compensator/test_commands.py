@@ -12,7 +12,7 @@ from hystbench.compensator.choice import SIMPLICITY
 from hystbench.sim_backend.recordings import simulated_sweep
 from hystbench.formats.recording import read_recording, write_recording, write_sweep
 
-pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+pytestmark = pytest.mark.slow(20)  # ~20 s: handed to a worker before lighter files (tests/conftest.py)
 
 
 @pytest.fixture(scope="module")

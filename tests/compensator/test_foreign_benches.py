@@ -18,7 +18,7 @@ from hystbench.sim_backend.benches import FOREIGN_BENCHES, bench_truth, foreign_
 from hystbench.sim_backend.recordings import simulated_sweep
 from hystbench.sim_backend.rig import SimulatedRig
 
-pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+pytestmark = pytest.mark.slow(20)  # ~20 s: handed to a worker before lighter files (tests/conftest.py)
 
 MAIN = {"ecore": 1.27, "ecore_pm": 1.4}
 #: the bench make test fits (the choice of a Preisach iron is make test's on our own rig, test_models);

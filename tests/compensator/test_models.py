@@ -10,7 +10,7 @@ from hystbench.compensator import (CompensatorError, ForceReference, ModelSet, P
 from hystbench.config import load_rig
 from hystbench.errors import ConfigError
 
-pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+pytestmark = pytest.mark.slow(20)  # ~20 s: handed to a worker before lighter files (tests/conftest.py)
 
 
 def test_model_file_round_trip(models_pm, tmp_path):

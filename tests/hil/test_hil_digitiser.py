@@ -12,6 +12,8 @@ from hystbench.blocks import BlockFlags
 
 from .conftest import HANG_S, STALL_S, Hil, acquire_through, assert_the_rigs_delays, skip_to, switched_on_at
 
+pytestmark = pytest.mark.slow(15)  # ~15 s: handed to a worker before lighter files (tests/conftest.py)
+
 SCALES = {"current_A": 0.2, "force_N": 50.0, "flux_Wb": 1e-5, "command_V": 1.0}  # SI per volt at the inputs
 CHANNELS = {"generic": ("CHAN1", "CHAN2", "CHAN3", "CHAN4"), "tektronix": ("CH1", "CH2", "CH3", "CH4")}
 

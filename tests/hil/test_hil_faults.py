@@ -20,6 +20,8 @@ from hystbench.errors import ConnectionLost, InstrumentError, InstrumentTimeout,
 
 from .conftest import HANG_S, acquire_through, expected_wire, skip_to, switched_on_at
 
+pytestmark = pytest.mark.slow(20)  # ~20 s: handed to a worker before lighter files (tests/conftest.py)
+
 
 def streams_flowing(hil):
     """The four streams open, each with frames received, and what the clock made before the output

@@ -24,6 +24,8 @@ from hystbench.formats.recording import read_recording
 from independent_bench import BASELINE, simulate_recording
 from independent_bench.concealed import CASES, DIAGNOSIS_BASELINE, Case, day_points, without_hidden, write_case
 
+pytestmark = pytest.mark.slow(35)  # ~35 s: handed to a worker before lighter files (tests/conftest.py)
+
 PERIODS = 48
 FS_HZ = 100e3
 #: A hidden effect must reach this many standard errors in some period average of its day ...

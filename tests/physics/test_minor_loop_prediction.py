@@ -14,6 +14,8 @@ import pytest
 from hystbench.physics import material_fit as mf
 from hystbench.physics.hysteresis import PreisachHysteresis
 
+pytestmark = pytest.mark.slow(15)  # ~15 s: handed to a worker before lighter files (tests/conftest.py)
+
 BAND = (0.7, 1.3)  # the claim under test: minor-loop energy (and sin of the loss angle) within +-30 %
 
 

@@ -16,7 +16,7 @@ from hystbench.reports.demo_diagnosis import demo_diagnosis
 from independent_bench.__main__ import main as write_independent_day
 from independent_bench.concealed import CASES
 
-pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+pytestmark = pytest.mark.slow(40)  # ~40 s: handed to a worker before lighter files (tests/conftest.py)
 
 #: make demo's integrator_leak day, on the E-core with magnet alone (10 of its 24 recordings): the same
 #: diagnosis in half the time; make demo and the benchmark diagnose the whole day

@@ -9,6 +9,8 @@ from hystbench.cli.main import main as run  # the hystbench command: BenchError 
 from hystbench.reports.paper import PAPER, simulate_ecore, simulate_voice_coil_sweep
 from hystbench.formats.recording import write_recording, write_sweep
 
+pytestmark = pytest.mark.slow(15)  # ~15 s: handed to a worker before lighter files (tests/conftest.py)
+
 
 @pytest.fixture(scope="module")
 def ecore_stem(tmp_path_factory):

@@ -20,7 +20,7 @@ import pytest
 from benchmarks.bench_diagnose import run_named
 from hystbench.analysis.diagnosis.select import MIN_HELD_OUT_GAIN
 
-pytestmark = pytest.mark.slow  # tens of seconds: handed to a worker first (tests/conftest.py)
+pytestmark = pytest.mark.slow(70)  # ~70 s: handed to a worker before lighter files (tests/conftest.py)
 
 #: (suite, case): a single, a null, a two-effect day on a bench we did not build (the independent one);
 #: every other day runs in the benchmark, after make test in .ci/run
