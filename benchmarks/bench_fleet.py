@@ -139,8 +139,10 @@ class FoxgloveCounter(threading.Thread):
         self.ws.close()
 
 
-def run(n: int, seconds: float, foxglove: bool = False) -> dict:
-    """One fleet of ``n`` benches for a window of ``seconds``: the figures of one row."""
+def run(n: int, seconds: float, foxglove: bool = False, record: bool = False) -> dict:
+    """One fleet of ``n`` benches for a window of ``seconds``: the figures of one row.  ``record``:
+    the first bench is also recorded through the router for the window (``record --source zenoh``'s
+    ``ZenohSource`` in this process, whose CPU then counts as the router's)."""
     from hystbench.acquisition.zenoh_bus import _json_object, free_port
     from hystbench.deadline import Deadline
     from hystbench.service.router import Router
@@ -200,6 +202,7 @@ def run(n: int, seconds: float, foxglove: bool = False) -> dict:
             cpu0 = {b: cpu_s(p.pid) for b, p in procs.items()}
             own0, busy0, t0 = cpu_s("self"), machine_busy(), time.monotonic()
             fox0 = counter.counts() if counter else {}
+            recorded = _start_recording(benches[0], endpoint, seconds, folder) if record else None
             threading.Event().wait(seconds)  # the window: the fleet runs, the subscriber counts
             fox1 = counter.counts() if counter else {}
             ends = {b: health(session, b, HANG_S) for b in benches}
@@ -207,6 +210,7 @@ def run(n: int, seconds: float, foxglove: bool = False) -> dict:
             cpu1 = {b: cpu_s(p.pid) for b, p in procs.items()}
             own1, busy1 = cpu_s("self"), machine_busy()
             rss = sum(rss_mb(p.pid) for p in procs.values())
+            remote = _finish_recording(*recorded) if recorded else None
         finally:
             for p in procs.values():
                 if p.poll() is None:
@@ -251,7 +255,46 @@ def run(n: int, seconds: float, foxglove: bool = False) -> dict:
         "cores": os.cpu_count(), "per_bench": rows,
         **({"foxglove": _foxglove_rates(fox0, fox1, window, benches, view_health, counter.resubscribed)}
            if foxglove else {}),
+        **({"remote_record": remote} if record else {}),
     }
+
+
+def _start_recording(bench: str, endpoint: str, seconds: float, folder: Path):
+    """``record --source zenoh`` of ``bench`` through the router, for ``seconds`` of its samples, in a thread."""
+    from hystbench.acquisition.record import record_log
+    from hystbench.acquisition.zenoh_source import ZenohSource
+    from hystbench.service.control import client_config
+
+    src = ZenohSource(bench, client_config([endpoint]), duration_s=seconds, timeout_s=HANG_S)
+    out = folder / f"{bench}-remote.mcap"
+    done: dict = {}
+
+    def work() -> None:
+        t0 = time.monotonic()
+        try:
+            done["summary"] = record_log(src, out)
+        except Exception as err:  # reported in the row, not raised in the thread
+            done["error"] = f"{type(err).__name__}: {err}"
+        done["wall_s"] = time.monotonic() - t0
+
+    thread = threading.Thread(target=work, name="remote-record")
+    thread.start()
+    return thread, src, out, done
+
+
+def _finish_recording(thread: threading.Thread, src, out: Path, done: dict) -> dict:
+    from hystbench.formats.mcaplog.reader import iter_blocks
+
+    thread.join(HANG_S)
+    src.close()
+    if "summary" not in done:
+        return {"error": done.get("error", "did not finish")}
+    blocks = list(iter_blocks(out))
+    samples = sum(b.n for b in blocks)
+    lost = sum(b.gap_samples for b in blocks)
+    return {"samples": samples, "lost_samples": lost, "gaps": sum(1 for b in blocks if b.gap_samples),
+            "estimates": len(done["summary"]["estimates"]), "megabytes": round(out.stat().st_size / 1e6, 2),
+            "samples_per_wall_s": round((samples + lost) / done["wall_s"])}
 
 
 def _foxglove_rates(before: dict[str, int], after: dict[str, int], window: float, benches: list[str],
@@ -271,13 +314,15 @@ def main(argv: list[str] | None = None) -> int:
                                                                      f"{MAX_SECONDS:g})")
     parser.add_argument("--foxglove", action="store_true", help="also serve the router's Foxglove view of the fleet "
                                                                  "and count what a client receives per channel")
+    parser.add_argument("--record", action="store_true", help="also record the first bench through the router "
+                                                                 "for the window (record --source zenoh)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     if not all(1 <= n <= MAX_BENCHES for n in args.benches) or not 0 < args.seconds <= MAX_SECONDS:
         parser.error(f"--benches in 1..{MAX_BENCHES}, --seconds in (0, {MAX_SECONDS:g}]")
     results = []
     for n in args.benches:
-        r = run(n, args.seconds, args.foxglove)
+        r = run(n, args.seconds, args.foxglove, args.record)
         results.append(r)
         if not args.json:
             print(f"N={n:2d}: start-up {r['startup_s']:5.1f} s; estimates published {r['published']:5d}, received "
@@ -295,6 +340,12 @@ def main(argv: list[str] | None = None) -> int:
                       "after an 'Unknown channel ID'", flush=True)
                 for t, rate in fx["per_channel_per_s"].items():
                     print(f"        {t:<24}{rate:8.2f}/s", flush=True)
+            if "remote_record" in r:
+                rr = r["remote_record"]
+                print("      remote record of fleet1 through the router: " + (rr["error"] if "error" in rr else
+                      f"{rr['samples']} samples kept, {rr['lost_samples']} lost in {rr['gaps']} gap(s), "
+                      f"{rr['estimates']} estimates, {rr['megabytes']} MB, {rr['samples_per_wall_s']} samples per "
+                      "wall second"), flush=True)
     if args.json:
         print(json.dumps(results, indent=2))
     return 0
