@@ -97,6 +97,34 @@ def test_the_tektronix_dialect_through_the_emulator(dig_factory):
                                    rtol=1e-12, atol=0, err_msg=name)
 
 
+class UntilMeasured:
+    """A source's blocks until ``n`` samples with the output on and settled came: the bench settles
+    only once its readers have caught up with the instruments, which a busy machine delays by seconds
+    (a fixed 1.6 s record once kept 95 000 settled samples), so the record ends on that event."""
+
+    def __init__(self, source, n: int) -> None:
+        self.source, self.n = source, n
+        self.name, self.channels, self.fs_hz = source.name, source.channels, source.fs_hz
+
+    def __getattr__(self, name):  # bench, emu, set_output: the source's own
+        return getattr(self.source, name)
+
+    def metadata(self) -> dict:
+        return self.source.metadata()
+
+    def blocks(self, stop=None):
+        settled = 0
+        for b in self.source.blocks(stop):
+            yield b
+            p = b.point
+            settled += b.n if p is not None and p.output_on and not p.settling else 0
+            if settled >= self.n:
+                return
+
+    def close(self) -> None:
+        self.source.close()
+
+
 def test_the_daemons_source_records_and_estimates_from_the_digitiser(tmp_path):
     """The daemon's path: BenchSource (its [source] kind = "bench") on bench_digitiser.toml ->
     pipeline -> live estimates and an MCAP log; the method on the logged samples gives the rig's
@@ -112,19 +140,20 @@ def test_the_daemons_source_records_and_estimates_from_the_digitiser(tmp_path):
     text = (CONFIG_DIR / "bench_digitiser.toml").read_text()
     path = tmp_path / "bench.toml"
     path.write_text(re.sub(r"(?m)^stall_timeout_s = .*$", f"stall_timeout_s = {STALL_S:g}", text, count=1))
-    src = BenchSource(str(path), duration_s=1.6, excitation=(320.0, 1.4))
+    n = 100_000
+    src = UntilMeasured(BenchSource(str(path), excitation=(320.0, 1.4)), n)
     try:
         assert src.bench.config.digitiser is not None and src.emu.digitiser is not None
         src.set_output(True)
         res = record_log(src, tmp_path / "run.mcap", timeout_s=HANG_S)
     finally:
         src.close()
-    assert res["samples"] == 160_000 and res["estimates"]
-    blocks = [b for b in iter_blocks(res["log"][0]) if b.meta["output_on"] and not b.meta.get("settling")]
+    logged = list(iter_blocks(res["log"][0]))
+    assert res["samples"] == sum(b.n for b in logged) and res["estimates"]
+    blocks = [b for b in logged if b.meta["output_on"] and not b.meta.get("settling")]
     assert not any(b.flags & BlockFlags.GAP for b in blocks)
     run = concatenate(blocks)
     assert run.end_index - run.first_index == run.n  # one contiguous run
-    n = 100_000
     assert run.n >= n, run.n
     assert_the_rigs_delays({k: x[-n:] for k, x in run.channels.items()}, run.fs_hz, src.metadata(), "ecore_pm", 0)
 
