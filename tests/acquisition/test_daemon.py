@@ -30,10 +30,13 @@ from .conftest import HANG_S, ROOT, Daemon, health_when
 pytestmark = pytest.mark.slow(45)  # ~45 s: handed to a worker before lighter files (tests/conftest.py)
 
 FS = 100_000.0
+#: SIGTERM's bound for these daemons: their clean stop is under test, not the bound (test_log_disk
+#: tests it).  Beside two busy loops, finishing a log took past the 4.5 s default (exit 1, by design).
+STOP = f"stop_timeout_s = {HANG_S}"
 
 
 def write_config(path: Path, port: int, logs: Path, *, periods: float = 10.0, extra: str = "") -> None:
-    path.write_text(f'[daemon]\nbench = "d1"\nlog_dir = "{logs.as_posix()}"\nstats_interval_s = 0.3\n'
+    path.write_text(f'[daemon]\nbench = "d1"\nlog_dir = "{logs.as_posix()}"\nstats_interval_s = 0.3\n{STOP}\n'
                     f'[source]\nkind = "sim"\n[estimation]\nperiods = {periods}\n[recording]\nflush_interval_s = 0.25\n'
                     'idle_raw = "full"\n'  # every sample: the crash test counts them
                     f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n'
@@ -184,7 +187,7 @@ def test_daemon_default_source_is_the_emulated_bench(tmp_path: Path) -> None:
     from hystbench.acquisition.zenoh_bus import Subscription, send_command
 
     port, logs, cfg = free_port(), tmp_path / "logs", tmp_path / "daemon.toml"
-    cfg.write_text(f'[daemon]\nbench = "d2"\nlog_dir = "{logs.as_posix()}"\n'
+    cfg.write_text(f'[daemon]\nbench = "d2"\nlog_dir = "{logs.as_posix()}"\n{STOP}\n'
                    f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
     d = Daemon(tmp_path, cfg)
     session = None
@@ -247,7 +250,7 @@ def test_bad_commands_are_refused_and_the_daemon_stays_up(tmp_path: Path) -> Non
     from hystbench.errors import BenchError
 
     port, cfg, state = free_port(), tmp_path / "daemon.toml", tmp_path / "state"
-    cfg.write_text(f'[daemon]\nbench = "d3"\n[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
+    cfg.write_text(f'[daemon]\nbench = "d3"\n{STOP}\n[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
     d = Daemon(tmp_path, cfg, state=state)
     session = None
     try:
@@ -388,7 +391,7 @@ def test_a_fault_in_the_source_is_survived_output_off(tmp_path: Path) -> None:
     from hystbench.acquisition.zenoh_bus import Subscription, send_command
 
     port, cfg = free_port(), tmp_path / "daemon.toml"
-    cfg.write_text(f'[daemon]\nbench = "d4"\nlog_dir = "{(tmp_path / "logs").as_posix()}"\n[source]\nkind = "sim"\n'
+    cfg.write_text(f'[daemon]\nbench = "d4"\nlog_dir = "{(tmp_path / "logs").as_posix()}"\n{STOP}\n[source]\nkind = "sim"\n'
                    f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
     d = Daemon(tmp_path, cfg, python=("-c", _RIG_THAT_FAILS))
     session = None

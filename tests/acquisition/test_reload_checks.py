@@ -19,7 +19,7 @@ from .conftest import HANG_S, Daemon, health_when
 
 
 def config_text(port: int, logs: Path, bench: str = "rl") -> str:
-    return (f'[daemon]\nbench = "{bench}"\nlog_dir = "{logs.as_posix()}"\n[source]\nkind = "sim"\n'
+    return (f'[daemon]\nbench = "{bench}"\nlog_dir = "{logs.as_posix()}"\nstop_timeout_s = {HANG_S}\n[source]\nkind = "sim"\n'
             f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n'
             '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 3600.0\nautostart = true\n')
 
