@@ -220,7 +220,9 @@ def test_watchdog_disables_the_amplifier_when_the_host_falls_silent(hil):
     streams_flowing(hil)
     hil.bench.pause_heartbeat()
     hil.wait_for(lambda: hil.emu.amplifier.latched, "the watchdog tripping")
-    assert not hil.emu.rig.output_enabled
+    assert not hil.emu.amplifier.output_on  # the amplifier's own output goes off as it latches
+    # the rig follows in the same call, just after the latch (a loaded run once looked in between)
+    hil.wait_for(lambda: not hil.emu.rig.output_enabled, "the rig following the amplifier")
     t_trip, settings = hil.emu.changes[-1]  # the first sample with the output off
     assert settings["output"] is False
     stream = hil.bench.streams["current_amplifier"]
