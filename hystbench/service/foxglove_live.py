@@ -100,6 +100,48 @@ def decimate(x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     return b[:, 0], b.mean(axis=1, dtype=np.float64), b.min(axis=1), b.max(axis=1)
 
 
+def _sending_loop(view: Any, send: Callable[[Any], None], what: str) -> None:
+    """A view's sending thread: ``send`` each item of its bounded ``_queue`` until ``_stop``.  A
+    failure is counted (``errors``, ``last_error``), its traceback logged once per kind, and never
+    ends the thread: a view's trouble is its own to report.  Each item is marked done (what a
+    replay's drain waits for)."""
+    while not view._stop.is_set():
+        try:
+            item = view._queue.get(timeout=0.2)
+        except queue.Empty:
+            continue
+        try:
+            send(item)
+        except Exception as err:
+            view.errors += 1
+            view.last_error = f"{type(err).__name__}: {err}"
+            if type(err).__name__ not in view._logged:
+                view._logged.add(type(err).__name__)
+                log.exception("%s: %s", what, view.last_error)
+        finally:
+            view._queue.task_done()
+
+
+def _stop_serving(view: Any, timeout_s: float) -> None:
+    """A view's sending thread stopped (within ``timeout_s``), its server stopped (its port free)
+    and its channels closed; what fails here has nothing left to free."""
+    view._stop.set()
+    if view._thread is not None:
+        view._thread.join(timeout_s)
+    if view._server is not None:
+        try:
+            view._server.stop()
+        except Exception:
+            log.exception("stopping the Foxglove server")
+        view._server = None
+    for ch in view._chan.values():
+        try:
+            ch.close()
+        except Exception:
+            pass
+    view._chan.clear()
+
+
 class FoxgloveLive:
     """The Foxglove WebSocket server of one running service and the thread that feeds it.
 
@@ -162,21 +204,7 @@ class FoxgloveLive:
         return f"ws://{self.host}:{self.port}"
 
     def close(self, timeout_s: float = 2.0) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout_s)
-        if self._server is not None:
-            try:
-                self._server.stop()
-            except Exception:  # stopping a server that failed: nothing left to free
-                log.exception("stopping the Foxglove server")
-            self._server = None
-        for ch in self._chan.values():
-            try:
-                ch.close()
-            except Exception:
-                pass
-        self._chan.clear()
+        _stop_serving(self, timeout_s)
 
     def wait_for_client(self, timeout_s: float) -> bool:
         """Whether a client subscribed within ``timeout_s``, and what it subscribed to (in that
@@ -240,25 +268,14 @@ class FoxgloveLive:
 
     # --- the sending thread ----------------------------------------------------------------------
     def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                topic, item = self._queue.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            try:
-                if topic is None:
-                    self._send_block(*item)
-                else:
-                    self._send_message(topic, item)
-            except Exception as err:  # ours to report, never the pipeline's to die of
-                self.errors += 1
-                self.last_error = f"{type(err).__name__}: {err}"
-                kind = type(err).__name__
-                if kind not in self._logged:  # a traceback once per kind, then counted
-                    self._logged.add(kind)
-                    log.exception("Foxglove live view: %s", self.last_error)
-            finally:
-                self._queue.task_done()  # what drain() waits for
+        _sending_loop(self, self._send_item, "Foxglove live view")  # ours to report, never the pipeline's to die of
+
+    def _send_item(self, item: tuple[str | None, Any]) -> None:
+        topic, what = item
+        if topic is None:
+            self._send_block(*what)
+        else:
+            self._send_message(topic, what)
 
     def _send_message(self, topic: str, obj: Mapping[str, Any]) -> None:
         ch = self._chan[topic]
@@ -404,21 +421,7 @@ class FoxgloveFleet:
             except Exception:  # the session closed first: nothing left to undeclare
                 pass
         self._subs = []
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout_s)
-        if self._server is not None:
-            try:
-                self._server.stop()
-            except Exception:
-                log.exception("stopping the Foxglove server")
-            self._server = None
-        for ch in self._chan.values():
-            try:
-                ch.close()
-            except Exception:
-                pass
-        self._chan.clear()
+        _stop_serving(self, timeout_s)
 
     def health(self) -> dict[str, Any]:
         return {"url": self.url, "benches": sorted(self.benches), "channels": len(self._chan),
@@ -439,19 +442,7 @@ class FoxgloveFleet:
 
     # --- the sending thread ----------------------------------------------------------------------------
     def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                key, payload = self._queue.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            try:
-                self._send(key, payload)
-            except Exception as err:  # counted, logged once per kind: the router goes on routing
-                self.errors += 1
-                self.last_error = f"{type(err).__name__}: {err}"
-                if type(err).__name__ not in self._logged:  # a traceback once per kind, then counted
-                    self._logged.add(type(err).__name__)
-                    log.exception("Foxglove fleet view: %s", self.last_error)
+        _sending_loop(self, lambda item: self._send(*item), "Foxglove fleet view")  # the router goes on routing
 
     def _send(self, key: str, payload: bytes) -> None:
         import foxglove
