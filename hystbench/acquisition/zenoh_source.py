@@ -35,9 +35,10 @@ class ZenohSource:
 
     Opening asks the bench's ``health`` (within ``timeout_s``) for its recording metadata and
     subscribes; :meth:`blocks` ends when ``stop`` is set or, with ``duration_s``, once that many
-    seconds of the bench's samples came (by their indices, lost ones included; whole blocks), and raises :class:`RecordingError` naming
-    the bench and the key when no block came for ``stall_timeout_s`` (the daemon stopped, or
-    publishes no raw blocks)."""
+    seconds of the bench's samples came (by their indices, lost ones included; whole blocks), and
+    raises :class:`RecordingError` naming the bench and the key when no block came for
+    ``stall_timeout_s`` (the daemon stopped, or publishes no raw blocks).  ``lost_samples``: what
+    zenoh lost on the way (gaps the daemon's own blocks flag are not counted there)."""
 
     def __init__(self, bench: str, zenoh_config: zenoh.Config, *, duration_s: float | None = None,
                  timeout_s: float = 2.0, stall_timeout_s: float = 5.0, queue_blocks: int = 2000) -> None:
@@ -46,7 +47,7 @@ class ZenohSource:
         self.raw_key = key(bench, "raw")  # validates the name
         self.name = f"zenoh {self.raw_key}"
         self.stall_timeout_s = float(stall_timeout_s)
-        self.lost_samples = 0  # counted from the gaps in the blocks' indices
+        self.lost_samples = 0  # lost on the way here, counted from the jumps in the blocks' indices
         self._session = open_session(zenoh_config)
         try:
             replies = [r for r in query_json(self._session, key(bench, "health"), timeout_s=timeout_s) if r.get("ok", True)]
@@ -91,10 +92,11 @@ class ZenohSource:
                 raise RecordingError(f"bench {self.bench!r}: its sample clock went back from {expected} to "
                                      f"{block.first_index} (its daemon restarted?); the log ends here")
             if expected is not None and block.first_index > expected:
-                lost = block.first_index - expected
-                self.lost_samples += lost
+                # the whole jump is the gap before this block; what the daemon did not flag itself
+                # was lost on the way here
+                self.lost_samples += max(0, block.first_index - expected - block.gap_samples)
                 block = dataclasses.replace(block, flags=block.flags | BlockFlags.GAP,
-                                            gap_samples=block.gap_samples + lost)
+                                            gap_samples=block.first_index - expected)
             if end is None and self.duration_s is not None:
                 end = block.first_index + int(round(self.duration_s * self.fs_hz))
             expected = block.end_index

@@ -118,3 +118,33 @@ def test_a_daemon_that_stops_ends_the_log_closed_with_what_came(tmp_path: Path) 
     kept = list(iter_blocks(tmp_path / "cut.mcap"))  # the reference reader opens it: closed and valid
     first, end = windows[0]  # at least the samples of the estimates that came
     assert kept[0].first_index <= first and kept[-1].end_index >= end
+
+
+def test_a_gap_is_the_whole_jump_and_only_what_zenoh_lost_is_counted_lost() -> None:
+    """The blocks' own indices decide: a block zenoh dropped leaves a jump, flagged GAP on the next
+    block and counted lost; a gap the daemon's block already flags is the same jump, not lost twice.
+    (The blocks are fed to the source's reading loop directly: what a subscription would hand it.)"""
+    from hystbench.blocks import BlockFlags, SampleBlock
+    from hystbench.formats.raw_block import encode_binary
+
+    def raw(first: int, gap: int = 0) -> tuple[str, bytes, int]:
+        b = SampleBlock(first, 1000.0, {"current_A": np.zeros(100)}, flags=BlockFlags.GAP if gap else BlockFlags.NONE,
+                        gap_samples=gap)
+        return "hystbench/g/raw", encode_binary(b), 0
+
+    class Fed:  # the Subscription's get(): these items, then nothing
+        def __init__(self, items):
+            self.items = list(items)
+
+        def get(self, timeout_s):
+            return self.items.pop(0) if self.items else None
+
+    src = object.__new__(ZenohSource)
+    src.bench, src.raw_key, src.duration_s, src.fs_hz = "g", "hystbench/g/raw", 0.5, 1000.0
+    src.stall_timeout_s, src.lost_samples = HANG_S, 0
+    # 0..100, [zenoh drops 100..200], 200..300, the daemon's own gap of 50, 350..450, then 450..550
+    src._sub = Fed([raw(0), raw(200), raw(350, gap=50), raw(450)])
+    got = list(src.blocks())
+    assert [(b.first_index, b.gap_samples, bool(b.flags & BlockFlags.GAP)) for b in got] == [
+        (0, 0, False), (200, 100, True), (350, 50, True), (450, 0, False)]
+    assert src.lost_samples == 100  # the daemon's own 50 are its, not the way's
