@@ -130,7 +130,40 @@ def _row(suite: str, case: Any, bench: str | None, d: Any, recordings: int, t_si
         "parameters": {e: {p: {"value": v, "std": s} for p, (v, s) in ps.items()} for e, ps in d.parameters.items()},
         "expected": {e: dict(ps) for e, ps in case.expected.items()},
         "recordings": recordings, "seconds_simulate": t_sim, "seconds_diagnose": t_diag,
+        "why": why_wrong(case.truth, d),
     }
+
+
+def why_wrong(truth: Any, d: Any) -> list[str]:
+    """Each way the answer differs from the truth, in the diagnosis's own numbers: a true effect whose
+    best score (its parameters fitted, the calibration re-solved) never reached NAME_MARGIN is below
+    what the day's data can decide under the baseline's discrepancy; one that did was outranked by
+    what was named, or refused by the held-out proof; a name the truth lacks, with its proof."""
+    from hystbench.analysis.diagnosis.select import NAME_MARGIN
+
+    out = []
+    for effect in truth:
+        if effect in d.effects:
+            continue
+        scores = [c.score for c in d.candidates if c.name == effect and c.score is not None]
+        best = max(scores, default=None)
+        refused = [c for c in d.suspects if c.name == effect]
+        if refused:
+            out.append(f"{effect}: refused by the held-out proof ({refused[0].held_out_gain:.2f}x, score "
+                       f"{refused[0].score:.0f})")
+        elif best is None:
+            out.append(f"{effect}: not a candidate")
+        elif best < NAME_MARGIN:
+            out.append(f"{effect}: below the data's decision (best score {best:.1f} < {NAME_MARGIN:g})")
+        else:
+            ahead = [c.name for c in d.candidates if c.score is not None and c.score > best and c.name != effect]
+            out.append(f"{effect}: score {best:.0f}, outranked by {', '.join(dict.fromkeys(ahead)) or 'nothing'}")
+    for effect in d.effects:
+        if effect not in truth:
+            gain = d.signature.get(effect, {}).get("improvement")
+            out.append(f"{effect}: named, not in the truth (held out {gain:.2f}x in its signature)" if gain
+                       else f"{effect}: named, not in the truth")
+    return out
 
 
 def _bench_label(bench: Any) -> str | None:
@@ -220,6 +253,13 @@ def _print(res: dict[str, Any]) -> None:
             t.add_row(r["case"], "+".join(r["truth"]) or "none", "+".join(r["named"]) or "none",
                       "yes" if r["right"] else "NO", f"{r['residual_before']:.3g}", f"{r['residual_after']:.3g}",
                       "n/a" if imp is None else f"{imp:.1f}x", sig, f"{r['seconds_diagnose']:.1f}")
+        con.print(t)
+        t = Table(title=f"{suite} suite: what differs from the truth, and why (the diagnosis's own numbers)")
+        for col in ("case", "why"):
+            t.add_column(col)
+        for r in res["cases"]:
+            if r["suite"] == suite and r.get("why"):
+                t.add_row(r["case"], "; ".join(r["why"]))
         con.print(t)
         t = Table(title=f"{suite} suite: targets")
         for col in ("target", "measured", "pass"):

@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.bench_diagnose import confusion, targets
+from types import SimpleNamespace
+
+from benchmarks.bench_diagnose import confusion, targets, why_wrong
+from hystbench.analysis.diagnosis.result import Candidate
 from benchmarks.__main__ import main
 
 
@@ -49,3 +52,27 @@ def test_an_unknown_case_is_refused_naming_it(capsys):
     assert stop.value.code == 2
     err = capsys.readouterr().err
     assert "--cases" in err and "no_such_case" in err and "null_seed1" in err
+
+
+def _answer(named, candidates, suspects=(), signature=None):
+    """A diagnosis's answer as why_wrong reads it: the names, every candidate's (name, score) and the
+    suspects' (name, score, held-out gain)."""
+    return SimpleNamespace(effects=list(named), candidates=[Candidate(n, s, {}) for n, s in candidates],
+                           suspects=[Candidate(n, s, {}, held_out_gain=g) for n, s, g in suspects],
+                           signature=signature or {})
+
+
+def test_why_wrong_tells_a_miss_below_the_data_from_one_outranked_or_refused():
+    below = _answer([], [("load_cell_compliance", -4.0), ("frame_resonance", -7.0)])
+    assert why_wrong(["load_cell_compliance"], below) == [
+        "load_cell_compliance: below the data's decision (best score -4.0 < 10)"]
+    outranked = _answer(["magnet_eddy_currents"], [("magnet_eddy_currents", 41.7), ("channel_skew", 26.7)],
+                        signature={"magnet_eddy_currents": {"improvement": 1.6}})
+    assert why_wrong(["channel_skew"], outranked) == [
+        "channel_skew: score 27, outranked by magnet_eddy_currents",
+        "magnet_eddy_currents: named, not in the truth (held out 1.60x in its signature)"]
+    refused = _answer([], [("channel_skew", 1558.0)], suspects=[("channel_skew", 1558.0, 1.45)])
+    assert why_wrong(["channel_skew"], refused) == [
+        "channel_skew: refused by the held-out proof (1.45x, score 1558)"]
+    right = _answer(["integrator_leak"], [("integrator_leak", 300.0)])
+    assert why_wrong(["integrator_leak"], right) == [] and why_wrong([], _answer([], [])) == []
