@@ -456,6 +456,7 @@ def diagnose_waveforms(table: WaveformTable | str | Path, *, warmup: int = WARMU
     summary = {
         "path": str(t.path), "kind": "waveform", "material": sorted(set(t.material)), "rows": len(t),
         "samples_per_row": t.samples, "sample_rate_hz": fs, "warmup_samples": warmup,
+        "temperatures_c": [float(x) for x in temp],
         "baseline": "static_hysteresis (Preisach iron driven by the measured B(t), 5 parameters, no per-material setting)",
         "effects": names,
         "parameters": {"baseline": base.params, "named": final.params if named else {}},
