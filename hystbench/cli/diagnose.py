@@ -110,6 +110,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     from ..formats.outputs import output_folder
 
     paths = [Path(p) for p in args.inputs]
+    if any(_is_waveform_table(p) for p in paths):
+        return _waveform_tables(paths, args)
     tables = [p for p in paths if _is_loss_table(p)]
     if tables and len(tables) < len(paths):
         raise ConfigError(f"{tables[0]}: a loss table is diagnosed on its own, not with sweeps or logs; "
@@ -207,6 +209,68 @@ def _loss_tables(groups: list[list[Any]], args: argparse.Namespace, stage: Any) 
     con.print(t)
     for r in results:
         con.print(f"{escape(' + '.join(Path(p).name for p in r.get('paths', [r['path']])))}: {escape(r['verdict'])}")
+    if page is not None:
+        con.print(f"report: {page}")
+    return 0
+
+
+def _is_waveform_table(path: Path) -> bool:
+    """A ``.csv`` whose sidecar says ``kind: waveform`` (measured B(t)/H(t) rows, not a loss table)."""
+    if not _is_loss_table(path):
+        return False
+    try:
+        return json.loads(path.with_suffix(".json").read_text(encoding="utf-8")).get("kind") == "waveform"
+    except (OSError, ValueError, AttributeError):
+        return False  # the loss-table reader names what is wrong with the sidecar
+
+
+def _waveform_tables(paths: list[Path], args: argparse.Namespace) -> int:
+    """Measured B(t)/H(t) rows: the waveform diagnosis (analysis.diagnosis.waveforms), one table at a time."""
+    from contextlib import nullcontext
+
+    from ..formats.material_data import read_waveform_table
+    from ..formats.outputs import output_folder
+
+    if len(paths) != 1:
+        raise ConfigError(f"{paths[0]}: a waveform table is diagnosed on its own; give one table")
+    if args.baseline is not None or args.candidates is not None:
+        raise ConfigError(f"{'--baseline' if args.baseline is not None else '--candidates'}: a waveform table's "
+                          "diagnosis has its own terms; the option is for recordings")
+    from ..analysis.diagnosis.waveforms import diagnose_waveforms
+    from ..reports.console import console, progress
+
+    table = read_waveform_table(paths[0])  # checked before --report is staged
+    report = (output_folder(args.report, overwrite=args.overwrite, option="--report") if args.report is not None
+              else nullcontext())
+    with report as stage:
+        with progress() as bar:
+            task = bar.add_task(f"diagnosing {len(table)} waveforms", total=None)
+            d = diagnose_waveforms(table, say=lambda msg: bar.update(task, description=msg))
+        page = None
+        if stage is not None:
+            from ..reports.waveform_report import render_waveform_report
+
+            page = stage.final(render_waveform_report(d, stage.path))
+    if args.json:
+        print(json.dumps(d.to_json(), indent=2, allow_nan=False))
+        return 0
+    from rich.markup import escape
+    from rich.table import Table
+
+    s = d.summary
+    rb, ra = s["held_out_rows"]["before"], s["held_out_rows"]["after"]
+    t = Table(title="waveforms: H(t) of each row predicted by the model calibrated on the other rows "
+                    "(after the warm-up; Paderborn test: relative L2 < 0.15, correlation > 0.95)")
+    for col in ("row", "degC", "rel. L2 before", "after", "corr before", "after"):
+        t.add_column(col)
+    for i in range(s["rows"]):
+        t.add_row(str(i), f"{s['temperatures_c'][i]:g}", f"{rb['rel_l2'][i]:.3f}", f"{ra['rel_l2'][i]:.3f}",
+                  f"{rb['corr'][i]:.4f}", f"{ra['corr'][i]:.4f}")
+    con = console()
+    con.print(t)
+    for name, p in (s["parameters"]["named"] or s["parameters"]["baseline"]).items():
+        con.print(f"  {escape(name)} = {p['value']:.4g} +- {p['std']:.2g} {escape(p['unit'])}")
+    con.print(escape(s["verdict"]))
     if page is not None:
         con.print(f"report: {page}")
     return 0
