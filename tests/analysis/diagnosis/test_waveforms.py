@@ -1,0 +1,133 @@
+"""The measured-waveform diagnosis (hystbench.analysis.diagnosis.waveforms).
+
+Synthetic rows come from a static hysteresis written here, independent of the module and of
+hystbench.physics: a Preisach model switching in H, with its relays placed at equal-weight quantiles
+of a factorised Gaussian density (so B has no coarse steps, which a rate term would otherwise pick up),
+a reversible atan term, driven by a sum of sinusoids in H starting from zero (the demagnetised state);
+B follows from H, the eddy field k_c dB/dt is added to H, dB/dt taken by central differences.  Then the
+real 3C90 rows of mag-net-hub, against the Paderborn sequence test's thresholds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from hystbench.analysis.diagnosis.waveforms import (CORR_MIN, REL_L2_MAX, diagnose_waveforms, fit_waveforms,
+                                                    paderborn_metrics, select_terms, temperatures_separable)
+
+FS = 16e6
+MU0 = 4e-7 * np.pi
+WARMUP = 128
+K_C = 2.0e-5  # A s/(m T): the eddy coefficient hidden in the synthetic rows
+REAL = Path(__file__).resolve().parents[2] / "data" / "real" / "mag-net-hub" / "maghub_3C90_sequence.csv"
+
+
+def relay_hysteresis(h: np.ndarray, j_irr: float = 0.15, centre: float = 5.0, width: float = 15.0,
+                     j_rev: float = 0.3, h_rev: float = 50.0, n: int = 150) -> np.ndarray:
+    """B (T) of each row of h (A/m): relays up at alpha, down at beta, alpha ~ N(centre, width),
+    -beta ~ N(centre, width) at equal-weight quantiles, demagnetised at the start (up where alpha + beta < 0)."""
+    u = (np.arange(n) + 0.5) / n
+    al, be = np.meshgrid(norm.ppf(u, centre, width), -norm.ppf(u, centre, width), indexing="ij")
+    keep = al > be
+    al, be = al[keep][:, None], be[keep][:, None]
+    init = np.where(al + be < 0, 1.0, -1.0)
+    out = np.empty_like(h)
+    idx = np.arange(h.shape[1])
+    for i, row in enumerate(h):
+        acc = np.zeros(row.size)
+        for s in range(0, al.shape[0], 2000):  # chunks of relays, vectorised over samples
+            a, b, r0 = al[s:s + 2000], be[s:s + 2000], init[s:s + 2000]
+            up = np.maximum.accumulate(np.where(row >= a, idx, -1), axis=1)
+            dn = np.maximum.accumulate(np.where(row <= b, idx, -1), axis=1)
+            acc += ((np.where(up > dn, 1.0, np.where(dn > up, -1.0, r0)) - r0).sum(axis=0))
+        out[i] = j_irr / al.shape[0] * acc + MU0 * row + j_rev * 2 / np.pi * np.arctan(row / h_rev)
+    return out
+
+
+@pytest.fixture(scope="module")
+def synthetic() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(B, H static, dB/dt): four rows of 768 samples at 16 MHz, 50-500 kHz content, |B| < 0.18 T."""
+    rng = np.random.default_rng(1)
+    t = np.arange(768) / FS
+    f = rng.uniform(50e3, 500e3, (4, 6))
+    a = rng.uniform(2.0, 6.0, (4, 6))
+    hs = np.einsum("rk,rkn->rn", a, np.sin(2 * np.pi * f[:, :, None] * t))
+    b = relay_hysteresis(hs)
+    return b, hs, np.gradient(b, axis=1) * FS
+
+
+def _mask(b: np.ndarray) -> np.ndarray:
+    m = np.zeros_like(b, bool)
+    m[:, WARMUP:] = True
+    return m
+
+
+def test_a_known_eddy_field_is_named_and_recovered(synthetic):
+    b, hs, db = synthetic
+    rng = np.random.default_rng(2)
+    h = hs + K_C * db + 0.01 * hs.std() * rng.standard_normal(hs.shape)  # 1 % noise
+    temp = np.full(len(b), 25.0)
+    base, named, _ = select_terms(b, h, FS, temp, _mask(b))
+    assert named and named[-1].terms == ("eddy",)
+    fit = fit_waveforms(b, h, FS, temp, _mask(b), named[-1].terms, start=named[-1])
+    k = fit.params["eddy.k_c"]
+    # within 3 std, or 2 % (the std takes samples as independent, which they are here but for the
+    # hysteresis misfit of the discrete relays)
+    assert abs(k["value"] - K_C) < max(3 * k["std"], 0.02 * K_C)
+    assert k["unit"] == "A s/(m T)"
+    assert fit.bic < base.bic - 10
+
+
+def test_without_a_rate_term_nothing_is_named(synthetic):
+    b, hs, _ = synthetic
+    rng = np.random.default_rng(3)
+    h = hs + 0.01 * hs.std() * rng.standard_normal(hs.shape)
+    _, named, rounds = select_terms(b, h, FS, np.full(len(b), 25.0), _mask(b))
+    assert named == []
+    assert rounds and rounds[0]["named"] is None
+
+
+def test_one_row_alone_at_a_temperature_is_not_separable():
+    m = np.ones((6, 10), bool)
+    assert not temperatures_separable(np.array([50.0, 25, 25, 25, 25, 25]), m)
+    assert temperatures_separable(np.array([50.0, 50, 25, 25, 25, 25]), m)
+
+
+def test_paderborn_metrics_are_the_tests_own():
+    rng = np.random.default_rng(4)
+    h = rng.standard_normal((2, 300))
+    pred = h + 0.1 * rng.standard_normal(h.shape)
+    m = paderborn_metrics(pred, h, warmup=100)
+    ref = np.linalg.norm(pred[:, 100:] - h[:, 100:], axis=1) / np.linalg.norm(h[:, 100:], axis=1)
+    assert np.allclose(m["rel_l2"], ref)
+    assert np.isclose(m["corr"][1], np.corrcoef(pred[1, 100:], h[1, 100:])[0, 1])
+
+
+@pytest.fixture(scope="module")
+def real():
+    return diagnose_waveforms(REAL)
+
+
+def test_real_3c90_rows_reach_the_paderborn_thresholds_held_out(real):
+    """Each row predicted by a model calibrated on the other fold's rows (even / odd), after the
+    128-sample warm-up, as mag-net-hub's TestSequenceModelAccuracy checks its own models."""
+    after = real.summary["held_out_rows"]["after"]
+    assert max(after["rel_l2"]) < REL_L2_MAX
+    assert min(after["corr"]) > CORR_MIN
+    before = real.summary["held_out_rows"]["before"]
+    # the rate-independent baseline alone does not: the named terms are what reaches them
+    assert max(before["rel_l2"]) > REL_L2_MAX
+    assert all(a < b for a, b in zip(after["rel_l2"], before["rel_l2"]))
+
+
+def test_real_3c90_names_a_rate_term_and_proves_it_in_time(real):
+    s = real.summary
+    assert "lamination_eddy_currents" in s["effects"]
+    assert all(name == "lamination_eddy_currents" or name.startswith("not in the catalogue: ") for name in s["effects"])
+    assert s["held_out_time"]["improvement"] > 2.0
+    for p in s["parameters"]["named"].values():
+        assert np.isfinite(p["value"]) and p["std"] >= 0 and p["unit"]
