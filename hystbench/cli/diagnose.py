@@ -270,6 +270,8 @@ def _waveform_tables(paths: list[Path], args: argparse.Namespace) -> int:
     con.print(t)
     for name, p in (s["parameters"]["named"] or s["parameters"]["baseline"]).items():
         con.print(f"  {escape(name)} = {p['value']:.4g} +- {p['std']:.2g} {escape(p['unit'])}")
+    for name, p in s.get("interpretation", {}).items():
+        con.print(f"  {escape(name)} = {p['value']:.4g} {escape(str(p['unit']))}")
     con.print(escape(s["verdict"]))
     if page is not None:
         con.print(f"report: {page}")

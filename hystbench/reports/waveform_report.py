@@ -80,7 +80,10 @@ def render_waveform_report(d: WaveformDiagnosis, folder: str | Path) -> Path:
                      f"{rb['corr'][i]:.4f} | {ra['corr'][i]:.4f} |")
     lines += ["", "Parameters (std from the Jacobian, samples taken as independent):", "", "```"]
     lines += _parameter_lines(s["parameters"]["named"] or s["parameters"]["baseline"])
-    lines += ["```", "", f"![errors]({waveform_error_figure(d, folder / 'waveform_errors.png').name})", ""]
+    lines += ["```", "", "What they mean (library's reading; see docs/waveforms.md):", ""]
+    lines += [f"- {k} = {v['value']:.4g} {v['unit']}" + (f" ({v['meaning']})" if "meaning" in v else "")
+              for k, v in s.get("interpretation", {}).items()]
+    lines += ["", f"![errors]({waveform_error_figure(d, folder / 'waveform_errors.png').name})", ""]
     for i in range(s["rows"]):
         png = waveform_row_figure(d, i, folder / f"waveform_row_{i}.png")
         lines += [f"![row {i}]({png.name})", ""]
