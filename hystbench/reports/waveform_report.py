@@ -70,7 +70,8 @@ def render_waveform_report(d: WaveformDiagnosis, folder: str | Path) -> Path:
     folder = Path(folder)
     s = d.summary
     lines = ["# Diagnosis of measured B(t)/H(t) waveforms", "", f"`{s['path']}`: {s['rows']} rows of "
-             f"{s['samples_per_row']} samples at {s['sample_rate_hz'] / 1e6:g} MHz, {s['warmup_samples']} of warm-up.", "",
+             f"{s['samples_per_row']} samples at {s['sample_rate_hz'] / 1e6:g} MHz, "
+             f"{s['warmup_samples']} of warm-up.", "",
              s["verdict"] + ".", "", f"Split (rows): {s['held_out_rows']['split']}.", "",
              f"Split (time): {s['held_out_time']['split']}.", "", "| row | degC | rel. L2 before | after | corr before "
              "| after |", "|---|---|---|---|---|---|"]

@@ -31,12 +31,14 @@ import numpy as np
 from scipy.optimize import least_squares, lsq_linear
 from scipy.signal import lfilter
 
+from ...config.effects import CATALOGUE
 from ...formats.material_data import WaveformTable, read_waveform_table
 from ...physics.hysteresis import PreisachHysteresis, PreisachParams
 from .select import NAME_MARGIN, RUNNER_UP_MARGIN
 
 __all__ = ["WARMUP_SAMPLES", "REL_L2_MAX", "CORR_MIN", "TERMS", "Term", "WaveformFit", "WaveformDiagnosis",
-           "fit_waveforms", "locate_residual", "select_terms", "temperatures_separable", "predict", "paderborn_metrics", "diagnose_waveforms"]
+           "fit_waveforms", "locate_residual", "select_terms", "temperatures_separable", "predict",
+           "paderborn_metrics", "diagnose_waveforms"]
 
 #: the Paderborn sequence test feeds the first 128 samples as warm-up and compares H over the rest
 WARMUP_SAMPLES = 128
@@ -84,6 +86,12 @@ def _relaxed(ctx: Ctx, th: np.ndarray) -> list[np.ndarray]:
     return [lfilter([1.0 - a], [1.0, -a], ctx.db_dt, axis=1)]
 
 
+def _named(key: str, generic: str) -> tuple[str, bool]:
+    """The catalogue's name when the catalogue knows the effect (excess loss and magnetic relaxation are
+    joining it, issue 28), else the generic term's ``not in the catalogue: ...``."""
+    return (key, True) if key in CATALOGUE else (f"not in the catalogue: {generic}", False)
+
+
 #: The candidates, in the report's words.  Nonlinear parameters are fitted in sample periods (reported
 #: in seconds), started from the best of a grid and bounded to what the sampling resolves: a relaxation
 #: within two sample periods (Nyquist) is not told from an instantaneous term blurred by the acquisition.
@@ -92,11 +100,11 @@ TERMS: dict[str, Term] = {t.key: t for t in (
          lambda c, th: [c.db_dt], positive=True),
     Term("skew", "channel_skew", True, "H(t) measured against B(t + delta)", (),
          lambda c, th: [], nonlin=(("delta_s", "s", (-2.0, -1.0, 1.0, 2.0), -4.0, 4.0),), shifts_b=True),
-    Term("excess", "not in the catalogue: excess loss (Bertotti), H_ex = k_e |dB/dt|^0.5 sign(dB/dt)", False,
+    Term("excess", *_named("excess_loss", "excess loss (Bertotti), H_ex = k_e |dB/dt|^0.5 sign(dB/dt)"),
          "H_ex = k_e |dB/dt|^0.5 sign(dB/dt)", (("k_e", "A/m (T/s)^-0.5"),),
          lambda c, th: [np.sign(c.db_dt) * np.sqrt(np.abs(c.db_dt))], positive=True),
-    Term("relax", "not in the catalogue: first-order magnetic relaxation, tau dH_r/dt + H_r = k_r dB/dt", False,
-         "tau dH_r/dt + H_r = k_r dB/dt", (("k_r", "A s/(m T)"),), _relaxed,
+    Term("relax", *_named("magnetic_relaxation", "first-order magnetic relaxation, tau dH_r/dt + H_r = k_r dB/dt"),
+         "tau dH_r/dt + H_r = k_r dB/dt (k_r = kappa tau)", (("k_r", "A s/(m T)"),), _relaxed,
          nonlin=(("tau_s", "s", (3.0, 10.0, 30.0), 2.0, 300.0),), positive=True),
     Term("inertia", "not in the catalogue: domain-wall inertia (second-order response), H_m = m d^2B/dt^2", False,
          "H_m = m d^2B/dt^2", (("m", "A s^2/(m T)"),), lambda c, th: [np.gradient(c.db_dt, axis=1) * c.fs],
@@ -346,7 +354,8 @@ def select_terms(b: np.ndarray, h: np.ndarray, fs: float, temp_c: np.ndarray, ma
     newcomer in, it no longer earns NAME_MARGIN (one term alone can stand in for two that act together:
     a skew of H against B mimics a rate and an acceleration term at once).  A dropped term does not
     come back.  Returns (baseline, [model after each round that named], the rounds' scores)."""
-    pool = [c for c in (candidates or TERMS) if not (TERMS[c].needs_temperatures and not temperatures_separable(temp_c, mask))]
+    separable = temperatures_separable(temp_c, mask)
+    pool = [c for c in (candidates or TERMS) if separable or not TERMS[c].needs_temperatures]
     base = fit_waveforms(b, h, fs, temp_c, mask, errors=False)
     current, named, rounds = base, [], []
     while pool:  # each candidate scored with the iron held (cheap, and a lower bound), the winner refitted whole
@@ -369,7 +378,8 @@ def select_terms(b: np.ndarray, h: np.ndarray, fs: float, temp_c: np.ndarray, ma
             if without.bic - current.bic >= NAME_MARGIN:
                 without = fit_waveforms(b, h, fs, temp_c, mask, rest, start=current, errors=False, max_nfev=30)
             if without.bic - current.bic < NAME_MARGIN:
-                say(f"  {TERMS[old].name} no longer earns its margin (delta BIC {without.bic - current.bic:.1f}): dropped")
+                say(f"  {TERMS[old].name} no longer earns its margin "
+                    f"(delta BIC {without.bic - current.bic:.1f}): dropped")
                 rounds[-1].setdefault("dropped", []).append(TERMS[old].name)
                 current = without
         if "dropped" in rounds[-1]:  # what stays, refitted with the iron
@@ -462,7 +472,8 @@ def diagnose_waveforms(table: WaveformTable | str | Path, *, warmup: int = WARMU
         "path": str(t.path), "kind": "waveform", "material": sorted(set(t.material)), "rows": len(t),
         "samples_per_row": t.samples, "sample_rate_hz": fs, "warmup_samples": warmup,
         "temperatures_c": [float(x) for x in temp],
-        "baseline": "static_hysteresis (Preisach iron driven by the measured B(t), 5 parameters, no per-material setting)",
+        "baseline": ("static_hysteresis (Preisach iron driven by the measured B(t), 5 parameters, "
+                     "no per-material setting)"),
         "effects": names,
         "parameters": {"baseline": base.params, "named": final.params if named else {}},
         "located": {k: {"eta2": v["eta2"], "unit": v["unit"]} for k, v in located.items()},
@@ -471,7 +482,8 @@ def diagnose_waveforms(table: WaveformTable | str | Path, *, warmup: int = WARMU
                       "bic_baseline": base.bic, "bic_named": final.bic},
         "held_out_time": {
             "split": f"every row calibrated on samples {warmup}..{half - 1}, held out {half}..{t.samples - 1}",
-            "rms_before_a_per_m": before, "rms_after_a_per_m": after, "improvement": before / after if after > 0 else None,
+            "rms_before_a_per_m": before, "rms_after_a_per_m": after,
+            "improvement": before / after if after > 0 else None,
             "per_row_before": paderborn_metrics(np.where(held, h_base, h), h, half),
             "per_row_after": paderborn_metrics(np.where(held, h_final, h), h, half)},
         "held_out_rows": {
