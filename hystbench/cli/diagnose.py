@@ -166,15 +166,10 @@ def _run(recs: list[Any], args: argparse.Namespace) -> Any:
 
 def _loss_groups(tables: list[Path], args: argparse.Namespace) -> list[list[Any]]:
     """Every table read and checked, grouped (a material's sine and shapes tables together), before any
-    work; ``--report`` draws sinusoidal tables only, so a group with shapes refuses it here."""
+    work."""
     from ..analysis.diagnosis.loss_separation import loss_table_groups
 
-    groups = loss_table_groups(tables)
-    shaped = [t for g in groups for t in g if (t.duty[:, 0] != -1).any()]
-    if shaped and args.report is not None:
-        raise ConfigError(f"--report: its figures draw sinusoidal tables only; {shaped[0].path} holds triangular/"
-                          "trapezoidal rows (leave out --report, or give its sine table alone)")
-    return groups
+    return loss_table_groups(tables)
 
 
 def _loss_tables(groups: list[list[Any]], args: argparse.Namespace, stage: Any) -> int:

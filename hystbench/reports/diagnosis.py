@@ -281,7 +281,7 @@ def write_report(diagnosis: Diagnosis, out_dir: str | Path, *, overwrite: bool =
 def render_loss_report(results: list[Mapping[str, Any]], folder: str | Path) -> Path:
     """A page for measured loss tables (``analysis.diagnosis.loss_separation``): per table the verdict,
     the named terms' parameters, the held-out error before and after, and its figure."""
-    from .loss_figures import loss_separation_figure
+    from .loss_figures import loss_separation_figure, loss_shapes_figure
 
     folder = Path(folder)
     lines = ["# Diagnosis of measured loss tables", "",
@@ -290,11 +290,18 @@ def render_loss_report(results: list[Mapping[str, Any]], folder: str | Path) -> 
     for n, r in enumerate(results):
         name = Path(str(r["path"])).stem
         png = f"loss_{n}_{name}.png"
-        loss_separation_figure(r["path"], folder / png, split=r.get("split", "low_third"))
+        if "shapes" in r:  # a material's sine and triangle/trapezoid tables: loss against f per shape group
+            loss_shapes_figure(r.get("paths", [r["path"]]), folder / png, split=r.get("split", "low_third"))
+        else:
+            loss_separation_figure(r["path"], folder / png, split=r.get("split", "low_third"))
         imp = r.get("improvement")
         lines += [f"## {r.get('material') or name} ({name})", "", str(r["verdict"]) + ".", "",
                   f"Held-out rms error of log10(energy per cycle): {r['residual_before_log10']:.3f} before, "
                   f"{r['residual_after_log10']:.3f} after ({'n/a' if imp is None else f'{imp:.2f}x'}).", ""]
+        for g, v in r.get("shapes", {}).get("groups", {}).items():
+            lines.append(f"- {g}: {v['residual_before_log10']:.3f} -> {v['residual_after_log10']:.3f} "
+                         f"({v['held_out']} held out)")
+        lines += [""] if "shapes" in r else []
         params = {e: {k: (v["value"], v["std"]) for k, v in ps.items()} for e, ps in r.get("parameters", {}).items()}
         if params:
             lines += ["```"] + parameter_lines(params) + ["```", ""]

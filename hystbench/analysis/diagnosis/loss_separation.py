@@ -55,45 +55,17 @@ from scipy.optimize import least_squares
 
 from ...errors import EstimationError, RecordingError
 from ...formats.material_data import LossTable, read_material_table
-from .loss_shapes import calibration_shapes, locate_shapes, shape_factor
+from .loss_shapes import calibration_shapes, locate_shapes, shape_group
+from .loss_terms import (B0_T, FREE_BOUNDS, LIBRARY, STEINMETZ, TERMS, Rows, Term, form, inert, n_params, natural,
+                         term_bounds, term_part, term_start, term_starts)
 
 __all__ = ["TERMS", "Term", "TermFit", "energy_per_cycle", "split_mask", "fit_terms", "noise_floor",
            "calibrate_split", "diagnose_energy", "diagnose_loss_table", "loss_table_groups", "rate_trend", "main"]
 
-B0_T = 0.1  # the baseline's reference flux density
 NAME_DELTA_BIC = 10.0  # decisively better than the current model (issue 13)
 RUNNER_UP_DELTA_BIC = 6.0  # and than the runner-up
 LN10 = math.log(10.0)
-#: (gamma, delta) bounds of the free term: a loss per cycle that grows with f (gamma > 0), and a B
-#: exponent in the range measured on ferrites and steels; a fit on a bound is flagged.
-FREE_BOUNDS = ((0.1, 1.0), (3.0, 4.0))
-
-
-@dataclass(frozen=True)
-class Term:
-    """A rate-dependent loss term k f^gamma B^delta (fixed exponents unless ``free``)."""
-
-    name: str
-    in_catalogue: bool
-    description: str
-    f_exp: float
-    b_exp: float
-    coefficient: str  # the coefficient's name with its unit
-    free: bool = False
-
-
-TERMS = {
-    "lamination_eddy_currents": Term(
-        "lamination_eddy_currents", True,
-        "classical eddy-current loss k_c f B^2 (Bertotti); in a ferrite the bulk-eddy/relaxation analogue",
-        1.0, 2.0, "k_c_J_s_per_m3_T2"),
-    "excess_loss": Term(
-        "excess_loss", False, "excess loss (Bertotti) k_e f^0.5 B^1.5, not in the catalogue",
-        0.5, 1.5, "k_e_J_per_m3_Hz0.5_T1.5"),
-}
-STEINMETZ = Term("steinmetz_rate_dependence", False,
-                 "a rate dependence k_s f^gamma B^delta with free exponents (Steinmetz alpha = 1 + gamma), "
-                 "not in the catalogue", 0.5, 2.5, "k_s", free=True)
+LSMR_ROWS = 3000  # above this many rows the trust-region steps are solved iteratively (speed only)
 
 
 @dataclass(frozen=True)
@@ -101,7 +73,7 @@ class TermFit:
     """One model fitted in log space on the calibration points."""
 
     terms: tuple[Term, ...]
-    x: np.ndarray  # [ln k_h, beta, c, then per term ln k (and gamma, delta if free)]
+    x: np.ndarray  # [ln k_h, beta, c, then per term its n_params values]
     cov: np.ndarray
     rss: float  # sum of squared ln residuals on the calibration points
     n: int
@@ -110,8 +82,9 @@ class TermFit:
     def bic(self) -> float:
         return self.n * math.log(max(self.rss, 1e-300) / self.n) + self.x.size * math.log(self.n)
 
-    def log_w(self, f: np.ndarray, b: np.ndarray, duty: np.ndarray | None = None) -> np.ndarray:
-        return _log_w(self.x, self.terms, f, b, duty)
+    def log_w(self, f: np.ndarray, b: np.ndarray, duty: np.ndarray | None = None,
+              temperature_c: np.ndarray | None = None) -> np.ndarray:
+        return _log_w(self.x, self.terms, Rows(f, b, duty, temperature_c))
 
     def parameters(self) -> dict[str, dict[str, tuple[float, float]]]:
         """Effect -> parameter -> (value, std), natural units (delta method from the ln-k covariance)."""
@@ -121,15 +94,9 @@ class TermFit:
                                      "curvature": (self.x[2], se[2])}}
         i = 3
         for t in self.terms:
-            k = math.exp(self.x[i])
-            p = {t.coefficient: (k, k * se[i])}
-            if t.name == "lamination_eddy_currents":  # W_cl = pi^2 sigma d^2 f B^2 / 6
-                p["sigma_d2_S_m"] = (6.0 * k / math.pi**2, 6.0 * k * se[i] / math.pi**2)
-            if t.free:
-                p["alpha"] = (1.0 + self.x[i + 1], se[i + 1])
-                p["delta"] = (self.x[i + 2], se[i + 2])
-            out[t.name] = p
-            i += 3 if t.free else 1
+            k = n_params(t)
+            out[t.name] = natural(t, self.x[i:i + k], se[i:i + k])
+            i += k
         return out
 
 
@@ -165,44 +132,60 @@ def split_mask(f: np.ndarray, how: str) -> np.ndarray:
     raise EstimationError(f"split {how!r}: choose low_third or interleaved")
 
 
-def _log_w(x: np.ndarray, terms: Sequence[Term], f: np.ndarray, b: np.ndarray,
-           duty: np.ndarray | None = None) -> np.ndarray:
-    """ln W; with ``duty`` (rows, 4) each rate term is scaled by its shape factor S_(1 + gamma)."""
-    lb = np.log(b / B0_T)
+def _log_w(x: np.ndarray, terms: Sequence[Term], rows: Rows) -> np.ndarray:
+    """ln W: the rate-independent baseline plus every energy term (with ``rows.duty`` each rate term
+    scaled by its shape factor), times the temperature factor when there is one."""
+    lb = rows.ln_b - math.log(B0_T)
     parts = [x[0] + x[1] * lb + x[2] * lb**2]
+    factor = 0.0
     i = 3
     for t in terms:
-        g, d = (x[i + 1], x[i + 2]) if t.free else (t.f_exp, t.b_exp)
-        part = x[i] + g * np.log(f) + d * np.log(b)
-        parts.append(part if duty is None else part + np.log(shape_factor(duty, 1.0 + g)))
-        i += 3 if t.free else 1
-    return np.logaddexp.reduce(np.stack(parts), axis=0)
+        k = n_params(t)
+        part = term_part(t, x[i:i + k], rows)
+        if t.kind == "temperature":
+            factor = factor + part
+        else:
+            parts.append(part)
+        i += k
+    return np.logaddexp.reduce(np.stack(parts), axis=0) + factor
 
 
 def fit_terms(f: np.ndarray, b: np.ndarray, w: np.ndarray, terms: Sequence[Term] = (),
-              duty: np.ndarray | None = None) -> TermFit:
+              duty: np.ndarray | None = None, temperature_c: np.ndarray | None = None,
+              start: TermFit | None = None) -> TermFit:
     """Baseline + ``terms`` fitted to ln W by least squares, from several starts (each term starting
-    at 1 %, 10 % and 50 % of the median energy); the covariance is (J'J)^-1 rss/dof.  ``duty``: the
-    rows' MagNet duties (None: all sines)."""
+    at 1 %, 10 % and 50 % of the median energy, and at two exponents or time constants where free;
+    with ``start``, a fit of the same rows with ``terms[:-1]``, from it and the last term at 3 % and
+    30 %); the covariance is (J'J)^-1 rss/dof.  ``duty``: the rows' MagNet duties (None: all sines)."""
+    rows = Rows(f, b, duty, temperature_c)
     y = np.log(w)
     lb = np.log(b / B0_T)
     base = np.linalg.lstsq(np.column_stack([np.ones_like(lb), lb, lb**2]), y, rcond=None)[0]
     best = None
-    free_starts = (0.5, 1.5) if any(t.free for t in terms) else (None,)
-    for share, g0 in [(s, g) for s in ((0.01, 0.1, 0.5) if terms else (1.0,)) for g in free_starts]:
-        x0 = [base[0] + math.log(1.0 - share) if terms else base[0], base[1], base[2]]
-        lo, hi = [-np.inf] * 3, [np.inf] * 3
-        for t in terms:
-            g, d = (g0, t.b_exp) if t.free else (t.f_exp, t.b_exp)
-            x0.append(float(np.median(y - g * np.log(f) - d * np.log(b))) + math.log(share))
-            lo.append(-np.inf), hi.append(np.inf)
-            if t.free:
-                x0 += [g, d]
-                lo += list(FREE_BOUNDS[0])
-                hi += list(FREE_BOUNDS[1])
-        sol = least_squares(lambda x: _log_w(x, terms, f, b, duty) - y, np.array(x0), bounds=(lo, hi), x_scale="jac")
-        if best is None or sol.cost < best.cost:
-            best = sol
+    energy = [t for t in terms if t.kind != "temperature"]
+    second = [term_starts(t) for t in terms]
+    n_starts = max((len(s) for s in second), default=1)
+    solver = "lsmr" if y.size > LSMR_ROWS else "exact"  # the exact step's SVD of a tall Jacobian dominates
+    warm = start is not None and start.terms == tuple(terms[:-1])
+    shares = (0.03, 0.3) if warm else (0.01, 0.1, 0.5) if energy else (1.0,)
+    for share in shares:
+        for j in range(n_starts):
+            x0 = [base[0] + math.log(1.0 - share) if energy else base[0], base[1], base[2]]
+            lo, hi = [-np.inf] * 3, [np.inf] * 3
+            for t, s2 in zip(terms, second):
+                x0 += term_start(t, y, rows, share, s2[min(j, len(s2) - 1)])
+                tl, th = term_bounds(t)
+                lo += tl
+                hi += th
+            if warm:  # the model so far as fitted, its energy scaled down to make room for the new term
+                x0[:start.x.size] = list(start.x)
+                if terms[-1].kind != "temperature":
+                    x0[0] += math.log(1.0 - share)
+            x0 = np.clip(np.array(x0), np.array(lo) + 1e-9, np.array(hi) - 1e-9)
+            sol = least_squares(lambda x: _log_w(x, terms, rows) - y, x0, bounds=(lo, hi), x_scale="jac",
+                                tr_solver=solver)
+            if best is None or sol.cost < best.cost:
+                best = sol
     resid = best.fun
     dof = max(resid.size - best.x.size, 1)
     cov = np.linalg.pinv(best.jac.T @ best.jac) * float(resid @ resid) / dof
@@ -273,59 +256,120 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2)))
 
 
-def _select(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | None = None
-            ) -> tuple[TermFit, list[dict[str, Any]], list[str]]:
-    """Forward selection over the Bertotti terms: name the best addition while it beats the current
-    model by >= NAME_DELTA_BIC and the runner-up by >= RUNNER_UP_DELTA_BIC."""
-    current = fit_terms(f, b, w, duty=duty)
+def _inner_split(f: np.ndarray, split: str) -> np.ndarray | None:
+    """The split's own rule applied inside the calibration rows (None when they span < 3 frequencies)."""
+    try:
+        return split_mask(f, split)
+    except EstimationError:
+        return None
+
+
+def _inner_proof(rows: Rows, w: np.ndarray, terms: tuple[Term, ...], term: Term, inner: np.ndarray | None
+                 ) -> dict[str, float] | None:
+    """Does ``term`` extrapolate within the calibration rows?  Fitted on the inner calibration rows with
+    and without it, the rms log10 error on the other calibration rows (None when there is no inner split)."""
+    if (inner is None or inner.sum() < 12 or np.unique(rows.f[inner]).size < 3
+            or inert(term, rows.take(inner)) is not None):
+        return None  # a rate term's f dependence is not fitted from fewer than 3 frequencies
+    r_in, y = rows.take(inner), np.log10(w)
+    out = {}
+    for key, ts in (("without", terms), ("with", terms + (term,))):
+        fit = fit_terms(r_in.f, r_in.b, w[inner], ts, r_in.duty, r_in.temperature_c)
+        r = y[~inner] - _log_w(fit.x, ts, rows.take(~inner)) / LN10
+        out[key] = _rms(r)
+    return out
+
+
+def _select(rows: Rows, w: np.ndarray, split: str = "low_third"
+            ) -> tuple[list[TermFit], list[dict[str, Any]], list[str], list[dict[str, Any]], dict[str, str]]:
+    """Forward selection over the library (:data:`.loss_terms.LIBRARY`): the best addition is taken
+    while it beats the current model by >= NAME_DELTA_BIC and the runner-up by >= RUNNER_UP_DELTA_BIC,
+    and, fitted on the split's own rule inside the calibration rows, predicts the other calibration
+    rows better than the model without it (a decisive score is not enough: a term that explains the
+    calibration window but extrapolates worse is a suspect, as in issue 13's selection).  Returns the
+    fits after each step, the scored candidates, the chosen names, the suspects and the terms skipped
+    as not identifiable on these rows (why)."""
+    fits_seq = [fit_terms(rows.f, rows.b, w, (), rows.duty, rows.temperature_c)]
+    current = fits_seq[0]
     chosen: list[str] = []
     candidates: list[dict[str, Any]] = []
-    for rnd in (1, 2):
-        left = [t for n, t in TERMS.items() if n not in chosen]
-        if not left:
+    suspects: list[dict[str, Any]] = []
+    skipped = {t.name: why for t in LIBRARY if (why := inert(t, rows)) is not None}
+    pool = [t for t in LIBRARY if t.name not in skipped]
+    inner = _inner_split(rows.f, split)
+    for rnd in (1, 2, 3):
+        if not pool:
             break
-        fits = {t.name: fit_terms(f, b, w, current.terms + (t,), duty) for t in left}
+        fits = {t.name: fit_terms(rows.f, rows.b, w, current.terms + (t,), rows.duty, rows.temperature_c, current)
+                for t in pool}
         scores = {n: current.bic - fit.bic for n, fit in fits.items()}
+        by_name = {t.name: t for t in pool}
         for n, fit in fits.items():
-            candidates.append({"name": n, "score": scores[n], "round": rnd, "in_catalogue": TERMS[n].in_catalogue,
+            candidates.append({"name": n, "score": scores[n], "round": rnd, "in_catalogue": by_name[n].in_catalogue,
                                "parameters": _param_json(fit.parameters().get(n, {}))})
         ranked = sorted(scores, key=scores.get, reverse=True)
-        runner_up = scores[ranked[1]] if len(ranked) > 1 else 0.0
-        top = ranked[0]
-        if scores[top] < NAME_DELTA_BIC or scores[top] - max(runner_up, 0.0) < RUNNER_UP_DELTA_BIC:
+        taken = None
+        while ranked:
+            top, rest = ranked[0], ranked[1:]
+            runner_up = max((scores[n] for n in rest), default=0.0)
+            if scores[top] < NAME_DELTA_BIC or scores[top] - max(runner_up, 0.0) < RUNNER_UP_DELTA_BIC:
+                break
+            proof = _inner_proof(rows, w, current.terms, by_name[top], inner)
+            if proof is not None and proof["with"] >= proof["without"]:
+                suspects.append({"name": top, "round": rnd, "score": scores[top],
+                                 "inner_held_out_rms_log10": proof})
+                ranked = rest  # refused this round; tried again beside the next term taken
+                continue
+            taken = top
             break
-        chosen.append(top)
-        current = fits[top]
-    return current, candidates, chosen
+        if taken is None:
+            break
+        chosen.append(taken)
+        current = fits[taken]
+        fits_seq.append(current)
+        pool = [t for t in pool if t.name != taken]
+    return fits_seq, candidates, chosen, suspects, skipped
 
 
 def _param_json(p: dict[str, tuple[float, float]]) -> dict[str, dict[str, float]]:
     return {k: {"value": float(v), "std": float(s)} for k, (v, s) in p.items()}
 
 
+CALIBRATE_ON = ("sine_triangle", "all_shapes")
+
+
 def calibrate_split(f: np.ndarray, b: np.ndarray, w: np.ndarray, split: str = "low_third",
-                    duty: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, TermFit, TermFit, list[dict[str, Any]], list[str]]:
+                    duty: np.ndarray | None = None, *, temperature_c: np.ndarray | None = None,
+                    calibrate_on: str = "sine_triangle") -> tuple[np.ndarray, TermFit, TermFit, list[dict[str, Any]],
+                                                                   list[str]]:
     """Calibration mask, the baseline's fit, the fit with the named terms, the scored candidates and
     the named terms' names (what :func:`diagnose_energy` and the figures share).  With ``duty`` only
-    the sines and symmetric triangles of the split's frequencies are calibrated on."""
-    train = split_mask(f, split)
-    dt = None
-    if duty is not None:
-        train &= calibration_shapes(duty)
+    the sines and symmetric triangles of the split's frequencies are calibrated on (``calibrate_on``
+    ``all_shapes``: every shape of those frequencies, where a relaxation term can be identified)."""
+    train, seq, candidates, chosen, _, _ = _calibrate(Rows(f, b, duty, temperature_c), w, split, calibrate_on)
+    return train, seq[0], seq[-1], candidates, chosen
+
+
+def _calibrate(rows: Rows, w: np.ndarray, split: str, calibrate_on: str):
+    if calibrate_on not in CALIBRATE_ON:
+        raise EstimationError(f"calibrate_on {calibrate_on!r}: choose {' or '.join(CALIBRATE_ON)}")
+    train = split_mask(rows.f, split)
+    if rows.duty is not None:
+        if calibrate_on == "sine_triangle":
+            train &= calibration_shapes(rows.duty)
         if train.sum() < 12:
-            raise EstimationError(f"split {split!r}: {int(train.sum())} sine or symmetric-triangle rows at the "
-                                  "calibration frequencies; at least 12 are needed")
-        dt = duty[train]
-    base = fit_terms(f[train], b[train], w[train], duty=dt)
-    final, candidates, chosen = _select(f[train], b[train], w[train], dt)
-    return train, base, final, candidates, chosen
+            raise EstimationError(f"split {split!r}: {int(train.sum())} calibration rows at the calibration "
+                                  "frequencies; at least 12 are needed")
+    seq, candidates, chosen, suspects, skipped = _select(rows.take(train), w[train], split)
+    return train, seq, candidates, chosen, suspects, skipped
 
 
 def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: str = "",
-                    split: str = "low_third", duty: np.ndarray | None = None) -> dict[str, Any]:
+                    split: str = "low_third", duty: np.ndarray | None = None,
+                    temperature_c: np.ndarray | None = None, calibrate_on: str = "sine_triangle") -> dict[str, Any]:
     """The whole diagnosis of one energy-per-cycle table (see the module docstring); JSON-ready.
-    ``duty``: (rows, 4) MagNet duties (None: every row a sine); with it the result has ``shapes``."""
+    ``duty``: (rows, 4) MagNet duties (None: every row a sine); with it the result has ``shapes``.
+    ``temperature_c``: per-row temperature (a temperature term is a candidate where it varies)."""
     t0 = time.perf_counter()
     f, b, w = (np.asarray(a, dtype=np.float64) for a in (f, b, w))
     if not (f.size == b.size == w.size) or f.size < 12:
@@ -336,23 +380,37 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
         duty = np.asarray(duty, dtype=np.float64)
         if duty.shape != (f.size, 4):
             raise EstimationError(f"{material or 'table'}: duty must be (rows, 4) = ({f.size}, 4), got {duty.shape}")
-    train, base, final, candidates, chosen = calibrate_split(f, b, w, split, duty)
+    if temperature_c is not None:
+        temperature_c = np.asarray(temperature_c, dtype=np.float64)
+        if temperature_c.shape != f.shape or not np.all(np.isfinite(temperature_c)):
+            raise EstimationError(f"{material or 'table'}: temperature must be finite, one per row")
+    rows = Rows(f, b, duty, temperature_c)
+    train, seq, candidates, chosen, suspects, skipped = _calibrate(rows, w, split, calibrate_on)
+    base, final = seq[0], seq[-1]
     held = ~train
     noise = noise_floor(f, b, w, duty)
     y = np.log10(w)
     r_before = y - base.log_w(f, b) / LN10
-    r_after = y - final.log_w(f, b, duty) / LN10
+    r_after = y - final.log_w(f, b, duty, temperature_c) / LN10
     model_floor = _rms(r_before[train])
     located = _locate(f, b, r_before, held, noise, model_floor)
-    beyond = _beyond_catalogue(f, b, w, train, final, duty)
+    beyond = _beyond_catalogue(rows, w, train, final, suspects)
     before, after = _rms(r_before[held]), _rms(r_after[held])
+    steps = []
+    for name, fit in zip(chosen, seq[1:]):
+        r = y[held] - fit.log_w(f[held], b[held], None if duty is None else duty[held],
+                                None if temperature_c is None else temperature_c[held]) / LN10
+        steps.append({"added": name, "residual_after_log10": _rms(r), "improvement": before / max(_rms(r), 1e-300)})
     shapes = None if duty is None else locate_shapes(duty, r_before, r_after, held, noise, _rms(r_after[train]))
-    verdict = _verdict(chosen, located, beyond, after, shapes)
     params = final.parameters()
+    by_name = {t.name: t for t in LIBRARY}
+    reported = [form(by_name[n], params[n]) for n in chosen]
+    verdict = _verdict(chosen, reported, located, beyond, after, shapes, suspects, skipped)
     return {
-        "material": material, "split": split,
-        "effect": next((n for n in chosen if TERMS[n].in_catalogue), None),
-        "effects": chosen, "not_in_catalogue": [n for n in chosen if not TERMS[n].in_catalogue],
+        "material": material, "split": split, "calibrate_on": calibrate_on,
+        "effect": next((n for n in chosen if by_name[n].in_catalogue), None),
+        "effects": chosen, "not_in_catalogue": [n for n in chosen if not by_name[n].in_catalogue],
+        "reported": reported, "steps": steps, "suspects": suspects, "not_identifiable": skipped,
         "candidates": candidates,
         "parameters": {k: _param_json(v) for k, v in params.items() if k in chosen},
         "recalibrated": {f"static_hysteresis.{k}": {"value": v, "std": s, "prior": None}
@@ -370,35 +428,45 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
     }
 
 
-def _beyond_catalogue(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.ndarray, named: TermFit,
-                      duty: np.ndarray | None = None) -> dict[str, Any]:
-    """The free-exponent rate term in place of the named ones: does the data need more than Bertotti?"""
-    fit = fit_terms(f[train], b[train], w[train], (STEINMETZ,), None if duty is None else duty[train])
-    r = np.log10(w) - fit.log_w(f, b, duty) / LN10
+def _beyond_catalogue(rows: Rows, w: np.ndarray, train: np.ndarray, named: TermFit,
+                      suspects: list[dict[str, Any]]) -> dict[str, Any]:
+    """The free-exponent rate term alone in place of the selected ones: does it fit the calibration
+    points decisively better (``needed``) than what was selected?  It is itself a candidate of the
+    selection: ``needed`` is then true only when the selection refused it (see ``suspects``)."""
+    rt = rows.take(train)
+    fit = fit_terms(rt.f, rt.b, w[train], (STEINMETZ,), rt.duty, rt.temperature_c)
+    r = np.log10(w) - fit.log_w(rows.f, rows.b, rows.duty, rows.temperature_c) / LN10
     p = fit.parameters()[STEINMETZ.name]
-    gamma = fit.x[-2]
+    gamma, delta = fit.x[-2], fit.x[-1]
     at_bound = bool(np.isclose(gamma, FREE_BOUNDS[0][0]) or np.isclose(gamma, FREE_BOUNDS[1][0])
-                    or np.isclose(fit.x[-1], FREE_BOUNDS[0][1]) or np.isclose(fit.x[-1], FREE_BOUNDS[1][1]))
+                    or np.isclose(delta, FREE_BOUNDS[0][1]) or np.isclose(delta, FREE_BOUNDS[1][1]))
+    refused = next((s for s in suspects if s["name"] == STEINMETZ.name), None)
     return {"name": STEINMETZ.name, "delta_bic": named.bic - fit.bic, "at_bound": at_bound,
             "needed": named.bic - fit.bic >= NAME_DELTA_BIC,
+            "modelled": STEINMETZ.name in [t.name for t in named.terms], "refused": refused,
             "alpha": {"value": p["alpha"][0], "std": p["alpha"][1]},
             "delta": {"value": p["delta"][0], "std": p["delta"][1]},
             "residual_held_out_log10": _rms(r[~train])}
 
 
-def _verdict(chosen: list[str], located: dict[str, Any], beyond: dict[str, Any], named_after: float,
-             shapes: dict[str, Any] | None = None) -> str:
+def _verdict(chosen: list[str], reported: list[str], located: dict[str, Any], beyond: dict[str, Any],
+             named_after: float, shapes: dict[str, Any] | None, suspects: list[dict[str, Any]],
+             skipped: dict[str, str]) -> str:
     tr = located["trend"]
     where = (f"held-out energy per cycle grows with frequency beyond the rate-independent baseline as f^"
              f"{tr['slope_log_f']:.2f} +- {tr['slope_log_f_std']:.2f} (max |z| {located['max_abs_z']:.1f})")
-    named = ", ".join(n if TERMS[n].in_catalogue else f"{n} ({TERMS[n].description})" for n in chosen)
-    out = f"{where}; named: {named}" if chosen else f"{where}; nothing significant named at the calibration frequencies"
-    if beyond["needed"]:
+    out = (f"{where}; modelled: {'; '.join(reported)}" if chosen
+           else f"{where}; nothing significant named at the calibration frequencies")
+    for s in suspects:
+        p = s["inner_held_out_rms_log10"]
+        out += (f"; {s['name']} fits the calibration points decisively (delta BIC {s['score']:.0f}) but, fitted on "
+                f"their lower part, predicts their upper part worse ({p['without']:.3f} -> {p['with']:.3f} log10): "
+                "refused as a suspect (it does not extrapolate)")
+    if beyond["needed"] and not beyond["modelled"]:
         a = beyond["alpha"]
-        out += (f"; the data need a rate dependence the catalogue does not name (Steinmetz exponent alpha = "
-                f"{a['value']:.2f} +- {a['std']:.2f}{', on its bound' if beyond['at_bound'] else ''}, delta BIC "
-                f"{beyond['delta_bic']:.0f} on the calibration points; held-out error with it "
-                f"{beyond['residual_held_out_log10']:.3f} log10, with the named terms {named_after:.3f})")
+        out += (f"; alone, the free rate term (alpha = {a['value']:.2f} +- {a['std']:.2f}"
+                f"{', on its bound' if beyond['at_bound'] else ''}) would give {beyond['residual_held_out_log10']:.3f} "
+                f"log10 held out, against {named_after:.3f} with the model selected")
     if shapes is not None:
         out += "; held out per shape group, rms log10 before -> after: " + ", ".join(
             f"{g} {v['residual_before_log10']:.3f} -> {v['residual_after_log10']:.3f}"
@@ -412,7 +480,8 @@ def _verdict(chosen: list[str], located: dict[str, Any], beyond: dict[str, Any],
             if fl is not None:
                 out += (f" ({fl['slope_log10_per_share']:+.3f} +- {fl['slope_std']:.3f} where B is flat there, "
                         "duty_1 == duty_3)")
-            out += " (losses between the ramps, relaxation, are not modelled)"
+            if "magnetic_relaxation" in skipped:
+                out += " (relaxation not identifiable: " + skipped["magnetic_relaxation"] + ")"
     return out
 
 
@@ -459,57 +528,79 @@ def _energy_of(tables: list[LossTable]) -> tuple[np.ndarray, np.ndarray, np.ndar
     return f, b, w, (None if np.all(duty[:, 0] == -1) else duty)
 
 
-def _diagnose_group(tables: list[LossTable], split: str) -> dict[str, Any]:
+def _diagnose_group(tables: list[LossTable], split: str, calibrate_on: str = "sine_triangle") -> dict[str, Any]:
     f, b, w, duty = _energy_of(tables)
-    out = diagnose_energy(f, b, w, material=tables[0].material, split=split, duty=duty)
+    out = diagnose_energy(f, b, w, material=tables[0].material, split=split, duty=duty, calibrate_on=calibrate_on)
     out["path"], out["kind"] = str(tables[0].path), tables[0].kind
     if len(tables) > 1:
         out["paths"] = [str(t.path) for t in tables]
     return out
 
 
-def diagnose_loss_table(tables: TableArg | Sequence[TableArg], split: str = "low_third") -> dict[str, Any]:
+_HEADLINE = ("split", "calibrate_on", "effects", "reported", "suspects", "residual_before_log10",
+             "residual_after_log10", "improvement", "beyond_catalogue")
+
+
+def _headline(r: dict[str, Any]) -> dict[str, Any]:
+    out = {k: r[k] for k in _HEADLINE}
+    if "shapes" in r:
+        out["shape_groups"] = r["shapes"]["groups"]
+    return out
+
+
+def diagnose_loss_table(tables: TableArg | Sequence[TableArg], split: str = "low_third", *,
+                        all_shapes: bool = False) -> dict[str, Any]:
     """Read a material table (core loss or complex permeability), or several core-loss tables of one
     material (a sine table with MagNet's triangles/trapezoids of the same material), and diagnose them
-    together; the result also carries the other split's headline figures.  ``path`` is the first
-    table's (a sine table's when there is one), ``paths`` all of them when several."""
+    together; the result also carries the other split's headline figures and, with triangles and
+    trapezoids (and ``all_shapes``), those of a calibration on every shape of the calibration
+    frequencies (``all_shapes``: where flat segments are calibrated on, so a relaxation term can be
+    identified; still held out at every other frequency).  ``path`` is the first table's (a sine
+    table's when there is one), ``paths`` all of them when several."""
     group = [_read(t) for t in ([tables] if isinstance(tables, (str, Path, LossTable)) else tables)]
     if not group:
         raise EstimationError("no loss table given")
     group.sort(key=lambda t: bool(np.any(t.duty[:, 0] != -1)))
     out = _diagnose_group(group, split)
     other = "interleaved" if split == "low_third" else "low_third"
-    o = _diagnose_group(group, other)
-    keys = ("split", "effects", "residual_before_log10", "residual_after_log10", "improvement", "beyond_catalogue")
-    out["other_split"] = {k: o[k] for k in keys}
-    if "shapes" in o:
-        out["other_split"]["shape_groups"] = o["shapes"]["groups"]
+    out["other_split"] = _headline(_diagnose_group(group, other))
+    if all_shapes and "shapes" in out:
+        out["all_shapes"] = _headline(_diagnose_group(group, split, "all_shapes"))
     return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m hystbench.analysis.diagnosis.loss_separation TABLE.csv ...``: one line per table (a
-    material's sine and shapes tables together, :func:`loss_table_groups`) and split, then for the
-    shape groups their held-out errors and the shapes missed most."""
+    """``python -m hystbench.analysis.diagnosis.loss_separation [--all-shapes] TABLE.csv ...``: one line
+    per table (a material's sine and shapes tables together, :func:`loss_table_groups`), split and
+    calibration set (``all_shapes`` only with triangles/trapezoids and ``--all-shapes``: minutes a table), then for the shape groups their held-out errors and
+    the shapes missed most, and the terms refused as suspects."""
     paths = list(sys.argv[1:] if argv is None else argv)
-    print(f"{'table':28s} {'split':11s} {'rows c/h':>11s} {'before':>7s} {'after':>7s} {'ratio':>6s} "
-          f"{'f-slope':>12s} {'named':28s} {'free alpha (dBIC, held-out)':30s} {'s':>5s}")
+    all_shapes = "--all-shapes" in paths  # also calibrate on every shape of the calibration frequencies (slow)
+    paths = [p for p in paths if p != "--all-shapes"]
+    print(f"{'table':28s} {'split':11s} {'calibrated on':13s} {'rows c/h':>11s} {'before':>7s} {'after':>7s} "
+          f"{'ratio':>6s} {'f-slope':>12s} {'modelled':45s} {'s':>5s}")
     for group in loss_table_groups(paths):
         name = "+".join(t.path.stem for t in group)
-        for split in ("low_third", "interleaved"):
-            r = _diagnose_group(group, split)
-            tr, bc = r["located"]["trend"], r["beyond_catalogue"]
-            print(f"{name:28s} {split:11s} {r['rows']['calibration']:5d}/{r['rows']['held_out']:<5d} "
+        shaped = any(np.any(t.duty[:, 0] != -1) for t in group)
+        runs = [("low_third", "sine_triangle"), ("interleaved", "sine_triangle")]
+        for split, on in runs + ([("low_third", "all_shapes")] if shaped and all_shapes else []):
+            r = _diagnose_group(group, split, on)
+            tr = r["located"]["trend"]
+            print(f"{name:28s} {split:11s} {on:13s} {r['rows']['calibration']:5d}/{r['rows']['held_out']:<5d} "
                   f"{r['residual_before_log10']:7.3f} {r['residual_after_log10']:7.3f} {r['improvement']:6.2f} "
-                  f"{tr['slope_log_f']:5.2f}+-{tr['slope_log_f_std']:.2f} {'+'.join(r['effects']) or 'none':28s} "
-                  f"{bc['alpha']['value']:.2f} ({bc['delta_bic']:.0f}, {bc['residual_held_out_log10']:.3f})"
-                  f"{'':8s} {r['seconds']:5.2f}")
+                  f"{tr['slope_log_f']:5.2f}+-{tr['slope_log_f_std']:.2f} {'+'.join(r['effects']) or 'none':45s} "
+                  f"{r['seconds']:5.2f}")
             for g, v in r.get("shapes", {}).get("groups", {}).items():
-                print(f"{'':28s} {'':11s} {g:>11s} {v['residual_before_log10']:7.3f} {v['residual_after_log10']:7.3f} "
+                print(f"{'':54s} {g:>11s} {v['residual_before_log10']:7.3f} {v['residual_after_log10']:7.3f} "
                       f"{v['improvement']:6.2f}  ({v['held_out']} held out; {v['residual_before']:.1f} -> "
                       f"{v['residual_after']:.1f} noise floors)")
-            if "shapes" in r:
-                print(f"{'':41s} {r['verdict'].split('; missed most: ')[-1]}")
+            for rep in r["reported"]:
+                print(f"{'':54s} {rep}")
+            for sus in r["suspects"]:
+                p = sus["inner_held_out_rms_log10"]
+                print(f"{'':54s} suspect {sus['name']} (delta BIC {sus['score']:.0f}; inner held out "
+                      f"{p['without']:.3f} -> {p['with']:.3f}" + (f", {p['runner_up']} {p['runner_up_with']:.3f}"
+                                                                   if "runner_up" in p else "") + ")")
     return 0
 
 

@@ -1,0 +1,253 @@
+"""The library of loss terms the loss-table diagnosis selects from: each a physically meaningful form
+of energy per cycle and volume, with its parameters in physical units.
+
+Why a library: the catalogue names one rate dependence (``lamination_eddy_currents``); real ferrites
+show others.  What no catalogue name explains is still modelled, with a generic form, and reported as
+"not in the catalogue: <form> with <parameters>" (docs/design.md, "Diagnosis").  The forms:
+
+* ``power``: k f^gamma B^delta S_(1+gamma) -- a rate term whose power grows as |dB/dt|^(1+gamma), carried
+  to any waveform by its shape factor (:mod:`.loss_shapes`: Bertotti's separation, the iGSE).  Fixed
+  exponents give the classical eddy term (catalogue) and Bertotti's excess term; free exponents give the
+  Steinmetz/iGSE term (a power law in f, B and dB/dt at once).
+* ``relaxation``: the i2GSE's magnetic relaxation (J. Muehlethaler, J. Biela, J. W. Kolar, A. Ecklebe,
+  IEEE Trans. Power Electron. 27(2), 2012): after a ramp, when B stops (a flat segment of a trapezoid),
+  the material keeps dissipating; per transition an energy k_r (|dB/dt| / R0)^alpha_r (dB_pp / 2 B0)^beta_r
+  (1 - exp(-t_flat / tau)), R0 = 1 T/us, B0 = 0.1 T, summed over the flat segments of a period.
+  MagNet's flat segments are the bridge's zero-voltage intervals (duty_2, duty_4; B truly flat when
+  duty_1 == duty_3, otherwise slowly drifting), each after the ramp before it.  A sine or a triangle has
+  none: the term is zero there, so it can be fitted only where flat segments were calibrated on.
+* ``temperature``: the whole loop's energy scaled by exp(c1 (T - T0) + c2 (T - T0)^2), T0 = 25 degC --
+  the usual Steinmetz temperature polynomial in log form; only where the rows carry a temperature that
+  varies.
+
+Each term adds a log-energy ``part`` (the energies add; the temperature factor multiplies all).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from ...formats.flux_shapes import segment_steps
+from .loss_shapes import sine_integral
+
+__all__ = ["Term", "Rows", "TERMS", "STEINMETZ", "RELAXATION", "TEMPERATURE", "LIBRARY", "B0_T", "RATE0_T_PER_S",
+           "T0_C", "FREE_BOUNDS", "n_params", "term_part", "term_start", "term_bounds", "natural", "inert", "form"]
+
+B0_T = 0.1  # the reference flux density
+RATE0_T_PER_S = 1e6  # the relaxation's reference ramp rate, 1 T/us
+T0_C = 25.0  # the temperature term's reference
+#: (gamma, delta) lower and upper bounds of the free power term (alpha = 1 + gamma in P); a fit on a
+#: bound is flagged.
+FREE_BOUNDS = ((0.1, 1.0), (3.0, 4.0))
+RELAX_BOUNDS = ((0.0, 0.0, math.log(1e-9)), (3.0, 4.0, math.log(1e-3)))  # alpha_r, beta_r, ln tau_s
+
+
+@dataclass(frozen=True)
+class Term:
+    """One loss term: ``kind`` power (k f^f_exp B^b_exp S, exponents free when ``free``), relaxation
+    or temperature; ``coefficient`` names its scale with its unit."""
+
+    name: str
+    in_catalogue: bool
+    description: str
+    f_exp: float
+    b_exp: float
+    coefficient: str
+    free: bool = False
+    kind: str = "power"
+
+
+@dataclass(frozen=True)
+class Rows:
+    """The operating points a model is evaluated at: f (Hz), peak B (T), MagNet duties (rows, 4) or
+    None (all sines), temperature (degC) or None.  What the terms need of them is computed once (a
+    fit evaluates the model a thousand times)."""
+
+    f: np.ndarray
+    b: np.ndarray
+    duty: np.ndarray | None = None
+    temperature_c: np.ndarray | None = None
+
+    def take(self, m: np.ndarray) -> "Rows":
+        return Rows(self.f[m], self.b[m], None if self.duty is None else self.duty[m],
+                    None if self.temperature_c is None else self.temperature_c[m])
+
+    @cached_property
+    def ln_f(self) -> np.ndarray:
+        return np.log(self.f)
+
+    @cached_property
+    def ln_b(self) -> np.ndarray:
+        return np.log(self.b)
+
+    @cached_property
+    def sine(self) -> np.ndarray:
+        return np.ones(self.f.shape, bool) if self.duty is None else np.all(self.duty == -1.0, axis=1)
+
+    @cached_property
+    def segments(self) -> tuple[np.ndarray, np.ndarray]:
+        """ln d_i and ln |delta b_i| of the four segments (-inf for a segment of no time or no step)."""
+        d = np.where(self.sine[:, None], 0.25, self.duty)
+        step = np.abs(segment_steps(d))
+        live = (d > 0) & (step > 0)
+        with np.errstate(divide="ignore"):
+            return np.where(live, np.log(d), 0.0), np.where(live, np.log(step), -np.inf)
+
+    def ln_shape_factor(self, p: float) -> np.ndarray:
+        """ln S_p (:func:`.loss_shapes.shape_factor`, in log form; 0 for a sine)."""
+        if self.duty is None:
+            return np.zeros_like(self.f)
+        ln_d, ln_s = self.segments
+        out = np.logaddexp.reduce((1.0 - p) * ln_d + p * ln_s, axis=1) - math.log(sine_integral(p))
+        return np.where(self.sine, 0.0, out)
+
+    @cached_property
+    def flats(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Per flat segment (duty_2 after the rise, duty_4 after the fall): rows that have it, ln of
+        the ramp's |dB/dt| / R0 before it, and its duration (s)."""
+        if self.duty is None:
+            return []
+        d = np.where(self.sine[:, None], 0.25, self.duty)
+        step = segment_steps(d) * self.b[:, None]
+        out = []
+        for ramp, flat in ((0, 1), (2, 3)):
+            live = ~self.sine & (d[:, flat] > 0)
+            rate = np.abs(step[:, ramp]) * self.f / d[:, ramp] / RATE0_T_PER_S
+            out.append((live, np.log(np.where(live, rate, 1.0)), d[:, flat] / self.f))
+        return out
+
+
+TERMS = {
+    "lamination_eddy_currents": Term(
+        "lamination_eddy_currents", True,
+        "classical eddy-current loss k_c f B^2 (Bertotti); in a ferrite the bulk-eddy/relaxation analogue",
+        1.0, 2.0, "k_c_J_s_per_m3_T2"),
+    "excess_loss": Term(
+        "excess_loss", False, "excess loss (Bertotti) k_e f^0.5 B^1.5, not in the catalogue",
+        0.5, 1.5, "k_e_J_per_m3_Hz0.5_T1.5"),
+}
+STEINMETZ = Term("steinmetz_rate_dependence", False,
+                 "a rate dependence k_s f^gamma B^delta with free exponents (Steinmetz alpha = 1 + gamma, "
+                 "the iGSE on other waveforms), not in the catalogue", 0.5, 2.5, "k_s_J_per_m3_at_100kHz_0.1T",
+                 free=True)
+RELAXATION = Term("magnetic_relaxation", False,
+                  "first-order magnetic relaxation after each ramp into a flat segment (i2GSE) "
+                  "k_r (|dB/dt|/1 T/us)^alpha_r (dB_pp/0.2 T)^beta_r (1 - exp(-t_flat/tau)), not in the catalogue",
+                  0.0, 0.0, "k_r_J_per_m3_per_transition", kind="relaxation")
+TEMPERATURE = Term("temperature_dependence", False,
+                   "the loop's energy scaled by exp(c1 (T - 25 degC) + c2 (T - 25 degC)^2), not in the catalogue",
+                   0.0, 0.0, "c1_per_K", kind="temperature")
+#: Every candidate, catalogue first (a tie goes to the named physics).
+LIBRARY = (*TERMS.values(), STEINMETZ, RELAXATION, TEMPERATURE)
+F0_HZ = 1e5  # the free term's reference frequency (its k is the energy there at B0, a sine)
+
+
+def n_params(t: Term) -> int:
+    return {"power": 3 if t.free else 1, "relaxation": 4, "temperature": 2}[t.kind]
+
+
+def _relax_energy(x: np.ndarray, rows: Rows) -> np.ndarray:
+    """The relaxation's sum over a period's flat segments, without k_r (0 where there is none)."""
+    out = np.zeros_like(rows.f)
+    alpha, beta, tau = x[0], x[1], math.exp(x[2])
+    for live, ln_rate, t_flat in rows.flats:
+        out += np.where(live, np.exp(alpha * ln_rate) * -np.expm1(-t_flat / tau), 0.0)
+    return out * np.exp(beta * (rows.ln_b - math.log(B0_T)))  # dB_pp / 0.2 T = B_pk / 0.1 T
+
+
+def term_part(t: Term, x: np.ndarray, rows: Rows) -> np.ndarray:
+    """ln of the term's energy per cycle at every row (-inf where it is zero); for ``temperature`` the
+    ln of its factor."""
+    if t.kind == "temperature":
+        if rows.temperature_c is None:
+            return np.zeros_like(rows.f)
+        dt = rows.temperature_c - T0_C
+        return x[0] * dt + x[1] * dt**2
+    if t.kind == "relaxation":
+        e = _relax_energy(x[1:], rows)
+        with np.errstate(divide="ignore"):
+            return x[0] + np.log(e)
+    if t.free:
+        g, d = x[1], x[2]
+        part = x[0] + g * (rows.ln_f - math.log(F0_HZ)) + d * (rows.ln_b - math.log(B0_T))
+    else:
+        g, d = t.f_exp, t.b_exp
+        part = x[0] + g * rows.ln_f + d * rows.ln_b
+    return part + rows.ln_shape_factor(1.0 + g)
+
+
+def term_start(t: Term, y: np.ndarray, rows: Rows, share: float, g0: float) -> list[float]:
+    """A start at ``share`` of the median energy (``g0``: the free term's start in gamma, or the
+    relaxation's ln tau)."""
+    if t.kind == "temperature":
+        return [0.0, 0.0]
+    if t.kind == "relaxation":
+        return [float(np.median(y)) + math.log(share), 1.0, 2.5, g0]
+    if t.free:
+        base = y - g0 * np.log(rows.f / F0_HZ) - t.b_exp * np.log(rows.b / B0_T)
+        return [float(np.median(base)) + math.log(share), g0, t.b_exp]
+    return [float(np.median(y - t.f_exp * np.log(rows.f) - t.b_exp * np.log(rows.b))) + math.log(share)]
+
+
+def term_starts(t: Term) -> tuple[float, ...]:
+    """The second start coordinate tried per term (free gamma, relaxation ln tau)."""
+    if t.free:
+        return (0.5, 1.5)
+    if t.kind == "relaxation":
+        return (math.log(1e-7), math.log(1e-5))
+    return (0.0,)
+
+
+def term_bounds(t: Term) -> tuple[list[float], list[float]]:
+    if t.kind == "temperature":
+        return [-0.2, -0.01], [0.2, 0.01]
+    if t.kind == "relaxation":
+        return [-np.inf, *RELAX_BOUNDS[0]], [np.inf, *RELAX_BOUNDS[1]]
+    if t.free:
+        return [-np.inf, *FREE_BOUNDS[0]], [np.inf, *FREE_BOUNDS[1]]
+    return [-np.inf], [np.inf]
+
+
+def inert(t: Term, rows: Rows) -> str | None:
+    """Why ``t`` cannot be fitted on ``rows`` (it is zero or constant on all of them), or None."""
+    if t.kind == "relaxation" and (rows.duty is None or not np.any((rows.duty[:, 0] != -1)
+                                                                   & ((rows.duty[:, 1] > 0) | (rows.duty[:, 3] > 0)))):
+        return "no calibration row has a flat segment (only sines and triangles): relaxation is not identifiable there"
+    if t.kind == "temperature" and (rows.temperature_c is None or np.ptp(rows.temperature_c) == 0):
+        return "the calibration rows have one temperature"
+    return None
+
+
+def natural(t: Term, x: np.ndarray, se: np.ndarray) -> dict[str, tuple[float, float]]:
+    """The term's parameters (value, std) in physical units, by the delta method from the fit's."""
+    if t.kind == "temperature":
+        return {"c1_per_K": (x[0], se[0]), "c2_per_K2": (x[1], se[1])}
+    k = math.exp(x[0])
+    p = {t.coefficient: (k, k * se[0])}
+    if t.kind == "relaxation":
+        tau = math.exp(x[3])
+        p.update({"alpha_r": (x[1], se[1]), "beta_r": (x[2], se[2]), "tau_s": (tau, tau * se[3])})
+        return p
+    if t.name == "lamination_eddy_currents":  # W_cl = pi^2 sigma d^2 f B^2 / 6
+        p["sigma_d2_S_m"] = (6.0 * k / math.pi**2, 6.0 * k * se[0] / math.pi**2)
+    if t.free:
+        p["alpha"] = (1.0 + x[1], se[1])
+        p["delta"] = (x[2], se[2])
+    return p
+
+
+def form(t: Term, p: dict[str, tuple[float, float]]) -> str:
+    """'not in the catalogue: <form> with <parameters>' for a generic term, its name for a catalogue one."""
+    if t.in_catalogue:
+        return t.name
+    pm = ", ".join(f"{k} = {v:.4g} +- {s:.2g}" for k, (v, s) in p.items())
+    shapes = {"excess_loss": "k_e f^0.5 B^1.5 S_1.5",
+              "steinmetz_rate_dependence": "k_s (f/100 kHz)^gamma (B/0.1 T)^delta S_(1+gamma) (iGSE), alpha = 1 + gamma",
+              "magnetic_relaxation": "k_r (|dB/dt|/1 T/us)^alpha_r (B_pk/0.1 T)^beta_r (1 - exp(-t_flat/tau)) "
+                                     "per ramp into a flat segment (i2GSE)",
+              "temperature_dependence": "W exp(c1 (T - 25 degC) + c2 (T - 25 degC)^2)"}
+    return f"{t.name} (not in the catalogue: {shapes.get(t.name, t.description)} with {pm})"
