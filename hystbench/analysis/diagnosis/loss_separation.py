@@ -56,7 +56,7 @@ from scipy.optimize import least_squares
 from ...errors import EstimationError, RecordingError
 from ...formats.material_data import LossTable, read_material_table
 from .loss_shapes import calibration_shapes, locate_shapes, shape_group
-from .loss_terms import (B0_T, FREE_BOUNDS, LIBRARY, STEINMETZ, TERMS, Rows, Term, form, inert, n_params, natural,
+from .loss_terms import (B0_T, FREE_BOUNDS, LIBRARY, STEINMETZ, TERMS, TIERS, Rows, Term, form, inert, n_params, natural,
                          term_bounds, term_part, term_start, term_starts)
 
 __all__ = ["TERMS", "Term", "TermFit", "energy_per_cycle", "split_mask", "fit_terms", "noise_floor",
@@ -65,6 +65,7 @@ __all__ = ["TERMS", "Term", "TermFit", "energy_per_cycle", "split_mask", "fit_te
 NAME_DELTA_BIC = 10.0  # decisively better than the current model (issue 13)
 RUNNER_UP_DELTA_BIC = 6.0  # and than the runner-up
 LN10 = math.log(10.0)
+MAX_TERMS = 3  # rate terms a model may take
 LSMR_ROWS = 3000  # above this many rows the trust-region steps are solved iteratively (speed only)
 
 
@@ -282,53 +283,73 @@ def _inner_proof(rows: Rows, w: np.ndarray, terms: tuple[Term, ...], term: Term,
 
 def _select(rows: Rows, w: np.ndarray, split: str = "low_third"
             ) -> tuple[list[TermFit], list[dict[str, Any]], list[str], list[dict[str, Any]], dict[str, str]]:
-    """Forward selection over the library (:data:`.loss_terms.LIBRARY`): the best addition is taken
-    while it beats the current model by >= NAME_DELTA_BIC and the runner-up by >= RUNNER_UP_DELTA_BIC,
-    and, fitted on the split's own rule inside the calibration rows, predicts the other calibration
-    rows better than the model without it (a decisive score is not enough: a term that explains the
+    """Forward selection over the library, tier by tier (:data:`.loss_terms.TIERS`: Bertotti's named
+    forms first, then the generic ones on top of what they explain): the best addition is taken while
+    it beats the current model by >= NAME_DELTA_BIC and the runner-up by >= RUNNER_UP_DELTA_BIC, and,
+    fitted on the split's own rule inside the calibration rows, predicts the other calibration rows
+    better than the model without it (a decisive score is not enough: a term that explains the
     calibration window but extrapolates worse is a suspect, as in issue 13's selection).  Returns the
     fits after each step, the scored candidates, the chosen names, the suspects and the terms skipped
     as not identifiable on these rows (why)."""
-    fits_seq = [fit_terms(rows.f, rows.b, w, (), rows.duty, rows.temperature_c)]
-    current = fits_seq[0]
-    chosen: list[str] = []
-    candidates: list[dict[str, Any]] = []
-    suspects: list[dict[str, Any]] = []
-    skipped = {t.name: why for t in LIBRARY if (why := inert(t, rows)) is not None}
-    pool = [t for t in LIBRARY if t.name not in skipped]
+    seq = [fit_terms(rows.f, rows.b, w, (), rows.duty, rows.temperature_c)]
+    state: dict[str, Any] = {"chosen": [], "candidates": [], "suspects": [], "round": 0,
+                             "skipped": {t.name: why for t in LIBRARY if (why := inert(t, rows)) is not None}}
     inner = _inner_split(rows.f, split)
-    for rnd in (1, 2, 3):
-        if not pool:
-            break
-        fits = {t.name: fit_terms(rows.f, rows.b, w, current.terms + (t,), rows.duty, rows.temperature_c, current)
-                for t in pool}
-        scores = {n: current.bic - fit.bic for n, fit in fits.items()}
-        by_name = {t.name: t for t in pool}
-        for n, fit in fits.items():
-            candidates.append({"name": n, "score": scores[n], "round": rnd, "in_catalogue": by_name[n].in_catalogue,
-                               "parameters": _param_json(fit.parameters().get(n, {}))})
-        ranked = sorted(scores, key=scores.get, reverse=True)
-        taken = None
-        while ranked:
-            top, rest = ranked[0], ranked[1:]
-            runner_up = max((scores[n] for n in rest), default=0.0)
-            if scores[top] < NAME_DELTA_BIC or scores[top] - max(runner_up, 0.0) < RUNNER_UP_DELTA_BIC:
+    for tier in TIERS:
+        pool = [t for t in tier if t.name not in state["skipped"]]
+        while pool and len(state["chosen"]) < MAX_TERMS:
+            taken = _round(rows, w, seq, pool, inner, state)
+            if taken is None:
                 break
-            proof = _inner_proof(rows, w, current.terms, by_name[top], inner)
-            if proof is not None and proof["with"] >= proof["without"]:
-                suspects.append({"name": top, "round": rnd, "score": scores[top],
-                                 "inner_held_out_rms_log10": proof})
-                ranked = rest  # refused this round; tried again beside the next term taken
-                continue
-            taken = top
-            break
-        if taken is None:
-            break
-        chosen.append(taken)
-        current = fits[taken]
-        fits_seq.append(current)
-        pool = [t for t in pool if t.name != taken]
-    return fits_seq, candidates, chosen, suspects, skipped
+            pool = [t for t in pool if t.name != taken]
+            _drop_redundant(rows, w, seq, state)
+    state["suspects"] += [{**d, "dropped": True} for d in state.get("dropped", [])]
+    return seq, state["candidates"], state["chosen"], state["suspects"], state["skipped"]
+
+
+def _drop_redundant(rows: Rows, w: np.ndarray, seq: list[TermFit], state: dict[str, Any]) -> None:
+    """After a generic term is taken, an earlier term it makes redundant (the model without it within
+    NAME_DELTA_BIC) is dropped: a free Steinmetz term can carry what a classical term was taken for,
+    and the catalogue name must not stay on it by the order of the tiers."""
+    current = seq[-1]
+    for t in current.terms[:-1]:
+        kept = tuple(u for u in current.terms if u is not t)
+        fit = fit_terms(rows.f, rows.b, w, kept, rows.duty, rows.temperature_c)
+        if fit.bic - current.bic < NAME_DELTA_BIC:
+            state["chosen"].remove(t.name)
+            state["dropped"] = state.get("dropped", []) + [{"name": t.name, "delta_bic": fit.bic - current.bic}]
+            seq.append(fit)
+            return
+
+
+def _round(rows: Rows, w: np.ndarray, seq: list[TermFit], pool: list[Term], inner: np.ndarray | None,
+           state: dict[str, Any]) -> str | None:
+    """One round of forward selection over ``pool`` on top of ``seq[-1]``; the name taken, or None."""
+    current = seq[-1]
+    state["round"] += 1
+    rnd = state["round"]
+    fits = {t.name: fit_terms(rows.f, rows.b, w, current.terms + (t,), rows.duty, rows.temperature_c, current)
+            for t in pool}
+    scores = {n: current.bic - fit.bic for n, fit in fits.items()}
+    by_name = {t.name: t for t in pool}
+    for n, fit in fits.items():
+        state["candidates"].append({"name": n, "score": scores[n], "round": rnd, "in_catalogue": by_name[n].in_catalogue,
+                                    "parameters": _param_json(fit.parameters().get(n, {}))})
+    ranked = sorted(scores, key=scores.get, reverse=True)
+    while ranked:
+        top, rest = ranked[0], ranked[1:]
+        runner_up = max((scores[n] for n in rest), default=0.0)
+        if scores[top] < NAME_DELTA_BIC or scores[top] - max(runner_up, 0.0) < RUNNER_UP_DELTA_BIC:
+            return None
+        proof = _inner_proof(rows, w, current.terms, by_name[top], inner)
+        if proof is not None and proof["with"] >= proof["without"]:
+            state["suspects"].append({"name": top, "round": rnd, "score": scores[top], "inner_held_out_rms_log10": proof})
+            ranked = rest  # refused this round; tried again beside the next term taken
+            continue
+        state["chosen"].append(top)
+        seq.append(fits[top])
+        return top
+    return None
 
 
 def _param_json(p: dict[str, tuple[float, float]]) -> dict[str, dict[str, float]]:
@@ -397,10 +418,11 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
     beyond = _beyond_catalogue(rows, w, train, final, suspects)
     before, after = _rms(r_before[held]), _rms(r_after[held])
     steps = []
-    for name, fit in zip(chosen, seq[1:]):
+    for fit in seq[1:]:
         r = y[held] - fit.log_w(f[held], b[held], None if duty is None else duty[held],
                                 None if temperature_c is None else temperature_c[held]) / LN10
-        steps.append({"added": name, "residual_after_log10": _rms(r), "improvement": before / max(_rms(r), 1e-300)})
+        steps.append({"terms": [t.name for t in fit.terms], "residual_after_log10": _rms(r),
+                      "improvement": before / max(_rms(r), 1e-300)})
     shapes = None if duty is None else locate_shapes(duty, r_before, r_after, held, noise, _rms(r_after[train]))
     params = final.parameters()
     by_name = {t.name: t for t in LIBRARY}
@@ -440,7 +462,7 @@ def _beyond_catalogue(rows: Rows, w: np.ndarray, train: np.ndarray, named: TermF
     gamma, delta = fit.x[-2], fit.x[-1]
     at_bound = bool(np.isclose(gamma, FREE_BOUNDS[0][0]) or np.isclose(gamma, FREE_BOUNDS[1][0])
                     or np.isclose(delta, FREE_BOUNDS[0][1]) or np.isclose(delta, FREE_BOUNDS[1][1]))
-    refused = next((s for s in suspects if s["name"] == STEINMETZ.name), None)
+    refused = next((s for s in suspects if s["name"] == STEINMETZ.name and not s.get("dropped")), None)
     return {"name": STEINMETZ.name, "delta_bic": named.bic - fit.bic, "at_bound": at_bound,
             "needed": named.bic - fit.bic >= NAME_DELTA_BIC,
             "modelled": STEINMETZ.name in [t.name for t in named.terms], "refused": refused,
@@ -458,6 +480,9 @@ def _verdict(chosen: list[str], reported: list[str], located: dict[str, Any], be
     out = (f"{where}; modelled: {'; '.join(reported)}" if chosen
            else f"{where}; nothing significant named at the calibration frequencies")
     for s in suspects:
+        if s.get("dropped"):
+            out += f"; {s['name']} dropped: redundant beside the generic term taken after it (delta BIC {s['delta_bic']:.1f})"
+            continue
         p = s["inner_held_out_rms_log10"]
         out += (f"; {s['name']} fits the calibration points decisively (delta BIC {s['score']:.0f}) but, fitted on "
                 f"their lower part, predicts their upper part worse ({p['without']:.3f} -> {p['with']:.3f} log10): "
@@ -597,10 +622,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             for rep in r["reported"]:
                 print(f"{'':54s} {rep}")
             for sus in r["suspects"]:
+                if sus.get("dropped"):
+                    print(f"{'':54s} dropped {sus['name']} (redundant, delta BIC {sus['delta_bic']:.1f})")
+                    continue
                 p = sus["inner_held_out_rms_log10"]
                 print(f"{'':54s} suspect {sus['name']} (delta BIC {sus['score']:.0f}; inner held out "
-                      f"{p['without']:.3f} -> {p['with']:.3f}" + (f", {p['runner_up']} {p['runner_up_with']:.3f}"
-                                                                   if "runner_up" in p else "") + ")")
+                      f"{p['without']:.3f} -> {p['with']:.3f})")
     return 0
 
 

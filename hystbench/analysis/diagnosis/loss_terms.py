@@ -34,7 +34,7 @@ import numpy as np
 from ...formats.flux_shapes import segment_steps
 from .loss_shapes import sine_integral
 
-__all__ = ["Term", "Rows", "TERMS", "STEINMETZ", "RELAXATION", "TEMPERATURE", "LIBRARY", "B0_T", "RATE0_T_PER_S",
+__all__ = ["Term", "Rows", "TERMS", "STEINMETZ", "RELAXATION", "TEMPERATURE", "TIERS", "LIBRARY", "B0_T", "RATE0_T_PER_S",
            "T0_C", "FREE_BOUNDS", "n_params", "term_part", "term_start", "term_bounds", "natural", "inert", "form"]
 
 B0_T = 0.1  # the reference flux density
@@ -141,8 +141,11 @@ RELAXATION = Term("magnetic_relaxation", False,
 TEMPERATURE = Term("temperature_dependence", False,
                    "the loop's energy scaled by exp(c1 (T - 25 degC) + c2 (T - 25 degC)^2), not in the catalogue",
                    0.0, 0.0, "c1_per_K", kind="temperature")
-#: Every candidate, catalogue first (a tie goes to the named physics).
-LIBRARY = (*TERMS.values(), STEINMETZ, RELAXATION, TEMPERATURE)
+#: Every candidate, in two tiers: the named physics of fixed form first (Bertotti's terms: a term
+#: we can name from physics belongs in the model), then the generic forms for what it leaves (free
+#: exponents fit a calibration window more closely than they extrapolate from it).
+TIERS = (tuple(TERMS.values()), (STEINMETZ, RELAXATION, TEMPERATURE))
+LIBRARY = tuple(t for tier in TIERS for t in tier)
 F0_HZ = 1e5  # the free term's reference frequency (its k is the energy there at B0, a sine)
 
 
