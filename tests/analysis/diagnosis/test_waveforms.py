@@ -126,8 +126,11 @@ def test_real_3c90_rows_reach_the_paderborn_thresholds_held_out(real):
 
 
 def test_real_3c90_names_a_rate_term_and_proves_it_in_time(real):
+    """Measured on this file (docs/waveforms.md): the wall-inertia term and the eddy field, the time
+    split's held-out rms 1.72 -> 0.65 A/m (2.7x); asserted with margin."""
     s = real.summary
-    assert {"eddy", "relax"} & set(s["terms"])  # a rate term: eddy and relaxation tie on this file
+    assert "inertia" in s["terms"]
+    assert {"eddy", "relax"} & set(s["terms"])  # a rate term: eddy and relaxation come close on this file
     assert all(name.split(" (")[0] in CATALOGUE or name.startswith("not in the catalogue: ") for name in s["effects"])
     assert s["held_out_time"]["improvement"] > 2.0
     for p in s["parameters"]["named"].values():
