@@ -22,7 +22,7 @@ def waveform_row_figure(d: WaveformDiagnosis, row: int, out: Path) -> Path:
     s = d.summary
     w = s["warmup_samples"]
     b, h, h0, h1 = (a[row] for a in (d.b_t, d.h_meas, d.h_before, d.h_after))
-    t_us = np.arange(b.size) / d.fs * 1e6
+    t_us = np.arange(b.size) / d.fs_hz * 1e6
     rb, ra = s["held_out_rows"]["before"], s["held_out_rows"]["after"]
     fig, (lp, ht, zm) = plt.subplots(1, 3, figsize=(15, 4.2), gridspec_kw={"width_ratios": [1, 1.6, 1]})
     after = w + np.arange(b.size - w)

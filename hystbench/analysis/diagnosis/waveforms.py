@@ -57,7 +57,7 @@ class Ctx:
 
     b: np.ndarray
     db_dt: np.ndarray
-    fs: float
+    fs_hz: float
     temp_c: np.ndarray
     h_static: np.ndarray
     t_ref_c: float
@@ -82,7 +82,7 @@ class Term:
 
 def _relaxed(ctx: Ctx, th: np.ndarray) -> list[np.ndarray]:
     """dB/dt through tau dx/dt + x = dB/dt, exact for a rate held over each sample (unit DC gain)."""
-    a = float(np.exp(-1.0 / (ctx.fs * th[0])))
+    a = float(np.exp(-1.0 / (ctx.fs_hz * th[0])))
     return [lfilter([1.0 - a], [1.0, -a], ctx.db_dt, axis=1)]
 
 
@@ -107,7 +107,7 @@ TERMS: dict[str, Term] = {t.key: t for t in (
          "tau dH_r/dt + H_r = k_r dB/dt (k_r = kappa tau)", (("k_r", "A s/(m T)"),), _relaxed,
          nonlin=(("tau_s", "s", (2.0, 3.0, 10.0, 30.0), 2.0, 300.0),), positive=True),
     Term("inertia", "not in the catalogue: domain-wall inertia (second-order response), H_m = m d^2B/dt^2", False,
-         "H_m = m d^2B/dt^2", (("m", "A s^2/(m T)"),), lambda c, th: [np.gradient(c.db_dt, axis=1) * c.fs],
+         "H_m = m d^2B/dt^2", (("m", "A s^2/(m T)"),), lambda c, th: [np.gradient(c.db_dt, axis=1) * c.fs_hz],
          positive=True),
     Term("temp", "not in the catalogue: temperature coefficient of the loop, H_s (1 + a_T (T - T_ref))", False,
          "H_T = a_T (T - T_ref) H_s(B)", (("a_T", "1/K"),),
@@ -166,9 +166,9 @@ class _Problem:
     """One calibration problem: the data, the calibration mask and the terms; evaluates the model for
     a vector of nonlinear parameters with the linear coefficients solved for (variable projection)."""
 
-    def __init__(self, b: np.ndarray, h: np.ndarray, fs: float, temp_c: np.ndarray, mask: np.ndarray,
+    def __init__(self, b: np.ndarray, h: np.ndarray, fs_hz: float, temp_c: np.ndarray, mask: np.ndarray,
                  terms: Sequence[str]):
-        self.b, self.h, self.fs, self.temp, self.mask = b, h, fs, temp_c, mask
+        self.b, self.h, self.fs_hz, self.temp, self.mask = b, h, fs_hz, temp_c, mask
         self.terms = [TERMS[t] for t in terms]
         rows = mask.any(axis=1)
         self.t_ref = float(np.mean(temp_c[rows]))
@@ -197,8 +197,8 @@ class _Problem:
             if t.shifts_b:
                 b = _shift(b, th[t.key][0])
         hs = _static_h(_iron(q, self.h_max), b)
-        ctx = Ctx(b, np.gradient(b, axis=1) * self.fs, self.fs, self.temp, hs, self.t_ref)
-        cols = [c for t in self.terms for c in t.columns(ctx, th[t.key] / self.fs)]
+        ctx = Ctx(b, np.gradient(b, axis=1) * self.fs_hz, self.fs_hz, self.temp, hs, self.t_ref)
+        cols = [c for t in self.terms for c in t.columns(ctx, th[t.key] / self.fs_hz)]
         if not cols:
             return hs, np.zeros(0)
         if coefs is None:
@@ -213,7 +213,7 @@ class _Problem:
         return (self.evaluate(x)[0] - self.h)[self.mask]
 
 
-def fit_waveforms(b: np.ndarray, h: np.ndarray, fs: float, temp_c: np.ndarray, mask: np.ndarray,
+def fit_waveforms(b: np.ndarray, h: np.ndarray, fs_hz: float, temp_c: np.ndarray, mask: np.ndarray,
                   terms: Sequence[str] = (), start: WaveformFit | None = None, free_iron: bool = True,
                   errors: bool = True, max_nfev: int = 60) -> WaveformFit:
     """Calibrate the iron and ``terms`` on the samples in ``mask`` (least squares; the linear
@@ -222,7 +222,7 @@ def fit_waveforms(b: np.ndarray, h: np.ndarray, fs: float, temp_c: np.ndarray, m
     is not lost in a flat valley.  ``free_iron=False`` holds the iron (a candidate's quick score).
     ``errors``: standard errors from the Jacobian of every parameter (samples taken as independent:
     optimistic for correlated residuals)."""
-    p = _Problem(b, h, fs, temp_c, mask, terms)
+    p = _Problem(b, h, fs_hz, temp_c, mask, terms)
     q0 = p.q0 if start is None else np.clip(start.q[:5], p.lo, p.hi)
     known = {} if start is None else _nonlin_of(start)
     nl = p.nonlin()
@@ -287,7 +287,7 @@ def _parameters(p: _Problem, fit: WaveformFit) -> dict[str, dict[str, float]]:
         out[f"static_hysteresis.{name}"] = {"value": v, "std": v * float(sd[j]), "unit": unit}  # log-parameters
     j = 5
     for t, (name, unit, *_r) in p.nonlin():
-        out[f"{t.key}.{name}"] = {"value": float(fit.q[j] / p.fs), "std": float(sd[j] / p.fs), "unit": unit}
+        out[f"{t.key}.{name}"] = {"value": float(fit.q[j] / p.fs_hz), "std": float(sd[j] / p.fs_hz), "unit": unit}
         j += 1
     k = 0
     for t in p.terms:
@@ -297,9 +297,9 @@ def _parameters(p: _Problem, fit: WaveformFit) -> dict[str, dict[str, float]]:
     return out
 
 
-def predict(fit: WaveformFit, b: np.ndarray, fs: float, temp_c: np.ndarray, h_like: np.ndarray) -> np.ndarray:
+def predict(fit: WaveformFit, b: np.ndarray, fs_hz: float, temp_c: np.ndarray, h_like: np.ndarray) -> np.ndarray:
     """H over every row from B alone, with the fit's parameters (the rows need not be the fit's)."""
-    p = _Problem(b, h_like, fs, temp_c, np.ones_like(b, bool), fit.terms)
+    p = _Problem(b, h_like, fs_hz, temp_c, np.ones_like(b, bool), fit.terms)
     p.t_ref, p.h_max = fit.t_ref_c, fit.h_max_a_per_m  # the fit's, never the predicted rows' own
     return p.evaluate(fit.q, fit.coefs)[0]
 
@@ -333,16 +333,16 @@ def _since_reversal(b: np.ndarray) -> np.ndarray:
     return (idx - last).astype(float)
 
 
-def locate_residual(b: np.ndarray, resid: np.ndarray, fs: float, mask: np.ndarray, bins: int = 10
+def locate_residual(b: np.ndarray, resid: np.ndarray, fs_hz: float, mask: np.ndarray, bins: int = 10
                     ) -> dict[str, dict[str, Any]]:
     """Where the residual lives: for dB/dt, B and the time since the last reversal, the share of the
     residual's variance that its mean per quantile bin explains (eta squared), and those means.  Against
     the time since the reversal the residual is signed along the motion (times sign dB/dt): what a
     reversal starts, in either direction, shows there."""
-    rate = np.gradient(b, axis=1) * fs
+    rate = np.gradient(b, axis=1) * fs_hz
     out: dict[str, dict[str, Any]] = {}
     for name, var, unit, along in (("dB/dt", rate, "T/s", False), ("B", b, "T", False),
-                                   ("time since reversal", _since_reversal(b) / fs, "s", True)):
+                                   ("time since reversal", _since_reversal(b) / fs_hz, "s", True)):
         r = (resid * np.sign(rate) if along else resid)[mask]  # after a reversal: the residual along the motion
         total = float(np.sum((r - r.mean()) ** 2))
         v = var[mask]
@@ -364,7 +364,7 @@ def temperatures_separable(temp_c: np.ndarray, mask: np.ndarray) -> bool:
     return int(np.sum(counts >= 2)) >= 2
 
 
-def select_terms(b: np.ndarray, h: np.ndarray, fs: float, temp_c: np.ndarray, mask: np.ndarray,
+def select_terms(b: np.ndarray, h: np.ndarray, fs_hz: float, temp_c: np.ndarray, mask: np.ndarray,
                  candidates: Sequence[str] | None = None, say: Callable[[str], None] = lambda s: None
                  ) -> tuple[WaveformFit, list[WaveformFit], list[dict[str, Any]]]:
     """Stepwise selection by BIC: the best candidate joins when it beats the current model by
@@ -375,11 +375,11 @@ def select_terms(b: np.ndarray, h: np.ndarray, fs: float, temp_c: np.ndarray, ma
     come back.  Returns (baseline, [model after each round that named], the rounds' scores)."""
     separable = temperatures_separable(temp_c, mask)
     pool = [c for c in (candidates or TERMS) if separable or not TERMS[c].needs_temperatures]
-    base = fit_waveforms(b, h, fs, temp_c, mask, errors=False)
+    base = fit_waveforms(b, h, fs_hz, temp_c, mask, errors=False)
     current, named, rounds = base, [], []
     labels: dict[str, str] = {}
     while pool:  # each candidate scored with the iron held (cheap, and a lower bound), the winner refitted whole
-        fits = {c: fit_waveforms(b, h, fs, temp_c, mask, current.terms + (c,), start=current, free_iron=False,
+        fits = {c: fit_waveforms(b, h, fs_hz, temp_c, mask, current.terms + (c,), start=current, free_iron=False,
                                  errors=False) for c in pool}
         scores = sorted(((current.bic - f.bic, c) for c, f in fits.items()), reverse=True)
         top, runner = scores[0], (scores[1][0] if len(scores) > 1 else -np.inf)
@@ -394,21 +394,21 @@ def select_terms(b: np.ndarray, h: np.ndarray, fs: float, temp_c: np.ndarray, ma
         others = [TERMS[c].name for c in tied if c != pick]
         labels[pick] = TERMS[pick].name + (f" (modelled; not decisive against {', '.join(others)})" if others else "")
         rounds[-1].update(named=TERMS[pick].name if not others else None, modelled=labels[pick])
-        current = fit_waveforms(b, h, fs, temp_c, mask, current.terms + (pick,), start=fits[pick], errors=False)
+        current = fit_waveforms(b, h, fs_hz, temp_c, mask, current.terms + (pick,), start=fits[pick], errors=False)
         pool.remove(pick)
         for old in current.terms[:-1]:  # a term named earlier that the newcomer made redundant leaves again
             rest = tuple(k for k in current.terms if k != old)
             # the iron held first: refitting it could only lower that BIC, so "no margin" there is final
-            without = fit_waveforms(b, h, fs, temp_c, mask, rest, start=current, free_iron=False, errors=False)
+            without = fit_waveforms(b, h, fs_hz, temp_c, mask, rest, start=current, free_iron=False, errors=False)
             if without.bic - current.bic >= NAME_MARGIN:
-                without = fit_waveforms(b, h, fs, temp_c, mask, rest, start=current, errors=False, max_nfev=30)
+                without = fit_waveforms(b, h, fs_hz, temp_c, mask, rest, start=current, errors=False, max_nfev=30)
             if without.bic - current.bic < NAME_MARGIN:
                 say(f"  {TERMS[old].name} no longer earns its margin "
                     f"(delta BIC {without.bic - current.bic:.1f}): dropped")
                 rounds[-1].setdefault("dropped", []).append(TERMS[old].name)
                 current = without
         if "dropped" in rounds[-1]:  # what stays, refitted with the iron
-            current = fit_waveforms(b, h, fs, temp_c, mask, current.terms, start=current, errors=False, max_nfev=30)
+            current = fit_waveforms(b, h, fs_hz, temp_c, mask, current.terms, start=current, errors=False, max_nfev=30)
         current.labels = {k: labels[k] for k in current.terms}
         named.append(current)
     return base, named, rounds
@@ -424,7 +424,7 @@ class WaveformDiagnosis:
     h_meas: np.ndarray
     h_before: np.ndarray
     h_after: np.ndarray
-    fs: float
+    fs_hz: float
 
     def to_json(self) -> dict[str, Any]:
         return self.summary
@@ -446,15 +446,15 @@ def _row_folds(n_rows: int) -> list[np.ndarray]:
     return [idx % 2 == 0, idx % 2 == 1] if n_rows >= 2 else []
 
 
-def _cross_rows(b: np.ndarray, h: np.ndarray, fs: float, temp: np.ndarray, terms: tuple[str, ...],
+def _cross_rows(b: np.ndarray, h: np.ndarray, fs_hz: float, temp: np.ndarray, terms: tuple[str, ...],
                 warmup: int) -> np.ndarray:
     """H of every row predicted by the model calibrated (all samples after the warm-up) on the other fold."""
     out = np.empty_like(h)
     for held in _row_folds(b.shape[0]):
         mask = np.zeros_like(b, bool)
         mask[~held, warmup:] = True
-        fit = fit_waveforms(b, h, fs, temp, mask, terms, errors=False)
-        out[held] = predict(fit, b[held], fs, temp[held], h[held])
+        fit = fit_waveforms(b, h, fs_hz, temp, mask, terms, errors=False)
+        out[held] = predict(fit, b[held], fs_hz, temp[held], h[held])
     return out
 
 
@@ -465,8 +465,8 @@ def diagnose_waveforms(table: WaveformTable | str | Path, *, warmup: int = WARMU
     t = table if isinstance(table, WaveformTable) else read_waveform_table(table)
     if t.h_t is None:
         raise ValueError(f"{t.path}: no H(t) columns; a waveform diagnosis compares the model's H with the measured")
-    fs = float(t.metadata.get("sample_rate_Hz", 0.0))
-    if not fs > 0:
+    fs_hz = float(t.metadata.get("sample_rate_Hz", 0.0))
+    if not fs_hz > 0:
         raise ValueError(f"{t.path}: the sidecar gives no sample_rate_Hz; dB/dt needs it")
     if t.samples < 2 * warmup + 16:
         raise ValueError(f"{t.path}: {t.samples} samples per row; the warm-up is {warmup}")
@@ -478,25 +478,25 @@ def diagnose_waveforms(table: WaveformTable | str | Path, *, warmup: int = WARMU
     held = np.zeros_like(b, bool)
     held[:, half:] = True
     say("calibrating the rate-independent baseline and selecting terms")
-    base, named, rounds = select_terms(b, h, fs, temp, cal, candidates, say)
+    base, named, rounds = select_terms(b, h, fs_hz, temp, cal, candidates, say)
     final = named[-1] if named else base
-    base.params = _parameters(_Problem(b, h, fs, temp, cal, ()), base)
+    base.params = _parameters(_Problem(b, h, fs_hz, temp, cal, ()), base)
     if named:
-        final.params = _parameters(_Problem(b, h, fs, temp, cal, final.terms), final)
-    h_base = predict(base, b, fs, temp, h)
-    h_final = predict(final, b, fs, temp, h)
-    located = locate_residual(b, h - h_base, fs, cal)
+        final.params = _parameters(_Problem(b, h, fs_hz, temp, cal, final.terms), final)
+    h_base = predict(base, b, fs_hz, temp, h)
+    h_final = predict(final, b, fs_hz, temp, h)
+    located = locate_residual(b, h - h_base, fs_hz, cal)
     before, after = _rms((h - h_base)[held]), _rms((h - h_final)[held])
     say("cross-validating over rows (even / odd)")
-    cv_before = _cross_rows(b, h, fs, temp, (), warmup)
-    cv_after = _cross_rows(b, h, fs, temp, final.terms, warmup) if named else cv_before
+    cv_before = _cross_rows(b, h, fs_hz, temp, (), warmup)
+    cv_after = _cross_rows(b, h, fs_hz, temp, final.terms, warmup) if named else cv_before
     m_before, m_after = paderborn_metrics(cv_before, h, warmup), paderborn_metrics(cv_after, h, warmup)
     e_meas = _energy(b, h, warmup)
     passes = (max(m_after["rel_l2"]) < REL_L2_MAX and min(m_after["corr"]) > CORR_MIN)
     names = [final.labels.get(k, TERMS[k].name) for k in final.terms]
     summary = {
         "path": str(t.path), "kind": "waveform", "material": sorted(set(t.material)), "rows": len(t),
-        "samples_per_row": t.samples, "sample_rate_hz": fs, "warmup_samples": warmup,
+        "samples_per_row": t.samples, "sample_rate_hz": fs_hz, "warmup_samples": warmup,
         "temperatures_c": [float(x) for x in temp],
         "baseline": ("static_hysteresis (Preisach iron driven by the measured B(t), 5 parameters, "
                      "no per-material setting)"),
@@ -527,7 +527,7 @@ def diagnose_waveforms(table: WaveformTable | str | Path, *, warmup: int = WARMU
     }
     summary["interpretation"] = _interpret(final, b)
     summary["verdict"] = _verdict(summary)
-    return WaveformDiagnosis(summary, b, h, cv_before, cv_after, fs)
+    return WaveformDiagnosis(summary, b, h, cv_before, cv_after, fs_hz)
 
 
 def _interpret(fit: WaveformFit, b: np.ndarray) -> dict[str, dict[str, float | str]]:
