@@ -90,6 +90,23 @@ CATALOGUE: Mapping[str, Effect] = MappingProxyType({e.name: e for e in [
        "rate-independent iron hysteresis (Preisach model fitted to the real loops): flux lags current"),
     _e("lamination_eddy_currents",
        "eddy currents in the laminations, H_e = sigma d^2/12 dB/dt: lag growing with frequency"),
+    _e("excess_loss",
+       "Bertotti's excess (domain-wall) field k (sqrt(|dB/dt| + r0) - sqrt(r0)) sign(dB/dt) in the iron: "
+       "a lag and a loss per cycle growing as sqrt(f), falling with amplitude as B^-0.5 relative to the loop",
+       "coefficient_a_per_m_per_sqrt_t_per_s",
+       coefficient_a_per_m_per_sqrt_t_per_s=_num(
+           0.3, "k = sqrt(sigma G S V0); the loss per cycle under a sine is 8.76 k B^1.5 f^0.5 (J/m^3)",
+           "A/m per sqrt(T/s)", ge=0.0, le=100.0),
+       knee_rate_t_per_s=_num(1.0, "r0 = n0^2 V0 / (4 sigma G S): below this rate the field is linear in dB/dt",
+                              "T/s", gt=0.0)),
+    _e("magnetic_relaxation",
+       "the iron's field holds a share of B's recent change and lets it go with a time constant "
+       "(a Debye after-effect): a loss peaking at w tau = 1, and loss after B stops changing",
+       "time_constant_s",
+       time_constant_s=_num(1e-3, "tau, the relaxation's time constant", "s", gt=0.0, le=10.0),
+       reluctivity_a_per_m_per_t=_num(
+           40.0, "kappa, the reluctivity it adds to changes faster than tau (H_rel = kappa (B - B_slow))",
+           "A/m per T", ge=0.0)),
     _e("magnet_eddy_currents",
        "eddy currents in a conducting magnet (NdFeB, SmCo) oppose flux change: extra lag"),
     _e("iron_saturation",

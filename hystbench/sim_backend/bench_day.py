@@ -177,7 +177,8 @@ _CHANNEL_EFFECTS: Mapping[str, frozenset[str]] = {
     "sensor_noise": frozenset({"current_A"}), "adc_quantisation": frozenset({"current_A"}),
     "amplifier_distortion": frozenset({"current_A"}),  # every rig has its current measured
 }
-_IRON_EFFECTS = frozenset({"static_hysteresis", "lamination_eddy_currents", "iron_saturation"})
+_IRON_EFFECTS = frozenset({"static_hysteresis", "lamination_eddy_currents", "iron_saturation", "excess_loss",
+                           "magnetic_relaxation"})
 _MAGNET_EFFECTS = frozenset({"magnet_eddy_currents", "magnet_thermal_drift"})  # the E-core's magnet
 
 

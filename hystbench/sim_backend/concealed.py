@@ -141,6 +141,12 @@ CASES: tuple[Case, ...] = (
                                "mostly with the magnet (at 2e8 N/m found as (2.1 +- 0.6)e8, short of a decisive score)"),
     make_case("frame_resonance", ["frame_resonance"], {}, seed=111, leave_out=True,
          concealment="frame modes at 850/1175 Hz: in the voice coil's sweep and the E-cores' harmonics 2-3"),
+    # the iron's rate dependence beyond classical eddy currents (issue 28): catalogue defaults
+    make_case("excess_loss", ["excess_loss"], {"excess_loss": {}}, seed=117,
+         concealment="a flux lag growing as sqrt(f) on both E-cores (falling as B^-0.5 with amplitude), "
+                     "beside the lamination's eddy lag that grows as f"),
+    make_case("magnetic_relaxation", ["magnetic_relaxation"], {"magnetic_relaxation": {}}, seed=118,
+         concealment="a flux lag peaking at 159 Hz (tau 1 ms) on both E-cores, inside the lamination's eddy lag"),
     # --- the baseline leaves out an effect of the presets -------------------------------------------
     make_case("magnet_eddy_currents", ["magnet_eddy_currents"], {}, seed=112, leave_out=True,
          concealment="an extra flux lag growing with f, only with the magnet"),

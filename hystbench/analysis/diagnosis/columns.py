@@ -118,6 +118,8 @@ def _in_band(frequency_hz: float) -> float:
 
 #: Time constants (s) simulated first for the high-pass effects: a day's transients to beyond it.
 TIME_CONSTANT_GRID = (0.25, 1.0, 4.0, 16.0, 64.0)
+#: Relaxation times (s) simulated first: a loss peak (w tau = 1) from 16 Hz to 1.6 kHz.
+RELAXATION_GRID = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2)
 
 
 def _skew(channel: str) -> Probe:
@@ -152,6 +154,12 @@ PROBES: Mapping[str, tuple[Probe, ...]] = {
                               _in_band, lower=FRAME_BAND_HZ[0], fixed={"zeta": 0.02, "depth": 0.0, "split": 0.0}),
                         _linear("frame_resonance", "depth", 0.05, lower=-0.99),
                         _linear("frame_resonance", "split", 0.005, lower=-0.5)),
+    # the excess field is linear in its coefficient (its knee, below the bench's rates, at the catalogue's)
+    "excess_loss": (_linear("excess_loss", "coefficient_a_per_m_per_sqrt_t_per_s", 0.3, lower=0.0),),
+    # the time constant on a grid (as its inverse; the loss peak w tau = 1 from 16 Hz to 1.6 kHz), the
+    # reluctivity it adds (linear) measured there
+    "magnetic_relaxation": (_inverse("magnetic_relaxation", "time_constant_s", 1e3, RELAXATION_GRID),
+                            _linear("magnetic_relaxation", "reluctivity_a_per_m_per_t", 40.0, lower=0.0)),
     "static_hysteresis": (_switch("static_hysteresis"),),
     "lamination_eddy_currents": (_switch("lamination_eddy_currents"),),
     "magnet_eddy_currents": (_switch("magnet_eddy_currents"),),
@@ -265,7 +273,7 @@ def accepts(rig: str, preset: Mapping[str, Any], effect: str) -> bool:
     if effect in ("magnet_eddy_currents", "magnet_thermal_drift"):
         return magnet and ecore
     if effect in ("static_hysteresis", "lamination_eddy_currents", "iron_saturation", "integrator_leak",
-                  "load_cell_compliance"):
+                  "load_cell_compliance", "excess_loss", "magnetic_relaxation"):
         return ecore
     return True
 

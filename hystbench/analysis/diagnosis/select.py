@@ -114,22 +114,23 @@ def candidate_effects(problem: Problem, pool: Sequence[str], presets: Mapping[st
             # and the catalogue's own modes (the paper's frame), their depth alone: the variant that
             # scores better speaks for the family
             linear.append((f"{name}@catalogue", CATALOGUE_FRAME))
-        elif len(probes) == 1 and probes[0].grid:
-            gridded.append((name, probes[0]))
+        elif probes and probes[0].grid:  # its first parameter on a grid, the others (linear) at their probes
+            gridded.append((name, probes))
         elif probes:
             linear += [(name, pr) for pr in probes]
     say(f"switching on {', '.join(dict.fromkeys([n for n, _ in linear + gridded] + [n for n, _, _ in around]))}")
     # every simulation the candidates need, at once: each linear parameter at its probe, each grid value
     requests = [(x0, {family(name): pr.setting(pr.probe)}) for name, pr in linear]
-    requests += [(x0, {family(name): pr.setting(u)}) for name, pr in gridded for u in pr.grid]
+    requests += [(x0, {family(name): setting_at(prs, {**_probed(prs), prs[0].param: u})})
+                 for name, prs in gridded for u in prs[0].grid]
     runs = iter(problem.model_many(requests))
     for name, pr in linear:
         eff = effects.setdefault(name, CandidateEffect(name, [], ()))
         eff.columns.append(Column(f"{name}.{pr.param}", (next(runs) - m0) / pr.probe, lower=pr.lower))
         eff.probes += (pr,)
-    for name, pr in gridded:  # measured around its best grid value
-        u, change = best_on_grid(pr, problem, calibration, [next(runs) for _ in pr.grid])
-        around.append((name, (pr,), {pr.param: u}, change))
+    for name, prs in gridded:  # measured around its best grid value
+        u, change = best_on_grid(prs[0], problem, calibration, [next(runs) for _ in prs[0].grid])
+        around.append((name, prs, {**_probed(prs), prs[0].param: u}, change))
     # each of those around its starting point: a replay there (unless the grid made it) and one per
     # parameter stepped (a time constant or a frequency by a share of itself), all at once
     requests = []
@@ -326,6 +327,11 @@ def setting_at(probes: Sequence[Probe], at: Mapping[str, float]) -> dict[str, An
     for pr in probes:
         out.update(pr.params(at[pr.param]))
     return out
+
+
+def _probed(probes: Sequence[Probe]) -> dict[str, float]:
+    """Each probed parameter at its probe value (where a gridded effect's other parameters sit)."""
+    return {pr.param: pr.probe for pr in probes}
 
 
 def _step(probe: Probe, at: Mapping[str, float]) -> float:

@@ -4,7 +4,10 @@ own MMF drop and the eddy currents, advanced one block at a time (vectorised).
 The iron is the one its material file's ``model`` names (:mod:`hystbench.physics.iron`): a Preisach
 operator or Rayleigh's law is the nonlinear remainder the fixed point iterates; a complex
 permeability is linear and goes into the exactly solved linear part (nu' into N, nu''/omega with
-the eddy currents into D, rebuilt whenever the excitation's period changes).  Where the passes
+the eddy currents into D, rebuilt whenever the excitation's period changes).  The iron's rate terms
+beyond the classical eddy field (``excess_loss``, ``magnetic_relaxation``:
+:mod:`hystbench.physics.rate_dependence`) join the iterated remainder, the step damped by their own
+slope (the excess field is steep at slow rates), in the numpy passes.  Where the passes
 stall (the iron is steep at a reversal deep in saturation; a loop whose extrema tie is wiped out
 where the tabulated branches leave a small step in H) the block is solved sample by sample, which
 converges over the whole current range (:meth:`ECoreActuator._solve_sequential`): every block of an
@@ -28,6 +31,7 @@ from ...jit import enabled as jit_enabled
 from ...physics.eddy import cylinder_eddy_coefficient, lamination_eddy_coefficient
 from ...physics.hysteresis import HysteresisState
 from ...physics.iron import ComplexPermeabilityIron, RayleighIron, refuse_saturation
+from ...physics.rate_dependence import RateDependence, rate_dependence
 from ...physics.presets import ecore_mec, where
 from ...physics.permeance import mu_0
 from .base import ActuatorOutput
@@ -128,6 +132,9 @@ class ECoreActuator:
         if "lamination_eddy_currents" in effects:
             self._eddy_coef = lamination_eddy_coefficient(iron["conductivity_s_per_m"],
                                                           iron["lamination_thickness_m"])
+        #: the iron's rate dependence beyond the classical eddy field (excess_loss, magnetic_relaxation):
+        #: nonlinear or with a memory of its own, so it joins the iterated remainder, not the linear part
+        self._rate: RateDependence | None = rate_dependence(effects, fs_hz)
         self._magnet_eddy = 0.0
         if "magnet_eddy_currents" in effects and "magnet" in preset:
             m = preset["magnet"]
@@ -169,8 +176,11 @@ class ECoreActuator:
         self._prev_drop: np.ndarray | None = None
         self._rest_tail = np.full(2, np.nan)  # the iron's remainder at the last two samples (NaN: none yet)
         self._primed = False  # the sample-by-sample solve compiled (_prime_sequential)
-        # the kernels cover the Preisach iron and every linear iron; Rayleigh's loops stay in numpy
-        self._kernel_ok = self.hysteresis is None or hasattr(self.hysteresis, "kernel_tables")
+        # the kernels cover the Preisach iron and every linear iron; Rayleigh's loops and the rate
+        # terms stay in numpy (about half the kernels' speed: docs/performance.md)
+        self._kernel_ok = self._rate is None and (self.hysteresis is None or hasattr(self.hysteresis, "kernel_tables"))
+        #: whether the iron has a remainder to iterate (a static loop, or rate terms)
+        self._iterated = self.hysteresis is not None or self._rate is not None
         self._kernel_lag: tuple[_LinearPart, np.ndarray, np.ndarray] | None = None  # lag it was built for
         self._kernel_tables: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._kernel_mode = np.array([self._irreversible, self._saturation], dtype=np.int64)
@@ -206,7 +216,7 @@ class ECoreActuator:
         """Start of the fixed point: the iron's remainder one (fractional) period earlier, read by
         linear interpolation, when a whole period is known (steady state: WARM_PASSES suffice),
         else zero (IRON_ITERATIONS passes)."""
-        if self.hysteresis is None:
+        if not self._iterated:
             return np.zeros(n), None, 0
         p, hist = self._period, self._history
         if p is None or hist.size < int(np.ceil(p)) + 2:
@@ -217,7 +227,7 @@ class ECoreActuator:
     def _remember(self, h_rest: np.ndarray) -> None:
         """The block's remainder: the last period's (the next first guess) and the last two samples'
         (where the sample-by-sample solve starts: one sample before the block's last, in _rest_before)."""
-        if self.hysteresis is not None:
+        if self._iterated:
             self._rest_tail = np.concatenate((self._rest_tail, h_rest[-2:]))[-2:]
             if self._period is not None:
                 keep = int(np.ceil(self._period)) + 2
@@ -230,8 +240,11 @@ class ECoreActuator:
     def _newton_step(self, b: np.ndarray, residual: np.ndarray) -> np.ndarray:
         """Fixed-point step on the iron's remainder, damped by the Newton factor where the iron is
         past its knee: there dH/dB (the anhysteretic slope, which the branches approach in
-        saturation) outgrows the airgap's dilution and the plain step would diverge."""
+        saturation) outgrows the airgap's dilution and the plain step would diverge.  The rate
+        terms' own slope (the excess field's is steep at slow rates) damps it too."""
         steep = np.abs(b) > self._b_knee
+        if self._rate is not None:
+            return self._damped(b, residual, self._rate.slope(b), steep)
         if not steep.any():
             return residual
         nu_d = np.full_like(b, self._nu0)
@@ -240,10 +253,23 @@ class ECoreActuator:
         nu_d[steep] = np.maximum(self._nu0, (an(bs + 1e-3) - an(bs - 1e-3)) / 2e-3)
         return residual / (1.0 + (nu_d - self._nu0) * self._lag.instantaneous_gain * self.iron_length_m)
 
+    def _damped(self, b: np.ndarray, residual: np.ndarray, rate_slope: np.ndarray, steep: np.ndarray) -> np.ndarray:
+        """The Newton-damped step with the rate terms' slope added to the iron's beyond the knee."""
+        extra = rate_slope.copy()
+        if steep.any():
+            an = self.hysteresis.anhysteretic_field
+            bs = b[steep]
+            extra[steep] += np.maximum(0.0, (an(bs + 1e-3) - an(bs - 1e-3)) / 2e-3 - self._nu0)
+        return residual / (1.0 + extra * self._lag.instantaneous_gain * self.iron_length_m)
+
     def _static_field(self, b: np.ndarray):
-        """The iron's rate-independent H for the trajectory b, and the state it ends in."""
-        return self.hysteresis.field(b, self._h_state, irreversible=self._irreversible,
-                                     saturation=self._saturation)
+        """The iron's H for the trajectory b (its rate terms included), and the state it ends in."""
+        if self.hysteresis is None:
+            h, state = self._nu0 * b, None
+        else:
+            h, state = self.hysteresis.field(b, self._h_state, irreversible=self._irreversible,
+                                             saturation=self._saturation)
+        return (h if self._rate is None else h + self._rate.field(b)), state
 
     def _pass(self, fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray):
         """One fixed-point pass on the iron's remainder: (B in the coil leg, the new remainder, the
@@ -372,13 +398,13 @@ class ECoreActuator:
             h_rest, h_state, peak_b = self._solve_sequential(fc, fm, current_a)
         else:
             h_rest, h_state, passes = self._first_guess(fc.size)
-            for n_pass in range(1, MAX_PASSES + 1 if self.hysteresis is not None else 1):
+            for n_pass in range(1, MAX_PASSES + 1 if self._iterated else 1):
                 b, h_rest, h_state, converged = self._pass(fc, fm, h_rest)
                 if n_pass >= passes and converged:
                     peak_b = float(np.max(np.abs(b)))
                     break
             else:
-                if self.hysteresis is not None:
+                if self._iterated:
                     h_rest, h_state, peak_b = self._unconverged(fc, fm, float(np.max(np.abs(b))), current_a)
         if self.hysteresis is not None:
             self._check_range(peak_b, current_a)
@@ -386,6 +412,8 @@ class ECoreActuator:
         u = np.stack([fc - h_rest * self.iron_length_m, fm])
         x, lag_state = self._lag.run(u)
         self._h_state, self._lag.state = h_state, lag_state
+        if self._rate is not None:
+            self._rate.commit(x[0])
         self.iron_flux_density_t = x[0]  # B in the coil leg over this block (reports, tests)
         s = u - self._lag.linear_mmf(x)  # (F_coil, F_magnet) as the airgaps see them
 

@@ -3,7 +3,8 @@
 The standard asks for a sinusoidal flux density, so the amplifier runs in flux feedback: the
 generator's command sets B (``[amplifier] flux_density_per_a_t`` tesla per ampere of nominal
 command), and the magnetising current needed for it is what the current channel measures,
-i = (H_static(B) + sigma d^2/12 dB/dt) l / N.  Driving the B-input hysteresis operator this way
+i = (H_static(B) + sigma d^2/12 dB/dt + H_rate) l / N (H_rate: the excess field and the relaxation,
+:mod:`hystbench.physics.rate_dependence`).  Driving the B-input hysteresis operator this way
 is also exact: no implicit solve is needed with eddy currents.  The iron is the one its material
 file's ``model`` names (:func:`hystbench.physics.iron.iron_model`).
 """
@@ -16,6 +17,7 @@ import numpy as np
 
 from ...config import load_material
 from ...physics.eddy import lamination_eddy_coefficient
+from ...physics.rate_dependence import rate_dependence
 from .base import ActuatorOutput
 
 __all__ = ["ToroidCore"]
@@ -48,6 +50,7 @@ class ToroidCore:
         self._eddy = 0.0
         if "lamination_eddy_currents" in effects:
             self._eddy = lamination_eddy_coefficient(iron["conductivity_s_per_m"], iron["lamination_thickness_m"])
+        self._rate = rate_dependence(effects, fs_hz)
 
     def set_period(self, samples: float | None) -> None:
         """The excitation's period in samples: a complex permeability's omega (None: the preset's
@@ -67,5 +70,8 @@ class ToroidCore:
             h, self._state = self.hysteresis.field(b, self._state, irreversible=self._irreversible,
                                                    saturation=self._saturation)
         h = h + self._eddy * db_dt
+        if self._rate is not None:
+            h = h + self._rate.field(b)
+            self._rate.commit(b)
         return ActuatorOutput(None, b * self.area_m2, db_dt * self.area_m2,
                               current_a=h * self.path_m / self.turns)
