@@ -126,6 +126,12 @@ CASES: tuple[Case, ...] = (
     _case("amplifier_distortion", {"amplifier_distortion": True}, seed=2711,
           concealment="0.4 % second, 1.2 % third order of a 1 A full scale: harmonics in the measured current, "
                       "which the replay is driven by"),
+    _case("excess_loss", {"excess_loss": True}, seed=2716,
+          concealment="an excess field of 3 A/m at 100 T/s growing as (dB/dt)^0.6 (a power law, not Bertotti's "
+                      "square root): a flux lag growing about as f^0.6, beside the laminations' Cauer ladder"),
+    _case("magnetic_relaxation", {"magnetic_relaxation": True}, seed=2717,
+          concealment="a Cole-Cole relaxation (3 % of the iron's reluctivity, 1.5 ms, alpha 0.85: a spread of "
+                      "times, not one): a flux lag peaking near 100 Hz, inside the laminations' own"),
     # --- the same effects concealed otherwise --------------------------------------------------------
     _case("magnet_thermal_drift_late", {"magnet_thermal_drift": {"tau_s": 300.0}}, seed=2712,
           concealment="the magnet warmed early (tau 300 s) and has nearly settled when ecore_pm is played late in "

@@ -33,6 +33,8 @@ CASES = {
     "amplifier_distortion": ("ecore_pm", 320.0, 1.4, 0.0, {"force_N", "flux_Wb", "current_A"}),
     "sensor_noise": ("ecore_pm", 320.0, 1.4, 0.0, ALL),
     "adc_quantisation": ("ecore_pm", 320.0, 1.4, 0.0, ALL),
+    "excess_loss": ("ecore_pm", 320.0, 1.4, 0.0, {"force_N", "flux_Wb"}),
+    "magnetic_relaxation": ("ecore_pm", 320.0, 1.4, 0.0, {"force_N", "flux_Wb"}),
 }
 
 
