@@ -71,10 +71,13 @@ class Rows:
     b: np.ndarray
     duty: np.ndarray | None = None
     temperature_c: np.ndarray | None = None
+    #: sampled B(t) / B_pk over one period (rows, samples), for measured waveforms instead of ``duty``
+    waveform: np.ndarray | None = None
 
     def take(self, m: np.ndarray) -> "Rows":
         return Rows(self.f[m], self.b[m], None if self.duty is None else self.duty[m],
-                    None if self.temperature_c is None else self.temperature_c[m])
+                    None if self.temperature_c is None else self.temperature_c[m],
+                    None if self.waveform is None else self.waveform[m])
 
     @cached_property
     def ln_f(self) -> np.ndarray:
@@ -99,6 +102,9 @@ class Rows:
 
     def ln_shape_factor(self, p: float) -> np.ndarray:
         """ln S_p (:func:`.loss_shapes.shape_factor`, in log form; 0 for a sine)."""
+        if self.waveform is not None:  # the same integral on the samples: mean of |db/dphi|^p
+            slope = np.diff(self.waveform, axis=1, append=self.waveform[:, :1]) * self.waveform.shape[1]
+            return np.log(np.mean(np.abs(slope) ** p, axis=1) / sine_integral(p))
         if self.duty is None:
             return np.zeros_like(self.f)
         ln_d, ln_s = self.segments

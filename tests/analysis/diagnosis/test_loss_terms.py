@@ -118,3 +118,19 @@ def test_rate_independent_plus_classical_gets_no_generic_term(calibrate_on: str)
     assert r["effects"] == ["lamination_eddy_currents"] and r["not_in_catalogue"] == []
     assert not r["beyond_catalogue"]["needed"]
     assert r["residual_after"] < 1.5
+
+
+@pytest.mark.parametrize("duty", [(0.2, 0.0, 0.8, 0.0), (0.1, 0.4, 0.1, 0.4), (0.3, 0.2, 0.3, 0.2)])
+def test_a_sampled_waveform_has_the_shape_factor_of_its_duties(duty: tuple[float, ...]):
+    """The measured-B(t) path (rows of samples) gives the closed form's S_p on MagNet's own waveform,
+    rebuilt by formats.flux_shapes and sampled 1024 times; and a sampled sine gives 1."""
+    from hystbench.analysis.diagnosis.loss_terms import Rows
+    from hystbench.formats.flux_shapes import shape_flux_density
+
+    phase = np.arange(1024) / 1024
+    wave = np.stack([shape_flux_density(duty, 1.0, phase), np.sin(2 * np.pi * phase)])
+    rows = Rows(np.array([1e5, 1e5]), np.array([0.1, 0.1]), waveform=wave)
+    for p in (1.5, 2.0, 2.6):
+        s = np.exp(rows.ln_shape_factor(p))
+        assert s[0] == pytest.approx(_shape_factor(duty, p), rel=0.01)  # symmetric shapes: the closed form here
+        assert s[1] == pytest.approx(1.0, rel=1e-3)
