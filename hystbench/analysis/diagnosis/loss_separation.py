@@ -15,14 +15,16 @@ only.  The procedure is issue 13's, on W instead of waveforms:
    quadratic in log B through them: neighbouring points, no model of f), ``model`` the baseline's
    rms misfit where it was calibrated (a baseline merely imperfect raises no alarm).  The trend:
    the residual's slope in log f (energy per cycle growing with f) and in log B.
-3. Name: Bertotti's loss separation W = W_h + k_c f B^2 + k_e f^0.5 B^1.5.  The classical term is
-   the catalogue's ``lamination_eddy_currents`` (H_e = sigma d^2/12 dB/dt gives W_cl = pi^2 sigma
-   d^2 f B^2 / 6; in a ferrite the bulk eddy-current / relaxation analogue); the excess term has no
-   catalogue name and is reported as such.  Forward selection by BIC on the calibration points:
-   named only when better than the current model by >= 10 and than the runner-up by >= 6.
-   Beyond the catalogue: a free Steinmetz-type term k_s f^gamma B^delta (alpha = 1 + gamma in P) is
-   fitted too; when it beats the named model decisively the answer says the data need a rate
-   dependence the catalogue does not name, rather than forcing a name.
+3. Name: forward selection by BIC on the calibration points over the term library
+   (:mod:`.loss_terms`), in two tiers: Bertotti's fixed forms, the classical term (the catalogue's
+   ``lamination_eddy_currents``: H_e = sigma d^2/12 dB/dt gives W_cl = pi^2 sigma d^2 f B^2 / 6; in a
+   ferrite the bulk eddy-current / relaxation analogue) and the excess term k_e f^0.5 B^1.5 (the
+   catalogue's ``excess_loss``); then the generic forms on top (a free power law in f, B and dB/dt, a
+   first-order relaxation after ramps into flat segments, a temperature factor), each reported as
+   "not in the catalogue: <form> with <parameters>".  A term is taken only when better than the
+   current model by >= 10 and than the runner-up by >= 6, and when, fitted on the split's own rule
+   inside the calibration rows, it predicts the rest of them better (else a suspect); a generic term
+   that makes an earlier one redundant drops it.
 4. Model: the parameters with standard errors from the fit's covariance (Jacobian, scaled by the
    residual variance), in natural units by the delta method.
 5. Prove: held-out rms log10 error before (baseline) and after (baseline + named terms), in units
@@ -36,8 +38,9 @@ waveforms, the iGSE's for the free term; S_p = 1 for a sine, so a sine table's f
 the rate-independent W_h(B_pk) stays the baseline (the same excursion for every shape).  The
 baseline is calibrated on the sine rows and the symmetric triangles (duty 0.5, 0, 0.5, 0) of the
 calibration frequencies; every other shape at every frequency is held out.  Located and proved per
-duty shape and per group (sine, triangle, trapezoid) as well; losses between the ramps (relaxation)
-are not modelled and show as a residual growing with the share duty_2 + duty_4.
+duty shape and per group (sine, triangle, trapezoid) as well.  Losses between the ramps (relaxation)
+can be fitted only where flat segments are calibrated on (``calibrate_on="all_shapes"``); otherwise
+they show as a residual growing with the share duty_2 + duty_4.
 """
 
 from __future__ import annotations
@@ -505,8 +508,8 @@ def _verdict(chosen: list[str], reported: list[str], located: dict[str, Any], be
             if fl is not None:
                 out += (f" ({fl['slope_log10_per_share']:+.3f} +- {fl['slope_std']:.3f} where B is flat there, "
                         "duty_1 == duty_3)")
-            if "magnetic_relaxation" in skipped:
-                out += " (relaxation not identifiable: " + skipped["magnetic_relaxation"] + ")"
+            if "flat_segment_relaxation" in skipped:
+                out += " (relaxation not identifiable: " + skipped["flat_segment_relaxation"] + ")"
     return out
 
 

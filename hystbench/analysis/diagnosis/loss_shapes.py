@@ -21,8 +21,9 @@ For MagNet's piecewise-linear b (:mod:`~hystbench.formats.flux_shapes`, rebuilt 
 rows) the integral is closed: sum over segments of d_i^(1-p) |delta b_i|^p, a segment of d_i = 0
 contributing nothing.  Losses during the flat segments (magnetic relaxation, the i2GSE of
 J. Muehlethaler, J. Biela, J. W. Kolar, A. Ecklebe, "Improved core-loss calculation for magnetic
-components employed in power electronic systems", IEEE Trans. Power Electron. 27(2), 2012) are not
-modelled: they show in :func:`locate_shapes` as a residual growing with the share between the ramps.
+components employed in power electronic systems", IEEE Trans. Power Electron. 27(2), 2012) are a term of
+their own (:mod:`.loss_terms`, ``flat_segment_relaxation``); unmodelled, they show in :func:`locate_shapes`
+as a residual growing with the share between the ramps.
 """
 
 from __future__ import annotations

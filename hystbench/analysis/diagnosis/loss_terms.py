@@ -7,9 +7,10 @@ show others.  What no catalogue name explains is still modelled, with a generic 
 
 * ``power``: k f^gamma B^delta S_(1+gamma) -- a rate term whose power grows as |dB/dt|^(1+gamma), carried
   to any waveform by its shape factor (:mod:`.loss_shapes`: Bertotti's separation, the iGSE).  Fixed
-  exponents give the classical eddy term (catalogue) and Bertotti's excess term; free exponents give the
+  exponents give the classical eddy term and Bertotti's excess term (both catalogue effects:
+  ``lamination_eddy_currents``, ``excess_loss``); free exponents give the
   Steinmetz/iGSE term (a power law in f, B and dB/dt at once).
-* ``relaxation``: the i2GSE's magnetic relaxation (J. Muehlethaler, J. Biela, J. W. Kolar, A. Ecklebe,
+* ``relaxation`` (``flat_segment_relaxation``): the i2GSE's magnetic relaxation (J. Muehlethaler, J. Biela, J. W. Kolar, A. Ecklebe,
   IEEE Trans. Power Electron. 27(2), 2012): after a ramp, when B stops (a flat segment of a trapezoid),
   the material keeps dissipating; per transition an energy k_r (|dB/dt| / R0)^alpha_r (dB_pp / 2 B0)^beta_r
   (1 - exp(-t_flat / tau)), R0 = 1 T/us, B0 = 0.1 T, summed over the flat segments of a period.
@@ -133,16 +134,18 @@ TERMS = {
         "classical eddy-current loss k_c f B^2 (Bertotti); in a ferrite the bulk-eddy/relaxation analogue",
         1.0, 2.0, "k_c_J_s_per_m3_T2"),
     "excess_loss": Term(
-        "excess_loss", False, "excess loss (Bertotti) k_e f^0.5 B^1.5, not in the catalogue",
+        "excess_loss", True, "excess (domain-wall) loss (Bertotti) k_e f^0.5 B^1.5, the catalogue's excess_loss "
+        "(its coefficient k = k_e / 8.763, the loss per cycle of its field k sqrt(|dB/dt|) under a sine)",
         0.5, 1.5, "k_e_J_per_m3_Hz0.5_T1.5"),
 }
 STEINMETZ = Term("steinmetz_rate_dependence", False,
                  "a rate dependence k_s f^gamma B^delta with free exponents (Steinmetz alpha = 1 + gamma, "
                  "the iGSE on other waveforms), not in the catalogue", 0.5, 2.5, "k_s_J_per_m3_at_100kHz_0.1T",
                  free=True)
-RELAXATION = Term("magnetic_relaxation", False,
+RELAXATION = Term("flat_segment_relaxation", False,
                   "first-order magnetic relaxation after each ramp into a flat segment (i2GSE) "
-                  "k_r (|dB/dt|/1 T/us)^alpha_r (dB_pp/0.2 T)^beta_r (1 - exp(-t_flat/tau)), not in the catalogue",
+                  "k_r (|dB/dt|/1 T/us)^alpha_r (dB_pp/0.2 T)^beta_r (1 - exp(-t_flat/tau)), not in the catalogue "
+                  "(the catalogue's magnetic_relaxation is a linear Debye after-effect, another form)",
                   0.0, 0.0, "k_r_J_per_m3_per_transition", kind="relaxation")
 TEMPERATURE = Term("temperature_dependence", False,
                    "the loop's energy scaled by exp(c1 (T - 25 degC) + c2 (T - 25 degC)^2), not in the catalogue",
@@ -243,6 +246,9 @@ def natural(t: Term, x: np.ndarray, se: np.ndarray) -> dict[str, tuple[float, fl
         return p
     if t.name == "lamination_eddy_currents":  # W_cl = pi^2 sigma d^2 f B^2 / 6
         p["sigma_d2_S_m"] = (6.0 * k / math.pi**2, 6.0 * k * se[0] / math.pi**2)
+    if t.name == "excess_loss":  # the catalogue's field k sqrt|dB/dt| takes k B^1.5 f^0.5 sine_integral(1.5) a cycle
+        c = sine_integral(1.5)
+        p["coefficient_a_per_m_per_sqrt_t_per_s"] = (k / c, k * se[0] / c)
     if t.free:
         p["alpha"] = (1.0 + x[1], se[1])
         p["delta"] = (x[2], se[2])
@@ -256,7 +262,7 @@ def form(t: Term, p: dict[str, tuple[float, float]]) -> str:
     pm = ", ".join(f"{k} = {v:.4g} +- {s:.2g}" for k, (v, s) in p.items())
     shapes = {"excess_loss": "k_e f^0.5 B^1.5 S_1.5",
               "steinmetz_rate_dependence": "k_s (f/100 kHz)^gamma (B/0.1 T)^delta S_(1+gamma) (iGSE), alpha = 1 + gamma",
-              "magnetic_relaxation": "k_r (|dB/dt|/1 T/us)^alpha_r (B_pk/0.1 T)^beta_r (1 - exp(-t_flat/tau)) "
+              "flat_segment_relaxation": "k_r (|dB/dt|/1 T/us)^alpha_r (B_pk/0.1 T)^beta_r (1 - exp(-t_flat/tau)) "
                                      "per ramp into a flat segment (i2GSE)",
               "temperature_dependence": "W exp(c1 (T - 25 degC) + c2 (T - 25 degC)^2)"}
     return f"{t.name} (not in the catalogue: {shapes.get(t.name, t.description)} with {pm})"

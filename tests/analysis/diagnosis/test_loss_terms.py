@@ -75,10 +75,10 @@ RELAX = (1.5, 1.0, 2.0, 2e-6)  # k_r J/m^3 a transition at 1 T/us, 0.2 T pp; alp
 def test_relaxation_is_recovered_where_flat_segments_are_calibrated_on():
     f, b, w, duty = table(1, k_c=1e-4, relax=RELAX)
     r = diagnose_energy(f, b, w, duty=duty, calibrate_on="all_shapes")
-    assert sorted(r["effects"]) == ["lamination_eddy_currents", "magnetic_relaxation"]
-    assert r["not_in_catalogue"] == ["magnetic_relaxation"]
-    assert any("magnetic_relaxation (not in the catalogue:" in s for s in r["reported"])
-    p = r["parameters"]["magnetic_relaxation"]
+    assert sorted(r["effects"]) == ["flat_segment_relaxation", "lamination_eddy_currents"]
+    assert r["not_in_catalogue"] == ["flat_segment_relaxation"]
+    assert any("flat_segment_relaxation (not in the catalogue:" in s for s in r["reported"])
+    p = r["parameters"]["flat_segment_relaxation"]
     for key, truth in zip(("k_r_J_per_m3_per_transition", "alpha_r", "beta_r", "tau_s"), RELAX):
         assert _within(p[key], truth), (key, p[key], truth)
     assert _within(r["parameters"]["lamination_eddy_currents"]["k_c_J_s_per_m3_T2"], 1e-4)
@@ -92,7 +92,7 @@ def test_relaxation_is_said_unidentifiable_from_sines_and_triangles_not_forced()
     not fitted there, and the report says why, instead of naming something else for it."""
     f, b, w, duty = table(1, k_c=1e-4, relax=RELAX)
     r = diagnose_energy(f, b, w, duty=duty)
-    assert "magnetic_relaxation" in r["not_identifiable"] and "magnetic_relaxation" not in r["effects"]
+    assert "flat_segment_relaxation" in r["not_identifiable"] and "flat_segment_relaxation" not in r["effects"]
     assert "relaxation not identifiable" in r["verdict"]
 
 
