@@ -18,7 +18,7 @@ from hystbench.analysis.diagnosis.loss_separation import diagnose_energy, diagno
 from hystbench.errors import EstimationError
 from hystbench.formats.material_data import read_material_table
 
-pytestmark = pytest.mark.slow(15)  # ~15 s: handed to a worker before lighter files (tests/conftest.py)
+pytestmark = pytest.mark.slow(30)  # ~30 s with the term library: handed to a worker before lighter files (tests/conftest.py)
 
 REAL = Path(__file__).resolve().parents[2] / "data" / "real"
 K_H, BETA = 0.5, 2.6  # J/m^3 per cycle at 0.1 T (N87-like), and its B exponent
