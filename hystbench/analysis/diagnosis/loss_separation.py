@@ -58,7 +58,7 @@ from scipy.optimize import least_squares
 
 from ...errors import EstimationError, RecordingError
 from ...formats.material_data import LossTable, read_material_table
-from .loss_shapes import calibration_shapes, locate_shapes, shape_group
+from .loss_shapes import calibration_shapes, locate_shapes
 from .loss_terms import (B0_T, FREE_BOUNDS, LIBRARY, STEINMETZ, TERMS, TIERS, Rows, Term, form, inert, n_params, natural,
                          term_bounds, term_part, term_start, term_starts)
 
