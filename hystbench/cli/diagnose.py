@@ -118,7 +118,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                           "give loss tables or recordings, not both")
     if tables and (args.baseline is not None or args.candidates is not None):
         raise ConfigError(f"{'--baseline' if args.baseline is not None else '--candidates'}: a loss table's "
-                          "diagnosis has its own terms (rate independent, classical, excess); the option is for recordings")
+                          "diagnosis has its own term library (classical, excess, generic rate terms); the option is "
+                          "for recordings")
     groups = _loss_groups(tables, args) if tables else []
     # --report is checked (exists? writable beside?) before the work, and written only if it all succeeds
     report = (output_folder(args.report, overwrite=args.overwrite, option="--report") if args.report is not None
