@@ -68,11 +68,18 @@ def _timed_run(rig: SimulatedRig, block_size: int, seconds: float, repeats: int 
             "ms_per_10k_mean": 1e3 * cpu * PER / (repeats * per_window * block_size)}
 
 
-def rig_row(name: str, fs_hz: float, block_size: int, seconds: float, repeats: int) -> dict[str, Any]:
-    """One rig preset as configured, warmed (caches, compiled kernels), then timed."""
-    rig = SimulatedRig(name, fs_hz=fs_hz, seed=1)
+#: Effects the rig's numba kernels do not cover (the iron's rate terms run the numpy passes): a row of
+#: ``ecore_pm`` with them on beside its preset's effects says what they cost.
+NUMPY_ONLY = {"excess_loss": True, "magnetic_relaxation": True}
+
+
+def rig_row(name: str, fs_hz: float, block_size: int, seconds: float, repeats: int,
+            effects: dict[str, Any] | None = None) -> dict[str, Any]:
+    """One rig preset as configured (with ``effects`` over it), warmed (caches, compiled kernels), then timed."""
+    rig = SimulatedRig(name, fs_hz=fs_hz, seed=1, effects=effects)
     rig.record(0.2, block_size)
-    return {"rig": name, "block_size": block_size, "effects": sorted(rig.effects),
+    label = name + ("".join(f"+{e}" for e in effects) if effects else "")
+    return {"rig": label, "block_size": block_size, "effects": sorted(rig.effects),
             **_timed_run(rig, block_size, seconds, repeats)}
 
 
@@ -159,6 +166,7 @@ def preisach_field(material: str = "M330-50A", n: int = 100_000, repeats: int = 
 def run(seconds: float = 5.0, fs_hz: float = 100_000.0, block_size: int = 10_000,
         rigs: tuple[str, ...] = (TARGET_RIG, "ecore", "voicecoil_ndfeb"), repeats: int = 5) -> dict:
     results = [rig_row(name, fs_hz, block_size, seconds, repeats) for name in rigs]
+    results.append(rig_row(TARGET_RIG, fs_hz, block_size, seconds, repeats, NUMPY_ONLY))
     head = results[0]
     small = None
     if block_size != EMULATED_BLOCK:
