@@ -269,6 +269,38 @@ def _print(res: dict[str, Any]) -> None:
         con.print(t)
 
 
+def _g(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.3g}"
+
+
+def markdown(res: dict[str, Any]) -> str:
+    """The results as docs/diagnosis.md shows them: per suite its targets, its confusion table, what
+    differs from the truth and why, and every case (named, suspects, signature improvement, held-out
+    residual, seconds)."""
+    out = []
+    for suite, judged in res["suites"].items():
+        rows = [r for r in res["cases"] if r["suite"] == suite]
+        out += [f"#### {suite} ({len(rows)} days)", "", "| target | measured | |", "|---|---|---|"]
+        out += [f"| {t['target']} | {t['measured']} | {'PASS' if t['pass'] else 'FAIL'} |" for t in judged["targets"]]
+        out += ["", "| truth | named | cases |", "|---|---|---|"]
+        for truth in sorted(judged["confusion"], key=lambda n: (n == "none", n)):
+            for named, k in sorted(judged["confusion"][truth].items()):
+                wrong = set(named.split("+")) != set(truth.split("+"))
+                out.append(f"| {truth} | {'**' + named + '**' if wrong else named} | {k} |")
+        out += ["", "| case | what differs from the truth, and why |", "|---|---|"]
+        out += [f"| {r['case']} | {'; '.join(r['why'])} |" for r in rows if r.get("why")]
+        out += ["", "| case | truth | named (top first) | suspects (held-out gain) | signature improvement | "
+                    "held-out residual before -> after | s |", "|---|---|---|---|---|---|---|"]
+        for r in rows:
+            sus = ", ".join(f"{x['name']} ({x['held_out_gain']:.2f}x)" if x["held_out_gain"] is not None
+                            else f"{x['name']} (nanx)" for x in r["suspects"]) or "-"
+            sig = ", ".join(f"{e} {v:.1f}x" for e, v in r["signature"].items() if v is not None) or "-"
+            out.append(f"| {r['case']} | {'+'.join(r['truth']) or 'none'} | {', '.join(r['named']) or 'none'} | {sus} | "
+                       f"{sig} | {_g(r['residual_before'])} -> {_g(r['residual_after'])} | {r['seconds_diagnose']:.0f} |")
+        out.append("")
+    return "\n".join(out)
+
+
 def judge(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """suite -> its confusion table and targets, for each suite with rows (in :data:`SUITES` order)."""
     out = {}
@@ -306,6 +338,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="ours (sim_backend's concealed suite), independent (the independent bench's), or all")
     ap.add_argument("--cases", help="comma-separated case names, NAME or SUITE:NAME (default: the whole suites)")
     ap.add_argument("--out", help="folder for each case's report and results.json")
+    ap.add_argument("--markdown", help="also write the tables docs/diagnosis.md shows to this file")
     ap.add_argument("--quick", action="store_true",
                     help="a short bench day (BenchDayPlan.quick) for our suite: a first look only")
     ap.add_argument("--jobs", type=int, default=0, help="cases diagnosed at once, one core each (default: one per core)")
@@ -337,6 +370,8 @@ def main(argv: list[str] | None = None) -> int:
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / "results.json").write_text(json.dumps(res, indent=2, default=float))
+    if args.markdown:
+        Path(args.markdown).write_text(markdown(res))
     if args.json:
         print(json.dumps(res, indent=2, default=float))
     else:

@@ -76,3 +76,15 @@ def test_why_wrong_tells_a_miss_below_the_data_from_one_outranked_or_refused():
         "channel_skew: refused by the held-out proof (1.45x, score 1558)"]
     right = _answer(["integrator_leak"], [("integrator_leak", 300.0)])
     assert why_wrong(["integrator_leak"], right) == [] and why_wrong([], _answer([], [])) == []
+
+
+def test_markdown_marks_a_wrong_name_and_says_why():
+    rows = [dict(r, suite="ours", suspects=[], residual_before=2.0, residual_after=1.0,
+                 why=[] if r["right"] else ["a reason"]) for r in ROWS]
+    from benchmarks.bench_diagnose import judge, markdown
+
+    text = markdown({"cases": rows, "suites": judge(rows)})
+    assert "| channel_skew | **lamination_eddy_currents** | 1 |" in text
+    assert "| charge_amp_highpass | charge_amp_highpass | 1 |" in text
+    assert "| b | a reason |" in text and "| a | a reason |" not in text
+    assert "50 % (2/4) | FAIL |" in text
