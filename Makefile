@@ -15,14 +15,16 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 # The diagnosis at the end is of a day written by the independent bench (tests/independent_bench,
-# nothing shared with the package), its truth kept beside the day where the diagnosis never reads it.
+# nothing shared with the package), its truth kept beside the day where the diagnosis never reads it;
+# then one of real measurements beside it: a 3C90 ferrite's measured B(t) and H(t) (mag-net-hub, MIT).
 # Each run writes a folder of its own, demo-output/YYYYmmdd-HHMMSS: nothing an earlier run wrote is replaced.
 demo: $(STAMP)
 	@run=demo-output/$$(date +%Y%m%d-%H%M%S) && \
 	(cd tests && ../$(BIN)/python -m independent_bench integrator_leak ../$$run/independent) && \
 	$(BIN)/hystbench demo --out $$run --day $$run/independent/day \
 	  --baseline static_hysteresis,lamination_eddy_currents,instrument_filter,sensor_noise,adc_quantisation \
-	  --truth $$run/independent/truth.json
+	  --truth $$run/independent/truth.json && \
+	$(BIN)/hystbench diagnose tests/data/real/mag-net-hub/maghub_3C90_sequence.csv --report $$run/real-waveforms
 
 # Four workers, a test file on one worker (its module fixtures are computed once): many tests wait on a
 # daemon, a socket or a subprocess, so on this 2-core machine four keep both cores busy where two left
