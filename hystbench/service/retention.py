@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import re
+import stat
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,10 +50,18 @@ def bench_logs(folder: Path, bench: str) -> list[Path]:
     """The parts of ``bench``'s logs in ``folder`` (its naming only), oldest first."""
     pattern = re.compile(rf"{re.escape(bench)}-\d{{8}}-\d{{6}}(\.\d+)?(-\d{{4}})?\.mcap")
     try:
-        found = [p for p in folder.iterdir() if pattern.fullmatch(p.name) and p.is_file()]
+        names = [p for p in folder.iterdir() if pattern.fullmatch(p.name)]
     except FileNotFoundError:
         return []
-    return sorted(found, key=lambda p: (p.stat().st_mtime, p.name))
+    found = []
+    for p in names:  # one stat each: a part deleted meanwhile (another daemon's retention) is left out
+        try:
+            st = p.stat()
+        except FileNotFoundError:
+            continue
+        if stat.S_ISREG(st.st_mode):
+            found.append((st.st_mtime, p.name, p))
+    return [p for _, _, p in sorted(found)]
 
 
 def _finished(path: Path) -> bool:

@@ -130,6 +130,23 @@ def test_rotation_by_size_and_by_time(tmp_path: Path) -> None:
     assert len(r2.paths) == 4
 
 
+def test_the_size_of_a_log_whose_finished_part_was_deleted_is_what_is_left(tmp_path: Path, monkeypatch) -> None:
+    """Retention deletes a finished part while the stats ask the log's size (another thread): the part
+    that went counts 0; it raised FileNotFoundError, which took the whole pipeline down (found beside two
+    busy loops, the delete falling between an exists() and a stat()).  The race made deterministic: every
+    path says it exists, and the deleted one is gone when its size is read."""
+    monkeypatch.setattr(Path, "exists", lambda self: True)
+    with McapRecorder(tmp_path / "r.mcap", metadata={"recording": META}, rotate_bytes=30_000,
+                      chunk_size=8_000) as rec:
+        for b in blocks(40):
+            rec.add_block(b)
+            if len(rec.paths) >= 3:
+                break
+        gone, kept = rec.paths[0], rec.paths[1:-1]
+        gone.unlink()
+        assert rec.bytes_written == sum(p.stat().st_size for p in kept) + rec._fh.tell()
+
+
 #: The frame's ring-down after a change: 10 time constants of the paper's load cell + frame
 #: (fn 4450 Hz, zeta 0.012: tau = 1 / (zeta 2 pi fn)), in samples at FS
 SETTLE = math.ceil(10 / (0.012 * 2 * math.pi * 4450.0) * FS)

@@ -307,6 +307,16 @@ class McapRecorder:
 
     @property
     def bytes_written(self) -> int:
-        """Bytes in the finished parts and the open one (compressed, as on disk)."""
-        done = sum(p.stat().st_size for p in self.paths[:-1] if p.exists())
-        return done + (self._fh.tell() if self._fh is not None else 0)
+        """Bytes in the finished parts still on disk and the open one (compressed, as on disk).  A
+        finished part may go at any moment (retention deletes the oldest from the recorder's own
+        thread while the stats ask from theirs): one that vanished counts 0, never an error, which
+        took the whole pipeline down through its stats stage."""
+        return sum(_size_on_disk(p) for p in self.paths[:-1]) + (self._fh.tell() if self._fh is not None else 0)
+
+
+def _size_on_disk(path: Path) -> int:
+    """A file's size, 0 when it is gone (stat, not exists-then-stat: nothing can vanish in between)."""
+    try:
+        return path.stat().st_size
+    except FileNotFoundError:
+        return 0
