@@ -48,3 +48,14 @@ def test_a_few_large_residuals_do_not_raise_the_floor():
     assert floor_scales(local, layout, data, ok)[0] < 1.0
     broad = noise * 3.0  # a baseline that misses everywhere by three times its noise
     assert 2.5 < floor_scales(broad, layout, data, ok)[0] < 3.5  # floor^2 + se^2 = 9 se^2: about 2.8
+
+
+def test_named_effects_that_leave_the_total_worse_predicted_are_a_finding():
+    """The independent bench's relaxation day: a frame mode proven at 1.55x in its signature while the
+    held-out residual in total went 24.5 -> 133 noise floors (docs/diagnosis.md): said, not hidden."""
+    from hystbench.analysis.diagnosis import worse_in_total
+
+    (said,) = worse_in_total(["frame_resonance"], 24.5, 133.0)
+    assert "frame_resonance" in said and "24.5 -> 133" in said
+    assert worse_in_total(["integrator_leak"], 141.0, 22.8) == []  # better in total: nothing to say
+    assert worse_in_total([], 20.0, 20.0) == []
