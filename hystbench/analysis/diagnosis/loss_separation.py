@@ -56,7 +56,7 @@ import numpy as np
 from scipy.constants import mu_0
 from scipy.optimize import least_squares
 
-from ...errors import EstimationError, RecordingError
+from ...errors import BenchError, EstimationError, RecordingError
 from ...formats.material_data import LossTable, read_material_table
 from .loss_shapes import calibration_shapes, locate_shapes
 from .loss_terms import (B0_T, FREE_BOUNDS, LIBRARY, STEINMETZ, TERMS, TIERS, Rows, Term, form, inert, n_params, natural,
@@ -605,6 +605,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     paths = list(sys.argv[1:] if argv is None else argv)
     all_shapes = "--all-shapes" in paths  # also calibrate on every shape of the calibration frequencies (slow)
     paths = [p for p in paths if p != "--all-shapes"]
+    if not paths:
+        print("usage: python -m hystbench.analysis.diagnosis.loss_separation [--all-shapes] TABLE.csv ...", file=sys.stderr)
+        return 2
     print(f"{'table':28s} {'split':11s} {'calibrated on':13s} {'rows c/h':>11s} {'before':>7s} {'after':>7s} "
           f"{'ratio':>6s} {'f-slope':>12s} {'modelled':45s} {'s':>5s}")
     for group in loss_table_groups(paths):
@@ -634,5 +637,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def _main() -> int:
+    """:func:`main` with a bad file said in one line (the error names it), not a traceback."""
+    try:
+        return main()
+    except BenchError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(_main())

@@ -17,6 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ...errors import BenchError
 from ...formats.material_data import WaveformTable, read_waveform_table
 from .loss_separation import LN10, _calibrate, _energy_of, _log_w, loss_table_groups
 from .loss_terms import Rows
@@ -66,6 +67,10 @@ def predict_waveform_losses(waveforms: str | Path, tables: Sequence[str | Path],
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m hystbench.analysis.diagnosis.loss_waveforms WAVEFORMS.csv TABLE.csv ...``"""
     args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) < 2:
+        print("usage: python -m hystbench.analysis.diagnosis.loss_waveforms WAVEFORMS.csv TABLE.csv [TABLE.csv ...]",
+              file=sys.stderr)
+        return 2
     for r in predict_waveform_losses(args[0], args[1:]):
         temps = " ".join(f"{t:.0f}C {v:+.2f}" for t, v in r["mean_after_by_temperature_log10"].items())
         print(f"{r['material']:5s} {r['split']:11s} {r['rows']:3d} rows  {r['rms_before_log10']:.3f} -> "
@@ -73,5 +78,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def _main() -> int:
+    """:func:`main` with a bad file said in one line (the error names it), not a traceback."""
+    try:
+        return main()
+    except BenchError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(_main())
