@@ -68,8 +68,8 @@ def _timed_run(rig: SimulatedRig, block_size: int, seconds: float, repeats: int 
             "ms_per_10k_mean": 1e3 * cpu * PER / (repeats * per_window * block_size)}
 
 
-#: Effects the rig's numba kernels do not cover (the iron's rate terms run the numpy passes): a row of
-#: ``ecore_pm`` with them on beside its preset's effects says what they cost.
+#: The iron's rate terms (nonlinear in dB/dt, with a memory of their own): a row of ``ecore_pm`` with
+#: them on beside its preset's effects says what they cost.
 NUMPY_ONLY = {"excess_loss": True, "magnetic_relaxation": True}
 
 

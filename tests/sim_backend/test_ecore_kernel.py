@@ -100,6 +100,10 @@ VARIANTS = {
     "compliance": dict(effects={**QUIET, "load_cell_compliance": {"stiffness_n_per_m": 2e7}}),
     "offset": dict(effects=QUIET, offset_a=0.4, current_pp_a=0.8),
     "no_eddy_currents": dict(effects={**QUIET, "lamination_eddy_currents": False, "magnet_eddy_currents": False}),
+    # the iron's rate terms (hystbench.physics.rate_dependence), each alone and together
+    "excess_loss": dict(effects={**QUIET, "excess_loss": True}),
+    "magnetic_relaxation": dict(effects={**QUIET, "magnetic_relaxation": {"time_constant_s": 2e-4}}),
+    "rate_terms": dict(effects={**QUIET, "excess_loss": True, "magnetic_relaxation": True}),
 }
 
 

@@ -7,7 +7,8 @@ permeability is linear and goes into the exactly solved linear part (nu' into N,
 the eddy currents into D, rebuilt whenever the excitation's period changes).  The iron's rate terms
 beyond the classical eddy field (``excess_loss``, ``magnetic_relaxation``:
 :mod:`hystbench.physics.rate_dependence`) join the iterated remainder, the step damped by their own
-slope (the excess field is steep at slow rates), in the numpy passes.  Where the passes
+slope (the excess field is steep at slow rates), in the passes (numpy and kernel alike; the
+sample-by-sample solve does not know them, so a block the passes cannot settle is refused).  Where the passes
 stall (the iron is steep at a reversal deep in saturation; a loop whose extrema tie is wiped out
 where the tabulated branches leave a small step in H) the block is solved sample by sample, which
 converges over the whole current range (:meth:`ECoreActuator._solve_sequential`): every block of an
@@ -176,9 +177,13 @@ class ECoreActuator:
         self._prev_drop: np.ndarray | None = None
         self._rest_tail = np.full(2, np.nan)  # the iron's remainder at the last two samples (NaN: none yet)
         self._primed = False  # the sample-by-sample solve compiled (_prime_sequential)
-        # the kernels cover the Preisach iron and every linear iron; Rayleigh's loops and the rate
-        # terms stay in numpy (about half the kernels' speed: docs/performance.md)
-        self._kernel_ok = self._rate is None and (self.hysteresis is None or hasattr(self.hysteresis, "kernel_tables"))
+        # the kernels cover the Preisach iron (its rate terms too) and every linear iron without rate
+        # terms; Rayleigh's loops, and a linear iron's rate terms, stay in numpy
+        self._kernel_ok = ((self.hysteresis is None and self._rate is None)
+                           or hasattr(self.hysteresis, "kernel_tables"))
+        #: the sample-by-sample solve (where the passes stall) knows no rate terms: with them a block the
+        #: passes cannot settle is refused
+        self._sequential_ok = self._kernel_ok and self._rate is None
         #: whether the iron has a remainder to iterate (a static loop, or rate terms)
         self._iterated = self.hysteresis is not None or self._rate is not None
         self._kernel_lag: tuple[_LinearPart, np.ndarray, np.ndarray] | None = None  # lag it was built for
@@ -329,7 +334,7 @@ class ECoreActuator:
         iron), as the blocks after it are until the excitation changes (set_period: the passes
         would only stall again, 30 of them a block), or refused (Rayleigh's iron, whose loops the
         compiled solve does not know).  Returns (h_rest, the iron's state at the block's end, max |B|)."""
-        if self._kernel_ok:
+        if self._sequential_ok:
             self._by_sample = True
             return self._solve_sequential(fc, fm, current_a)
         raise self._refusal(peak_b_t, current_a, f"{MAX_PASSES} passes")
@@ -394,7 +399,7 @@ class ECoreActuator:
             fm, dfm = fm * (1.0 + rate * t_s), self.magnet_mmf_a * rate
         # The linear part of the iron and the eddy currents are solved exactly by the recursion;
         # only the iron's nonlinear remainder h(B) - nu0 B is iterated (a small loop gain).
-        if self.hysteresis is not None and self._kernel_ok and self._solve_by_sample(fc, fm):
+        if self.hysteresis is not None and self._sequential_ok and self._solve_by_sample(fc, fm):
             h_rest, h_state, peak_b = self._solve_sequential(fc, fm, current_a)
         else:
             h_rest, h_state, passes = self._first_guess(fc.size)
@@ -445,6 +450,16 @@ class ECoreActuator:
             self._kernel_lag = (lag, coef, nd)
         return self._kernel_lag[1], self._kernel_lag[2]
 
+    def _rate_args(self, n: int) -> np.ndarray:
+        """The passes kernel's ``rate``: the rate terms and where they stand before the block (none: zeros)."""
+        from .ecore_kernel import NO_RATE, rate_terms
+
+        if self._rate is None or not n:
+            return NO_RATE
+        st = self._rate.state
+        b0 = st.b if st is not None else np.nan  # the first block starts at rest: its first sample's B
+        return rate_terms(self._rate.excess, self._rate.relaxation, self.fs_hz, b0, st.b_slow if st is not None else np.nan)
+
     def _tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The Preisach iron's tables for the kernel (built once: its ``_inverse`` is cached too)."""
         if self._kernel_tables is None:
@@ -481,7 +496,7 @@ class ECoreActuator:
             self._prime_sequential(fc, fm, current_a)
         if self.hysteresis is None:
             h_rest = np.zeros(n)
-        elif self._solve_by_sample(fc, fm):
+        elif self._sequential_ok and self._solve_by_sample(fc, fm):
             h_rest, h_state, peak_b = self._solve_sequential(fc, fm, current_a)
             self._check_range(peak_b, current_a)
             self._remember(h_rest)
@@ -501,7 +516,7 @@ class ECoreActuator:
                         np.ascontiguousarray(turns[:, 0]), np.ascontiguousarray(turns[:, 1]),
                         np.array([st.b_t, st.h_a_per_m, float(st.direction)]), tin, tout, end,
                         *self._tables(), self._kernel_mode, self._b_knee, self._nu0, lag.instantaneous_gain,
-                        self.iron_length_m, out)
+                        self.iron_length_m, out, self._rate_args(fc.size))
             if out[0]:
                 m = int(end[3])
                 h_state = HysteresisState(float(end[0]), float(end[1]), int(end[2]),
@@ -521,6 +536,8 @@ class ECoreActuator:
                        force, flux, dflux, iron_b, lag_end)
         lag.state = (lag_end[:2].copy(), lag_end[2:].copy())
         self._prev_drop = prev
+        if self._rate is not None:
+            self._rate.commit(iron_b)
         self.iron_flux_density_t = iron_b
         return ActuatorOutput(force, flux, dflux)
 

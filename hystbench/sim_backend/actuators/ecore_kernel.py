@@ -114,8 +114,10 @@ def first_guess(hist: np.ndarray, period: float, out: np.ndarray) -> None:
 
 @njit(cache=True, nogil=True)
 def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout, end, tabs, psi, virg, an,
-              mode, knee, nu0, gain, length, track):
+              mode, knee, nu0, gain, length, track, rate):
     """One fixed-point pass (ECoreActuator._pass) from the committed states, h_rest updated in place.
+    ``rate``: the iron's rate terms (:func:`rate_terms`; hystbench.physics.rate_dependence) added to H,
+    their slope damping the step as in ECoreActuator._damped.
     Returns (max |step|, max |h_rest|, max |B|) (tracked only when ``track``); the iron's state at
     the block's end goes to end = (B, H, direction, number of turns) and tin/tout[:turns]."""
     n = fc.size
@@ -142,6 +144,8 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
         c1, tr, base, edge, shift = _branch_consts(s, tin[nst - 1], tout[nst - 1], h0, x0, inv_dx, nrow, ncol,
                                                    hmax, s_end)
     mstep, mh, mb = 0.0, 0.0, 0.0
+    has_ex, k_ex, r0, has_rel, a_rel, kappa, fs = rate[0] != 0.0, rate[1], rate[2], rate[3] != 0.0, rate[4], rate[5], rate[6]
+    bp, bs, sqr0 = rate[7], rate[8], math.sqrt(rate[2])
     for k in range(n):
         hr = h_rest[k]
         u0 = fc[k] - hr * length
@@ -181,11 +185,26 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
             h_an = _read_uniform(a_step, an, s_end, b)
             single = h_an if saturation else ss * b
             h = single + (y - h_an) if irreversible else single
+        extra = 0.0  # the remainder's own slope beyond nu0: what damps the step (ECoreActuator._damped)
+        if bp != bp:  # NaN: the rig's first block starts at rest, at its first sample's B (RateDependence._start)
+            bp, bs = b, b
+        if has_ex:  # Bertotti's excess field of the backward difference
+            rt = (b - bp) * fs
+            sq = math.sqrt(abs(rt) + r0)
+            h += k_ex * (1.0 if rt > 0.0 else (-1.0 if rt < 0.0 else 0.0)) * (sq - sqr0)
+            extra += 0.5 * k_ex * fs / sq
+        if has_rel:  # the relaxation's B_slow, as lfilter([1 - a], [1, -a]) runs it
+            bs = (1.0 - a_rel) * b + a_rel * bs
+            h += kappa * (b - bs)
+            extra += kappa * a_rel
+        bp = b
         r = h - nu0 * b - hr
         if abs(b) > knee:  # ECoreActuator._newton_step
             nu_d = max(nu0, (_read_uniform(a_step, an, s_end, b + 1e-3)
                              - _read_uniform(a_step, an, s_end, b - 1e-3)) / 2e-3)
-            r = r / (1.0 + (nu_d - nu0) * gain * length)
+            extra += nu_d - nu0
+        if extra != 0.0:
+            r = r / (1.0 + extra * gain * length)
         hr = hr + r
         h_rest[k] = hr
         if track:
@@ -200,7 +219,8 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
 def passes(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, first: int, max_passes: int, converged_ratio: float,
            lag: np.ndarray, y_start: np.ndarray, cold: bool, c_in: np.ndarray, c_out: np.ndarray, state0: np.ndarray,
            tin: np.ndarray, tout: np.ndarray, end: np.ndarray, tabs: np.ndarray, psi: np.ndarray, virg: np.ndarray,
-           an: np.ndarray, mode: int, knee: float, nu0: float, gain: float, length: float, out: np.ndarray) -> None:
+           an: np.ndarray, mode: int, knee: float, nu0: float, gain: float, length: float, out: np.ndarray,
+           rate: np.ndarray) -> None:
     """ECoreActuator.step's loop of passes: at least ``first``, then until one converges, at most
     ``max_passes``.  out = (converged 1/0, passes run, max |B| of the last pass)."""
     done = SETTLED
@@ -209,7 +229,7 @@ def passes(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, first: int, max_p
     for n_pass in range(1, max_passes + 1):
         track = n_pass >= first or n_pass == max_passes  # the last one names |B| in a refusal
         mstep, mh, peak = _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout, end, tabs,
-                                    psi, virg, an, mode, knee, nu0, gain, length, track)
+                                    psi, virg, an, mode, knee, nu0, gain, length, track, rate)
         if track and mstep <= converged_ratio * (mh + 1.0):
             break
     else:
@@ -461,3 +481,17 @@ def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np
         yb = lam1 * yb + (q10 * u0 + q11 * u1)
     end[0], end[1], end[2], end[3] = u_prev, y_prev, d, nst
     out[0], out[1], out[2], out[3] = evals, worst, peak, unsolved
+
+
+#: ``rate`` of a rig without rate terms: nothing added, nothing damped
+NO_RATE = np.zeros(9)
+
+
+def rate_terms(excess: tuple[float, float] | None, relaxation: tuple[float, float] | None, fs_hz: float,
+               b_before: float, b_slow_before: float) -> np.ndarray:
+    """The kernels' ``rate``: (excess on, k, r0, relaxation on, a = exp(-1/(tau fs)), kappa, fs, B and B_slow
+    at the sample before the block)."""
+    k, r0 = excess if excess is not None else (0.0, 0.0)
+    tau, kappa = relaxation if relaxation is not None else (1.0, 0.0)
+    return np.array([excess is not None, k, r0, relaxation is not None, math.exp(-1.0 / (tau * fs_hz)), kappa, fs_hz,
+                     b_before, b_slow_before], dtype=np.float64)
