@@ -60,7 +60,8 @@ files or options is wrong, the bench is busy or off.  The extra bases (``ValueEr
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+import sys
+from typing import Any, Callable, Mapping
 
 
 class BenchError(Exception):
@@ -127,6 +128,7 @@ class InstrumentTimeout(InstrumentError, TimeoutError):
 
 
 __all__ = [
+    "script_status",
     "BenchError",
     "ConfigError",
     "RecordingError",
@@ -141,3 +143,13 @@ __all__ = [
     "ProtocolError",
     "InstrumentTimeout",
 ]
+
+
+def script_status(main: Callable[[], int]) -> int:
+    """A module run as a script (``python -m ...``): ``main``'s status, or a BenchError (a bad file,
+    named by the error) as one line on stderr and status 2, never a traceback."""
+    try:
+        return main()
+    except BenchError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2

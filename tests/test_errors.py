@@ -120,3 +120,14 @@ def test_a_run_time_refusal_is_not_a_config_error():
     from hystbench.acquisition.zenoh_bus import ListenError
 
     assert not issubclass(ListenError, ConfigError)
+
+
+def test_a_script_says_a_bench_error_in_one_line_and_exits_2(capsys):
+    from hystbench.errors import RecordingError, script_status
+
+    def bad() -> int:
+        raise RecordingError("/x.csv: missing sidecar")
+
+    assert script_status(lambda: 0) == 0
+    assert script_status(bad) == 2
+    assert capsys.readouterr().err == "error: /x.csv: missing sidecar\n"

@@ -56,7 +56,7 @@ import numpy as np
 from scipy.constants import mu_0
 from scipy.optimize import least_squares
 
-from ...errors import BenchError, EstimationError, RecordingError
+from ...errors import EstimationError, RecordingError, script_status
 from ...formats.material_data import LossTable, read_material_table
 from .loss_shapes import calibration_shapes, locate_shapes
 from .loss_terms import (B0_T, FREE_BOUNDS, LIBRARY, STEINMETZ, TERMS, TIERS, Rows, Term, form, inert, n_params, natural,
@@ -637,14 +637,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _main() -> int:
-    """:func:`main` with a bad file said in one line (the error names it), not a traceback."""
-    try:
-        return main()
-    except BenchError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-
-
 if __name__ == "__main__":
-    raise SystemExit(_main())
+    raise SystemExit(script_status(main))

@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ...errors import BenchError
+from ...errors import script_status
 from ...formats.material_data import WaveformTable, read_waveform_table
 from .loss_separation import LN10, _calibrate, _energy_of, _log_w, loss_table_groups
 from .loss_terms import Rows
@@ -78,14 +78,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _main() -> int:
-    """:func:`main` with a bad file said in one line (the error names it), not a traceback."""
-    try:
-        return main()
-    except BenchError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 2
-
-
 if __name__ == "__main__":
-    raise SystemExit(_main())
+    raise SystemExit(script_status(main))
