@@ -143,7 +143,7 @@ class RayleighIron:
             if b.size == 0:
                 return h, state
             return h, HysteresisState(float(b[-1]), float(h[-1]), 0, ())
-        return _run(b_t, state, 0, self._branch, self.virgin_field, self._work)
+        return _run(b_t, state, 0, self._branch, self.virgin_field, self._work)  # closed form: no closure
 
 
 @dataclass(frozen=True)

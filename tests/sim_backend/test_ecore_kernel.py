@@ -52,8 +52,16 @@ def assert_same(a, b, quantised: bool, rel: float = 1e-9) -> None:
             np.testing.assert_allclose(y, x, rtol=0, atol=rel * np.ptp(x), err_msg=name)
 
 
+#: How far today's samples may lie from the golden recording: the iron's tabulated branches are now
+#: closed onto the turning points they return to (hysteresis._closure), which moves a sample by
+#: what the branch used to miss there, up to 7.3e-5 of a channel's range (sense_V, measured on the
+#: golden's runs); the ADC codes by 2 at most, 97 % of them unchanged.
+CLOSURE_REL, CLOSURE_CODES, CLOSURE_SAME = 1e-4, 2, 0.95
+
+
 @pytest.mark.parametrize("kernel", PATHS)
 def test_both_paths_give_the_samples_recorded_before_the_kernels(kernel, monkeypatch):
+    """Today's samples against make_ecore_golden.py's (numpy, before any kernel), to CLOSURE_*."""
     golden = np.load(GOLDEN)
     runs = [("pm_adc", "ecore_pm", 1, None, None, 4000, 1000), ("pm_quiet", "ecore_pm", 1, QUIET, None, 3000, 1000),
             ("ecore_quiet", "ecore", 2, QUIET, 480.0, 2000, 700)]  # as make_ecore_golden.py made them
@@ -63,10 +71,10 @@ def test_both_paths_give_the_samples_recorded_before_the_kernels(kernel, monkeyp
             ref = golden[f"{key}/{name}"]
             if effects is None:  # ADC codes
                 codes = np.round(x / golden[f"{key}/{name}/lsb"])
-                assert np.max(np.abs(codes - ref)) <= 1, (key, name)
-                assert np.mean(codes == ref) >= 0.999, (key, name)
+                assert np.max(np.abs(codes - ref)) <= CLOSURE_CODES, (key, name)
+                assert np.mean(codes == ref) >= CLOSURE_SAME, (key, name)
             else:
-                np.testing.assert_allclose(x, ref, rtol=0, atol=1e-9 * np.ptp(ref), err_msg=f"{key}/{name}")
+                np.testing.assert_allclose(x, ref, rtol=0, atol=CLOSURE_REL * np.ptp(ref), err_msg=f"{key}/{name}")
 
 
 @needs_numba
@@ -197,16 +205,18 @@ def test_first_guess_is_np_interp_one_period_back():
 
 
 @needs_numba
-def test_a_tied_block_is_solved_sample_by_sample_alike_on_both_paths(monkeypatch):
-    """400 Hz at 100 kS/s on M130-27S: the plain passes cycle at tied extrema (a loop wiped out where
-    the tabulated branches do not quite meet steps H); the block is solved sample by sample
-    (ECoreActuator._solve_sequential) on both paths, which then agree."""
-    solved = []
+def test_a_tied_block_settles_by_the_passes_alike_on_both_paths(monkeypatch):
+    """400 Hz at 100 kS/s on M130-27S: extrema that tie (a periodic B) used to make the plain passes
+    cycle for ever, a loop wiped out where the tabulated branches did not quite meet stepping H,
+    and the block went to the sample-by-sample solve.  With every branch closed onto the turning
+    point it returns to (hysteresis._closure), H is continuous there: the passes settle, on both
+    paths, and the paths agree."""
+    solved = []  # the sizes of the blocks solved sample by sample
     real = ecore.ECoreActuator._solve_sequential
-    monkeypatch.setattr(ecore.ECoreActuator, "_solve_sequential",
-                        lambda self, *a: solved.append(ecore.KERNEL) or real(self, *a))
+    monkeypatch.setattr(ecore.ECoreActuator, "_solve_sequential", lambda self, fc, *a: solved.append(fc.size)
+                        or real(self, fc, *a))
     p = foreign_preset("ecore_pm~m130")
     a = record(False, p, 2000, 500, monkeypatch, seed=5020, effects=QUIET, frequency_hz=400.0, current_pp_a=1.4)
     b = record(True, p, 2000, 500, monkeypatch, seed=5020, effects=QUIET, frequency_hz=400.0, current_pp_a=1.4)
-    assert False in solved and True in solved  # both paths met the tie
+    assert solved and set(solved) == {1}  # only the kernel path's priming: one sample, nothing committed
     assert_same(a, b, quantised=False)

@@ -9,8 +9,7 @@ beyond the classical eddy field (``excess_loss``, ``magnetic_relaxation``:
 :mod:`hystbench.physics.rate_dependence`) join the iterated remainder, the step damped by their own
 slope (the excess field is steep at slow rates), in the passes (numpy and kernel alike; the
 sample-by-sample solve does not know them, so a block the passes cannot settle is refused).  Where the passes
-stall (the iron is steep at a reversal deep in saturation; a loop whose extrema tie is wiped out
-where the tabulated branches leave a small step in H) the block is solved sample by sample, which
+stall (the iron is steep at a reversal deep in saturation) the block is solved sample by sample, which
 converges over the whole current range (:meth:`ECoreActuator._solve_sequential`): every block of an
 excitation whose current can take the iron beyond its knee (decided from the commanded current, so
 the same whatever the cut into blocks), and a block whose passes stalled, with the rest of its
@@ -291,13 +290,12 @@ class ECoreActuator:
         each sample's B is bracketed and found, whatever the iron's slope), from the committed
         states, so it does not depend on the passes' iterate nor on where the block begins.
 
-        The passes stall in two places.  Deep in saturation, right after a reversal the branch's
-        dH/dB is the reversible one, 1/mu_rev(H) (1e4 A/m per T at 5 kA/m; 1/mu0 in the limit):
-        the loop gain (dH/dB - nu0) G L passes 1, and the step damped with the anhysteretic slope
-        does not hold it.  Below and around the knee, loops whose extrema tie (a periodic B) nest,
-        and the tabulated branches close a loop only to ~1e-3 A/m at 0.3 T, 1-5 A/m at 1-1.4 T:
-        where an extremum wipes a nest out, H steps by that much, which side the extremum falls
-        on moves with the last pass's uT, and the passes flip between the two for ever.
+        The passes stall deep in saturation: right after a reversal the branch's dH/dB is the
+        reversible one, 1/mu_rev(H) (1e4 A/m per T at 5 kA/m; 1/mu0 in the limit): the loop gain
+        (dH/dB - nu0) G L passes 1, and the step damped with the anhysteretic slope does not hold
+        it.  (They used to stall below the knee too, where extrema that tie wiped out a loop whose
+        tabulated branch missed its turning point by up to 5 A/m: H stepped there, and the passes
+        flipped between the two sides; the branches are now closed onto their turning points.)
 
         One compiled function serves both paths (the numpy step has no vectorised form of a
         causal per-sample solve; without numba it runs as Python, slowly, and only for such

@@ -47,28 +47,10 @@ def _read_uniform(step, t, s_end, b):
     return 0.0 * v
 
 
-@njit(cache=True, nogil=True)
-def _branch_consts(s, b_r, h_r, h0, x0, inv_dx, nrow, ncol, hmax, s_end):
-    """The per-branch constants of ``field``'s ``branch`` (c1, row fraction, row base, edge, shift);
-    a real call: it runs once per reversal or wipe-out, not per sample."""
-    hs = s * h_r
-    c1 = s * b_r
-    edge = False
-    shift = 0.0
-    if hs < -hmax or hs > hmax:
-        edge = True
-        if hs < -hmax:
-            c1 = c1 + s_end * (-hmax - hs)
-        shift = max(hs - hmax, 0.0)
-        hs = min(max(hs, -hmax), hmax)
-    fr = (math.asinh(hs / h0) - x0) * inv_dx
-    jr = min(int(fr), nrow - 2)
-    return c1, fr - jr, jr * ncol, edge, shift
-
-
 @njit(cache=True, nogil=True, inline="always")
-def _branch_at(s, c1, tr, base, edge, shift, b, psi, ncol, dmax, kcol, s_end):
-    """H on the ascending-frame branch at B = b: the sqrt-warped column, bilinear in the table."""
+def _table_at(s, c1, tr, base, edge, shift, b, psi, ncol, dmax, kcol, s_end):
+    """H on the ascending-frame branch at B = b as the table gives it: the sqrt-warped column,
+    bilinear in the table."""
     d = s * b - c1
     neg = min(d, 0.0)
     d = max(d, 0.0)
@@ -91,6 +73,57 @@ def _branch_at(s, c1, tr, base, edge, shift, b, psi, ncol, dmax, kcol, s_end):
         v0 += neg / s_end + shift
     v0 += extra
     return v0 * s
+
+
+@njit(cache=True, nogil=True)
+def _branch_consts(s, m, tin, tout, tabs, psi, virg):
+    """The constants of the branch from turning point ``tin[m - 1]`` in direction ``s`` (``field``'s
+    ``branch``: c1, row fraction, row base, edge, shift; then hysteresis._closure's miss at the
+    turning point it returns to, that target and the reach); a real call: it runs once per reversal
+    or wipe-out, not per sample."""
+    h0, x0, inv_dx, nrow, ncol, hmax = tabs[0], tabs[1], tabs[2], int(tabs[3]), int(tabs[4]), tabs[5]
+    s_end, dmax, kcol, v_step = tabs[6], tabs[7], tabs[8], tabs[9]
+    b_r, h_r = tin[m - 1], tout[m - 1]
+    hs = s * h_r
+    c1 = s * b_r
+    edge = False
+    shift = 0.0
+    if hs < -hmax or hs > hmax:
+        edge = True
+        if hs < -hmax:
+            c1 = c1 + s_end * (-hmax - hs)
+        shift = max(hs - hmax, 0.0)
+        hs = min(max(hs, -hmax), hmax)
+    fr = (math.asinh(hs / h0) - x0) * inv_dx
+    jr = min(int(fr), nrow - 2)
+    tr, base = fr - jr, jr * ncol
+    if m > 1:
+        t_in, t_out = tin[m - 2], tout[m - 2]
+    else:  # a single turn returns to its mirror on the virgin curve
+        t_in = -b_r
+        t_out = _read_uniform(v_step, virg, s_end, t_in)
+    at_t = _table_at(s, c1, tr, base, edge, shift, t_in, psi, ncol, dmax, kcol, s_end)
+    miss = t_out - at_t
+    twice = 2.0 * abs(miss)
+    wide = min(s * (t_in - b_r), twice / tabs[12])
+    chord = s * (at_t - _table_at(s, c1, tr, base, edge, shift, t_in - s * wide, psi, ncol, dmax, kcol, s_end))
+    reach = min(wide, twice * wide / chord) if chord > 0.0 else wide
+    return c1, tr, base, edge, shift, miss, t_in, reach
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _branch_at(s, br, b, psi, tabs):
+    """H on the branch ``br`` (:func:`_branch_consts`) at B = b: the table's value, plus its miss
+    over the last reach of the way to the turning point it returns to (hysteresis._closed)."""
+    c1, tr, base, edge, shift, miss, target, reach = br
+    y = _table_at(s, c1, tr, base, edge, shift, b, psi, int(tabs[4]), tabs[7], tabs[8], tabs[6])
+    way = 1.0 - (target - b) * (s / reach) if reach > 0.0 else 0.0
+    way = min(max(way, 0.0), 1.0)
+    return y + way * miss
+
+
+#: the branch constants before any branch is known (the virgin curve: never read)
+NO_BRANCH = (0.0, 0.0, 0, False, 0.0, 0.0, 0.0, 0.0)
 
 
 @njit(cache=True, nogil=True)
@@ -139,10 +172,9 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
     u_prev, y_prev, d = state0[0], state0[1], state0[2]
     s = d
     virgin = nst == 0
-    c1, tr, base, edge, shift = 0.0, 0.0, 0, False, 0.0
+    br = NO_BRANCH
     if not virgin:
-        c1, tr, base, edge, shift = _branch_consts(s, tin[nst - 1], tout[nst - 1], h0, x0, inv_dx, nrow, ncol,
-                                                   hmax, s_end)
+        br = _branch_consts(s, nst, tin, tout, tabs, psi, virg)
     mstep, mh, mb = 0.0, 0.0, 0.0
     has_ex, k_ex, r0, has_rel, a_rel, kappa, fs = rate[0] != 0.0, rate[1], rate[2], rate[3] != 0.0, rate[4], rate[5], rate[6]
     bp, bs, sqr0 = rate[7], rate[8], math.sqrt(rate[2])
@@ -173,12 +205,11 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
             s = ds
             virgin = nst == 0
             if not virgin:
-                c1, tr, base, edge, shift = _branch_consts(s, tin[nst - 1], tout[nst - 1], h0, x0, inv_dx, nrow,
-                                                           ncol, hmax, s_end)
+                br = _branch_consts(s, nst, tin, tout, tabs, psi, virg)
         if virgin:
             y = _read_uniform(v_step, virg, s_end, b)
         else:
-            y = _branch_at(s, c1, tr, base, edge, shift, b, psi, ncol, dmax, kcol, s_end)
+            y = _branch_at(s, br, b, psi, tabs)
         u_prev, y_prev, d = b, y, ds
         h = y
         if not full:  # field(irreversible=..., saturation=...): the state stays the full model's
@@ -301,8 +332,7 @@ MAX_EVALS, RESIDUAL_T = 300, 1e-11
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _iron_at(b, u_prev, y_prev, d, nst, tin, tout, s, c1, tr, base, edge, shift, tabs, psi, virg, an,
-             irreversible, saturation):
+def _iron_at(b, u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an, irreversible, saturation):
     """The iron's H at input ``b`` for the next sample, from the committed state (the turning-point
     rule of :func:`_one_pass`, one sample), committing nothing: a reversal writes ``u_prev`` at
     ``tin[nst]``, beyond the committed stack.  Returns (H of the full model, H as the effects ask,
@@ -328,18 +358,17 @@ def _iron_at(b, u_prev, y_prev, d, nst, tin, tout, s, c1, tr, base, edge, shift,
     if reset:
         s = ds
         if m > 0:
-            c1, tr, base, edge, shift = _branch_consts(s, tin[m - 1], tout[m - 1], h0, x0, inv_dx, nrow, ncol,
-                                                       hmax, s_end)
+            br = _branch_consts(s, m, tin, tout, tabs, psi, virg)
     if m == 0:
         y = _read_uniform(v_step, virg, s_end, b)
     else:
-        y = _branch_at(s, c1, tr, base, edge, shift, b, psi, ncol, dmax, kcol, s_end)
+        y = _branch_at(s, br, b, psi, tabs)
     h = y
     if not (irreversible and saturation):
         h_an = _read_uniform(a_step, an, s_end, b)
         single = h_an if saturation else ss * b
         h = single + (y - h_an) if irreversible else single
-    return y, h, ds, m, s, c1, tr, base, edge, shift
+    return y, h, ds, m, s, br
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -368,8 +397,8 @@ def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np
         F(B) = (1 - G L nu0) B + G L H(B) - c = 0,
 
     where H is the iron's operator from its committed state: continuous and non-decreasing in B on
-    each branch (a reversal starts a branch at the last point; the inverse table's return-point
-    error may leave a small step where a loop is wiped out).  alpha = 1 - G L nu0 > 0, so F rises
+    each branch and where a loop is wiped out (a reversal starts a branch at the last point; each
+    branch meets the turning point it returns to, hysteresis._closure).  alpha = 1 - G L nu0 > 0, so F rises
     at least alpha per tesla: a step of -F/alpha reaches or passes the root, which brackets it
     however steep the iron (saturation: dH/dB -> 1/mu0) and however far the current jumped.  The
     first trial is B with the remainder extrapolated from the last two samples (``rest_before``: the
@@ -380,9 +409,9 @@ def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np
 
     Writes h_rest (the remainder per sample, as the final run takes it), the iron's state at the
     block's end as :func:`passes` does (end, tin/tout), and out = (F evaluations, largest residual
-    |F| / (G L) in A/m, max |B| in T, samples left unsolved).  The residual is ~1e-9 A/m, but where
-    a wiped-out loop's step of H holds the root: then it is that step (below ~20 A/m); a sample is
-    unsolved only if its bracket did not close within MAX_EVALS (never seen)."""
+    |F| / (G L) in A/m, max |B| in T, samples left unsolved).  The residual is ~1e-9 A/m (where
+    rounding leaves a step of H at the root, that step); a sample is unsolved only if its bracket
+    did not close within MAX_EVALS (never seen)."""
     n = fc.size
     lam0, lam1, q00, q01, q10, q11, v00, v01 = lag[0], lag[1], lag[2], lag[3], lag[4], lag[5], lag[6], lag[7]
     h0, x0, inv_dx, nrow, ncol, hmax, s_end = tabs[0], tabs[1], tabs[2], int(tabs[3]), int(tabs[4]), tabs[5], tabs[6]
@@ -393,13 +422,12 @@ def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np
         tout[i] = c_out[i]
     u_prev, y_prev, d = state0[0], state0[1], state0[2]
     s = d
-    c1, tr, base, edge, shift = 0.0, 0.0, 0, False, 0.0
+    br = NO_BRANCH
     if nst > 0:
-        c1, tr, base, edge, shift = _branch_consts(s, tin[nst - 1], tout[nst - 1], h0, x0, inv_dx, nrow, ncol, hmax,
-                                                   s_end)
+        br = _branch_consts(s, nst, tin, tout, tabs, psi, virg)
     # the committed point as this sample's operator gives it (no reversal, nothing wiped out)
-    committed = _iron_at(u_prev, u_prev, y_prev, d, nst, tin, tout, s, c1, tr, base, edge, shift, tabs, psi, virg,
-                         an, irreversible, saturation)
+    committed = _iron_at(u_prev, u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an, irreversible,
+                         saturation)
     h_prev = committed[1]
     rest2 = rest_before  # the remainder two samples back
     ya, yb = y_start[0], y_start[1]
@@ -427,8 +455,8 @@ def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np
         x = c - gl * (2.0 * rest1 - rest2 if rest2 == rest2 else rest1)  # extrapolated (NaN: none)
         side, trial, closed = 0, 0, abs(f_best) <= tol
         while not closed and trial < MAX_EVALS:
-            res = _iron_at(x, u_prev, y_prev, d, nst, tin, tout, s, c1, tr, base, edge, shift, tabs, psi, virg,
-                           an, irreversible, saturation)
+            res = _iron_at(x, u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an, irreversible,
+                           saturation)
             fx = alpha * x + gl * res[1] - c
             trial += 1
             if abs(fx) < abs(f_best):
@@ -459,15 +487,15 @@ def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np
             if not min(lo, hi) < x < max(lo, hi):  # rounding in a tiny bracket: its middle
                 x = 0.5 * (lo + hi)
                 if not min(lo, hi) < x < max(lo, hi):
-                    # neighbouring doubles: the root is a step of H (a loop wiped out where the
-                    # table's branches do not quite meet); the residual is that step
+                    # neighbouring doubles: the root is a step of H (a rounding-level step where
+                    # a loop is wiped out); the residual is that step
                     closed = True
         if not closed and abs(f_best) > tol:
             unsolved += 1
         evals += trial
         worst = max(worst, abs(f_best) / gl)
         peak = max(peak, abs(b_best))
-        y, h, d, nst, s, c1, tr, base, edge, shift = best
+        y, h, d, nst, s, br = best
         committed = best
         u_prev, y_prev, h_prev = b_best, y, h
         rest2 = rest1
