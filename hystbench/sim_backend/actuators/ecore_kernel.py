@@ -108,16 +108,16 @@ def _branch_consts(s, m, tin, tout, tabs, psi, virg):
     wide = min(s * (t_in - b_r), twice / tabs[12])
     chord = s * (at_t - _table_at(s, c1, tr, base, edge, shift, t_in - s * wide, psi, ncol, dmax, kcol, s_end))
     reach = min(wide, twice * wide / chord) if chord > 0.0 else wide
-    return c1, tr, base, edge, shift, miss, t_in, reach
+    return c1, tr, base, edge, shift, miss, t_in, s / reach if reach > 0.0 else 0.0
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _branch_at(s, br, b, psi, tabs):
     """H on the branch ``br`` (:func:`_branch_consts`) at B = b: the table's value, plus its miss
     over the last reach of the way to the turning point it returns to (hysteresis._closed)."""
-    c1, tr, base, edge, shift, miss, target, reach = br
+    c1, tr, base, edge, shift, miss, target, per_reach = br  # per_reach: s / reach (0: no reach)
     y = _table_at(s, c1, tr, base, edge, shift, b, psi, int(tabs[4]), tabs[7], tabs[8], tabs[6])
-    way = 1.0 - (target - b) * (s / reach) if reach > 0.0 else 0.0
+    way = 1.0 - (target - b) * per_reach if per_reach != 0.0 else 0.0
     way = min(max(way, 0.0), 1.0)
     return y + way * miss
 
