@@ -52,16 +52,22 @@ def record_log(source: Source, out: str | Path, *, estimation: Mapping[str, floa
 
 
 def replay_log(path: str | Path, *, speed: str = "max", out: str | Path | None = None,
-               on_message: Listener | None = None, overwrite: bool = False) -> list[dict]:
+               on_message: Listener | None = None, overwrite: bool = False,
+               prepare: Callable[[Pipeline], None] | None = None) -> list[dict]:
     """Feed a log through the same pipeline (estimation settings from the log); the estimates.
-    With ``out``, the replay is itself recorded.  A failure is a :class:`RecordingError` naming
-    ``path`` (or ``out``)."""
+    With ``out``, the replay is itself recorded.  ``prepare`` gets the pipeline before it starts
+    (a live view attaches to it and waits for its client there; not with ``out``).  A failure is a
+    :class:`RecordingError` naming ``path`` (or ``out``)."""
     src = McapSource(path, pace="realtime" if speed == "realtime" else "max")
     if out is not None:
+        if prepare is not None:
+            raise ValueError("replay_log: prepare is not for a recorded replay")
         return record_log(src, out, estimation=estimation_settings(src.config), overwrite=overwrite,
                           on_message=on_message)["estimates"]
     est = WindowEstimator(src.fs_hz, src.metadata(), **estimation_settings(src.config))
     pipe = Pipeline(src, estimator=est, dtype=src.dtype)
+    if prepare is not None:
+        prepare(pipe)
     return _run_collecting(pipe, on_message, None, f"{path}: replay failed")
 
 

@@ -413,21 +413,18 @@ def _replay_to_foxglove(args: argparse.Namespace) -> int:
     client has subscribed (at most :data:`REPLAY_WAIT_S`), at the log's own pace unless ``--speed max``;
     at its end ``/status`` says ``replay_finished`` and the view is served until its clients have left
     (at most :data:`REPLAY_WAIT_S`), so that they get everything and can look at it."""
-    from ..acquisition.pipeline import Pipeline
-    from ..acquisition.record import _run_collecting, estimation_settings
-    from ..acquisition.stages import WindowEstimator
+    from ..acquisition.record import replay_log
     from ..errors import ConfigError
-    from ..formats.mcaplog import McapSource
     from ..service.foxglove_live import FoxgloveLive
 
     if args.out is not None:
         raise ConfigError("--out: not with --foxglove (record the replay without a view, or view it unrecorded)")
     host, port = args.foxglove
-    src = McapSource(args.log, pace="max" if args.speed == "max" else "realtime")
     view = None
-    try:
-        est = WindowEstimator(src.fs_hz, src.metadata(), **estimation_settings(src.config))
-        pipe = Pipeline(src, estimator=est, dtype=src.dtype)
+
+    def serve(pipe) -> None:  # the view on the replay's pipeline, before it starts: a client first
+        nonlocal view
+        src = pipe.source
         view = FoxgloveLive(host, port, name=f"replay {Path(args.log).name}", channels=list(src.channels),
                             fs_hz=src.fs_hz, where="--foxglove").start()
         view.attach(pipe)
@@ -436,7 +433,10 @@ def _replay_to_foxglove(args: argparse.Namespace) -> int:
         if not view.wait_for_client(REPLAY_WAIT_S):
             raise ConfigError(f"--foxglove: no Foxglove client subscribed on {view.url} within {REPLAY_WAIT_S:g} s; "
                               "nothing replayed")
-        ests = _run_collecting(pipe, None if args.json else _print_estimate, None, f"{args.log}: replay failed")
+
+    try:
+        ests = replay_log(args.log, speed="max" if args.speed == "max" else "realtime",
+                          on_message=None if args.json else _print_estimate, prepare=serve)
         # said on /status (after every estimate: one queue, one thread), then served until the clients leave
         view.on_message("/status", {"t_ns": ests[-1]["t_ns"] if ests else 0, "level": "info",
                                     "event": "replay_finished", "message": f"{len(ests)} estimates from {args.log}",
@@ -448,7 +448,6 @@ def _replay_to_foxglove(args: argparse.Namespace) -> int:
     finally:
         if view is not None:
             view.close()
-        src.close()
     print(json.dumps(ests, indent=2) if args.json else f"{len(ests)} estimates from {args.log}", flush=True)
     return 0
 
