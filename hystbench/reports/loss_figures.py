@@ -71,10 +71,10 @@ def loss_shapes_figure(table_paths: list[str | Path], out: str | Path, split: st
     """One PNG for a material's sine and triangle/trapezoid tables: per shape group, energy per cycle
     against frequency at one flux density (the held-out rows' median), measured (hollow: calibrated on)
     against the baseline (before, dashed) and the selected model (after, solid), for two duty shapes."""
-    from ..analysis.diagnosis.loss_separation import _energy_of, loss_table_groups
+    from ..analysis.diagnosis.loss_separation import energy_table, loss_table_groups
 
     group = loss_table_groups(table_paths)[0]
-    f, b, w, duty = _energy_of(group)
+    f, b, w, duty = energy_table(group)
     result = diagnose_energy(f, b, w, material=group[0].material, split=split, duty=duty)
     train, base, final, _, chosen = calibrate_split(f, b, w, split, duty)
     level = float(np.median(np.log10(b[~train])))

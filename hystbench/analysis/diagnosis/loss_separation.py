@@ -63,7 +63,7 @@ from .loss_terms import (B0_T, FREE_BOUNDS, LIBRARY, STEINMETZ, TERMS, TIERS, Ro
                          term_bounds, term_part, term_start, term_starts)
 
 __all__ = ["TERMS", "Term", "TermFit", "energy_per_cycle", "split_mask", "fit_terms", "noise_floor",
-           "calibrate_split", "diagnose_energy", "diagnose_loss_table", "loss_table_groups", "rate_trend", "main"]
+           "calibrate_split", "log_energy", "select_on_split", "energy_table", "diagnose_energy", "diagnose_loss_table", "loss_table_groups", "rate_trend", "main"]
 
 NAME_DELTA_BIC = 10.0  # decisively better than the current model (issue 13)
 RUNNER_UP_DELTA_BIC = 6.0  # and than the runner-up
@@ -88,7 +88,7 @@ class TermFit:
 
     def log_w(self, f: np.ndarray, b: np.ndarray, duty: np.ndarray | None = None,
               temperature_c: np.ndarray | None = None) -> np.ndarray:
-        return _log_w(self.x, self.terms, Rows(f, b, duty, temperature_c))
+        return log_energy(self.x, self.terms, Rows(f, b, duty, temperature_c))
 
     def parameters(self) -> dict[str, dict[str, tuple[float, float]]]:
         """Effect -> parameter -> (value, std), natural units (delta method from the ln-k covariance)."""
@@ -136,7 +136,7 @@ def split_mask(f: np.ndarray, how: str) -> np.ndarray:
     raise EstimationError(f"split {how!r}: choose low_third or interleaved")
 
 
-def _log_w(x: np.ndarray, terms: Sequence[Term], rows: Rows) -> np.ndarray:
+def log_energy(x: np.ndarray, terms: Sequence[Term], rows: Rows) -> np.ndarray:
     """ln W: the rate-independent baseline plus every energy term (with ``rows.duty`` each rate term
     scaled by its shape factor), times the temperature factor when there is one."""
     lb = rows.ln_b - math.log(B0_T)
@@ -186,7 +186,7 @@ def fit_terms(f: np.ndarray, b: np.ndarray, w: np.ndarray, terms: Sequence[Term]
                 if terms[-1].kind != "temperature":
                     x0[0] += math.log(1.0 - share)
             x0 = np.clip(np.array(x0), np.array(lo) + 1e-9, np.array(hi) - 1e-9)
-            sol = least_squares(lambda x: _log_w(x, terms, rows) - y, x0, bounds=(lo, hi), x_scale="jac",
+            sol = least_squares(lambda x: log_energy(x, terms, rows) - y, x0, bounds=(lo, hi), x_scale="jac",
                                 tr_solver=solver)
             if best is None or sol.cost < best.cost:
                 best = sol
@@ -279,7 +279,7 @@ def _inner_proof(rows: Rows, w: np.ndarray, terms: tuple[Term, ...], term: Term,
     out = {}
     for key, ts in (("without", terms), ("with", terms + (term,))):
         fit = fit_terms(r_in.f, r_in.b, w[inner], ts, r_in.duty, r_in.temperature_c)
-        r = y[~inner] - _log_w(fit.x, ts, rows.take(~inner)) / LN10
+        r = y[~inner] - log_energy(fit.x, ts, rows.take(~inner)) / LN10
         out[key] = _rms(r)
     return out
 
@@ -370,11 +370,15 @@ def calibrate_split(f: np.ndarray, b: np.ndarray, w: np.ndarray, split: str = "l
     the named terms' names (what :func:`diagnose_energy` and the figures share).  With ``duty`` only
     the sines and symmetric triangles of the split's frequencies are calibrated on (``calibrate_on``
     ``all_shapes``: every shape of those frequencies, where a relaxation term can be identified)."""
-    train, seq, candidates, chosen, _, _ = _calibrate(Rows(f, b, duty, temperature_c), w, split, calibrate_on)
+    train, seq, candidates, chosen, _, _ = select_on_split(Rows(f, b, duty, temperature_c), w, split, calibrate_on)
     return train, seq[0], seq[-1], candidates, chosen
 
 
-def _calibrate(rows: Rows, w: np.ndarray, split: str, calibrate_on: str):
+def select_on_split(rows: Rows, w: np.ndarray, split: str, calibrate_on: str):
+    """The term selection on the split's calibration rows (``calibrate_on``: sine_triangle keeps only
+    sines and symmetric triangles of those frequencies): (the calibration mask, the selected sequence,
+    the candidates, the chosen terms, the suspects, the terms skipped), one place for every table
+    kind (loss tables, the measured waveforms)."""
     if calibrate_on not in CALIBRATE_ON:
         raise EstimationError(f"calibrate_on {calibrate_on!r}: choose {' or '.join(CALIBRATE_ON)}")
     train = split_mask(rows.f, split)
@@ -409,7 +413,7 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
         if temperature_c.shape != f.shape or not np.all(np.isfinite(temperature_c)):
             raise EstimationError(f"{material or 'table'}: temperature must be finite, one per row")
     rows = Rows(f, b, duty, temperature_c)
-    train, seq, candidates, chosen, suspects, skipped = _calibrate(rows, w, split, calibrate_on)
+    train, seq, candidates, chosen, suspects, skipped = select_on_split(rows, w, split, calibrate_on)
     base, final = seq[0], seq[-1]
     held = ~train
     noise = noise_floor(f, b, w, duty)
@@ -541,7 +545,7 @@ def loss_table_groups(tables: Sequence[TableArg]) -> list[list[LossTable]]:
     return groups
 
 
-def _energy_of(tables: list[LossTable]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+def energy_table(tables: list[LossTable]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """f, B, W and the duties (None when every row is a sine) of tables of one material."""
     first = tables[0]
     for t in tables[1:]:
@@ -557,7 +561,7 @@ def _energy_of(tables: list[LossTable]) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 def _diagnose_group(tables: list[LossTable], split: str, calibrate_on: str = "sine_triangle") -> dict[str, Any]:
-    f, b, w, duty = _energy_of(tables)
+    f, b, w, duty = energy_table(tables)
     out = diagnose_energy(f, b, w, material=tables[0].material, split=split, duty=duty, calibrate_on=calibrate_on)
     out["path"], out["kind"] = str(tables[0].path), tables[0].kind
     if len(tables) > 1:

@@ -19,7 +19,7 @@ import numpy as np
 
 from ...errors import script_status
 from ...formats.material_data import WaveformTable, read_waveform_table
-from .loss_separation import LN10, _calibrate, _energy_of, _log_w, loss_table_groups
+from .loss_separation import LN10, energy_table, log_energy, loss_table_groups, select_on_split
 from .loss_terms import Rows
 
 __all__ = ["waveform_rows", "predict_waveform_losses", "main"]
@@ -49,12 +49,12 @@ def predict_waveform_losses(waveforms: str | Path, tables: Sequence[str | Path],
         sel = mat == name
         if not sel.any():
             continue
-        f, b, wt_w, duty = _energy_of(group)
+        f, b, wt_w, duty = energy_table(group)
         rw, y = rows.take(sel), np.log10(w[sel])
         for split in splits:
-            _, seq, _, chosen, _, _ = _calibrate(Rows(f, b, duty), wt_w, split, "sine_triangle")
-            rb = y - _log_w(seq[0].x, seq[0].terms, rw) / LN10
-            ra = y - _log_w(seq[-1].x, seq[-1].terms, rw) / LN10
+            _, seq, _, chosen, _, _ = select_on_split(Rows(f, b, duty), wt_w, split, "sine_triangle")
+            rb = y - log_energy(seq[0].x, seq[0].terms, rw) / LN10
+            ra = y - log_energy(seq[-1].x, seq[-1].terms, rw) / LN10
             temps = rw.temperature_c
             out.append({"material": name, "split": split, "rows": int(sel.sum()), "terms": chosen,
                         "rms_before_log10": float(np.sqrt(np.mean(rb**2))),
