@@ -374,7 +374,9 @@ def calibrate_split(f: np.ndarray, b: np.ndarray, w: np.ndarray, split: str = "l
     return train, seq[0], seq[-1], candidates, chosen
 
 
-def select_on_split(rows: Rows, w: np.ndarray, split: str, calibrate_on: str):
+def select_on_split(rows: Rows, w: np.ndarray, split: str, calibrate_on: str
+                    ) -> tuple[np.ndarray, list[TermFit], list[dict[str, Any]], list[str], list[dict[str, Any]],
+                               dict[str, str]]:
     """The term selection on the split's calibration rows (``calibrate_on``: sine_triangle keeps only
     sines and symmetric triangles of those frequencies): (the calibration mask, the selected sequence,
     the candidates, the chosen terms, the suspects, the terms skipped), one place for every table
