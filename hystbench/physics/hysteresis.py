@@ -233,9 +233,9 @@ def _run(u, state: HysteresisState, coord: int, branch: Callable, virgin: Callab
          min_slope: float | None = None):
     """Shared driver: ``coord`` 0 = B is the input, 1 = H is the input.  ``branch(ref_in,
     ref_out, direction, u, starts)`` evaluates branches (per sub-segment when ``starts`` is given);
-    ``min_slope``: the branches are read from tables, none flatter
-    than that (output per input), and each is made to reach the turning point it returns to
-    (:func:`_closure`); None for branches that meet their turning points by construction."""
+    ``min_slope``: the branches are read from tables, none flatter than that (output per input),
+    and each is made to reach the turning point it returns to (:func:`_closure`); None for
+    branches that meet their turning points by construction."""
     u = np.ascontiguousarray(u, dtype=float)
     if u.ndim != 1:
         raise ValueError(f"input must be 1-D, got shape {u.shape}")

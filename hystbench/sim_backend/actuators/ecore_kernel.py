@@ -155,8 +155,7 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
     the block's end goes to end = (B, H, direction, number of turns) and tin/tout[:turns]."""
     n = fc.size
     lam0, lam1, q00, q01, q10, q11, v00, v01 = lag[0], lag[1], lag[2], lag[3], lag[4], lag[5], lag[6], lag[7]
-    h0, x0, inv_dx, nrow, ncol, hmax = tabs[0], tabs[1], tabs[2], int(tabs[3]), int(tabs[4]), tabs[5]
-    s_end, dmax, kcol, v_step, a_step, ss = tabs[6], tabs[7], tabs[8], tabs[9], tabs[10], tabs[11]
+    s_end, v_step, a_step, ss = tabs[6], tabs[9], tabs[10], tabs[11]
     irreversible, saturation = mode[0] != 0, mode[1] != 0
     full = irreversible and saturation
     if cold:  # lfilter's y[-1] = w[0] / (1 - lam), from this pass's first input
@@ -337,8 +336,7 @@ def _iron_at(b, u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an, i
     rule of :func:`_one_pass`, one sample), committing nothing: a reversal writes ``u_prev`` at
     ``tin[nst]``, beyond the committed stack.  Returns (H of the full model, H as the effects ask,
     direction, turning points, branch direction and the branch constants)."""
-    h0, x0, inv_dx, nrow, ncol, hmax = tabs[0], tabs[1], tabs[2], int(tabs[3]), int(tabs[4]), tabs[5]
-    s_end, dmax, kcol, v_step, a_step, ss = tabs[6], tabs[7], tabs[8], tabs[9], tabs[10], tabs[11]
+    s_end, v_step, a_step, ss = tabs[6], tabs[9], tabs[10], tabs[11]
     diff = b - u_prev
     ds = 1.0 if diff > 0.0 else (-1.0 if diff < 0.0 else d)
     m = nst
@@ -414,7 +412,6 @@ def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np
     did not close within MAX_EVALS (never seen)."""
     n = fc.size
     lam0, lam1, q00, q01, q10, q11, v00, v01 = lag[0], lag[1], lag[2], lag[3], lag[4], lag[5], lag[6], lag[7]
-    h0, x0, inv_dx, nrow, ncol, hmax, s_end = tabs[0], tabs[1], tabs[2], int(tabs[3]), int(tabs[4]), tabs[5], tabs[6]
     irreversible, saturation = mode[0] != 0, mode[1] != 0
     nst = c_in.size
     for i in range(nst):
