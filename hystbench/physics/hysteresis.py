@@ -185,6 +185,11 @@ def _plan(u: np.ndarray, u0: float, d0: int, stack_in: list[float], work: _Work)
                  t_dir, depth[n_old:], n_old, stack, int(sg[-1]) if n else d0)
 
 
+#: A branch's miss is closed over at least this much of its input (T, or A/m when H is the input);
+#: a shorter reach (a miss below ~1e-6 A/m) is left as the step it is, rather than divided by.
+MIN_REACH = 1e-12
+
+
 def _closure(branch: Callable, virgin: Callable, t_in: np.ndarray, t_out: np.ndarray, ref: np.ndarray,
              tgt: np.ndarray, s: np.ndarray, min_slope: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return-point memory, made exact: the branch from turning point ``ref`` must reach the turning
@@ -217,7 +222,7 @@ def _closed(y: np.ndarray, u: np.ndarray, seg: np.ndarray, s: np.ndarray, miss: 
             reach: np.ndarray, work: _Work) -> np.ndarray:
     """``y`` with each branch's miss added over the last ``reach`` of its way (:func:`_closure`);
     sample k follows branch ``seg[k]``."""
-    on = reach > 0.0
+    on = reach > MIN_REACH
     miss, reach = np.where(on, miss, 0.0), np.where(on, reach, 1.0)
     way = np.take(tgt_in, seg, out=work.get("way", u.size))
     way -= u
@@ -564,13 +569,13 @@ class PreisachHysteresis:
         """What a compiled kernel needs to evaluate :meth:`field` sample by sample, so it reads no
         private attribute: (scalars, psi, virgin, anhysteretic), float64 and contiguous.  scalars =
         (h0, x0, 1/dx_rows, nrow, ncol, h_max, s_end, dmax, kcol, virgin step, anhysteretic step,
-        small_signal_dh_db, the flattest branch's dH/dB), in that order
+        small_signal_dh_db, the flattest branch's dH/dB, MIN_REACH), in that order
         (hystbench.sim_backend.actuators.ecore_kernel)."""
         inv = self._inverse
         (v_step, virgin), (a_step, anhyst) = inv["virgin"], inv["anhyst"]
         scalars = np.array([self._h0, inv["x0"], 1.0 / inv["dx_rows"], inv["nrow"], inv["ncol"],
                             self.params.h_max_a_per_m, self._s_end, inv["dmax"], inv["kcol"], v_step, a_step,
-                            self.small_signal_dh_db, inv["min_slope"]], dtype=np.float64)
+                            self.small_signal_dh_db, inv["min_slope"], MIN_REACH], dtype=np.float64)
         return (scalars, np.ascontiguousarray(inv["psi"], dtype=np.float64),
                 np.ascontiguousarray(virgin, dtype=np.float64), np.ascontiguousarray(anhyst, dtype=np.float64))
 

@@ -108,7 +108,7 @@ def _branch_consts(s, m, tin, tout, tabs, psi, virg):
     wide = min(s * (t_in - b_r), twice / tabs[12])
     chord = s * (at_t - _table_at(s, c1, tr, base, edge, shift, t_in - s * wide, psi, ncol, dmax, kcol, s_end))
     reach = min(wide, twice * wide / chord) if chord > 0.0 else wide
-    return c1, tr, base, edge, shift, miss, t_in, s / reach if reach > 0.0 else 0.0
+    return c1, tr, base, edge, shift, miss, t_in, s / reach if reach > tabs[13] else 0.0  # tabs[13]: MIN_REACH
 
 
 @njit(cache=True, nogil=True, inline="always")
