@@ -145,6 +145,16 @@ CATALOGUE: Mapping[str, Effect] = MappingProxyType({e.name: e for e in [
                          "K/s", ge=-10.0, le=10.0),
        # reversible Br coefficient: -0.03 (SmCo) to -0.2 %/K (ferrite); magnets lose remanence when warmed
        remanence_tc_per_k=_num(-0.0012, "relative change of remanence per kelvin", "1/K", ge=-0.01, le=0.0)),
+    _e("iron_thermal_drift",
+       "the iron warms along the day and its loop follows its temperature coefficient: the static field "
+       "H(B) scales by 1 + a_T dT, so the iron's reluctivity and hysteresis delay drift with the clock",
+       "kelvin_per_s",
+       kelvin_per_s=_num(0.01, "the iron's warming rate (the coil's losses; a few K per minute)", "K/s",
+                         ge=-10.0, le=10.0),
+       # MnZn ferrites below their loss minimum: the loop narrows, -0.3 to -1 %/K; steels less
+       field_tc_per_k=_num(-0.005, "a_T, the static field's relative change per kelvin", "1/K", ge=-0.01, le=0.01),
+       max_rise_k=_num(60.0, "where the warming levels off (|a_T| max_rise_k <= 0.8: the loop never reverses)",
+                       "K", gt=0.0, le=80.0)),
     _e("load_cell_compliance",
        "the load cell yields under force, so the airgap closes by F/k", "stiffness_n_per_m",
        stiffness_n_per_m=_num(1.0e9, "the load cell's stiffness k", "N/m", gt=0.0)),

@@ -178,7 +178,7 @@ _CHANNEL_EFFECTS: Mapping[str, frozenset[str]] = {
     "amplifier_distortion": frozenset({"current_A"}),  # every rig has its current measured
 }
 _IRON_EFFECTS = frozenset({"static_hysteresis", "lamination_eddy_currents", "iron_saturation", "excess_loss",
-                           "magnetic_relaxation"})
+                           "magnetic_relaxation", "iron_thermal_drift"})
 _MAGNET_EFFECTS = frozenset({"magnet_eddy_currents", "magnet_thermal_drift"})  # the E-core's magnet
 
 

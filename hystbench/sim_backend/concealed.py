@@ -147,6 +147,9 @@ CASES: tuple[Case, ...] = (
                      "beside the lamination's eddy lag that grows as f"),
     make_case("magnetic_relaxation", ["magnetic_relaxation"], {"magnetic_relaxation": {}}, seed=118,
          concealment="a flux lag peaking at 159 Hz (tau 1 ms) on both E-cores, inside the lamination's eddy lag"),
+    make_case("iron_thermal_drift", ["iron_thermal_drift"], {"iron_thermal_drift": {"kelvin_per_s": 2.0}}, seed=119,
+         concealment="the iron's static field falls 1 %/s (2 K/s at -0.5 %/K) on each E-core's own clock: a "
+                     "hysteresis lag shrinking along the rig's block, read in frequency order like an eddy lag"),
     # --- the baseline leaves out an effect of the presets -------------------------------------------
     make_case("magnet_eddy_currents", ["magnet_eddy_currents"], {}, seed=112, leave_out=True,
          concealment="an extra flux lag growing with f, only with the magnet"),

@@ -12,12 +12,14 @@ DESIGN_NAMES = {  # ../shared/design.md, "Names of physical effects (a public in
     "mains_pickup", "amplifier_distortion", "sensor_noise", "adc_quantisation",
 }
 #: design.md: "New effects (for example the rate dependence real magnetic materials show) join the
-#: catalogue with names in the same style" (issue 28): Bertotti's excess field and a relaxation.
+#: catalogue with names in the same style" (issue 28): Bertotti's excess field and a relaxation, and the
+#: loop's temperature coefficient (its iron warming along the day, as the magnet's does).
 RATE_NAMES = {"excess_loss", "magnetic_relaxation"}
+TEMPERATURE_NAMES = {"iron_thermal_drift"}
 
 
 def test_catalogue_is_exactly_the_design_names_each_with_a_description():
-    assert set(CATALOGUE) == DESIGN_NAMES | RATE_NAMES
+    assert set(CATALOGUE) == DESIGN_NAMES | RATE_NAMES | TEMPERATURE_NAMES
     assert all(len(e.description) > 20 for e in CATALOGUE.values())
 
 

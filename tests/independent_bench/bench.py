@@ -31,7 +31,8 @@ EFFECT_NAMES: tuple[str, ...] = (
     "static_hysteresis", "lamination_eddy_currents", "magnet_eddy_currents", "iron_saturation",
     "instrument_filter", "frame_resonance", "charge_amp_highpass", "integrator_leak", "channel_skew",
     "force_offset_drift", "magnet_thermal_drift", "load_cell_compliance", "mains_pickup",
-    "amplifier_distortion", "sensor_noise", "adc_quantisation", "excess_loss", "magnetic_relaxation")
+    "amplifier_distortion", "sensor_noise", "adc_quantisation", "excess_loss", "magnetic_relaxation",
+    "iron_thermal_drift")
 
 #: This bench's own parameterisation of each effect (SI units; names say the unit).
 DEFAULTS: dict[str, dict[str, Any]] = {
@@ -57,6 +58,9 @@ DEFAULTS: dict[str, dict[str, Any]] = {
     # (a spread of relaxation times, alpha < 1; 3 % of the iron's reluctivity, centred on 1.5 ms)
     "excess_loss": {"field_A_per_m_at_100_T_per_s": 3.0, "exponent": 0.6},
     "magnetic_relaxation": {"share_of_reluctivity": 0.03, "tau_s": 1.5e-3, "alpha": 0.85},
+    # the iron warms with the day as the magnet does (a first-order rise), and only its loop follows:
+    # the hysteretic field (coercivity) falls by -0.6 %/K, the reluctivity stays
+    "iron_thermal_drift": {"delta_T_K": 25.0, "tau_s": 900.0, "loop_per_K": -6e-3},
     "adc_quantisation": {"bits": 16, "current_A": 2.0, "flux_Wb": 2e-4, "command_V": 10.0,
                          "force_N": {"ecore": 10.0, "ecore_pm": 400.0, "voicecoil_ferrite": 10.0}},
 }
@@ -151,8 +155,17 @@ def _magnet_factor(p: dict, t_day_s: float) -> float:
     return 1 + d["alpha_per_K"] * rise
 
 
+def _loop_factor(p: dict, t_day_s: float) -> float:
+    """The iron's hysteretic field relative to cold: its coercivity falls as the coil warms it."""
+    d = p.get("iron_thermal_drift")
+    if d is None:
+        return 1.0
+    rise = d["delta_T_K"] * (1 - math.exp(-max(t_day_s, 0.0) / d["tau_s"]))
+    return max(1 + d["loop_per_K"] * rise, 0.0)
+
+
 def solve_ecore(p: dict, bench: BenchConstants, current: np.ndarray, f_hz: float, magnet: bool,
-                magnet_factor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+                magnet_factor: float = 1.0, loop_factor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """(outer-tooth flux Wb, force N) on one period, by harmonic balance with fixed-point passes
     over the iron's nonlinear field and the gap's breathing on a compliant load cell."""
     geo = bench.ecore
@@ -188,7 +201,7 @@ def solve_ecore(p: dict, bench: BenchConstants, current: np.ndarray, f_hz: float
         loss = np.ones(k.size, complex)
         if elliptic is not None:
             b_ac = 0.0 if phi is None else 0.5 * float(np.ptp(phi)) / area
-            loss[1:] += 1j * (elliptic["tan_delta"] + elliptic.get("tan_delta_per_T", 0.0) * b_ac)
+            loss[1:] += 1j * loop_factor * (elliptic["tan_delta"] + elliptic.get("tan_delta_per_T", 0.0) * b_ac)
         return r0 + geo.iron_path_m * nu / area * iron * loss + eddy
 
     z = impedance(None)
@@ -200,7 +213,8 @@ def solve_ecore(p: dict, bench: BenchConstants, current: np.ndarray, f_hz: float
         if sat is not None:
             extra += mag.anhysteretic_field(b, nu, sat["knee_T"], sat["power"]) - nu * b
         if hyst is not None:
-            extra += mag.periodic_bouc_wen(b, hyst["a_A_per_m_per_T"], hyst["beta_per_T"], hyst["gamma_per_T"])
+            extra += loop_factor * mag.periodic_bouc_wen(b, hyst["a_A_per_m_per_T"], hyst["beta_per_T"],
+                                                         hyst["gamma_per_T"])
         if exc is not None:  # dB/dt from the period's spectrum
             rate = _wave(_harmonics(b) * 1j * omega, m) / 100.0
             extra += exc["field_A_per_m_at_100_T_per_s"] * np.sign(rate) * np.abs(rate) ** exc["exponent"]
@@ -257,7 +271,8 @@ def simulate_recording(rig: str, frequency_hz: float, current_pp_a: float, *, ef
     else:
         magnet = rig == "ecore_pm"
         mid_day = start_time_s + n / fs_hz / 2
-        flux, force = solve_ecore(p, bench, current, f_true, magnet, _magnet_factor(p, mid_day) if magnet else 1.0)
+        flux, force = solve_ecore(p, bench, current, f_true, magnet, _magnet_factor(p, mid_day) if magnet else 1.0,
+                                  _loop_factor(p, mid_day))
 
     # the instrument, harmonic by harmonic; the charge amplifier's DC handled in time below
     k = np.arange(m // 2 + 1)

@@ -35,6 +35,7 @@ CASES = {
     "adc_quantisation": ("ecore_pm", 320.0, 1.4, 0.0, ALL),
     "excess_loss": ("ecore_pm", 320.0, 1.4, 0.0, {"force_N", "flux_Wb"}),
     "magnetic_relaxation": ("ecore_pm", 320.0, 1.4, 0.0, {"force_N", "flux_Wb"}),
+    "iron_thermal_drift": ("ecore", 40.0, 1.27, 900.0, {"force_N", "flux_Wb"}),
 }
 
 

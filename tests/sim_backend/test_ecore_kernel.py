@@ -112,6 +112,8 @@ VARIANTS = {
     "excess_loss": dict(effects={**QUIET, "excess_loss": True}),
     "magnetic_relaxation": dict(effects={**QUIET, "magnetic_relaxation": {"time_constant_s": 2e-4}}),
     "rate_terms": dict(effects={**QUIET, "excess_loss": True, "magnetic_relaxation": True}),
+    # the iron's loop following its temperature (hystbench.physics.iron_thermal): 0.4 % over the record
+    "iron_thermal_drift": dict(effects={**QUIET, "iron_thermal_drift": {"kelvin_per_s": 10.0, "field_tc_per_k": -0.01}}),
 }
 
 

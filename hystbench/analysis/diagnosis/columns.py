@@ -146,6 +146,9 @@ PROBES: Mapping[str, tuple[Probe, ...]] = {
     "force_offset_drift": (_linear("force_offset_drift", "offset_n", 0.1, drift_n_per_s=0.0),
                            _linear("force_offset_drift", "drift_n_per_s", 0.01, offset_n=0.0)),
     "magnet_thermal_drift": (_linear("magnet_thermal_drift", "kelvin_per_s", 0.1),),
+    # the iron's loop along the day: linear in the warming at the catalogue's coefficient (a_T dT/dt is what
+    # a bench day identifies; its sign too: a loop that widens as it warms is a negative rate here)
+    "iron_thermal_drift": (_linear("iron_thermal_drift", "kelvin_per_s", 0.05),),
     "load_cell_compliance": (_inverse("load_cell_compliance", "stiffness_n_per_m", 1e-8),),
     "amplifier_distortion": (_linear("amplifier_distortion", "second", 0.005, third=0.0),
                              _linear("amplifier_distortion", "third", 0.005, second=0.0)),
@@ -273,7 +276,7 @@ def accepts(rig: str, preset: Mapping[str, Any], effect: str) -> bool:
     if effect in ("magnet_eddy_currents", "magnet_thermal_drift"):
         return magnet and ecore
     if effect in ("static_hysteresis", "lamination_eddy_currents", "iron_saturation", "integrator_leak",
-                  "load_cell_compliance", "excess_loss", "magnetic_relaxation"):
+                  "load_cell_compliance", "excess_loss", "magnetic_relaxation", "iron_thermal_drift"):
         return ecore
     return True
 

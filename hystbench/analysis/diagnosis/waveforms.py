@@ -87,8 +87,9 @@ def _relaxed(ctx: Ctx, th: np.ndarray) -> list[np.ndarray]:
 
 
 def _named(key: str, generic: str) -> tuple[str, bool]:
-    """The catalogue's name when the catalogue knows the effect (excess loss and magnetic relaxation are
-    joining it, issue 28), else the generic term's ``not in the catalogue: ...``."""
+    """The catalogue's name when the catalogue knows the effect (excess loss, magnetic relaxation and the
+    loop's temperature coefficient, ``iron_thermal_drift``'s a_T, joined it in issue 28), else the generic
+    term's ``not in the catalogue: ...``."""
     return (key, True) if key in CATALOGUE else (f"not in the catalogue: {generic}", False)
 
 
@@ -109,7 +110,7 @@ TERMS: dict[str, Term] = {t.key: t for t in (
     Term("inertia", "not in the catalogue: domain-wall inertia (second-order response), H_m = m d^2B/dt^2", False,
          "H_m = m d^2B/dt^2", (("m", "A s^2/(m T)"),), lambda c, th: [np.gradient(c.db_dt, axis=1) * c.fs_hz],
          positive=True),
-    Term("temp", "not in the catalogue: temperature coefficient of the loop, H_s (1 + a_T (T - T_ref))", False,
+    Term("temp", *_named("iron_thermal_drift", "temperature coefficient of the loop, H_s (1 + a_T (T - T_ref))"),
          "H_T = a_T (T - T_ref) H_s(B)", (("a_T", "1/K"),),
          lambda c, th: [(c.temp_c - c.t_ref_c)[:, None] * c.h_static], needs_temperatures=True),
 )}

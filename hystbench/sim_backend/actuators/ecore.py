@@ -31,6 +31,7 @@ from ...jit import enabled as jit_enabled
 from ...physics.eddy import cylinder_eddy_coefficient, lamination_eddy_coefficient
 from ...physics.hysteresis import HysteresisState
 from ...physics.iron import ComplexPermeabilityIron, RayleighIron, refuse_saturation
+from ...physics.iron_thermal import IronThermal, iron_thermal
 from ...physics.rate_dependence import RateDependence, rate_dependence
 from ...physics.presets import ecore_mec, where
 from ...physics.permeance import mu_0
@@ -135,6 +136,10 @@ class ECoreActuator:
         #: the iron's rate dependence beyond the classical eddy field (excess_loss, magnetic_relaxation):
         #: nonlinear or with a memory of its own, so it joins the iterated remainder, not the linear part
         self._rate: RateDependence | None = rate_dependence(effects, fs_hz)
+        #: the iron's static field follows its temperature along the day (iron_thermal_drift): a scale
+        #: per sample on what the iron needs, so it too joins the iterated remainder
+        self._iron_thermal: IronThermal | None = iron_thermal(effects)
+        self._iron_scale: np.ndarray | None = None  # the block's scale (None: off)
         self._magnet_eddy = 0.0
         if "magnet_eddy_currents" in effects and "magnet" in preset:
             m = preset["magnet"]
@@ -178,13 +183,13 @@ class ECoreActuator:
         self._primed = False  # the sample-by-sample solve compiled (_prime_sequential)
         # the kernels cover the Preisach iron (its rate terms too) and every linear iron without rate
         # terms; Rayleigh's loops, and a linear iron's rate terms, stay in numpy
-        self._kernel_ok = ((self.hysteresis is None and self._rate is None)
+        self._kernel_ok = ((self.hysteresis is None and self._rate is None and self._iron_thermal is None)
                            or hasattr(self.hysteresis, "kernel_tables"))
         #: the sample-by-sample solve (where the passes stall) knows no rate terms: with them a block the
         #: passes cannot settle is refused
-        self._sequential_ok = self._kernel_ok and self._rate is None
-        #: whether the iron has a remainder to iterate (a static loop, or rate terms)
-        self._iterated = self.hysteresis is not None or self._rate is not None
+        self._sequential_ok = self._kernel_ok and self._rate is None and self._iron_thermal is None
+        #: whether the iron has a remainder to iterate (a static loop, rate terms, a drifting loop)
+        self._iterated = self.hysteresis is not None or self._rate is not None or self._iron_thermal is not None
         self._kernel_lag: tuple[_LinearPart, np.ndarray, np.ndarray] | None = None  # lag it was built for
         self._kernel_tables: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         self._kernel_mode = np.array([self._irreversible, self._saturation], dtype=np.int64)
@@ -267,12 +272,15 @@ class ECoreActuator:
         return residual / (1.0 + extra * self._lag.instantaneous_gain * self.iron_length_m)
 
     def _static_field(self, b: np.ndarray):
-        """The iron's H for the trajectory b (its rate terms included), and the state it ends in."""
+        """The iron's H for the trajectory b (its temperature's scale and its rate terms included), and
+        the state it ends in."""
         if self.hysteresis is None:
             h, state = self._nu0 * b, None
         else:
             h, state = self.hysteresis.field(b, self._h_state, irreversible=self._irreversible,
                                              saturation=self._saturation)
+        if self._iron_scale is not None:
+            h = h * self._iron_scale
         return (h if self._rate is None else h + self._rate.field(b)), state
 
     def _pass(self, fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray):
@@ -389,6 +397,7 @@ class ECoreActuator:
     def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
         if self._kernel_ok and current_a.size and (jit_enabled() if KERNEL is None else KERNEL):
             return self._step_kernel(t_s, current_a, dcurrent_dt)
+        self._iron_scale = None if self._iron_thermal is None else self._iron_thermal.scale(t_s)
         fc = self.turns * current_a
         fm = np.full_like(fc, self.magnet_mmf_a)
         dfm = 0.0
@@ -514,7 +523,9 @@ class ECoreActuator:
                         np.ascontiguousarray(turns[:, 0]), np.ascontiguousarray(turns[:, 1]),
                         np.array([st.b_t, st.h_a_per_m, float(st.direction)]), tin, tout, end,
                         *self._tables(), self._kernel_mode, self._b_knee, self._nu0, lag.instantaneous_gain,
-                        self.iron_length_m, out, self._rate_args(fc.size))
+                        self.iron_length_m, out, self._rate_args(fc.size),
+                        kern.NO_SCALE if self._iron_thermal is None
+                        else np.ascontiguousarray(self._iron_thermal.scale(t_s), dtype=f64))
             if out[0]:
                 m = int(end[3])
                 h_state = HysteresisState(float(end[0]), float(end[1]), int(end[2]),

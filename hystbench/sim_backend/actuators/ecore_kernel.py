@@ -147,10 +147,11 @@ def first_guess(hist: np.ndarray, period: float, out: np.ndarray) -> None:
 
 @njit(cache=True, nogil=True)
 def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout, end, tabs, psi, virg, an,
-              mode, knee, nu0, gain, length, track, rate):
+              mode, knee, nu0, gain, length, track, rate, scale):
     """One fixed-point pass (ECoreActuator._pass) from the committed states, h_rest updated in place.
     ``rate``: the iron's rate terms (:func:`rate_terms`; hystbench.physics.rate_dependence) added to H,
-    their slope damping the step as in ECoreActuator._damped.
+    their slope damping the step as in ECoreActuator._damped; ``scale``: the static field's factor at each
+    sample (the iron's temperature, hystbench.physics.iron_thermal; empty: none).
     Returns (max |step|, max |h_rest|, max |B|) (tracked only when ``track``); the iron's state at
     the block's end goes to end = (B, H, direction, number of turns) and tin/tout[:turns]."""
     n = fc.size
@@ -177,6 +178,7 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
     mstep, mh, mb = 0.0, 0.0, 0.0
     has_ex, k_ex, r0, has_rel, a_rel, kappa, fs = rate[0] != 0.0, rate[1], rate[2], rate[3] != 0.0, rate[4], rate[5], rate[6]
     bp, bs, sqr0 = rate[7], rate[8], math.sqrt(rate[2])
+    scaled = scale.size > 0
     for k in range(n):
         hr = h_rest[k]
         u0 = fc[k] - hr * length
@@ -215,6 +217,8 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
             h_an = _read_uniform(a_step, an, s_end, b)
             single = h_an if saturation else ss * b
             h = single + (y - h_an) if irreversible else single
+        if scaled:
+            h *= scale[k]
         extra = 0.0  # the remainder's own slope beyond nu0: what damps the step (ECoreActuator._damped)
         if bp != bp:  # NaN: the rig's first block starts at rest, at its first sample's B (RateDependence._start)
             bp, bs = b, b
@@ -250,7 +254,7 @@ def passes(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, first: int, max_p
            lag: np.ndarray, y_start: np.ndarray, cold: bool, c_in: np.ndarray, c_out: np.ndarray, state0: np.ndarray,
            tin: np.ndarray, tout: np.ndarray, end: np.ndarray, tabs: np.ndarray, psi: np.ndarray, virg: np.ndarray,
            an: np.ndarray, mode: int, knee: float, nu0: float, gain: float, length: float, out: np.ndarray,
-           rate: np.ndarray) -> None:
+           rate: np.ndarray, scale: np.ndarray) -> None:
     """ECoreActuator.step's loop of passes: at least ``first``, then until one converges, at most
     ``max_passes``.  out = (converged 1/0, passes run, max |B| of the last pass)."""
     done = SETTLED
@@ -259,7 +263,7 @@ def passes(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, first: int, max_p
     for n_pass in range(1, max_passes + 1):
         track = n_pass >= first or n_pass == max_passes  # the last one names |B| in a refusal
         mstep, mh, peak = _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout, end, tabs,
-                                    psi, virg, an, mode, knee, nu0, gain, length, track, rate)
+                                    psi, virg, an, mode, knee, nu0, gain, length, track, rate, scale)
         if track and mstep <= converged_ratio * (mh + 1.0):
             break
     else:
@@ -510,6 +514,8 @@ def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np
 
 #: ``rate`` of a rig without rate terms: nothing added, nothing damped
 NO_RATE = np.zeros(9)
+#: ``scale`` of an iron whose static field does not drift (no iron_thermal_drift)
+NO_SCALE = np.zeros(0)
 
 
 def rate_terms(excess: tuple[float, float] | None, relaxation: tuple[float, float] | None, fs_hz: float,

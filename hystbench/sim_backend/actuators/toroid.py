@@ -4,7 +4,8 @@ The standard asks for a sinusoidal flux density, so the amplifier runs in flux f
 generator's command sets B (``[amplifier] flux_density_per_a_t`` tesla per ampere of nominal
 command), and the magnetising current needed for it is what the current channel measures,
 i = (H_static(B) + sigma d^2/12 dB/dt + H_rate) l / N (H_rate: the excess field and the relaxation,
-:mod:`hystbench.physics.rate_dependence`).  Driving the B-input hysteresis operator this way
+:mod:`hystbench.physics.rate_dependence`; H_static scaled by the iron's temperature with
+``iron_thermal_drift``, :mod:`hystbench.physics.iron_thermal`).  Driving the B-input hysteresis operator this way
 is also exact: no implicit solve is needed with eddy currents.  The iron is the one its material
 file's ``model`` names (:func:`hystbench.physics.iron.iron_model`).
 """
@@ -17,6 +18,7 @@ import numpy as np
 
 from ...config import load_material
 from ...physics.eddy import lamination_eddy_coefficient
+from ...physics.iron_thermal import iron_thermal
 from ...physics.rate_dependence import rate_dependence
 from .base import ActuatorOutput
 
@@ -51,6 +53,7 @@ class ToroidCore:
         if "lamination_eddy_currents" in effects:
             self._eddy = lamination_eddy_coefficient(iron["conductivity_s_per_m"], iron["lamination_thickness_m"])
         self._rate = rate_dependence(effects, fs_hz)
+        self._thermal = iron_thermal(effects)
 
     def set_period(self, samples: float | None) -> None:
         """The excitation's period in samples: a complex permeability's omega (None: the preset's
@@ -69,6 +72,8 @@ class ToroidCore:
         else:
             h, self._state = self.hysteresis.field(b, self._state, irreversible=self._irreversible,
                                                    saturation=self._saturation)
+        if self._thermal is not None:
+            h = h * self._thermal.scale(t_s)
         h = h + self._eddy * db_dt
         if self._rate is not None:
             h = h + self._rate.field(b)

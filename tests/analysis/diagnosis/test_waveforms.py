@@ -17,7 +17,7 @@ import pytest
 from scipy.stats import norm
 
 from hystbench.analysis.diagnosis.waveforms import (CORR_MIN, REL_L2_MAX, diagnose_waveforms, fit_waveforms,
-                                                    paderborn_metrics, select_terms, temperatures_separable)
+                                                    TERMS, paderborn_metrics, select_terms, temperatures_separable)
 from hystbench.config.effects import CATALOGUE
 
 FS = 16e6
@@ -145,3 +145,21 @@ def test_the_cli_routes_a_waveform_table_by_its_sidecar():
     assert _is_waveform_table(REAL)
     assert not _is_waveform_table(REAL.parents[1] / "magnet_3C90_sine.csv")
     assert not _is_waveform_table(REAL.with_name("no_such_table.csv"))
+
+
+def test_a_loop_that_follows_temperature_is_named_by_the_catalogue(synthetic):
+    """Two rows at 60 degC whose loop needs 17.5 % less field (a_T = -0.5 %/K against 25 degC): the
+    catalogue's ``iron_thermal_drift`` (its a_T), not a generic term.  The fit's reference is the
+    calibration rows' mean temperature, so the two loops' ratio fixes the coefficient it reports:
+    (s60 - s25) / ((60 - 25) (s60 + s25) / 2)."""
+    b, hs, _ = synthetic
+    temp = np.array([60.0, 60.0, 25.0, 25.0])
+    scale = 1.0 - 0.005 * (temp - 25.0)
+    rng = np.random.default_rng(4)
+    h = hs * scale[:, None] + 0.01 * hs.std() * rng.standard_normal(hs.shape)
+    _, named, _ = select_terms(b, h, FS, temp, _mask(b))
+    assert named and named[-1].terms == ("temp",)
+    assert TERMS["temp"].name == "iron_thermal_drift" and TERMS["temp"].name in CATALOGUE
+    fit = fit_waveforms(b, h, FS, temp, _mask(b), named[-1].terms, start=named[-1])
+    expected = (scale[0] - scale[2]) / ((60.0 - 25.0) * (scale[0] + scale[2]) / 2.0)
+    assert fit.params["temp.a_T"]["value"] == pytest.approx(expected, rel=0.05)
