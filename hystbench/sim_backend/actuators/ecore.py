@@ -137,7 +137,8 @@ class ECoreActuator:
         #: nonlinear or with a memory of its own, so it joins the iterated remainder, not the linear part
         self._rate: RateDependence | None = rate_dependence(effects, fs_hz)
         #: the iron's static field follows its temperature along the day (iron_thermal_drift): a scale
-        #: per sample on what the iron needs, so it too joins the iterated remainder
+        #: per sample on what the iron needs, so it too joins the iterated remainder (a complex
+        #: permeability's loss term, in the linear part's D, keeps its value)
         self._iron_thermal: IronThermal | None = iron_thermal(effects)
         self._iron_scale: np.ndarray | None = None  # the block's scale (None: off)
         self._magnet_eddy = 0.0
@@ -181,12 +182,12 @@ class ECoreActuator:
         self._prev_drop: np.ndarray | None = None
         self._rest_tail = np.full(2, np.nan)  # the iron's remainder at the last two samples (NaN: none yet)
         self._primed = False  # the sample-by-sample solve compiled (_prime_sequential)
-        # the kernels cover the Preisach iron (its rate terms too) and every linear iron without rate
-        # terms; Rayleigh's loops, and a linear iron's rate terms, stay in numpy
+        # the kernels cover the Preisach iron (its rate terms and temperature too) and every linear iron
+        # without them; Rayleigh's loops, and a linear iron's rate terms or temperature, stay in numpy
         self._kernel_ok = ((self.hysteresis is None and self._rate is None and self._iron_thermal is None)
                            or hasattr(self.hysteresis, "kernel_tables"))
-        #: the sample-by-sample solve (where the passes stall) knows no rate terms: with them a block the
-        #: passes cannot settle is refused
+        #: the sample-by-sample solve (where the passes stall) knows no rate terms nor the loop's temperature:
+        #: with them a block the passes cannot settle is refused
         self._sequential_ok = self._kernel_ok and self._rate is None and self._iron_thermal is None
         #: whether the iron has a remainder to iterate (a static loop, rate terms, a drifting loop)
         self._iterated = self.hysteresis is not None or self._rate is not None or self._iron_thermal is not None
