@@ -13,6 +13,14 @@ no stream is ever dropped or stalled because the emulator was late; it only runs
 time (``pacer.slipped_s`` says by how much).  Everything an emulator times (the amplifier's
 watchdog, stream faults armed at a sample index) counts on this clock.
 
+A tick's samples are made at once, so up to a tick of them is still on its way when a command
+lands; no more (``BenchConfig.latency_s``): before making a tick, the clock waits until the last
+one's samples are on the serial stream lines (``PtyStreamSink.wait_sent``; TCP's ``sendall`` and
+the CAN bus take them at once), so an emulator's backlog, which a driver's reader cannot see, never
+holds samples older than the newest tick.  With a reader that keeps up the wait is nil; a reader
+short of CPU slows the clock rather than leaving old samples where the reader, finding its line
+empty, would count them as on their way.
+
 If the rig cannot make a block (a SimulationError names the rig, the operating point and why),
 the clock does not stop, which the drivers would only report as a lost stream seconds later: the
 amplifier trips (INTERLOCK, so its driver reports a latched fault at its next poll), the cause is
@@ -32,7 +40,7 @@ from ...blocks import SampleBlock
 from ...drivers.protocols.bench_config import BenchConfig, load_bench_config
 from ..rig import SimulatedRig
 from .charge_amplifier import ChargeAmplifierEmulator
-from .common import log
+from .common import PtyStreamSink, log
 from .current_amplifier import CurrentAmplifierEmulator
 from .flux_integrator import FluxIntegratorEmulator
 from .signal_generator import SignalGeneratorEmulator
@@ -104,6 +112,9 @@ class EmulatedBench:
             self.digitiser = DigitiserEmulator(self.fs_hz, {s: (int(ch[-1]), dig.scales.get(s, 1.0))
                                                             for s, ch in dig.channels.items()}, dialect=dig.dialect)
             self.emulators["digitiser"] = self.digitiser
+        #: the serial stream lines, whose backlog each tick waits for (module docstring)
+        self._serial_streams = [s for emu in self.emulators.values()
+                                if isinstance(s := getattr(emu, "stream", None), PtyStreamSink)]
         self.next_index = 0  # the sample clock: first index of the next block (the rig starts at 0)
         #: the newest changes of the rig's settings: (first sample index generated with them, settings)
         self.changes: collections.deque[tuple[int, dict[str, Any]]] = collections.deque(maxlen=1000)
@@ -173,7 +184,10 @@ class EmulatedBench:
                 self._stop.wait(wait)
 
     def tick(self) -> SampleBlock:
-        """One block of the sample clock: the rig's next samples, to every tap and instrument."""
+        """One block of the sample clock: the rig's next samples, to every tap and instrument (once
+        the last block's samples are on the serial lines: the module docstring)."""
+        for line in self._serial_streams:  # no lock held: commands go on meanwhile
+            line.wait_sent()
         with self._rig_lock:
             try:
                 block = self.rig.read(self.block_samples)

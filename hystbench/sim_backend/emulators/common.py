@@ -1,9 +1,20 @@
 """What every emulator needs: fault switches, a pseudo-terminal port, a TCP server, stream sinks.
 
 Pseudo-terminals stand in for serial ports: the emulator holds the master, a driver opens the
-slave path (``/dev/pts/N``).  The slave is put in raw mode and kept open here, so a driver can
-come and go without the port disappearing.  "Disconnect" on a serial line is silence (a pulled
-cable); on TCP it closes the connections and refuses new ones until ``reconnect``.
+slave path (``/dev/pts/N``).  The slave is put in raw mode and (but for a stream line's, below)
+kept open here, so a driver can come and go without the port disappearing.  "Disconnect" on a
+serial line is silence (a pulled cable); on TCP it closes the connections and refuses new ones
+until ``reconnect``.
+
+A serial stream line (:class:`PtyStreamSink`) is held like a real instrument's: what it sends
+while no driver has the port open is lost (a real port that is not open drops what arrives), and
+what it has not written yet is only the newest clock tick's samples, because the emulated bench
+waits, before making a tick, until the last one's are on the line (:meth:`PtyStreamSink.wait_sent`).
+A pseudo-terminal holds about 12 kB, less than a tick's burst, so the rest waits in the emulator,
+where a driver's reader cannot see it: were it older than a tick, a reader that found the line
+empty would place a command's first sample before samples made long before the command (the
+drivers allow one tick in flight: ``BenchConfig.latency_s``).  What the pseudo-terminal holds is
+on the line, as a real port's buffers are (``[bench] in_flight_s``).
 
 Stream faults can be set to start at a sample index (``Faults.arm``, ``Faults.silence``) instead of
 "from the next frame": what is dropped, damaged or silent is then fixed by the sample clock, not by
@@ -145,17 +156,26 @@ class Faults:
 
 
 class PtyPort:
-    """The emulator's end of a pseudo-terminal; ``path`` is what a driver opens."""
+    """The emulator's end of a pseudo-terminal; ``path`` is what a driver opens.
 
-    def __init__(self, max_pending: int = 1 << 20) -> None:
-        self.master, self._slave = os.openpty()
-        tty.setraw(self._slave)
+    ``hold_slave=False`` (a stream line): the slave is not kept open here, so whether a driver has
+    the port open can be told (:meth:`has_reader`); it keeps its raw mode for the next opener."""
+
+    def __init__(self, max_pending: int = 1 << 20, *, hold_slave: bool = True) -> None:
+        self.master, slave = os.openpty()
+        tty.setraw(slave)
         os.set_blocking(self.master, False)
-        self.path = os.ttyname(self._slave)
+        self.path = os.ttyname(slave)
+        self._slave: int | None = slave
+        if not hold_slave:
+            os.close(slave)
+            self._slave = None
         self._pending = bytearray()
         self._max_pending = max_pending
         self.overflow_drops = 0  # whole records dropped because nobody read the port
+        self.dropped_bytes = 0  # unwritten bytes dropped: nobody had the port open, or its reader took nothing
         self._lock = threading.Lock()
+        self._written = 0  # bytes the line took, ever
         self._wake = threading.Event()
         self._closed = False
         self._writer = threading.Thread(target=self._drain, name="emu-pty-writer", daemon=True)
@@ -206,6 +226,7 @@ class PtyPort:
                     return
                 raise
             del self._pending[:n]
+            self._written += n
 
     def flush(self) -> None:
         with self._lock:
@@ -215,11 +236,51 @@ class PtyPort:
         with self._lock:
             self._pending.clear()
 
+    def has_reader(self) -> bool:
+        """Whether a driver has the port open: always True for a port that holds its own slave.
+        A pseudo-terminal whose slave nobody has open reports a hang-up on its master (readable,
+        and reading it fails with EIO); bytes a driver wrote on it are read and ignored."""
+        if self._slave is not None:
+            return True
+        try:
+            readable, _, _ = select.select([self.master], [], [], 0)
+            return not readable or bool(os.read(self.master, 4096))
+        except BlockingIOError:
+            return True
+        except (OSError, ValueError):  # EIO: hung up (or the port is closed)
+            return False
+
+    def wait_sent(self, idle_s: float) -> bool:
+        """Return once every byte written so far is on the line (the pseudo-terminal took it):
+        pushed from the caller's thread too, as the driver's reader takes what came before, so a
+        writer thread short of CPU holds nothing back.  What a port nobody has open holds, or what
+        its reader left untaken for ``idle_s``, is dropped instead (counted in ``dropped_bytes``):
+        the line lost it.  True if nothing was dropped."""
+        seen, quiet_since = -1, time.monotonic()
+        while True:
+            with self._lock:
+                self._flush()
+                if not self._pending:
+                    return True
+                now = time.monotonic()
+                if self._written != seen:  # the line took more (from here or the writer thread)
+                    seen, quiet_since = self._written, now
+                if now - quiet_since > idle_s or not self.has_reader():
+                    self.dropped_bytes += len(self._pending)
+                    self._pending.clear()
+                    return False
+            try:
+                select.select([], [self.master], [], min(0.05, idle_s))
+            except (OSError, ValueError):  # closed meanwhile
+                return False
+
     def close(self) -> None:
         self._closed = True
         self._wake.set()
         self._writer.join(timeout=1.0)
         for fd in (self.master, self._slave):
+            if fd is None:
+                continue
             try:
                 os.close(fd)
             except OSError:
@@ -448,19 +509,35 @@ class TcpStreamServer:
 
 
 class PtyStreamSink:
-    """A serial stream port: COBS records on a pseudo-terminal."""
+    """A serial stream port: COBS records on a pseudo-terminal.
 
-    def __init__(self, emitter: FrameEmitter) -> None:
+    What is sent while no driver has the port open is lost, as on a real port (the frames are
+    still made, so sequence numbers and faults armed at an index run on with the sample clock).
+    :meth:`wait_sent` is how the emulated bench keeps what waits in this port's backlog, unseen by a
+    reader, to the newest tick (the module docstring); a reader that takes nothing for
+    ``send_timeout_s`` meanwhile loses the backlog, as a TCP client that slow loses its connection."""
+
+    def __init__(self, emitter: FrameEmitter, send_timeout_s: float = 0.5) -> None:
         self.emitter = emitter
-        self.port = PtyPort()
+        self.send_timeout_s = send_timeout_s
+        self.port = PtyPort(hold_slave=False)
         self.path = self.port.path
 
     def send(self, first_index: int, data: np.ndarray, flags: int = 0) -> None:
         garbage = self.emitter.faults.take_bytes("stream_garbage", first_index)
+        records = [b"\x00" + cobs_record(raw)  # a leading 0x00 lets a reader that joins now sync at once
+                   for raw in self.emitter.emit(first_index, data, flags)]
+        if not self.port.has_reader():
+            self.port.discard_output()
+            return
         if garbage:
             self.port.write(garbage, droppable=True)
-        for raw in self.emitter.emit(first_index, data, flags):  # a leading 0x00 lets a reader that
-            self.port.write(b"\x00" + cobs_record(raw), droppable=True)  # joins now sync at once
+        for record in records:
+            self.port.write(record, droppable=True)
+
+    def wait_sent(self) -> bool:
+        """Return once everything sent is on the line (see :meth:`PtyPort.wait_sent`)."""
+        return self.port.wait_sent(self.send_timeout_s)
 
     def close(self) -> None:
         self.port.close()
