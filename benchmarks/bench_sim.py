@@ -68,9 +68,9 @@ def _timed_run(rig: SimulatedRig, block_size: int, seconds: float, repeats: int 
             "ms_per_10k_mean": 1e3 * cpu * PER / (repeats * per_window * block_size)}
 
 
-#: The iron's rate terms (nonlinear in dB/dt, with a memory of their own): a row of ``ecore_pm`` with
-#: them on beside its preset's effects says what they cost.
-NUMPY_ONLY = {"excess_loss": True, "magnetic_relaxation": True}
+#: The iron's effects beyond its preset's (the rate terms, nonlinear in dB/dt with a memory of their own;
+#: the loop's temperature, a scale per sample): a row of ``ecore_pm`` with each set on says what it costs.
+IRON_EXTRAS = ({"excess_loss": True, "magnetic_relaxation": True}, {"iron_thermal_drift": True})
 
 
 def rig_row(name: str, fs_hz: float, block_size: int, seconds: float, repeats: int,
@@ -166,7 +166,7 @@ def preisach_field(material: str = "M330-50A", n: int = 100_000, repeats: int = 
 def run(seconds: float = 5.0, fs_hz: float = 100_000.0, block_size: int = 10_000,
         rigs: tuple[str, ...] = (TARGET_RIG, "ecore", "voicecoil_ndfeb"), repeats: int = 5) -> dict:
     results = [rig_row(name, fs_hz, block_size, seconds, repeats) for name in rigs]
-    results.append(rig_row(TARGET_RIG, fs_hz, block_size, seconds, repeats, NUMPY_ONLY))
+    results += [rig_row(TARGET_RIG, fs_hz, block_size, seconds, repeats, extra) for extra in IRON_EXTRAS]
     head = results[0]
     small = None
     if block_size != EMULATED_BLOCK:
