@@ -22,12 +22,14 @@ here, beside their one caller, so an edit can never run against a stale compiled
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
 from ...jit import njit
+from ...physics.hysteresis import HysteresisState
 
-__all__ = ["first_guess", "passes", "final_run"]
+__all__ = ["first_guess", "passes", "final_run", "iron_field", "field_along"]
 
 #: what :func:`passes` reports: a pass converged / none did within max_passes
 SETTLED, UNSETTLED = 1, 0
@@ -371,6 +373,48 @@ def _iron_at(b, u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an, i
         single = h_an if saturation else ss * b
         h = single + (y - h_an) if irreversible else single
     return y, h, ds, m, s, br
+
+
+@njit(cache=True, nogil=True)
+def iron_field(b: np.ndarray, c_in: np.ndarray, c_out: np.ndarray, state0: np.ndarray, tin: np.ndarray,
+               tout: np.ndarray, end: np.ndarray, tabs: np.ndarray, psi: np.ndarray, virg: np.ndarray,
+               an: np.ndarray, mode: np.ndarray, h: np.ndarray) -> None:
+    """``PreisachHysteresis.field`` along ``b`` from a committed state (turning points c_in/c_out, state0 =
+    (B, H, direction)), each sample committed in turn (:func:`_iron_at`); H as ``mode`` = (irreversible,
+    saturation) asks into ``h``, the full model's end state into end = (B, H, direction, turns) and
+    tin/tout[:turns]."""
+    nst = c_in.size
+    for i in range(nst):
+        tin[i] = c_in[i]
+        tout[i] = c_out[i]
+    u_prev, y_prev, d = state0[0], state0[1], state0[2]
+    s = d
+    br = NO_BRANCH
+    if nst > 0:
+        br = _branch_consts(s, nst, tin, tout, tabs, psi, virg)
+    irreversible, saturation = mode[0] != 0, mode[1] != 0
+    for k in range(b.size):
+        y, hk, ds, nst, s, br = _iron_at(b[k], u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an,
+                                         irreversible, saturation)
+        h[k] = hk
+        u_prev, y_prev, d = b[k], y, ds
+    end[0], end[1], end[2], end[3] = u_prev, y_prev, d, nst
+
+
+def field_along(iron: Any, b_t: np.ndarray, state: HysteresisState, *, irreversible: bool = True,
+                saturation: bool = True) -> tuple[np.ndarray, HysteresisState]:
+    """:meth:`PreisachHysteresis.field` by :func:`iron_field` (same arithmetic; tested equal): for callers
+    that run the iron alone over many short trajectories (the waveform diagnosis's fits), where the
+    numpy code's per-branch work dominates."""
+    b = np.ascontiguousarray(b_t, dtype=np.float64)
+    turns = np.array(state.turns, dtype=np.float64).reshape(len(state.turns), 2)
+    tin, tout = np.empty(turns.shape[0] + b.size + 2), np.empty(turns.shape[0] + b.size + 2)
+    end, h = np.empty(4), np.empty(b.size)
+    iron_field(b, np.ascontiguousarray(turns[:, 0]), np.ascontiguousarray(turns[:, 1]),
+               np.array([state.b_t, state.h_a_per_m, float(state.direction)]), tin, tout, end, *iron.kernel_tables(),
+               np.array([irreversible, saturation], dtype=np.int64), h)
+    m = int(end[3])
+    return h, HysteresisState(float(end[0]), float(end[1]), int(end[2]), tuple(zip(tin[:m].tolist(), tout[:m].tolist())))
 
 
 @njit(cache=True, nogil=True, inline="always")
