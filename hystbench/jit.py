@@ -20,10 +20,12 @@ Vocabulary layer: standard library only (numba is imported, never required).
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
+from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["enabled", "njit", "ENV"]
+__all__ = ["enabled", "njit", "drop_stale_cache", "ENV"]
 
 ENV = "HYSTBENCH_JIT"
 
@@ -56,3 +58,29 @@ def njit(**options: Any) -> Callable[[Callable], Callable]:
     if numba is None:
         return lambda function: function
     return numba.njit(**options)
+
+
+def drop_stale_cache(module_file: str, *dependencies: str) -> None:
+    """Remove numba's on-disk cache of ``module_file``'s kernels when ``dependencies`` (files whose jitted
+    helpers they inline) changed since it was written.
+
+    numba keys a cached kernel on the file that defines it alone: after an edit of a helper in another
+    module it would load the old compiled copy.  Called at the dependent module's import, this keeps a
+    digest of the dependencies beside the cache (``__pycache__/<module>.deps``); when it differs, the
+    module's cache files (``<module>.*.nbi``/``.nbc``) go and numba compiles afresh.  A cache folder that
+    cannot be written is left as it is (an installed package's files change together)."""
+    if _numba() is None:
+        return
+    src = Path(module_file)
+    cache = src.parent / "__pycache__"
+    stamp = cache / f"{src.stem}.deps"
+    try:
+        digest = hashlib.sha256(b"".join(Path(d).read_bytes() for d in dependencies)).hexdigest()
+        if stamp.is_file() and stamp.read_text() == digest:
+            return
+        for stale in [*cache.glob(f"{src.stem}.*.nbi"), *cache.glob(f"{src.stem}.*.nbc")]:
+            stale.unlink(missing_ok=True)
+        cache.mkdir(exist_ok=True)
+        stamp.write_text(digest)
+    except OSError:
+        pass

@@ -38,6 +38,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..physics.hysteresis import PreisachHysteresis, PreisachParams
+from ..physics.hysteresis_kernel import field_along
 from .errors import CompensatorError
 from .periodic import derivative, harmonics
 from .seen_current import SeenCurrentModel
@@ -173,7 +174,7 @@ def iron_drop(iron: PreisachHysteresis, scaling: IronScaling, j_a: np.ndarray) -
     PERIODS_TO_STEADY periods, the last one returned."""
     j = np.asarray(j_a, float)
     b = scaling.b0_t + scaling.b_per_a * np.tile(j, PERIODS_TO_STEADY)
-    h, _ = iron.field(b, iron.initial_state())
+    h, _ = field_along(iron, b, iron.initial_state())  # compiled: a fit runs this thousands of times
     out = h[-j.size:] * scaling.d_per_h
     if not np.all(np.isfinite(out)):
         raise CompensatorError("hysteresis_eddy model: the iron operator returned non-finite values")

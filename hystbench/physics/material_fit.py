@@ -18,6 +18,7 @@ from scipy.optimize import least_squares
 
 from ..errors import ConfigError
 from .hysteresis import PreisachHysteresis, PreisachParams, mu_0
+from .hysteresis_kernel import field_along
 
 __all__ = [
     "MeasuredLoop", "load_loops", "model_loop", "loop_error", "loop_area", "baseline_error", "fit_material",
@@ -213,6 +214,6 @@ def operating_point_lag_deg(model: PreisachHysteresis, b_amp_t: float, b_bias_t:
     virgin curve (as when a magnet is fitted or a DC current switched on), the last cycle is used."""
     ph = 2 * np.pi * np.arange(cycles * n_per_cycle) / n_per_cycle
     b = b_bias_t + b_amp_t * np.sin(ph)
-    state = model.field(np.array([b_bias_t]), model.initial_state())[1]
-    h, _ = model.field(b, state)
+    state = field_along(model, np.array([b_bias_t]), model.initial_state())[1]
+    h, _ = field_along(model, b, state)
     return b_lag_behind_h_deg(b[-n_per_cycle:], h[-n_per_cycle:])

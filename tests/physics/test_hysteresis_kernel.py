@@ -1,7 +1,8 @@
-"""The compiled branch table of the Preisach iron (``physics/hysteresis_kernel.py``) against the numpy
-code it replaced, which stays as the reference (``HYSTBENCH_JIT=0``): the same H at every target of
-every branch, on the shipped Preisach materials and on irons a fit passes through (distributions
-narrow and wide, centred low and high), at the fitting tables' size and the simulator's."""
+"""The compiled kernels of the Preisach iron (``physics/hysteresis_kernel.py``) against the numpy code
+they replaced, which stays as the reference (``HYSTBENCH_JIT=0``): the branch table gives the same H at
+every target of every branch, on the shipped Preisach materials and on irons a fit passes through
+(distributions narrow and wide, centred low and high), at the fitting tables' size and the
+simulator's; the field gives the same H and end state along any trajectory."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from hystbench.config import load_material
 from hystbench.jit import enabled
 from hystbench.physics import hysteresis
 from hystbench.physics.hysteresis import PreisachHysteresis
+from hystbench.physics.hysteresis_kernel import field_along
 
 pytestmark = pytest.mark.skipif(not enabled(), reason="numba missing or HYSTBENCH_JIT=0: no kernel to check")
 
@@ -50,3 +52,29 @@ def test_any_fitted_iron_gives_numpys_table(j_irr, centre, width, lorentz, j1, h
                              [(j1, 8.0 * centre), (1.0, 1.0e4)], centre / 3.0)
     with pytest.MonkeyPatch.context() as mp:
         _same(preisach_params(material, FIT_TABLES), mp)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), material=st.sampled_from(["M330-50A", "M130-27S"]),
+       irreversible=st.booleans(), saturation=st.booleans(), peak=st.floats(0.05, 1.6))
+def test_field_along_is_the_numpy_field_from_any_state(seed, material, irreversible, saturation, peak):
+    """The compiled field (field_along: the fits' and the waveform diagnosis's) and
+    PreisachHysteresis.field give the same H and the same end state along a trajectory of nested
+    minor loops, from the demagnetised state and then on from where the first one ended."""
+    iron = _PREISACH.setdefault(material, PreisachHysteresis.from_config(load_material(material)))
+    rng = np.random.default_rng(seed)
+    t = np.arange(1500) / 1500
+    tones = [rng.uniform(0.1, 1.0) * peak * np.sin(2 * np.pi * rng.uniform(1, 40) * t + rng.uniform(0, 6.3))
+             for _ in range(3)]
+    b = np.clip(np.sum(tones, axis=0) / 2 + 0.01 * peak * rng.standard_normal(t.size), -1.6, 1.6)
+    state = iron.initial_state()
+    for part in (b[:900], b[900:]):
+        h_ref, ref = iron.field(part, state, irreversible=irreversible, saturation=saturation)
+        h, end = field_along(iron, part, state, irreversible=irreversible, saturation=saturation)
+        np.testing.assert_allclose(h, h_ref, rtol=0, atol=1e-12 * max(np.ptp(h_ref), 1.0))
+        assert end.direction == ref.direction and len(end.turns) == len(ref.turns)
+        np.testing.assert_allclose(np.ravel(end.turns), np.ravel(ref.turns), rtol=0, atol=1e-12)
+        state = ref
+
+
+_PREISACH: dict = {}  # a material's tables built once per worker (the hypothesis examples share them)

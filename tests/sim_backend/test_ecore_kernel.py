@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
 
 from hystbench import jit
 from hystbench.blocks import concatenate
@@ -224,33 +223,3 @@ def test_a_tied_block_settles_by_the_passes_alike_on_both_paths(monkeypatch):
     assert solved and set(solved) == {1}  # only the kernel path's priming: one sample, nothing committed
     assert_same(a, b, quantised=False)
 
-
-@needs_numba
-@settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), material=st.sampled_from(["M330-50A", "M130-27S"]),
-       irreversible=st.booleans(), saturation=st.booleans(), peak=st.floats(0.05, 1.6))
-def test_field_along_is_the_numpy_field_from_any_state(seed, material, irreversible, saturation, peak):
-    """The compiled field (ecore_kernel.field_along, the waveform diagnosis's) and
-    PreisachHysteresis.field give the same H and the same end state along a trajectory of nested
-    minor loops, from the demagnetised state and then on from where the first one ended."""
-    from hystbench.config import load_material
-    from hystbench.physics.hysteresis import PreisachHysteresis
-    from hystbench.sim_backend.actuators.ecore_kernel import field_along
-
-    iron = _PREISACH.setdefault(material, PreisachHysteresis.from_config(load_material(material)))
-    rng = np.random.default_rng(seed)
-    t = np.arange(1500) / 1500
-    tones = [rng.uniform(0.1, 1.0) * peak * np.sin(2 * np.pi * rng.uniform(1, 40) * t + rng.uniform(0, 6.3))
-             for _ in range(3)]
-    b = np.clip(np.sum(tones, axis=0) / 2 + 0.01 * peak * rng.standard_normal(t.size), -1.6, 1.6)
-    state = iron.initial_state()
-    for part in (b[:900], b[900:]):
-        h_ref, ref = iron.field(part, state, irreversible=irreversible, saturation=saturation)
-        h, end = field_along(iron, part, state, irreversible=irreversible, saturation=saturation)
-        np.testing.assert_allclose(h, h_ref, rtol=0, atol=1e-12 * max(np.ptp(h_ref), 1.0))
-        assert end.direction == ref.direction and len(end.turns) == len(ref.turns)
-        np.testing.assert_allclose(np.ravel(end.turns), np.ravel(ref.turns), rtol=0, atol=1e-12)
-        state = ref
-
-
-_PREISACH: dict = {}  # a material's tables built once per worker (the hypothesis examples share them)

@@ -33,9 +33,8 @@ from scipy.signal import lfilter
 
 from ...config.effects import CATALOGUE
 from ...formats.material_data import WaveformTable, read_waveform_table
-from ...jit import enabled as jit_enabled
 from ...physics.hysteresis import PreisachHysteresis, PreisachParams
-from ...sim_backend.actuators.ecore_kernel import field_along
+from ...physics.hysteresis_kernel import field_along
 from .select import NAME_MARGIN, RUNNER_UP_MARGIN
 
 __all__ = ["WARMUP_SAMPLES", "REL_L2_MAX", "CORR_MIN", "TERMS", "Term", "WaveformFit", "WaveformDiagnosis",
@@ -153,11 +152,10 @@ def _iron(q: np.ndarray, h_max: float) -> PreisachHysteresis:
 def _static_h(iron: PreisachHysteresis, b: np.ndarray) -> np.ndarray:
     """H of every row, each from the demagnetised state through B(0) (virgin curve) and on: by the
     compiled field (a fit evaluates thousands of short rows, where the numpy code's per-branch work
-    is 15x the samples'), numpy's when numba is off."""
-    run = field_along if jit_enabled() else (lambda it, x, st: it.field(x, st))
+    is 15x the samples')."""
     out = np.empty_like(b)
     for i, row in enumerate(b):
-        h, _ = run(iron, np.concatenate(([0.0], row)), iron.initial_state())
+        h, _ = field_along(iron, np.concatenate(([0.0], row)), iron.initial_state())
         out[i] = h[1:]
     return out
 

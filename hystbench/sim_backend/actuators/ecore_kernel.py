@@ -14,118 +14,31 @@ the inner pair, -t[0] for a single turn, which returns to the virgin curve), the
 matmuls may fuse multiply-adds where this code rounds twice: that, and libm's asinh, is the only
 difference (about 1e-12 of a channel's range).  No fastmath: it would reorder operations.
 
-Why one module: numba's on-disk cache is invalidated by a change of the file that defines the
-cached function only, not of the files whose jitted helpers it inlines; the Preisach helpers live
-here, beside their one caller, so an edit can never run against a stale compiled copy.
+The Preisach iron's helpers (branch constants and reads, one sample's turning-point rule) live in
+:mod:`hystbench.physics.hysteresis_kernel`, shared with the fits that run the iron alone.  numba's
+on-disk cache is invalidated by a change of the file that defines the cached function only, not of
+the files whose jitted helpers it inlines, so this module drops its cache when that file changes
+(:func:`hystbench.jit.drop_stale_cache`): an edit never runs against a stale compiled copy.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
-from ...jit import njit
-from ...physics.hysteresis import HysteresisState
+from ...jit import drop_stale_cache, njit
+from ...physics import hysteresis_kernel
+from ...physics.hysteresis_kernel import NO_BRANCH, branch_at, branch_consts, iron_at, read_uniform
 
-__all__ = ["first_guess", "passes", "final_run", "iron_field", "field_along"]
+# the passes inline the Preisach helpers of hysteresis_kernel: numba's cache of this file must go when
+# that file changes (it is keyed on this file alone)
+drop_stale_cache(__file__, hysteresis_kernel.__file__)
+
+__all__ = ["first_guess", "passes", "final_run"]
 
 #: what :func:`passes` reports: a pass converged / none did within max_passes
 SETTLED, UNSETTLED = 1, 0
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _read_uniform(step, t, s_end, b):
-    """PreisachHysteresis._read_uniform at one sample: odd table H(|B|), straight beyond its end."""
-    a = abs(b) / step
-    ac = min(a, t.size - 1.0)
-    i = min(int(ac), t.size - 2)
-    v = t[i] + (ac - i) * (t[i + 1] - t[i]) + (a - ac) * step / s_end
-    if b > 0.0:
-        return v
-    if b < 0.0:
-        return -v
-    return 0.0 * v
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _table_at(s, c1, tr, base, edge, shift, b, psi, ncol, dmax, kcol, s_end):
-    """H on the ascending-frame branch at B = b as the table gives it: the sqrt-warped column,
-    bilinear in the table."""
-    d = s * b - c1
-    neg = min(d, 0.0)
-    d = max(d, 0.0)
-    extra = 0.0
-    if d > dmax:
-        extra = (d - dmax) / s_end
-    d = math.sqrt(d) * kcol
-    ik = min(int(d), ncol - 2)  # clipping only matters past dmax (the spare column covers the rest)
-    d = min(d, ncol - 2.0)
-    d -= ik
-    ik += base
-    v0 = psi[ik]
-    v1 = psi[ik + 1]
-    w1 = psi[ik + 1 + ncol]
-    w0 = psi[ik + ncol]
-    w0 = w0 + (w1 - w0) * d
-    v0 = v0 + (v1 - v0) * d
-    v0 = v0 + (w0 - v0) * tr
-    if edge:
-        v0 += neg / s_end + shift
-    v0 += extra
-    return v0 * s
-
-
-@njit(cache=True, nogil=True)
-def _branch_consts(s, m, tin, tout, tabs, psi, virg):
-    """The constants of the branch from turning point ``tin[m - 1]`` in direction ``s`` (``field``'s
-    ``branch``: c1, row fraction, row base, edge, shift; then hysteresis._closure's miss at the
-    turning point it returns to, that target and the reach); a real call: it runs once per reversal
-    or wipe-out, not per sample."""
-    h0, x0, inv_dx, nrow, ncol, hmax = tabs[0], tabs[1], tabs[2], int(tabs[3]), int(tabs[4]), tabs[5]
-    s_end, dmax, kcol, v_step = tabs[6], tabs[7], tabs[8], tabs[9]
-    b_r, h_r = tin[m - 1], tout[m - 1]
-    hs = s * h_r
-    c1 = s * b_r
-    edge = False
-    shift = 0.0
-    if hs < -hmax or hs > hmax:
-        edge = True
-        if hs < -hmax:
-            c1 = c1 + s_end * (-hmax - hs)
-        shift = max(hs - hmax, 0.0)
-        hs = min(max(hs, -hmax), hmax)
-    fr = (math.asinh(hs / h0) - x0) * inv_dx
-    jr = min(int(fr), nrow - 2)
-    tr, base = fr - jr, jr * ncol
-    if m > 1:
-        t_in, t_out = tin[m - 2], tout[m - 2]
-    else:  # a single turn returns to its mirror on the virgin curve
-        t_in = -b_r
-        t_out = _read_uniform(v_step, virg, s_end, t_in)
-    at_t = _table_at(s, c1, tr, base, edge, shift, t_in, psi, ncol, dmax, kcol, s_end)
-    miss = t_out - at_t
-    twice = 2.0 * abs(miss)
-    wide = min(s * (t_in - b_r), twice / tabs[12])
-    chord = s * (at_t - _table_at(s, c1, tr, base, edge, shift, t_in - s * wide, psi, ncol, dmax, kcol, s_end))
-    reach = min(wide, twice * wide / chord) if chord > 0.0 else wide
-    return c1, tr, base, edge, shift, miss, t_in, s / reach if reach > tabs[13] else 0.0  # tabs[13]: MIN_REACH
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _branch_at(s, br, b, psi, tabs):
-    """H on the branch ``br`` (:func:`_branch_consts`) at B = b: the table's value, plus its miss
-    over the last reach of the way to the turning point it returns to (hysteresis._closed)."""
-    c1, tr, base, edge, shift, miss, target, per_reach = br  # per_reach: s / reach (0: no reach)
-    y = _table_at(s, c1, tr, base, edge, shift, b, psi, int(tabs[4]), tabs[7], tabs[8], tabs[6])
-    way = 1.0 - (target - b) * per_reach if per_reach != 0.0 else 0.0
-    way = min(max(way, 0.0), 1.0)
-    return y + way * miss
-
-
-#: the branch constants before any branch is known (the virgin curve: never read)
-NO_BRANCH = (0.0, 0.0, 0, False, 0.0, 0.0, 0.0, 0.0)
 
 
 @njit(cache=True, nogil=True)
@@ -176,7 +89,7 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
     virgin = nst == 0
     br = NO_BRANCH
     if not virgin:
-        br = _branch_consts(s, nst, tin, tout, tabs, psi, virg)
+        br = branch_consts(s, nst, tin, tout, tabs, psi, virg)
     mstep, mh, mb = 0.0, 0.0, 0.0
     has_ex, k_ex, r0, has_rel, a_rel, kappa, fs = rate[0] != 0.0, rate[1], rate[2], rate[3] != 0.0, rate[4], rate[5], rate[6]
     bp, bs, sqr0 = rate[7], rate[8], math.sqrt(rate[2])
@@ -208,15 +121,15 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
             s = ds
             virgin = nst == 0
             if not virgin:
-                br = _branch_consts(s, nst, tin, tout, tabs, psi, virg)
+                br = branch_consts(s, nst, tin, tout, tabs, psi, virg)
         if virgin:
-            y = _read_uniform(v_step, virg, s_end, b)
+            y = read_uniform(v_step, virg, s_end, b)
         else:
-            y = _branch_at(s, br, b, psi, tabs)
+            y = branch_at(s, br, b, psi, tabs)
         u_prev, y_prev, d = b, y, ds
         h = y
         if not full:  # field(irreversible=..., saturation=...): the state stays the full model's
-            h_an = _read_uniform(a_step, an, s_end, b)
+            h_an = read_uniform(a_step, an, s_end, b)
             single = h_an if saturation else ss * b
             h = single + (y - h_an) if irreversible else single
         if scaled:
@@ -236,8 +149,8 @@ def _one_pass(fc, fm, h_rest, lag, y_start, cold, c_in, c_out, state0, tin, tout
         bp = b
         r = h - nu0 * b - hr
         if abs(b) > knee:  # ECoreActuator._newton_step
-            nu_d = max(nu0, (_read_uniform(a_step, an, s_end, b + 1e-3)
-                             - _read_uniform(a_step, an, s_end, b - 1e-3)) / 2e-3)
+            nu_d = max(nu0, (read_uniform(a_step, an, s_end, b + 1e-3)
+                             - read_uniform(a_step, an, s_end, b - 1e-3)) / 2e-3)
             extra += nu_d - nu0
         if extra != 0.0:
             r = r / (1.0 + extra * gain * length)
@@ -337,87 +250,6 @@ MAX_EVALS, RESIDUAL_T = 300, 1e-11
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _iron_at(b, u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an, irreversible, saturation):
-    """The iron's H at input ``b`` for the next sample, from the committed state (the turning-point
-    rule of :func:`_one_pass`, one sample), committing nothing: a reversal writes ``u_prev`` at
-    ``tin[nst]``, beyond the committed stack.  Returns (H of the full model, H as the effects ask,
-    direction, turning points, branch direction and the branch constants)."""
-    s_end, v_step, a_step, ss = tabs[6], tabs[9], tabs[10], tabs[11]
-    diff = b - u_prev
-    ds = 1.0 if diff > 0.0 else (-1.0 if diff < 0.0 else d)
-    m = nst
-    reset = False
-    if ds != d:
-        if d != 0.0:
-            tin[m] = u_prev
-            tout[m] = y_prev
-            m += 1
-        reset = True
-    while m > 0:
-        thr = tin[m - 2] if m > 1 else -tin[0]
-        if (b < thr) if ds > 0.0 else (b > thr):
-            break
-        m = max(m - 2, 0)
-        reset = True
-    if reset:
-        s = ds
-        if m > 0:
-            br = _branch_consts(s, m, tin, tout, tabs, psi, virg)
-    if m == 0:
-        y = _read_uniform(v_step, virg, s_end, b)
-    else:
-        y = _branch_at(s, br, b, psi, tabs)
-    h = y
-    if not (irreversible and saturation):
-        h_an = _read_uniform(a_step, an, s_end, b)
-        single = h_an if saturation else ss * b
-        h = single + (y - h_an) if irreversible else single
-    return y, h, ds, m, s, br
-
-
-@njit(cache=True, nogil=True)
-def iron_field(b: np.ndarray, c_in: np.ndarray, c_out: np.ndarray, state0: np.ndarray, tin: np.ndarray,
-               tout: np.ndarray, end: np.ndarray, tabs: np.ndarray, psi: np.ndarray, virg: np.ndarray,
-               an: np.ndarray, mode: np.ndarray, h: np.ndarray) -> None:
-    """``PreisachHysteresis.field`` along ``b`` from a committed state (turning points c_in/c_out, state0 =
-    (B, H, direction)), each sample committed in turn (:func:`_iron_at`); H as ``mode`` = (irreversible,
-    saturation) asks into ``h``, the full model's end state into end = (B, H, direction, turns) and
-    tin/tout[:turns]."""
-    nst = c_in.size
-    for i in range(nst):
-        tin[i] = c_in[i]
-        tout[i] = c_out[i]
-    u_prev, y_prev, d = state0[0], state0[1], state0[2]
-    s = d
-    br = NO_BRANCH
-    if nst > 0:
-        br = _branch_consts(s, nst, tin, tout, tabs, psi, virg)
-    irreversible, saturation = mode[0] != 0, mode[1] != 0
-    for k in range(b.size):
-        y, hk, ds, nst, s, br = _iron_at(b[k], u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an,
-                                         irreversible, saturation)
-        h[k] = hk
-        u_prev, y_prev, d = b[k], y, ds
-    end[0], end[1], end[2], end[3] = u_prev, y_prev, d, nst
-
-
-def field_along(iron: Any, b_t: np.ndarray, state: HysteresisState, *, irreversible: bool = True,
-                saturation: bool = True) -> tuple[np.ndarray, HysteresisState]:
-    """:meth:`PreisachHysteresis.field` by :func:`iron_field` (same arithmetic; tested equal): for callers
-    that run the iron alone over many short trajectories (the waveform diagnosis's fits), where the
-    numpy code's per-branch work dominates."""
-    b = np.ascontiguousarray(b_t, dtype=np.float64)
-    turns = np.array(state.turns, dtype=np.float64).reshape(len(state.turns), 2)
-    tin, tout = np.empty(turns.shape[0] + b.size + 2), np.empty(turns.shape[0] + b.size + 2)
-    end, h = np.empty(4), np.empty(b.size)
-    iron_field(b, np.ascontiguousarray(turns[:, 0]), np.ascontiguousarray(turns[:, 1]),
-               np.array([state.b_t, state.h_a_per_m, float(state.direction)]), tin, tout, end, *iron.kernel_tables(),
-               np.array([irreversible, saturation], dtype=np.int64), h)
-    m = int(end[3])
-    return h, HysteresisState(float(end[0]), float(end[1]), int(end[2]), tuple(zip(tin[:m].tolist(), tout[:m].tolist())))
-
-
-@njit(cache=True, nogil=True, inline="always")
 def _anhysteretic_slope(b, tabs, an):
     """dH/dB of the anhysteretic table at b: its segment's slope (1/s_end beyond its end)."""
     step = tabs[10]
@@ -469,9 +301,9 @@ def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np
     s = d
     br = NO_BRANCH
     if nst > 0:
-        br = _branch_consts(s, nst, tin, tout, tabs, psi, virg)
+        br = branch_consts(s, nst, tin, tout, tabs, psi, virg)
     # the committed point as this sample's operator gives it (no reversal, nothing wiped out)
-    committed = _iron_at(u_prev, u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an, irreversible,
+    committed = iron_at(u_prev, u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an, irreversible,
                          saturation)
     h_prev = committed[1]
     rest2 = rest_before  # the remainder two samples back
@@ -500,7 +332,7 @@ def solve_sequential(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, lag: np
         x = c - gl * (2.0 * rest1 - rest2 if rest2 == rest2 else rest1)  # extrapolated (NaN: none)
         side, trial, closed = 0, 0, abs(f_best) <= tol
         while not closed and trial < MAX_EVALS:
-            res = _iron_at(x, u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an, irreversible,
+            res = iron_at(x, u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an, irreversible,
                            saturation)
             fx = alpha * x + gl * res[1] - c
             trial += 1
