@@ -363,10 +363,13 @@ def test_record_through_the_drivers_and_the_emulated_instruments(tmp_path: Path,
     est = [m.json() for m in iter_log(log, [ESTIMATE])]
     good = [e for e in est if not e["error"]]
     assert len(good) >= 3 and all(1.2 < e["phases_deg"]["hysteresis"] < 1.5 for e in good)
-    rec = read_mcap_recording(log)  # the settled part, as one recording
-    # a second less the first block, the switch-on's wait for the streams' live edge (an emulator tick
-    # or two) and the 0.1 s settling after it
-    assert rec.n >= 50_000 and set(rec.channels) == {"current_A", "force_N", "flux_Wb", "command_V"}
+    rec = read_mcap_recording(log)  # the settled part, as one recording: the end of the blocks marked so
+    # (how much of the second that is depends on how long the switch-on waited for the streams' live
+    # edge, a busy machine's startup, so it is not asserted: with -n 6 on 2 cores it was 0.32 s)
+    first = rec.metadata["mcap_source"]["first_index"]
+    assert settled.first_index <= first and first + rec.n == settled.end_index and rec.n > 0
+    assert set(rec.channels) == {"current_A", "force_N", "flux_Wb", "command_V"}
+    np.testing.assert_array_equal(rec.channels["current_A"], i[first - settled.first_index:])
 
 
 def test_the_pipeline_gives_back_the_interpreter_switch_interval() -> None:
