@@ -38,8 +38,8 @@ if TYPE_CHECKING:
 #: turning point it returns to, that target, s / reach
 Branch = tuple[float, float, int, bool, float, float, float, float]
 
-__all__ = ["ascending_branches", "NO_BRANCH", "read_uniform", "table_at", "branch_consts", "branch_at", "iron_at",
-           "iron_field", "field_along"]
+__all__ = ["ascending_branches", "NO_BRANCH", "read_uniform", "table_at", "branch_consts", "branch_at", "start_state",
+           "iron_at", "iron_field", "field_along"]
 
 
 @njit(cache=True, nogil=True)
@@ -175,6 +175,22 @@ NO_BRANCH = (0.0, 0.0, 0, False, 0.0, 0.0, 0.0, 0.0)
 
 
 @njit(cache=True, nogil=True, inline="always")
+def start_state(c_in: np.ndarray, c_out: np.ndarray, state0: np.ndarray, tin: np.ndarray, tout: np.ndarray,
+                tabs: np.ndarray, psi: np.ndarray, virg: np.ndarray) -> tuple[int, float, float, float, float, Branch]:
+    """A committed state unpacked for the sample loops: its turning points copied into tin/tout, and
+    (turns, B, H, direction, branch direction, the branch's constants; NO_BRANCH on the virgin curve)."""
+    nst = c_in.size
+    for i in range(nst):
+        tin[i] = c_in[i]
+        tout[i] = c_out[i]
+    d = state0[2]
+    br = NO_BRANCH
+    if nst > 0:
+        br = branch_consts(d, nst, tin, tout, tabs, psi, virg)
+    return nst, state0[0], state0[1], d, d, br
+
+
+@njit(cache=True, nogil=True, inline="always")
 def iron_at(b: float, u_prev: float, y_prev: float, d: float, nst: int, tin: np.ndarray, tout: np.ndarray, s: float,
             br: Branch, tabs: np.ndarray, psi: np.ndarray, virg: np.ndarray, an: np.ndarray, irreversible: bool,
             saturation: bool) -> tuple[float, float, float, int, float, Branch]:
@@ -223,15 +239,7 @@ def iron_field(b: np.ndarray, c_in: np.ndarray, c_out: np.ndarray, state0: np.nd
     (B, H, direction)), each sample committed in turn (:func:`iron_at`); H as ``mode`` = (irreversible,
     saturation) asks into ``h``, the full model's end state into end = (B, H, direction, turns) and
     tin/tout[:turns]."""
-    nst = c_in.size
-    for i in range(nst):
-        tin[i] = c_in[i]
-        tout[i] = c_out[i]
-    u_prev, y_prev, d = state0[0], state0[1], state0[2]
-    s = d
-    br = NO_BRANCH
-    if nst > 0:
-        br = branch_consts(s, nst, tin, tout, tabs, psi, virg)
+    nst, u_prev, y_prev, d, s, br = start_state(c_in, c_out, state0, tin, tout, tabs, psi, virg)
     irreversible, saturation = mode[0] != 0, mode[1] != 0
     for k in range(b.size):
         y, hk, ds, nst, s, br = iron_at(b[k], u_prev, y_prev, d, nst, tin, tout, s, br, tabs, psi, virg, an,
