@@ -5,7 +5,9 @@ check this), and every block uses a different model family than ``hystbench.sim_
 
 - iron: Bouc-Wen hysteresis driven by B, a saturating anhysteretic with its own knee, and the
   lamination's eddy currents as a Cauer ladder (finite-difference half-lamination), solved in
-  periodic steady state by harmonic balance;
+  periodic steady state by harmonic balance; its rate dependence as a power law in dB/dt and a
+  Cole-Cole relaxation; its warming over the day as a first-order rise that narrows the Bouc-Wen
+  loop alone;
 - actuator: a reluctance network with Roters-style fringing; force from the gap fluxes
   (checked against the virtual work of a co-energy map W'(MMF, g));
 - magnet: a solid disc's eddy currents as a shorted turn; a temperature coefficient of its MMF;
