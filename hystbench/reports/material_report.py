@@ -15,6 +15,7 @@ import numpy as np
 from ..config import load_material
 from ..physics import material_fit as mf
 from ..physics.hysteresis import PreisachHysteresis
+from ..physics.hysteresis_kernel import field_along
 from .figures import plt, save_figure as _save
 
 __all__ = ["run_material_fit", "OPERATING_POINTS", "FIT_SETTINGS"]
@@ -118,8 +119,8 @@ def _figure_operating(model, lags: dict[str, float], out: Path) -> Path:
     ph = 2 * np.pi * np.arange(2000) / 1000
     for (amp, bias), (label, lag), c in zip(OPERATING_POINTS, lags.items(), ("C0", "C3")):
         b = bias + amp * np.sin(ph)
-        state = model.field(np.array([bias]), model.initial_state())[1]
-        h, _ = model.field(b, state)
+        state = field_along(model, np.array([bias]), model.initial_state())[1]
+        h, _ = field_along(model, b, state)
         ax.plot(h[1000:], b[1000:], "-", color=c, lw=1.5, label=f"{label}: B lags H by {lag:.1f}°")
     ax.set_xlim(-150, 250)
     ax.set_ylim(-1.0, 1.6)
