@@ -81,7 +81,7 @@ def ascending_branches(rows: np.ndarray, db: np.ndarray, x: np.ndarray, K: np.nd
 
 @njit(cache=True, nogil=True, inline="always")
 def read_uniform(step: float, t: np.ndarray, s_end: float, b: float) -> float:
-    """PreisachHysteresis.read_uniform at one sample: odd table H(|B|), straight beyond its end."""
+    """PreisachHysteresis._read_uniform at one sample: odd table H(|B|), straight beyond its end."""
     a = abs(b) / step
     ac = min(a, t.size - 1.0)
     i = min(int(ac), t.size - 2)

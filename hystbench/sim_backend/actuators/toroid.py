@@ -5,9 +5,9 @@ generator's command sets B (``[amplifier] flux_density_per_a_t`` tesla per amper
 command), and the magnetising current needed for it is what the current channel measures,
 i = (H_static(B) + sigma d^2/12 dB/dt + H_rate) l / N (H_rate: the excess field and the relaxation,
 :mod:`hystbench.physics.rate_dependence`; H_static scaled by the iron's temperature with
-``iron_thermal_drift``, :mod:`hystbench.physics.iron_thermal`).  Driving the B-input hysteresis operator this way
-is also exact: no implicit solve is needed with eddy currents.  The iron is the one its material
-file's ``model`` names (:func:`hystbench.physics.iron.iron_model`).
+``iron_thermal_drift``, :mod:`hystbench.physics.iron_thermal`).  Driving the B-input hysteresis
+operator this way is also exact: no implicit solve is needed with eddy currents.  The iron is the one
+its material file's ``model`` names (:func:`hystbench.physics.iron.iron_model`).
 """
 
 from __future__ import annotations
