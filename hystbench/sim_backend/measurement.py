@@ -128,9 +128,8 @@ class MeasurementChain:
         self._force_filter = None
         if "force_N" in channels:  # a toroid has no load cell
             instrument = instrument_from_preset(preset, effects)
-            sections = [bilinear_sos(b, a, fs_hz, prewarp) for b, a, prewarp
-                        in instrument.sections(core="instrument_filter" in effects)]
-            self._force_filter = _Sos(np.vstack(sections)) if sections else None
+            sos = instrument.sos(fs_hz, core="instrument_filter" in effects)
+            self._force_filter = _Sos(sos) if len(sos) else None
         leak = effects.get("integrator_leak")
         self._flux_filter = None
         if leak is not None:

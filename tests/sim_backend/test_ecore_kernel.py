@@ -60,8 +60,9 @@ CLOSURE_REL, CLOSURE_CODES, CLOSURE_SAME = 1e-4, 2, 0.95
 
 
 @pytest.mark.parametrize("kernel", PATHS)
-def test_both_paths_give_the_samples_recorded_before_the_kernels(kernel, monkeypatch):
-    """Today's samples against make_ecore_golden.py's (numpy, before any kernel), to CLOSURE_*."""
+def test_both_paths_give_the_samples_recorded_before_the_kernels(kernel, monkeypatch, golden_instrument):
+    """Today's samples against make_ecore_golden.py's (numpy, before any kernel), to CLOSURE_*, with
+    the load cell sampled as it was then (``golden_instrument``)."""
     golden = np.load(GOLDEN)
     runs = [("pm_adc", "ecore_pm", 1, None, None, 4000, 1000), ("pm_quiet", "ecore_pm", 1, QUIET, None, 3000, 1000),
             ("ecore_quiet", "ecore", 2, QUIET, 480.0, 2000, 700)]  # as make_ecore_golden.py made them
