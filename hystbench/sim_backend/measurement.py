@@ -45,24 +45,39 @@ def instrument_from_preset(preset: Mapping[str, Any], effects: Mapping[str, Mapp
 
 
 class FractionalDelay:
-    """Delay by a non-integer number of samples with linear interpolation (exact phase to
-    O((wT)^3) in band), carrying the history across blocks."""
+    """Delay by a non-integer number of samples, carrying the history across blocks: the whole samples
+    from the history, the fraction by a first-order Thiran allpass (Laakso et al., "Splitting the unit
+    delay", 1996), with D in [1, 2) where a whole sample is there to take (its most accurate range).
+
+    An allpass keeps every frequency's amplitude, as a late sample clock does; the linear interpolation
+    this used before lost p(1 - p)(wT)^2/2 of it (8e-4 at 3 kHz for 0.5 us at 100 kHz), an amplitude
+    no skew has, which a bench written from the physics does not show.  The phase delay is D to
+    O((wT)^2): 3e-3 of it at 3 kHz."""
 
     def __init__(self, delay_samples: float) -> None:
         if delay_samples < 0:
             raise ValueError(f"delay_samples must be >= 0, got {delay_samples}")
-        self.whole = int(math.floor(delay_samples))
-        self.frac = delay_samples - self.whole
+        whole = int(math.floor(delay_samples))
+        frac = delay_samples - whole
+        if frac > 0.0 and whole >= 1:
+            whole, frac = whole - 1, frac + 1.0
+        self.whole, self.frac = whole, frac
+        a = (1.0 - frac) / (1.0 + frac)
+        self._ba = (np.array([a, 1.0]), np.array([1.0, a])) if frac > 0.0 else None
         self._history: np.ndarray | None = None
+        self._zi: np.ndarray | None = None
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        keep = self.whole + 1
+        x = np.asarray(x, dtype=float)
         if self._history is None:
-            self._history = np.full(keep, x[0])
-        ext = np.concatenate((self._history, x))  # ext[k + keep] == x[k]
-        n = len(x)
-        y = (1.0 - self.frac) * ext[1:n + 1] + self.frac * ext[:n]  # x[k - whole], x[k - whole - 1]
-        self._history = ext[-keep:]
+            self._history = np.full(self.whole, x[0])
+        ext = np.concatenate((self._history, x))
+        y, self._history = ext[:x.size], ext[x.size:]
+        if self._ba is None:
+            return y
+        if self._zi is None:  # in steady state for the first value, as the instrument's filters start
+            self._zi = signal.lfilter_zi(*self._ba) * y[0]
+        y, self._zi = signal.lfilter(*self._ba, y, zi=self._zi)
         return y
 
 
