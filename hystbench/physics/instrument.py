@@ -5,12 +5,13 @@ amplifier high-pass (a load cell cannot hold a static charge).
 
 Continuous-time models give the phase the method must remove; ``sos(fs)`` gives the same response
 sampled, for the simulator.  The two low-passes are sampled together by a first-order hold with the
-hold's own loss undone (:func:`hold_sos`), which keeps the continuous response to O((fT)^4) at every
-frequency below the load cell's resonance (when that lies below fs/2): a real bench is continuous, and the bilinear transform this used before, pre-warped at the
-load cell's resonance, bent the response by 0.6 % at 3 kHz (0.3 % at 2 kHz) on a 100 kHz clock, a
-misfit of several noise floors that the diagnosis took for a frame mode on every day of a bench that
-was not this simulator.  Frame modes and the high-pass stay bilinear, pre-warped at their mode: a
-mode's pair is near unity away from it, and the high-pass acts near DC, where the warp vanishes.
+hold's own loss undone (:func:`hold_sos`), which keeps the continuous response to O((fT)^4) below the
+load cell's resonance (when that lies below fs/2).  A real bench is continuous: the bilinear transform
+this used before, pre-warped at the resonance, bent the response by 0.6 % at 3 kHz (0.3 % at 2 kHz) on
+a 100 kHz clock, a misfit of several noise floors that the diagnosis took for a frame mode on every
+day of a bench that was not this simulator.  Frame modes and the high-pass stay bilinear, pre-warped
+at their mode: a mode's pair is near unity away from it, and the high-pass acts near DC, where the
+warp vanishes.
 """
 
 from __future__ import annotations
@@ -123,8 +124,9 @@ class InstrumentModel:
         docstring); no rows when nothing is left (``core=False`` and no mode or high-pass)."""
         sections = self.sections(core=core)
         rows = []
-        if core and self.fn_hz < fs_hz / 2:  # the two low-passes, one fourth-order section pair (a load
-            # cell above the Nyquist frequency would alias its images back through its resonance: bilinear)
+        # the two low-passes as one fourth-order pair; a load cell above the Nyquist frequency stays
+        # bilinear (a hold would fold its images back through the resonance)
+        if core and self.fn_hz < fs_hz / 2:
             (b1, a1, _), (b2, a2, _) = sections[:2]
             rows.append(hold_sos(np.polymul(b1, b2), np.polymul(a1, a2), fs_hz))
             sections = sections[2:]
