@@ -132,7 +132,7 @@ def test_kernel_equals_numpy_for_each_variant(variant, monkeypatch):
 
 
 @needs_numba
-@pytest.mark.parametrize(("eddy", "rel"), [(False, 1e-9), (True, 1e-4)], ids=["no_eddy", "eddy"])
+@pytest.mark.parametrize(("eddy", "rel"), [(False, 1e-5), (True, 1e-4)], ids=["no_eddy", "eddy"])
 def test_kernel_equals_numpy_on_an_uploaded_waveform_with_plateaus_and_output_off(eddy, rel, monkeypatch):
     """A compensator's waveform with flat stretches (without eddy currents B stands still there and
     the iron's direction carries over), then the output off and on again (a standstill).
@@ -140,7 +140,13 @@ def test_kernel_equals_numpy_on_an_uploaded_waveform_with_plateaus_and_output_of
     With eddy currents B creeps towards its plateau by steps that end at rounding level, where the
     sign of a step (a reversal or not) follows the last bit: the numpy code alone, cut into blocks
     of 450 instead of 900, moves force, flux and sense by 1.5e-5, 1e-5 and 2e-4 of their range
-    here, the kernel by 4e-7, 5e-7 and 2e-5; so the bound of the rig's block-cut test, 1e-4."""
+    here, the kernel by 4e-7, 5e-7 and 2e-5; so the bound of the rig's block-cut test, 1e-4.
+    Without them B is still on the plateau but for its last few samples, where it wiggles by the
+    passes' residual (3e-12 Wb, 1e-7 of the flux's range) before the current moves; the sign of a
+    wiggle can differ between the paths by rounding, and one path then turns where the other does
+    not.  A fresh install on 2026-11-29 (numpy 2.4.6, scipy 1.17.1, numba 0.68.1) did that here: flux,
+    force and sense moved by 5e-8, 1e-8 and 1.5e-6 of their range, where the install before had
+    passed at 1e-9; so 1e-5, below the passes' own residual (IRON_ITERATIONS)."""
     effects = {**QUIET, "lamination_eddy_currents": eddy, "magnet_eddy_currents": eddy}
     table = np.concatenate([np.linspace(-0.6, 0.7, 40), np.full(20, 0.7), np.linspace(0.7, -0.2, 30),
                             np.full(10, -0.2), np.linspace(-0.2, 0.3, 10), np.linspace(0.3, -0.6, 30)])
