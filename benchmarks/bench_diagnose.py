@@ -138,8 +138,9 @@ def why_wrong(truth: Any, d: Any) -> list[str]:
     """Each way the answer differs from the truth, in the diagnosis's own numbers: a true effect whose
     best score (its parameters fitted, the calibration re-solved) never reached NAME_MARGIN is below
     what the day's data can decide under the baseline's discrepancy; one that did was outranked by
-    what was named, or refused by the held-out proof; a name the truth lacks, with its proof."""
-    from hystbench.analysis.diagnosis.select import NAME_MARGIN
+    what was named, undecided against a look-alike of its round within RUNNER_UP_MARGIN, or refused by
+    the held-out proof; a name the truth lacks, with its proof."""
+    from hystbench.analysis.diagnosis.select import NAME_MARGIN, RUNNER_UP_MARGIN
 
     out = []
     for effect in truth:
@@ -157,7 +158,14 @@ def why_wrong(truth: Any, d: Any) -> list[str]:
             out.append(f"{effect}: below the data's decision (best score {best:.1f} < {NAME_MARGIN:g})")
         else:
             ahead = [c.name for c in d.candidates if c.score is not None and c.score > best and c.name != effect]
-            out.append(f"{effect}: score {best:.0f}, outranked by {', '.join(dict.fromkeys(ahead)) or 'nothing'}")
+            rnd = next(c.round for c in d.candidates if c.name == effect and c.score == best)
+            close = [f"{c.name} {c.score:.0f}" for c in d.candidates if c.score is not None and c.name != effect
+                     and c.round == rnd and best - RUNNER_UP_MARGIN < c.score <= best]
+            if ahead:
+                out.append(f"{effect}: score {best:.0f}, outranked by {', '.join(dict.fromkeys(ahead))}")
+            else:  # first, but a look-alike within the runner-up margin: undecided
+                out.append(f"{effect}: score {best:.0f}, undecided against {', '.join(dict.fromkeys(close)) or 'nothing'}"
+                           f" (within {RUNNER_UP_MARGIN:g})")
     for effect in d.effects:
         if effect not in truth:
             gain = d.signature.get(effect, {}).get("improvement")
