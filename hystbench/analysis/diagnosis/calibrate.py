@@ -54,8 +54,14 @@ def calibrate(problem: Problem, sim: Simulator, data: Sequence[RecordFeatures],
     """Fit the calibration by Gauss-Newton on the replay (a load cell's resonance is far from linear in
     fn and zeta): the knobs' columns by finite differences once (or ``jacobian``, a previous
     calibration's), then Broyden's update from each step's own replay.  Steps are held within
-    FAR_FROM_PRIOR prior widths (a knob pushed beyond them is a finding, or the sign of a missing
-    effect: no reason to linearise there)."""
+    FAR_FROM_PRIOR prior widths of the preset (a knob pushed beyond them is a finding, or the sign of a
+    missing effect: no reason to linearise there).
+
+    Each linearisation's columns carry their knob's prior width around the point they are measured at,
+    not around the preset: within the box above, the width bounds each step and every later fit's
+    move (a candidate's, the proof's folds), and the preset does not pull.  Centring them on the preset
+    (a Gaussian prior proper), a Levenberg-Marquardt accept rule, and recalibrating from this
+    calibration's point were each tried and not kept (docs/diagnosis.md, Results)."""
     knobs = [k for k in KNOBS if sim.knob_applies(k)]
     width = np.array([k.prior_rel for k in knobs])
     x = np.zeros(len(knobs))
