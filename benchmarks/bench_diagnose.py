@@ -163,9 +163,11 @@ def why_wrong(truth: Any, d: Any) -> list[str]:
                      and c.round == rnd and best - RUNNER_UP_MARGIN < c.score <= best]
             if ahead:
                 out.append(f"{effect}: score {best:.0f}, outranked by {', '.join(dict.fromkeys(ahead))}")
-            else:  # first, but a look-alike within the runner-up margin: undecided
-                out.append(f"{effect}: score {best:.0f}, undecided against {', '.join(dict.fromkeys(close)) or 'nothing'}"
+            elif close:  # first, but a look-alike within the runner-up margin: undecided
+                out.append(f"{effect}: score {best:.0f}, undecided against {', '.join(dict.fromkeys(close))}"
                            f" (within {RUNNER_UP_MARGIN:g})")
+            else:
+                out.append(f"{effect}: score {best:.0f}, first in round {rnd} and not named")
     for effect in d.effects:
         if effect not in truth:
             gain = d.signature.get(effect, {}).get("improvement")

@@ -74,6 +74,8 @@ def test_why_wrong_tells_a_miss_below_the_data_from_one_outranked_or_refused():
     undecided = _answer([], [("magnet_thermal_drift", 33.6), ("load_cell_compliance", 32.1), ("channel_skew", 24.6)])
     assert why_wrong(["magnet_thermal_drift"], undecided) == [
         "magnet_thermal_drift: score 34, undecided against load_cell_compliance 32 (within 6)"]
+    assert why_wrong(["magnet_thermal_drift"], _answer([], [("magnet_thermal_drift", 33.6)])) == [
+        "magnet_thermal_drift: score 34, first in round 1 and not named"]
     refused = _answer([], [("channel_skew", 1558.0)], suspects=[("channel_skew", 1558.0, 1.45)])
     assert why_wrong(["channel_skew"], refused) == [
         "channel_skew: refused by the held-out proof (1.45x, score 1558)"]
