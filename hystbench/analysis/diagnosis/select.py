@@ -214,9 +214,8 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
         say(f"round {rnd}: {family(top[1])} (score {top[0]:.1f}, runner-up {runner:.1f}); re-simulating it")
         before = (named, [dataclasses.replace(e) for e in named], m_named, sol, calibration, problem)
         problem = dc_blind(problem, top[1])
-        acts = (eff.offset if eff.offset is not None else 0.0) + sum(top[2].value(c.name)[0] * c.values
-                                                                      for c in eff.columns)
-        where = np.abs(signature(eff, top[2])) >= 0.5 * problem.sigma
+        acts = contribution(eff, top[2])
+        where = np.abs(contribution(eff, top[2], claimed=True)) >= 0.5 * problem.sigma
         before_held_out = held_out(problem, m_named, base_cols, where)
         named = named + [eff]
         if eff.offset is not None:  # its change joins the model; its column stays local to it
@@ -254,15 +253,16 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
     return Selection(named, ranked, m_named, sol, calibration, suspects, problem, generic)
 
 
-def signature(eff: CandidateEffect, sol: Solution) -> np.ndarray:
-    """What a candidate claims: its fitted contribution from the parameters it fitted beyond two standard
-    errors (all of them, when none is on its own), where the held-out proof judges it (the numbers
-    this moves by half their sigma or more).  A parameter fitted at nothing is no claim: a flux skew's
-    force part at 7e-10 s still moves the voice coil's 4 kHz force, near the load cell's resonance,
-    by half a sigma, and that one extrapolated number decided the proof of a flux skew."""
+def contribution(eff: CandidateEffect, sol: Solution, *, claimed: bool = False) -> np.ndarray:
+    """A candidate's fitted change of the model.  ``claimed``: only what it claims, from the parameters
+    fitted beyond two standard errors (all of them, when none is on its own), where the held-out proof
+    judges it (the numbers this moves by half their sigma or more).  A parameter fitted at nothing is no
+    claim: a flux skew's force part at 7e-10 s still moves the voice coil's 4 kHz force, near the load
+    cell's resonance, by half a sigma, and that one extrapolated number decided the proof of a flux skew."""
     fitted = [(sol.value(c.name)[0], c) for c in eff.columns]
-    claimed = [(v, c) for v, c in fitted if abs(v) >= 2.0 * sol.value(c.name)[1]] or fitted
-    return (eff.offset if eff.offset is not None else 0.0) + sum(v * c.values for v, c in claimed)
+    if claimed:
+        fitted = [(v, c) for v, c in fitted if abs(v) >= 2.0 * sol.value(c.name)[1]] or fitted
+    return (eff.offset if eff.offset is not None else 0.0) + sum(v * c.values for v, c in fitted)
 
 
 def refine(problem: Problem, named: Sequence[CandidateEffect], calibration: Calibration,

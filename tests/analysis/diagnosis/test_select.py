@@ -1,9 +1,9 @@
-"""What a candidate claims, where the held-out proof judges it (select.signature)."""
+"""What a candidate claims, where the held-out proof judges it (select.contribution, claimed=True)."""
 
 import numpy as np
 
 from hystbench.analysis.diagnosis.fit import Column, solve
-from hystbench.analysis.diagnosis.select import CandidateEffect, signature
+from hystbench.analysis.diagnosis.select import CandidateEffect, contribution
 
 SIGMA = 0.01
 
@@ -24,7 +24,7 @@ def test_a_parameter_fitted_at_nothing_claims_nothing():
     """b at 0.9 sigma moves number 60 by 0.9 sigma: the fitted contribution would put it in the proof,
     the claim does not (|b| < 2 SE); a's numbers are all there."""
     eff, sol = fitted(0.05, 0.9)
-    where = np.abs(signature(eff, sol)) >= 0.5 * SIGMA
+    where = np.abs(contribution(eff, sol, claimed=True)) >= 0.5 * SIGMA
     everything = sum(sol.value(c.name)[0] * c.values for c in eff.columns)
     assert np.abs(everything[60]) >= 0.5 * SIGMA  # what the old mask judged
     assert np.all(where[:50]) and not where[60] and not np.any(where[50:])
@@ -32,7 +32,7 @@ def test_a_parameter_fitted_at_nothing_claims_nothing():
 
 def test_a_significant_parameter_is_claimed_and_with_none_significant_all_are():
     eff, sol = fitted(0.05, 3.0)  # b at 3 sigma: a claim
-    assert (np.abs(signature(eff, sol)) >= 0.5 * SIGMA)[60]
+    assert (np.abs(contribution(eff, sol, claimed=True)) >= 0.5 * SIGMA)[60]
     eff, sol = fitted(0.0005, 0.9)  # a at 0.05 sigma of a 50-number mean (0.35 SE), b at 0.9: neither
-    claim = signature(eff, sol)
+    claim = contribution(eff, sol, claimed=True)
     assert claim[60] == sol.value("eff.b")[0] and claim[0] == sol.value("eff.a")[0]
