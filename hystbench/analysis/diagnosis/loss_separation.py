@@ -16,15 +16,17 @@ only.  The procedure is issue 13's, on W instead of waveforms:
    rms misfit where it was calibrated (a baseline merely imperfect raises no alarm).  The trend:
    the residual's slope in log f (energy per cycle growing with f) and in log B.
 3. Name: forward selection by BIC on the calibration points over the term library
-   (:mod:`.loss_terms`), in two tiers: Bertotti's fixed forms, the classical term (the catalogue's
+   (:mod:`.loss_terms`), in three tiers: Bertotti's fixed forms, the classical term (the catalogue's
    ``lamination_eddy_currents``: H_e = sigma d^2/12 dB/dt gives W_cl = pi^2 sigma d^2 f B^2 / 6; in a
    ferrite the bulk eddy-current / relaxation analogue) and the excess term k_e f^0.5 B^1.5 (the
-   catalogue's ``excess_loss``); then the generic forms on top (a free power law in f, B and dB/dt, a
-   first-order relaxation after ramps into flat segments, a temperature factor), each reported as
-   "not in the catalogue: <form> with <parameters>".  A term is taken only when better than the
-   current model by >= 10 and than the runner-up by >= 6, and when, fitted on the split's own rule
-   inside the calibration rows, it predicts the rest of them better (else a suspect); a generic term
-   that makes an earlier one redundant drops it.
+   catalogue's ``excess_loss``); then the generic forms with their orders in the rate fixed (a series
+   of the dynamic field in dB/dt, a first-order relaxation after ramps into flat segments, a
+   temperature factor); last a free power law in f, B and dB/dt; each generic term reported as "not
+   in the catalogue: <form> with <parameters>".  A term is taken only when better than the current
+   model by >= 10 and than the runner-up by >= 6, when its size is determined (its energy at 100 kHz
+   and 0.1 T beyond two standard errors), and when, fitted on the split's own rule inside the
+   calibration rows, it predicts the rest of them better (else a suspect); a generic term that makes
+   earlier ones redundant drops them.
 4. Model: the parameters with standard errors from the fit's covariance (Jacobian, scaled by the
    residual variance), in natural units by the delta method.
 5. Prove: held-out rms log10 error before (baseline) and after (baseline + named terms), in units
@@ -69,6 +71,7 @@ NAME_DELTA_BIC = 10.0  # decisively better than the current model (issue 13)
 RUNNER_UP_DELTA_BIC = 6.0  # and than the runner-up
 LN10 = math.log(10.0)
 MAX_TERMS = 3  # rate terms a model may take
+MAX_SCALE_REL_STD = 0.5  # a term is taken only when its scale is fitted beyond two standard errors
 LSMR_ROWS = 3000  # above this many rows the trust-region steps are solved iteratively (speed only)
 
 
@@ -287,9 +290,9 @@ def _inner_proof(rows: Rows, w: np.ndarray, terms: tuple[Term, ...], term: Term,
 def _select(rows: Rows, w: np.ndarray, split: str = "low_third"
             ) -> tuple[list[TermFit], list[dict[str, Any]], list[str], list[dict[str, Any]], dict[str, str]]:
     """Forward selection over the library, tier by tier (:data:`.loss_terms.TIERS`: Bertotti's named
-    forms first, then the generic ones on top of what they explain): the best addition is taken while
-    it beats the current model by >= NAME_DELTA_BIC and the runner-up by >= RUNNER_UP_DELTA_BIC, and,
-    fitted on the split's own rule inside the calibration rows, predicts the other calibration rows
+    forms first, then the generic ones on top of what they explain, a free exponent last): the best
+    addition is taken while it beats the current model by >= NAME_DELTA_BIC and the runner-up by >=
+    RUNNER_UP_DELTA_BIC, its size is determined (:data:`MAX_SCALE_REL_STD`), and, fitted on the split's own rule inside the calibration rows, predicts the other calibration rows
     better than the model without it (a decisive score is not enough: a term that explains the
     calibration window but extrapolates worse is a suspect, as in issue 13's selection).  Returns the
     fits after each step, the scored candidates, the chosen names, the suspects and the terms skipped
@@ -313,16 +316,20 @@ def _select(rows: Rows, w: np.ndarray, split: str = "low_third"
 def _drop_redundant(rows: Rows, w: np.ndarray, seq: list[TermFit], state: dict[str, Any]) -> None:
     """After a generic term is taken, an earlier term it makes redundant (the model without it within
     NAME_DELTA_BIC) is dropped: a free Steinmetz term can carry what a classical term was taken for,
-    and the catalogue name must not stay on it by the order of the tiers."""
-    current = seq[-1]
-    for t in current.terms[:-1]:
-        kept = tuple(u for u in current.terms if u is not t)
-        fit = fit_terms(rows.f, rows.b, w, kept, rows.duty, rows.temperature_c)
-        if fit.bic - current.bic < NAME_DELTA_BIC:
-            state["chosen"].remove(t.name)
-            state["dropped"] = state.get("dropped", []) + [{"name": t.name, "delta_bic": fit.bic - current.bic}]
-            seq.append(fit)
-            return
+    and the catalogue name must not stay on it by the order of the tiers.  One at a time, until none is."""
+    dropped = True
+    while dropped:
+        dropped = False
+        current = seq[-1]
+        for t in current.terms[:-1]:
+            kept = tuple(u for u in current.terms if u is not t)
+            fit = fit_terms(rows.f, rows.b, w, kept, rows.duty, rows.temperature_c)
+            if fit.bic - current.bic < NAME_DELTA_BIC:
+                state["chosen"].remove(t.name)
+                state["dropped"] = state.get("dropped", []) + [{"name": t.name, "delta_bic": fit.bic - current.bic}]
+                seq.append(fit)
+                dropped = True
+                break
 
 
 def _round(rows: Rows, w: np.ndarray, seq: list[TermFit], pool: list[Term], inner: np.ndarray | None,
@@ -344,6 +351,10 @@ def _round(rows: Rows, w: np.ndarray, seq: list[TermFit], pool: list[Term], inne
         runner_up = max((scores[n] for n in rest), default=0.0)
         if scores[top] < NAME_DELTA_BIC or scores[top] - max(runner_up, 0.0) < RUNNER_UP_DELTA_BIC:
             return None
+        if (scale := _scale_rel_std(fits[top])) > MAX_SCALE_REL_STD:
+            state["suspects"].append({"name": top, "round": rnd, "score": scores[top], "scale_rel_std": scale})
+            ranked = rest  # its size is not determined: it trades with the baseline, it is not a finding
+            continue
         proof = _inner_proof(rows, w, current.terms, by_name[top], inner)
         if proof is not None and proof["with"] >= proof["without"]:
             state["suspects"].append({"name": top, "round": rnd, "score": scores[top], "inner_held_out_rms_log10": proof})
@@ -353,6 +364,23 @@ def _round(rows: Rows, w: np.ndarray, seq: list[TermFit], pool: list[Term], inne
         seq.append(fits[top])
         return top
     return None
+
+
+def _scale_rel_std(fit: TermFit) -> float:
+    """The relative standard error of the last term's energy at the reference point (100 kHz, 0.1 T, a
+    sine; by the delta method from the fit's covariance), 0 for the temperature factor (no energy)."""
+    t = fit.terms[-1]
+    if t.kind == "temperature":
+        return 0.0
+    i = 3 + sum(n_params(u) for u in fit.terms[:-1])
+    x = fit.x[i:i + n_params(t)]
+    grad = np.zeros(x.size)
+    if t.kind == "series":  # ln(k_1 + k_2) there: each order's share of the energy
+        grad[[0, 2]] = np.exp(x[[0, 2]] - np.logaddexp(x[0], x[2]))
+    else:
+        grad[0] = 1.0  # ln k (the relaxation's and the free term's energy there; a fixed term's scale)
+    cov = fit.cov[i:i + x.size, i:i + x.size]
+    return float(math.sqrt(max(grad @ cov @ grad, 0.0)))
 
 
 def _param_json(p: dict[str, tuple[float, float]]) -> dict[str, dict[str, float]]:
@@ -491,6 +519,11 @@ def _verdict(chosen: list[str], reported: list[str], located: dict[str, Any], be
     for s in suspects:
         if s.get("dropped"):
             out += f"; {s['name']} dropped: redundant beside the generic term taken after it (delta BIC {s['delta_bic']:.1f})"
+            continue
+        if "scale_rel_std" in s:
+            out += (f"; {s['name']} fits the calibration points decisively (delta BIC {s['score']:.0f}) but its size "
+                    f"is not determined (relative standard error {s['scale_rel_std']:.2g}: it trades with the baseline): "
+                    "refused as a suspect")
             continue
         p = s["inner_held_out_rms_log10"]
         out += (f"; {s['name']} fits the calibration points decisively (delta BIC {s['score']:.0f}) but, fitted on "
@@ -636,6 +669,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             for sus in r["suspects"]:
                 if sus.get("dropped"):
                     print(f"{'':54s} dropped {sus['name']} (redundant, delta BIC {sus['delta_bic']:.1f})")
+                    continue
+                if "scale_rel_std" in sus:
+                    print(f"{'':54s} suspect {sus['name']} (delta BIC {sus['score']:.0f}; its size undetermined, "
+                          f"relative std {sus['scale_rel_std']:.2g})")
                     continue
                 p = sus["inner_held_out_rms_log10"]
                 print(f"{'':54s} suspect {sus['name']} (delta BIC {sus['score']:.0f}; inner held out "

@@ -96,6 +96,25 @@ def _held_out_rms_direct(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.
     return float(np.sqrt(np.mean(np.log10(w[~train] / pred[~train]) ** 2)))
 
 
+def _held_out_rms_series(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.ndarray) -> float:
+    """An independent fit of a second-order rate series on sines, ln W = ln(k_h B^beta exp(c ln^2 B)
+    + k_1 f B^d_1 + k_2 f^2 B^d_2), by scipy's least squares in log space from a few starts; held-out
+    rms log10 error."""
+    from scipy.optimize import least_squares
+
+    lf, lb = np.log(f / 1e5), np.log(b / 0.1)
+
+    def model(x: np.ndarray, m: np.ndarray) -> np.ndarray:
+        return np.logaddexp.reduce([x[0] + x[1] * lb[m] + x[2] * lb[m] ** 2, x[3] + lf[m] + x[4] * lb[m],
+                                    x[5] + 2 * lf[m] + x[6] * lb[m]])
+
+    y = np.log(w)
+    fits = [least_squares(lambda x: model(x, train) - y[train], [0.0, 2.5, 0.0, k1, 2.5, k2, 2.5])
+            for k1 in (-4.0, -1.0) for k2 in (-4.0, -1.0)]
+    x = min(fits, key=lambda s: s.cost).x
+    return float(np.sqrt(np.mean(((y[~train] - model(x, ~train)) / math.log(10)) ** 2)))
+
+
 def test_n87_rate_dependent_term_named_and_held_out_error_shrinks():
     t = read_material_table(REAL / "magnet_N87_sine.csv")
     f, b = t.frequency_hz, t.flux_density_t
@@ -104,18 +123,29 @@ def test_n87_rate_dependent_term_named_and_held_out_error_shrinks():
     before = _held_out_rms_direct(f, b, w, train, classical=False)
     after = _held_out_rms_direct(f, b, w, train, classical=True)
     assert after < before / 1.5  # the direction, measured here without the tool
+    series = _held_out_rms_series(f, b, w, train)
+    assert series < after / 1.5  # a second order in the rate extrapolates better still (measured 0.041, 0.106)
     r = diagnose_loss_table(REAL / "magnet_N87_sine.csv", split="low_third")
-    # the library's free Steinmetz term beats the classical one decisively on the calibration points
-    # (delta BIC ~720 against ~240) and is modelled, not in the catalogue; fitted on 50-190 kHz its
-    # exponent (alpha ~3.8) extrapolates less well than the fixed classical term does here (measured
-    # 1.55x against the direct fit's ~2x): the figure is asserted, with margin, as measured
-    assert r["effects"] and r["reported"]
+    # the library's rate series (not in the catalogue) is taken, then a free Steinmetz term on top of
+    # it; fitted on 50-190 kHz alone, the free term went to alpha ~3.8 and predicted 0.155 (1.55x)
+    assert "rate_series" in r["effects"] and "rate_series" in r["not_in_catalogue"] and r["reported"]
     assert r["rows"]["calibration"] == int(train.sum())
     assert r["residual_before_log10"] == pytest.approx(before, rel=0.25)
-    assert r["residual_after_log10"] < r["residual_before_log10"]
-    assert r["improvement"] > 1.3  # measured 1.55
+    assert r["residual_after_log10"] == pytest.approx(series, rel=0.3)  # measured 0.038
+    assert r["improvement"] > 5  # measured 6.27
     assert r["located"]["trend"]["slope_log_f"] > 0.3  # W per cycle grows with f
-    assert r["other_split"]["improvement"] > 7  # the interleaved split: measured 10.0
+    assert r["other_split"]["improvement"] > 7  # the interleaved split: measured 11.6
+
+
+def test_a_rate_term_whose_size_is_undetermined_is_a_suspect_not_a_finding():
+    """N49's loss per cycle is flat to 190 kHz (docs/diagnosis.md): fitted there, the free term goes to its
+    lower bounds in alpha and delta with its size unresolved (relative standard error > 1): it trades
+    with the baseline's B shape.  It is reported as a suspect, and nothing is named."""
+    r = diagnose_loss_table(REAL / "magnet_N49_sine.csv", split="low_third")
+    assert r["effects"] == []
+    sizes = [s["scale_rel_std"] for s in r["suspects"] if "scale_rel_std" in s]
+    assert sizes and min(sizes) > 0.5
+    assert "is not determined" in r["verdict"]
 
 
 def test_n87_permeability_energy_grows_with_frequency():
@@ -266,11 +296,11 @@ def test_real_n87_sine_and_shapes_are_diagnosed_together():
     for trend in ("between_ramps_trend", "flat_trend"):
         assert math.isfinite(r["shapes"][trend]["slope_log10_per_share"]) and r["shapes"][trend]["slope_std"] > 0
     assert set(r["other_split"]["shape_groups"]) == {"sine", "triangle", "trapezoid"}
-    # the figures, as measured with margin (docs/diagnosis.md): low_third 2.15x (the classical term;
-    # the free one is refused, it extrapolates worse inside the calibration window), interleaved 6.62x
-    # (the free Steinmetz/iGSE term, not in the catalogue)
-    assert r["improvement"] > 1.8 and r["effects"] == ["lamination_eddy_currents"]
-    assert r["other_split"]["improvement"] > 5 and r["other_split"]["effects"] == ["steinmetz_rate_dependence"]
+    # the figures, as measured with margin (docs/diagnosis.md): low_third 3.22x (the rate series, not in
+    # the catalogue; the free exponent on top of it is refused, it extrapolates worse inside the
+    # calibration window), interleaved 5.78x (the rate series)
+    assert r["improvement"] > 2.7 and r["effects"] == ["rate_series"]
+    assert r["other_split"]["improvement"] > 5 and r["other_split"]["effects"] == ["rate_series"]
     json.dumps(r, allow_nan=False)
 
 
@@ -296,12 +326,12 @@ def test_tables_of_two_materials_are_not_diagnosed_together_and_groups_pair_a_ma
 def test_measured_waveforms_of_n87_predicted_better_with_the_rate_terms():
     """mag-net-hub's 90 measured B(t) rows (held out entirely: other cores, 25-90 degC): the 14 of N87,
     predicted by the model N87's MagNet tables calibrate, driven by the sampled B(t); measured 0.181 ->
-    0.128 rms log10, with the 70 degC rows over-predicted (-0.12: ferrite loss falls towards its
+    0.112 rms log10, with the 70 degC rows over-predicted (-0.14: ferrite loss falls towards its
     minimum near 90 degC, which no term at 25 degC knows)."""
     from hystbench.analysis.diagnosis.loss_waveforms import predict_waveform_losses
 
     r = predict_waveform_losses(REAL / "mag-net-hub" / "maghub_ploss_at_450kWpm3.csv",
                                 [REAL / "magnet_N87_sine.csv", REAL / "magnet_N87_shapes.csv"], splits=("low_third",))
     assert len(r) == 1 and r[0]["rows"] == 14
-    assert r[0]["rms_after_log10"] < 0.8 * r[0]["rms_before_log10"]  # measured 0.128 / 0.181 = 0.71
-    assert r[0]["mean_after_by_temperature_log10"][70.0] < -0.05  # measured -0.12
+    assert r[0]["rms_after_log10"] < 0.8 * r[0]["rms_before_log10"]  # measured 0.112 / 0.181 = 0.62
+    assert r[0]["mean_after_by_temperature_log10"][70.0] < -0.05  # measured -0.14

@@ -8,6 +8,10 @@ Needs h5py (hystbench does not depend on it: the slices are plain CSV + JSON onc
     PYTHONPATH=/tmp/h5site python tests/data/real/convert_magnet.py \
         /tmp/magnet/mag_net-0.1.0-py3-none-any.whl /tmp/lsf/dataset/N87_mu_large tests/data/real
 
+``convert_magnet.py --others WHEEL OUT`` writes the same two tables of the wheel's six other materials
+(3C94, 3F4, 77, 78, N27, N30) into OUT: they are not vendored; they check the loss diagnosis on
+materials it was not developed on.
+
 What it writes (numbers unchanged: every value is the source's float64 written as its shortest
 round-trip text, so float(text) gives back the source's number bit for bit):
 
@@ -39,6 +43,9 @@ import h5py
 import numpy as np
 
 MATERIALS = {"N87": "TDK", "3C90": "Ferroxcube", "3E6": "Ferroxcube", "N49": "TDK"}
+#: The wheel's other six materials: not vendored, written on request (``--others``) to check the loss
+#: diagnosis on materials its settings were not chosen on (docs/diagnosis.md, "The rate series").
+OTHERS = {"3C94": "Ferroxcube", "3F4": "Ferroxcube", "77": "Fair-Rite", "78": "Fair-Rite", "N27": "TDK", "N30": "TDK"}
 WHEEL = "mag_net-0.1.0-py3-none-any.whl"
 MAGNET_SOURCE = {"package": "mag-net", "version": "0.1.0", "index": "https://pypi.org/project/mag-net/0.1.0/",
                  "repository": "https://github.com/PrincetonUniversity/magnet",
@@ -69,10 +76,11 @@ def _write(out: Path, stem: str, header: str, rows: np.ndarray, sidecar: dict) -
     print(f"{stem}: {len(rows)} rows")
 
 
-def convert_magnet(wheel: Path, out: Path) -> None:
+def convert_magnet(wheel: Path, out: Path, materials: dict[str, str] = MATERIALS) -> None:
     sha = hashlib.sha256(wheel.read_bytes()).hexdigest()
+    out.mkdir(parents=True, exist_ok=True)
     with zipfile.ZipFile(wheel) as zf:
-        for mat, maker in MATERIALS.items():
+        for mat, maker in materials.items():
             member = f"magnet/data/{mat}_database.h5"
             with h5py.File(io.BytesIO(zf.read(member)), "r") as h5:
                 frame = h5["dataframe"]
@@ -185,6 +193,9 @@ def convert_mu(folder: Path, out: Path) -> None:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) == 4 and sys.argv[1] == "--others":  # convert_magnet.py --others WHEEL OUT
+        convert_magnet(Path(sys.argv[2]), Path(sys.argv[3]), OTHERS)
+        raise SystemExit(0)
     if len(sys.argv) != 4:
         raise SystemExit(__doc__)
     convert_magnet(Path(sys.argv[1]), Path(sys.argv[3]))
