@@ -292,8 +292,9 @@ def _select(rows: Rows, w: np.ndarray, split: str = "low_third"
     """Forward selection over the library, tier by tier (:data:`.loss_terms.TIERS`: Bertotti's named
     forms first, then the generic ones on top of what they explain, a free exponent last): the best
     addition is taken while it beats the current model by >= NAME_DELTA_BIC and the runner-up by >=
-    RUNNER_UP_DELTA_BIC, its size is determined (:data:`MAX_SCALE_REL_STD`), and, fitted on the split's own rule inside the calibration rows, predicts the other calibration rows
-    better than the model without it (a decisive score is not enough: a term that explains the
+    RUNNER_UP_DELTA_BIC, its size is determined (:data:`MAX_SCALE_REL_STD`), and, fitted on the
+    split's own rule inside the calibration rows, predicts the other calibration rows better than the
+    model without it (a decisive score is not enough: a term that explains the
     calibration window but extrapolates worse is a suspect, as in issue 13's selection).  Returns the
     fits after each step, the scored candidates, the chosen names, the suspects and the terms skipped
     as not identifiable on these rows (why)."""

@@ -277,11 +277,13 @@ def natural(t: Term, x: np.ndarray, se: np.ndarray) -> dict[str, tuple[float, fl
         return {"c1_per_K": (x[0], se[0]), "c2_per_K2": (x[1], se[1])}
     k = math.exp(x[0])
     p = {t.coefficient: (k, k * se[0])}
-    if t.kind == "series":  # an order fitted to nothing (< 1e-6 of the term at the reference) has no exponent
+    if t.kind == "series":
         k2 = math.exp(x[2])
         p.update({"delta_1": (x[1], se[1]), "k_2_J_per_m3_at_100kHz_0.1T": (k2, k2 * se[2]), "delta_2": (x[3], se[3])})
-        return {key: v for key, v in p.items()
-                if not (key.startswith("delta_") and (k if key == "delta_1" else k2) < 1e-6 * (k + k2))}
+        for key, k_order in (("delta_1", k), ("delta_2", k2)):
+            if k_order < 1e-6 * (k + k2):  # an order fitted to nothing has no exponent to report
+                del p[key]
+        return p
     if t.kind == "relaxation":
         tau = math.exp(x[3])
         p.update({"alpha_r": (x[1], se[1]), "beta_r": (x[2], se[2]), "tau_s": (tau, tau * se[3])})
