@@ -7,8 +7,8 @@ and classical eddy currents alone gets no generic term.  The truth is computed h
 from __future__ import annotations
 
 import functools
-import math
 import json
+import math
 
 import numpy as np
 import pytest
@@ -105,8 +105,8 @@ def test_relaxation_is_said_unidentifiable_from_sines_and_triangles_not_forced()
 @pytest.mark.parametrize("seed", [1, 2])
 def test_free_steinmetz_term_is_recovered_and_not_given_a_catalogue_name(seed: int):
     """Calibrated across the band (``interleaved``): there a single power law and the rate series differ,
-    and the free exponent, the truth, is named (on 50-170 kHz alone they are look-alikes and the series,
-    tried first, stands: docs/diagnosis.md, "The rate series")."""
+    and the free exponent, the truth, is named (on 50-170 kHz alone they are look-alikes, and such a
+    truth gets the classical term or the series: docs/diagnosis.md, "The rate series")."""
     truth = (0.2, 0.6, 2.3)  # k_s J/m^3 at 100 kHz, 0.1 T (a sine); gamma (alpha = 1.6); delta
     f, b, w, duty = table(seed, steinmetz=truth)
     r = diagnose_energy(f, b, w, duty=duty, split="interleaved")
