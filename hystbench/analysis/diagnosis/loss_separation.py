@@ -64,7 +64,7 @@ from .loss_shapes import calibration_shapes, locate_shapes
 from .loss_terms import (B0_T, FREE_BOUNDS, LIBRARY, STEINMETZ, TERMS, TIERS, Rows, Term, form, inert, n_params, natural,
                          term_bounds, term_part, term_start, term_starts)
 
-__all__ = ["TERMS", "Term", "TermFit", "energy_per_cycle", "split_mask", "fit_terms", "noise_floor",
+__all__ = ["TERMS", "Term", "TermFit", "bic", "energy_per_cycle", "split_mask", "fit_terms", "noise_floor",
            "calibrate_split", "log_energy", "select_on_split", "energy_table", "diagnose_energy", "diagnose_loss_table", "loss_table_groups", "rate_trend", "main"]
 
 NAME_DELTA_BIC = 10.0  # decisively better than the current model (issue 13)
@@ -73,6 +73,11 @@ LN10 = math.log(10.0)
 MAX_TERMS = 3  # rate terms a model may take
 MAX_SCALE_REL_STD = 0.5  # a term is taken only when its scale is fitted beyond two standard errors
 LSMR_ROWS = 3000  # above this many rows the trust-region steps are solved iteratively (speed only)
+
+
+def bic(rss: float, n: int, k: int) -> float:
+    """The likelihood rule's score of a least-squares fit in log space: k parameters, n rows."""
+    return n * math.log(max(rss, 1e-300) / n) + k * math.log(n)
 
 
 @dataclass(frozen=True)
@@ -87,7 +92,7 @@ class TermFit:
 
     @property
     def bic(self) -> float:
-        return self.n * math.log(max(self.rss, 1e-300) / self.n) + self.x.size * math.log(self.n)
+        return bic(self.rss, self.n, self.x.size)
 
     def log_w(self, f: np.ndarray, b: np.ndarray, duty: np.ndarray | None = None,
               temperature_c: np.ndarray | None = None) -> np.ndarray:

@@ -322,17 +322,3 @@ def test_tables_of_two_materials_are_not_diagnosed_together_and_groups_pair_a_ma
     groups = loss_table_groups([REAL / f"{n}.csv" for n in names])
     assert [[t.path.stem for t in g] for g in groups] == [["magnet_N87_sine", "magnet_N87_shapes"], ["N87_mu_large"],
                                                           ["magnet_3E6_sine"]]
-
-
-def test_measured_waveforms_of_n87_predicted_better_with_the_rate_terms():
-    """mag-net-hub's 90 measured B(t) rows (held out entirely: other cores, 25-90 degC): the 14 of N87,
-    predicted by the model N87's MagNet tables calibrate, driven by the sampled B(t); measured 0.181 ->
-    0.112 rms log10, with the 70 degC rows over-predicted (-0.14: ferrite loss falls towards its
-    minimum near 90 degC, which no term at 25 degC knows)."""
-    from hystbench.analysis.diagnosis.loss_waveforms import predict_waveform_losses
-
-    r = predict_waveform_losses(REAL / "mag-net-hub" / "maghub_ploss_at_450kWpm3.csv",
-                                [REAL / "magnet_N87_sine.csv", REAL / "magnet_N87_shapes.csv"], splits=("low_third",))
-    assert len(r) == 1 and r[0]["rows"] == 14
-    assert r[0]["rms_after_log10"] < 0.8 * r[0]["rms_before_log10"]  # measured 0.112 / 0.181 = 0.62
-    assert r[0]["mean_after_by_temperature_log10"][70.0] < -0.05  # measured -0.14
