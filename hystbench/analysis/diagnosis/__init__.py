@@ -159,7 +159,10 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
     findings = [v["finding"] for v in recal.values() if v.get("finding")]
     findings += [f"suspect: {c.name} scores {c.score:.0f} but, modelled, predicts its signature at the held-out "
                  f"operating points only {c.held_out_gain:.2f}x better (at least {MIN_HELD_OUT_GAIN:g}x names it); "
-                 "what it fitted stays in the model as a generic term, not in the catalogue"
+                 + ("what it fitted stays in the model as a generic term, not in the catalogue"
+                    if c.held_out_gain is not None and c.held_out_gain >= 1.0 else
+                    "it predicts them worse, so what it fitted is left out of the model that is proven (the later "
+                    "rounds were scored beside it)")
                  for c in selection.suspects]
     signature = {family(e.name): {"before": e.signature[0], "after": e.signature[1],
                                   "improvement": e.signature[0] / e.signature[1] if e.signature[1] > 0 else math.inf,

@@ -1,4 +1,5 @@
-"""What a candidate claims, where the held-out proof judges it (select.contribution, claimed=True)."""
+"""What a candidate claims, where the held-out proof judges it (select.contribution, claimed=True), and which
+refused suspects stay in the model that is proven (select.forward_selection)."""
 
 import numpy as np
 
@@ -36,3 +37,45 @@ def test_a_significant_parameter_is_claimed_and_with_none_significant_all_are():
     eff, sol = fitted(0.0005, 0.9)  # a at 0.05 sigma of a 50-number mean (0.35 SE), b at 0.9: neither
     claim = contribution(eff, sol, claimed=True)
     assert claim[60] == sol.value("eff.b")[0] and claim[0] == sol.value("eff.a")[0]
+
+
+def _selection_with_suspects():
+    """Three linear candidates, each decisive in its round (the data hold them at 50, 30 and 20
+    sigmas a number): the first predicts the held-out points 2x worse (0.5x), the second 1.2x better,
+    the third 3x better.  The held-out proof is a stand-in that says that and records what it was given."""
+    from hystbench.analysis.diagnosis.calibrate import Calibration
+    from hystbench.analysis.diagnosis.fit import Problem
+    from hystbench.analysis.diagnosis.select import forward_selection
+
+    n = 30
+    block = [np.r_[np.zeros(10 * k), np.ones(10), np.zeros(n - 10 * (k + 1))] for k in range(3)]
+    d = SIGMA * (50 * block[0] + 30 * block[1] + 20 * block[2])
+    sigma = np.full(n, SIGMA)
+    problem = Problem(d, sigma, np.arange(n), lambda requests: [np.zeros(n) for _ in requests], None, sigma,
+                      np.zeros(0, int))
+    calibration = Calibration([], [], np.zeros(n), {}, problem.solve(np.zeros(n), []), np.zeros((n, 0)))
+    effects = {name: CandidateEffect(name, [Column(f"{name}.strength", col)])
+               for name, col in zip(("worse", "slightly", "predicts"), block)}
+    factor = {"worse": 2.0, "slightly": 1 / 1.2, "predicts": 1 / 3}
+    calls: list[set[str]] = []
+
+    def held_out(problem, m, columns, where):
+        names = {c.name for c in columns}
+        calls.append(names)
+        return float(np.prod([f for name, f in factor.items() if any(name in c for c in names)]))
+
+    sel = forward_selection(problem, effects, calibration, lambda p, fitted: calibration, held_out, lambda s: None)
+    return sel, calls
+
+
+def test_a_refused_suspect_that_predicts_worse_is_left_out_of_the_proven_model():
+    """What a refused suspect fitted stays for the later rounds' scores; in the model that is proven
+    (the later proofs, the final cross-validation: ``Selection.columns``) only when it predicted no
+    worse than without it."""
+    sel, calls = _selection_with_suspects()
+    assert [e.name for e in sel.named] == ["predicts"]
+    assert [(c.name, round(c.held_out_gain, 3)) for c in sel.suspects] == [("worse", 0.5), ("slightly", 1.2)]
+    proven = {c.name for c in sel.columns}
+    assert "generic.slightly" in proven and not any("worse" in name for name in proven)
+    assert not any("worse" in name for call in calls[2:] for name in call)  # the later rounds' proofs
+    assert any("slightly" in name for name in calls[-1])
