@@ -42,6 +42,12 @@ HANG_S = 120.0  # a safety timeout: only a hang takes this long
 #: a gap.  A held clock is no stalled cable (test_hil_pacing); the tests of stall detection set
 #: ``bench.stall_timeout_s`` themselves.
 STALL_S = HANG_S
+#: The ``hil`` fixtures' amplifier watchdog (``[current_amplifier.settings] watchdog_s``), counted on the
+#: emulator's sample clock.  With the shipped 0.5 s (five heartbeats), a run of ``make test`` beside two
+#: busy loops once starved the heartbeat thread for half a second of samples while the clock went on:
+#: the amplifier latched WATCHDOG in the middle of a digitiser test.  Twenty heartbeats leave a busy
+#: machine room; the watchdog test trips it as before, two seconds of samples after the host falls silent.
+WATCHDOG_S = 2.0
 
 
 def bench_file(tmp_path: Path, **edits: str) -> Path:
@@ -208,7 +214,8 @@ def hil_factory(tmp_path):
 
     def make(*, extra: str = "", **edits: str) -> Hil:
         """A bench on the shipped file with ``edits`` (dotted keys) and ``extra`` TOML appended."""
-        path = bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}", **edits})
+        path = bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}",
+                                       "current_amplifier.settings.watchdog_s": f"{WATCHDOG_S:g}", **edits})
         if extra:
             path.write_text(path.read_text() + extra)
         h = Hil(path)
