@@ -79,3 +79,45 @@ def test_a_refused_suspect_that_predicts_worse_is_left_out_of_the_proven_model()
     assert "generic.slightly" in proven and not any("worse" in name for name in proven)
     assert not any("worse" in name for call in calls[2:] for name in call)  # the later rounds' proofs
     assert any("slightly" in name for name in calls[-1])
+
+
+def test_a_dc_blind_effect_claims_the_dc_misfit_it_explains_against_a_look_alike_that_moves_the_dc():
+    """A charge amplifier reset before each recording: each record's force DC off by its own amount (50
+    sigmas rms), and its lead at the fundamental (20 sigmas).  A look-alike moves the force DC in a pattern
+    that shares 80 % of those offsets.  The high-pass, its DCs free parameters (each charged ln n), explains
+    all of the DC misfit and the lead; the look-alike explains most of the DC and none of the lead.  Scored
+    against a baseline without the DC rows, as before, the high-pass could claim none of the DC, and the
+    look-alike came first."""
+    from hystbench.analysis.diagnosis.calibrate import Calibration
+    from hystbench.analysis.diagnosis.fit import Problem
+    from hystbench.analysis.diagnosis.select import forward_selection
+    from hystbench.analysis.diagnosis.vector import CHANNELS, Layout
+
+    force, flux = CHANNELS.index("force_N"), CHANNELS.index("flux_Wb")
+    rows = [(r, c, k, p) for r in range(6) for c, k, p in ((force, 0, 0), (force, 1, 0), (force, 1, 1),
+                                                           (flux, 1, 0), (flux, 1, 1))]
+    rec, chan, harm, part = (np.array(x) for x in zip(*rows))
+    n = rec.size
+    layout = Layout(rec, chan, harm, part, np.full(n, SIGMA), np.ones(n))
+    dc, lead = (chan == force) & (harm == 0), (chan == force) & (harm == 1) & (part == 1)
+    rng = np.random.default_rng(3)
+    offsets = rng.normal(0.0, 50 * SIGMA, 6)
+    d = np.zeros(n)
+    d[dc] = offsets
+    d[lead] = 20 * SIGMA
+    shared = 0.8 * offsets + 0.6 * np.std(offsets) * rng.normal(size=6)  # the look-alike's DC pattern
+    sigma = np.full(n, SIGMA)
+    problem = Problem(d, sigma, np.arange(n), lambda requests: [np.zeros(n) for _ in requests], layout, sigma,
+                      np.zeros(0, int))
+    calibration = Calibration([], [], np.zeros(n), {}, problem.solve(np.zeros(n), []), np.zeros((n, 0)))
+    look_alike = np.zeros(n)
+    look_alike[dc] = shared
+    effects = {"charge_amp_highpass": CandidateEffect("charge_amp_highpass",
+                                                      [Column("charge_amp_highpass.strength", lead.astype(float))]),
+               "load_cell_compliance": CandidateEffect("load_cell_compliance",
+                                                       [Column("load_cell_compliance.strength", look_alike)])}
+    sel = forward_selection(problem, effects, calibration, lambda p, fitted: calibration,
+                            lambda p, m, columns, where: 1.0 / (1 + len(columns)), lambda s: None)
+    first = [c for c in sel.ranked if c.round == 1]
+    assert first[0].name == "charge_amp_highpass" and first[0].score > first[1].score + 6
+    assert [e.name for e in sel.named][0] == "charge_amp_highpass"
