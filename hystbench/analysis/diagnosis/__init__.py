@@ -46,7 +46,7 @@ from .forward import MEASURED_DIRECTLY, points_of
 from .locate import locate_residual
 from .prove import cross_validate, folds, held_out
 from .result import Diagnosis
-from .select import DC_BLIND, MIN_HELD_OUT_GAIN, candidate_effects, dc_blind, family, forward_selection, named_parameters
+from .select import DC_BLIND, MIN_HELD_OUT_GAIN, PREDICTIVE_GAIN, candidate_effects, dc_blind, family, forward_selection, named_parameters
 from .vector import CHANNELS, layout_of, line_values, values_of
 
 __all__ = ["diagnose", "DiagnosisError", "worse_in_total"]
@@ -160,7 +160,7 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
     findings += [f"suspect: {c.name} scores {c.score:.0f} but, modelled, predicts its signature at the held-out "
                  f"operating points only {c.held_out_gain:.2f}x better (at least {MIN_HELD_OUT_GAIN:g}x names it); "
                  + ("what it fitted stays in the model as a generic term, not in the catalogue"
-                    if c.held_out_gain is not None and c.held_out_gain >= 1.0 else
+                    if c.held_out_gain >= PREDICTIVE_GAIN else
                     "it predicts them worse, so what it fitted is left out of the model that is proven (the later "
                     "rounds were scored beside it)")
                  for c in selection.suspects]

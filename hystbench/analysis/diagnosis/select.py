@@ -39,6 +39,9 @@ MAX_ROUNDS = 3
 REFINE_STEPS = 3
 #: A named effect must predict the held-out operating points at least this much better.
 MIN_HELD_OUT_GAIN = 1.5
+#: A refused suspect's fit joins the model that is proven only when it predicted them at least this well
+#: (no worse than the model without it).
+PREDICTIVE_GAIN = 1.0
 #: Effects that make a channel's DC unknowable, and the channel: a leaky charge amplifier's output DC
 #: is the force since its last reset, and when that was (each recording? the day's start?) is a bench's
 #: procedure the recordings do not say.  Such an effect is judged, and once named the bench day fitted,
@@ -261,7 +264,7 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
             term = [Column(f"generic.{family(top[1])}", acts)] + [dataclasses.replace(c, name=f"generic.{c.name}",
                                                                                   lower=-math.inf) for c in eff.columns]
             generic += term
-            if gain >= 1.0:
+            if gain >= PREDICTIVE_GAIN:
                 predictive += term
     return Selection(named, ranked, m_named, sol, calibration, suspects, problem, predictive)
 
