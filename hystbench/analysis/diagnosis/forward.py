@@ -187,8 +187,14 @@ CLOCKED = ("force_offset_drift", "magnet_thermal_drift")
 RING_DOWN_S = 0.06
 
 
-#: The longest memory a replay simulates (s): a bench day's pause between recordings.
-MEMORY_CAP_S = 20.0
+#: The longest memory a replay simulates (s).  A high-pass is the only memory (:func:`memory_s`), and
+#: with one the force's DC is not compared (:data:`.select.DC_BLIND`): what is left to get right is its
+#: transient's curvature inside the kept windows, which leaks into the force's harmonics.  Measured on
+#: ``ecore_pm`` replays of our bench day and of the independent bench's (100 s pauses), time constants
+#: 0.25-64 s: after 2 s every force harmonic is within 0.02 noise floors of a replay that follows 5 tau
+#: of memory (2 noise floors with none, at 0.25 s).  The 20 s this was, a bench day's pause, made the
+#: independent bench's high-pass days the slowest of both suites (51 and 69 s of CPU, 21 and 26 s now).
+MEMORY_CAP_S = 2.0
 
 
 def memory_s(preset: Mapping[str, Any]) -> float:
@@ -196,8 +202,8 @@ def memory_s(preset: Mapping[str, Any]) -> float:
     DC after each change of operating point), at most MEMORY_CAP_S; 0 without a high-pass.  Longer
     pauses need not be simulated.  An integrator's leak is not counted: the flux's DC is never compared
     (an integrator's DC is where it was reset), and its ramp is separated from the harmonics by the
-    features.  Nor is a high-pass longer than the cap followed to the end: with one, the force's DC is
-    not compared either (:data:`.select.DC_BLIND`)."""
+    features.  Nor is a high-pass followed to the end of its transient: with one, the force's DC is
+    not compared either (:data:`.select.DC_BLIND`), and its harmonics have settled by the cap."""
     effects = preset.get("effects") or {}
     if "charge_amp_highpass" not in effects:
         return 0.0

@@ -8,12 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hystbench.analysis.diagnosis import forward
 from hystbench.analysis.diagnosis.forward import replayed_features as _replayed_features
 from hystbench.analysis.diagnosis.columns import catalogue_params
 from hystbench.analysis.diagnosis.features import record_features
 from hystbench.analysis.diagnosis.forward import points_of, record_mean, replay, with_effects
 from hystbench.config import load_rig
 from hystbench.sim_backend.bench_day import BenchDayPlan, bench_effects, simulate_bench_day
+from hystbench.sim_backend.rig import DEFAULT_FS_HZ
 
 QUIET = {"sensor_noise": False, "adc_quantisation": False}
 
@@ -63,3 +65,39 @@ def test_record_mean_integrates_a_quadratic_exactly():
     values = [a * (t - 1.0) ** 2 + b * (t - 1.0) + c for t in centres]
     exact = (a * 27 / 3 + b * 9 / 2 + c * 3) / 3  # mean of the quadratic over 3 s
     assert record_mean(values, centres, span) == pytest.approx(exact, rel=1e-12)
+
+
+#: The force's noise floor of a period average on our bench day and the independent bench's (5.1e-4 and
+#: 5.9e-4 N, their diagnosis reports): what a difference of the replay is judged against.
+FORCE_FLOOR_N = 5e-4
+
+
+def _highpass_force_harmonics(monkeypatch, tau_s: float, cap_s: float) -> np.ndarray:
+    """The force harmonics 1-7 of an ``ecore_pm`` replay with a high-pass of ``tau_s``, its memory capped
+    at ``cap_s``: four points 100 s apart, as the independent bench's day has them, so that a cap bites."""
+    preset = load_rig("ecore_pm")
+    effects = {n: catalogue_params(preset, n) for n in preset["effects"] if n not in QUIET}
+    preset = with_effects(preset, {**effects, "charge_amp_highpass": {"time_constant_s": tau_s}})
+    points = [forward.Point(f"p{i}", "ecore_pm", f, ipp, 5.0 + 100.0 * i, 0.3, DEFAULT_FS_HZ)
+              for i, (f, ipp) in enumerate([(40.0, 0.7), (160.0, 1.4), (40.0, 1.4), (160.0, 0.7)])]
+    monkeypatch.setattr(forward, "MEMORY_CAP_S", cap_s)
+    return np.array([f.harmonics["force_N"][1:8] for f in forward.replay_features(preset, points)])
+
+
+@pytest.mark.parametrize("tau_s", [1.0, 4.0])
+def test_a_high_pass_is_followed_long_enough_for_the_force_harmonics(monkeypatch, tau_s):
+    """The replay follows a high-pass's memory for at most MEMORY_CAP_S, not its 5 tau: the force's DC is
+    not compared with one (select.DC_BLIND), and its harmonics must be those of a replay that follows
+    the whole memory, to a tenth of the noise floor."""
+    capped = _highpass_force_harmonics(monkeypatch, tau_s, forward.MEMORY_CAP_S)
+    assert 5.0 * tau_s > forward.MEMORY_CAP_S  # the cap bites
+    whole = _highpass_force_harmonics(monkeypatch, tau_s, 5.0 * tau_s)
+    assert np.max(np.abs(capped - whole)) < 0.1 * FORCE_FLOOR_N
+
+
+def test_with_no_memory_a_short_high_pass_leaks_into_the_force_harmonics(monkeypatch):
+    """The control: the memory matters.  A 0.25 s high-pass replayed from a standing start at each point
+    (only the settling) is still steep in the window, and its curvature moves the force's harmonics by
+    more than a noise floor."""
+    whole = _highpass_force_harmonics(monkeypatch, 0.25, 1.25)
+    assert np.max(np.abs(_highpass_force_harmonics(monkeypatch, 0.25, 0.0) - whole)) > FORCE_FLOOR_N
