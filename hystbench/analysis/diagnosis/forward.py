@@ -193,7 +193,7 @@ RING_DOWN_S = 0.06
 #: ``ecore_pm`` replays of our bench day and of the independent bench's (100 s pauses), time constants
 #: 0.25-64 s: after 2 s every force harmonic is within 0.02 noise floors of a replay that follows 5 tau
 #: of memory (2 noise floors with none, at 0.25 s).  The 20 s this was, a bench day's pause, made the
-#: independent bench's high-pass days the slowest of both suites (51 and 69 s of CPU, 21 and 26 s now).
+#: independent bench's high-pass days the slowest of both suites (51 and 69 s of CPU, 19 and 26 s now).
 MEMORY_CAP_S = 2.0
 
 
