@@ -13,6 +13,7 @@ from hystbench.analysis.diagnosis.forward import replayed_features as _replayed_
 from hystbench.analysis.diagnosis.columns import catalogue_params
 from hystbench.analysis.diagnosis.features import record_features
 from hystbench.analysis.diagnosis.forward import points_of, record_mean, replay, with_effects
+from hystbench.analysis.diagnosis.select import DC_BLIND
 from hystbench.config import load_rig
 from hystbench.sim_backend.bench_day import BenchDayPlan, bench_effects, simulate_bench_day
 from hystbench.sim_backend.rig import DEFAULT_FS_HZ
@@ -89,8 +90,10 @@ def test_a_high_pass_is_followed_long_enough_for_the_force_harmonics(monkeypatch
     """The replay follows a high-pass's memory for at most MEMORY_CAP_S, not its 5 tau: the force's DC is
     not compared with one (select.DC_BLIND), and its harmonics must be those of a replay that follows
     the whole memory, to a tenth of the noise floor."""
-    capped = _highpass_force_harmonics(monkeypatch, tau_s, forward.MEMORY_CAP_S)
-    assert 5.0 * tau_s > forward.MEMORY_CAP_S  # the cap bites
+    assert "charge_amp_highpass" in DC_BLIND  # the premise: its DC is never compared
+    cap_s = forward.MEMORY_CAP_S
+    assert 5.0 * tau_s > cap_s  # the cap bites
+    capped = _highpass_force_harmonics(monkeypatch, tau_s, cap_s)
     whole = _highpass_force_harmonics(monkeypatch, tau_s, 5.0 * tau_s)
     assert np.max(np.abs(capped - whole)) < 0.1 * FORCE_FLOOR_N
 
