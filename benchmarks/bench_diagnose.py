@@ -125,7 +125,8 @@ def _row(suite: str, case: Any, bench: str | None, d: Any, recordings: int, t_si
         "improvement": d.improvement if math.isfinite(d.improvement) else None,
         # the proof in each named effect's own signature (held-out, before / after), and the suspects
         "signature": {e: sig.get("improvement") for e, sig in d.signature.items()},
-        "suspects": [{"name": c.name, "score": c.score, "held_out_gain": c.held_out_gain} for c in d.suspects],
+        "suspects": [{"name": c.name, "score": c.score, "held_out_gain": c.held_out_gain, "own": c.mimicry.get("own")}
+                     for c in d.suspects],
         "residual_before": d.residual_before, "residual_after": d.residual_after,
         "parameters": {e: {p: {"value": v, "std": s} for p, (v, s) in ps.items()} for e, ps in d.parameters.items()},
         "expected": {e: dict(ps) for e, ps in case.expected.items()},
@@ -168,6 +169,9 @@ def why_wrong(truth: Any, d: Any) -> list[str]:
                            f" (within {RUNNER_UP_MARGIN:g})")
             else:
                 out.append(f"{effect}: score {best:.0f}, first in round {rnd} and not named")
+        own = next((c.own_text() for c in d.candidates if c.name == effect and c.own_text()), "")
+        if own and out and out[-1].startswith(f"{effect}:"):  # what the baseline could not do of it
+            out[-1] += f" (of what it does, {own})"
     for effect in d.effects:
         if effect not in truth:
             gain = d.signature.get(effect, {}).get("improvement")
@@ -299,11 +303,12 @@ def markdown(res: dict[str, Any]) -> str:
                 out.append(f"| {truth} | {'**' + named + '**' if wrong else named} | {k} |")
         out += ["", "| case | what differs from the truth, and why |", "|---|---|"]
         out += [f"| {r['case']} | {'; '.join(r['why'])} |" for r in rows if r.get("why")]
-        out += ["", "| case | truth | named (top first) | suspects (held-out gain) | signature improvement | "
+        out += ["", "| case | truth | named (top first) | suspects (held-out gain, own share) | signature improvement | "
                     "held-out residual before -> after | s |", "|---|---|---|---|---|---|---|"]
         for r in rows:
-            sus = ", ".join(f"{x['name']} ({x['held_out_gain']:.2f}x)" if x["held_out_gain"] is not None
-                            else f"{x['name']} (nanx)" for x in r["suspects"]) or "-"
+            sus = ", ".join((f"{x['name']} ({x['held_out_gain']:.2f}x" if x["held_out_gain"] is not None
+                             else f"{x['name']} (nanx") + (f", own {x['own']:.1g})" if x.get("own") is not None else ")")
+                            for x in r["suspects"]) or "-"
             sig = ", ".join(f"{e} {v:.1f}x" for e, v in r["signature"].items() if v is not None) or "-"
             out.append(f"| {r['case']} | {'+'.join(r['truth']) or 'none'} | {', '.join(r['named']) or 'none'} | {sus} | "
                        f"{sig} | {_g(r['residual_before'])} -> {_g(r['residual_after'])} | {r['seconds_diagnose']:.0f} |")

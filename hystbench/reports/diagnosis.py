@@ -222,12 +222,15 @@ def _page(d: Diagnosis, heat_map_note: str | None, loops_written: bool) -> str:
 
     lines += ["## 3. Candidates, ranked", "",
               "Score: BIC of the baseline minus BIC with the candidate (its parameters fitted, the baseline "
-              "recalibrated); a name needs a decisive margin over the baseline and the runner-up.", ""]
+              "recalibrated); a name needs a decisive margin over the baseline and the runner-up.  Its own: the "
+              "share of what the candidate does (whitened, its most distinctive combination) that no column of "
+              "the model it is scored against can make, and the group of those columns that makes most of it: "
+              "an effect whose own share is a millionth cannot be told from a recalibration, whatever it scores.", ""]
     if d.candidates:
         ranked = sorted(d.candidates, key=lambda c: (c.round, -(c.score if math.isfinite(c.score) else -math.inf)))
-        lines += _table(("round", "candidate", "score", "parameters"),
+        lines += _table(("round", "candidate", "score", "its own", "parameters"),
                         ((c.round, f"`{c.name}`" + (" **named**" if c.name in d.effects and c.round == d.effects.index(c.name) + 1 else ""),
-                          _num(c.score), "; ".join(parameter_lines({c.name: c.parameters})) or "-")
+                          _num(c.score), c.own_text() or "-", "; ".join(parameter_lines({c.name: c.parameters})) or "-")
                          for c in ranked)) + [""]
     else:
         lines += ["No candidate was scored."] + [""]

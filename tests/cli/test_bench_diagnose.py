@@ -83,6 +83,16 @@ def test_why_wrong_tells_a_miss_below_the_data_from_one_outranked_or_refused():
     assert why_wrong(["integrator_leak"], right) == [] and why_wrong([], _answer([], [])) == []
 
 
+def test_why_wrong_says_how_much_of_a_missed_effect_the_baseline_could_not_do():
+    """A miss whose candidate was measured against the baseline's span says so: a compliance is a
+    smaller airgap but for a millionth of it."""
+    below = SimpleNamespace(effects=[], suspects=[], signature={}, candidates=[Candidate(
+        "load_cell_compliance", -4.0, {}, mimicry={"own": 1.5e-6, "the calibration's knobs": 0.998})])
+    assert why_wrong(["load_cell_compliance"], below) == [
+        "load_cell_compliance: below the data's decision (best score -4.0 < 10) (of what it does, "
+        "1.5e-06 its own; the calibration's knobs do 99.8 % of it)"]
+
+
 def test_markdown_marks_a_wrong_name_and_says_why():
     rows = [dict(r, suite="ours", suspects=[], residual_before=2.0, residual_after=1.0,
                  why=[] if r["right"] else ["a reason"]) for r in ROWS]

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 
 import pytest
 from rich.console import Console
@@ -53,6 +54,12 @@ def test_the_demo_names_what_the_independent_bench_hid_and_writes_its_report(ind
     tau = float(line.split("= ")[1].split()[0])
     assert tau == pytest.approx(1 / (1 / 0.47 + 1 / 20.0), rel=0.05)  # the circuit's, not our simulator's
     assert "truth (never shown to the diagnosis): integrator_leak" in out and "--baseline " + ",".join(BASELINE) in out
+    # what a candidate does that the calibration cannot: a compliance at the magnet's bias force is a
+    # smaller airgap (first order), so almost none of it is its own, and the knobs do nearly all of it;
+    # the leak's lead, 1/f on the flux alone, is far more its own
+    own = {m[1]: (float(m[2]), m[3]) for m in re.finditer(r"\| 1 \| `(\w+)`[^|]*\| [^|]+ \| ([0-9.e+-]+) its own; ([^|]+) do", page.read_text())}
+    assert own["load_cell_compliance"][0] < 1e-4 and own["load_cell_compliance"][1] == "the calibration's knobs"
+    assert own["integrator_leak"][0] > 1e3 * own["load_cell_compliance"][0]
 
 
 @pytest.mark.parametrize("argv, says", [

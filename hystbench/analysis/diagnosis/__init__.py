@@ -163,6 +163,7 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
                     if c.held_out_gain >= PREDICTIVE_GAIN else
                     "it predicts them worse, so what it fitted is left out of the model that is proven (the later "
                     "rounds were scored beside it)")
+                 + (f" (of what it does, {c.own_text()})" if c.own_text() else "")
                  for c in selection.suspects]
     signature = {family(e.name): {"before": e.signature[0], "after": e.signature[1],
                                   "improvement": e.signature[0] / e.signature[1] if e.signature[1] > 0 else math.inf,

@@ -32,10 +32,23 @@ class Candidate:
     parameters: Mapping[str, tuple[float, float]]  # catalogue parameter -> (value, standard error)
     round: int = 1
     held_out_gain: float | None = None  # for a decisive score: how much better, modelled, it predicts its signature held out
+    #: the share of its fitted change that is its own ("own": what no column it was scored against can
+    #: make), then the share each group of those columns alone can make, largest first (select.mimicry)
+    mimicry: Mapping[str, float] = field(default_factory=dict)
+
+    def own_text(self) -> str:
+        """What it does that the baseline cannot, in words: ``"1.5e-06 its own; the calibration's knobs do
+        99.8 % of it"`` (empty when not measured)."""
+        others = [(k, v) for k, v in self.mimicry.items() if k != "own"]
+        if "own" not in self.mimicry:
+            return ""
+        text = f"{self.mimicry['own']:.2g} its own"
+        return text + (f"; {others[0][0]} do {100 * others[0][1]:.1f} % of it" if others else "")
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "score": json_number(self.score), "round": self.round,
                 "held_out_gain": json_number(self.held_out_gain),
+                "mimicry": {k: json_number(v) for k, v in self.mimicry.items()},
                 "parameters": {k: {"value": json_number(v), "std": json_number(s)} for k, (v, s) in self.parameters.items()}}
 
 

@@ -29,6 +29,7 @@ from .vector import CHANNELS
 from .result import Candidate
 
 __all__ = ["CandidateEffect", "Selection", "candidate_effects", "best_on_grid", "setting_at", "dc_blind", "named_parameters", "forward_selection", "family", "parameters_of",
+           "column_groups", "mimicry",
            "NAME_MARGIN", "RUNNER_UP_MARGIN", "MAX_ROUNDS"]
 
 #: BIC margins that make a finding decisive: over the baseline (Kass & Raftery's "very strong") and
@@ -217,7 +218,10 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
                      - (len(eff.columns) + freed) * log_n)
             scores.append((delta, key, sol_e))
         scores = sorted(best_per_family(scores), key=lambda s: -s[0])
-        ranked += [Candidate(family(key), float(delta), parameters_of(effects[key], s), rnd) for delta, key, s in scores]
+        mimicked = mimicry(problem, column_groups(cal, generic, [c for e in named for c in e.columns]))
+        ranked += [Candidate(family(key), float(delta), parameters_of(effects[key], s), rnd,
+                             mimicry=mimicked(effects[key]))
+                   for delta, key, s in scores]
         if not scores:
             break
         top, runner = scores[0], (scores[1][0] if len(scores) > 1 else -math.inf)
@@ -267,6 +271,66 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
             if gain >= PREDICTIVE_GAIN:
                 predictive += term
     return Selection(named, ranked, m_named, sol, calibration, suspects, problem, predictive)
+
+
+#: What a column of the model a candidate is scored against is, for a reader: by its name's prefix.
+_GROUPS = (("discrepancy.iron.", "the iron's discrepancy"), ("discrepancy.law.", "the force law's discrepancy"),
+           ("discrepancy.amplifier.", "the amplifier's discrepancy"))
+
+
+def column_groups(calibration: Sequence[Column], generic: Sequence[Column],
+                  named: Sequence[Column]) -> dict[str, list[Column]]:
+    """The columns a candidate is scored against, by what they are: the calibration's knobs, each
+    path's discrepancy, the named effects, the refused suspects' generic terms."""
+    out: dict[str, list[Column]] = {}
+    for c in calibration:
+        label = next((text for prefix, text in _GROUPS if c.name.startswith(prefix)), "the calibration's knobs")
+        out.setdefault(label, []).append(c)
+    if named:
+        out["the named effects"] = list(named)
+    if generic:
+        out["the refused suspects' terms"] = list(generic)
+    return out
+
+
+def mimicry(problem: Problem, groups: Mapping[str, Sequence[Column]]) -> Callable[[CandidateEffect], dict[str, float]]:
+    """For a candidate: how much of what it does no combination of the columns it is scored against can
+    do (``"own"``, 0-1), and the share of that same change each group of them alone can make (by label,
+    largest first).  What it does: its columns (and, for a nonlinear one, its change at its best grid
+    value), whitened by the day's sigma on the rows that count, in their most distinctive combination
+    (the largest share outside the span: a generalised eigenproblem), so the figure does not depend on
+    how well the day fitted it.  A compliance on a bench day is a smaller airgap to a millionth: it may
+    score, it cannot be told from a recalibration, and this says so with a number.  The span is taken
+    whole, priors aside: what the columns can do at any size.  The bases are computed once a round."""
+    rows = problem.rows
+    w = 1.0 / problem.sigma[rows]
+
+    def basis(vectors: Sequence[np.ndarray]) -> np.ndarray:
+        M = np.column_stack(vectors) if len(vectors) else np.zeros((rows.size, 0))
+        M = M[:, np.linalg.norm(M, axis=0) > 0]
+        if not M.shape[1]:
+            return M
+        Q, R = np.linalg.qr(M)
+        d = np.abs(np.diag(R))
+        return Q[:, d > 1e-10 * d.max()]  # the independent directions only
+
+    bases = {label: basis([c.values[rows] * w for c in cols]) for label, cols in groups.items()}
+    whole = basis([c.values[rows] * w for cols in groups.values() for c in cols])
+
+    def shares(eff: CandidateEffect) -> dict[str, float]:
+        C = basis([c.values[rows] * w for c in eff.columns]
+                  + ([eff.offset[rows] * w] if eff.offset is not None else []))  # orthonormal: its span
+        if not C.shape[1]:
+            return {}
+        R = C - whole @ (whole.T @ C)
+        own, vecs = np.linalg.eigh(R.T @ R)  # C orthonormal: the share outside, per direction
+        v = C @ vecs[:, -1]
+        within = lambda Q: min(1.0, float(np.sum((Q.T @ v) ** 2)))  # noqa: E731 (v is a unit vector)
+        out = {"own": float(min(1.0, max(0.0, own[-1])))}
+        out.update(sorted(((label, within(Q)) for label, Q in bases.items()), key=lambda kv: -kv[1]))
+        return out
+
+    return shares
 
 
 def contribution(eff: CandidateEffect, sol: Solution, *, claimed: bool = False) -> np.ndarray:
