@@ -90,7 +90,7 @@ def test_why_wrong_says_how_much_of_a_missed_effect_the_baseline_could_not_do():
         "load_cell_compliance", -4.0, {}, mimicry={"own": 1.5e-6, "the calibration's knobs": 0.998})])
     assert why_wrong(["load_cell_compliance"], below) == [
         "load_cell_compliance: below the data's decision (best score -4.0 < 10) (of what it does, "
-        "1.5e-06 its own; the calibration's knobs do 99.8 % of it)"]
+        "1.5e-06 its own, 99.8 % within the calibration's knobs)"]
 
 
 def test_markdown_marks_a_wrong_name_and_says_why():

@@ -57,7 +57,7 @@ def test_the_demo_names_what_the_independent_bench_hid_and_writes_its_report(ind
     # what a candidate does that the calibration cannot: a compliance at the magnet's bias force is a
     # smaller airgap (first order), so almost none of it is its own, and the knobs do nearly all of it;
     # the leak's lead, 1/f on the flux alone, is far more its own
-    own = {m[1]: (float(m[2]), m[3]) for m in re.finditer(r"\| 1 \| `(\w+)`[^|]*\| [^|]+ \| ([0-9.e+-]+) its own; ([^|]+) do", page.read_text())}
+    own = {m[1]: (float(m[2]), m[3]) for m in re.finditer(r"\| 1 \| `(\w+)`[^|]*\| [^|]+ \| ([0-9.e+-]+) its own, [0-9.]+ % within ([^|]+?) \|", page.read_text())}
     assert own["load_cell_compliance"][0] < 1e-4 and own["load_cell_compliance"][1] == "the calibration's knobs"
     assert own["integrator_leak"][0] > 1e3 * own["load_cell_compliance"][0]
 

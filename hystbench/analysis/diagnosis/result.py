@@ -37,13 +37,13 @@ class Candidate:
     mimicry: Mapping[str, float] = field(default_factory=dict)
 
     def own_text(self) -> str:
-        """What it does that the baseline cannot, in words: ``"1.5e-06 its own; the calibration's knobs do
-        99.8 % of it"`` (empty when not measured)."""
+        """What it does that the baseline cannot, in words: ``"1.5e-06 its own, 99.8 % within the
+        calibration's knobs"`` (empty when not measured)."""
         others = [(k, v) for k, v in self.mimicry.items() if k != "own"]
         if "own" not in self.mimicry:
             return ""
         text = f"{self.mimicry['own']:.2g} its own"
-        return text + (f"; {others[0][0]} do {100 * others[0][1]:.1f} % of it" if others else "")
+        return text + (f", {100 * others[0][1]:.1f} % within {others[0][0]}" if others else "")
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "score": json_number(self.score), "round": self.round,

@@ -159,6 +159,6 @@ def test_the_report_says_what_share_of_a_candidate_is_its_own():
 
     c = Candidate("load_cell_compliance", 41.6, {}, 1, 0.97,
                   {"own": 1.5e-6, "the calibration's knobs": 0.998, "the iron's discrepancy": 0.949})
-    assert c.own_text() == "1.5e-06 its own; the calibration's knobs do 99.8 % of it"
+    assert c.own_text() == "1.5e-06 its own, 99.8 % within the calibration's knobs"
     assert c.to_json()["mimicry"]["own"] == 1.5e-6
     assert Candidate("x", 1.0, {}).own_text() == ""
