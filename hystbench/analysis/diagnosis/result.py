@@ -32,8 +32,9 @@ class Candidate:
     parameters: Mapping[str, tuple[float, float]]  # catalogue parameter -> (value, standard error)
     round: int = 1
     held_out_gain: float | None = None  # for a decisive score: how much better, modelled, it predicts its signature held out
-    #: the share of its fitted change that is its own ("own": what no column it was scored against can
-    #: make), then the share each group of those columns alone can make, largest first (select.mimicry)
+    #: the share of what it does that is its own ("own": what no column it was scored against can make,
+    #: in its most distinctive combination), then the share of that each group of those columns alone
+    #: can make, largest first (select.mimicry)
     mimicry: Mapping[str, float] = field(default_factory=dict)
 
     def own_text(self) -> str:

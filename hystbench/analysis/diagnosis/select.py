@@ -218,9 +218,11 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
                      - (len(eff.columns) + freed) * log_n)
             scores.append((delta, key, sol_e))
         scores = sorted(best_per_family(scores), key=lambda s: -s[0])
-        mimicked = mimicry(problem, column_groups(cal, generic, [c for e in named for c in e.columns]))
+        groups = column_groups(cal, generic, [c for e in named for c in e.columns])
+        mimicked = {None: mimicry(problem, groups)}  # and on the rows a DC-blind effect is judged on
+        mimicked.update({f: mimicry(dc_blind(problem, f), groups) for f in DC_BLIND if f in map(family, effects)})
         ranked += [Candidate(family(key), float(delta), parameters_of(effects[key], s), rnd,
-                             mimicry=mimicked(effects[key]))
+                             mimicry=mimicked.get(family(key), mimicked[None])(effects[key]))
                    for delta, key, s in scores]
         if not scores:
             break
@@ -298,8 +300,8 @@ def mimicry(problem: Problem, groups: Mapping[str, Sequence[Column]]) -> Callabl
     do (``"own"``, 0-1), and the share of that same change each group of them alone can make (by label,
     largest first).  What it does: its columns (and, for a nonlinear one, its change at its best grid
     value), whitened by the day's sigma on the rows that count, in their most distinctive combination
-    (the largest share outside the span: a generalised eigenproblem), so the figure does not depend on
-    how well the day fitted it.  A compliance on a bench day is a smaller airgap to a millionth: it may
+    (the largest share outside the span: an eigenproblem on an orthonormal basis of its columns), so the
+    figure does not depend on how well the day fitted it.  A compliance on a bench day is a smaller airgap to a millionth: it may
     score, it cannot be told from a recalibration, and this says so with a number.  The span is taken
     whole, priors aside: what the columns can do at any size.  The bases are computed once a round."""
     rows = problem.rows
@@ -324,10 +326,10 @@ def mimicry(problem: Problem, groups: Mapping[str, Sequence[Column]]) -> Callabl
             return {}
         R = C - whole @ (whole.T @ C)
         own, vecs = np.linalg.eigh(R.T @ R)  # C orthonormal: the share outside, per direction
-        v = C @ vecs[:, -1]
-        within = lambda Q: min(1.0, float(np.sum((Q.T @ v) ** 2)))  # noqa: E731 (v is a unit vector)
+        v = C @ vecs[:, -1]  # a unit vector: a basis's share of it is the squared norm of its projection
         out = {"own": float(min(1.0, max(0.0, own[-1])))}
-        out.update(sorted(((label, within(Q)) for label, Q in bases.items()), key=lambda kv: -kv[1]))
+        out.update(sorted(((label, min(1.0, float(np.sum((Q.T @ v) ** 2)))) for label, Q in bases.items()),
+                          key=lambda kv: -kv[1]))
         return out
 
     return shares
