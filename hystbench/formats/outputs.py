@@ -33,6 +33,11 @@ def _make_parent(path: Path, option: str) -> list[Path]:
     for folder in missing:
         try:
             folder.mkdir()
+        except FileExistsError:  # made meanwhile by another writer (two reports into one new folder)
+            if folder.is_dir():
+                continue
+            _remove_folders(made)
+            raise RecordingError(f"{option} {path}: cannot create the folder {folder}: a file has that name") from None
         except OSError as err:
             _remove_folders(made)
             raise RecordingError(f"{option} {path}: cannot create the folder {folder}: {err.strerror}") from err

@@ -68,3 +68,30 @@ def test_a_file_where_a_folder_should_be_is_one_clear_error(tmp_path):
             with make():
                 raise AssertionError("the block must not run")
     assert [p.name for p in tmp_path.iterdir()] == ["file"]
+
+
+def test_a_parent_folder_made_meanwhile_by_another_writer_is_used(tmp_path, monkeypatch):
+    """Two reports written at once into one new folder (the diagnosis benchmark's two workers): the
+    second finds the folder missing, then made by the first when it tries to make it.  It writes into
+    it, and a writer that fails afterwards does not remove the folder it did not make."""
+    import pathlib
+
+    shared = tmp_path / "runs"
+    real_exists = pathlib.Path.exists
+
+    def made_meanwhile(self, *args, **kwargs):
+        if self == shared and not real_exists(self):
+            self.mkdir()  # the other writer, between the check and the mkdir
+            return False
+        return real_exists(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "exists", made_meanwhile)
+    with output_folder(shared / "case_a") as stage:
+        (stage.path / "report.md").write_text("a")
+    assert (shared / "case_a" / "report.md").read_text() == "a"
+
+    shared = tmp_path / "again"  # the same race, and this writer fails: the folder is the other's
+    with pytest.raises(RuntimeError):
+        with output_folder(shared / "case_b"):
+            raise RuntimeError("the writer fails")
+    assert shared.is_dir() and not (shared / "case_b").exists()
