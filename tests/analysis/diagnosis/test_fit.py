@@ -43,3 +43,23 @@ def test_only_the_given_rows_are_fitted():
     sol = solve(y, np.ones_like(x), [Column("k", x)], rows=np.arange(5))
     assert sol.value("k")[0] == pytest.approx(3.0, rel=1e-12)
     assert sol.fitted[9] == pytest.approx(27.0)  # the model everywhere, fitted on the rows
+
+
+def test_a_column_inside_the_span_of_the_others_changes_nothing():
+    """A refused suspect's generic term is its fitted change beside its own columns: a column exactly in
+    their span.  The fit, and its chi2, must be that of the columns without it (numpy's lstsq on them,
+    an independent computation).  Strongly correlated columns of sizes 1e-3 to 1e3, like a calibration's:
+    the solver's rcond=-1 first solve lost 13 of chi2 to rounding here."""
+    rng = np.random.default_rng(1)
+    n, k = 1200, 150
+    scale = np.logspace(-3, 3, k)
+    X = rng.normal(size=(n, k)) * scale
+    X[:, 1:] += 0.999 * X[:, :1] * scale[1:] / scale[0]
+    d = 3.0 * rng.normal(size=n) + X[:, :5] @ rng.normal(size=5)
+    columns = [Column(f"c{i}", X[:, i]) for i in range(k)]
+    exact = float(np.sum((d - X @ np.linalg.lstsq(X, d, rcond=None)[0]) ** 2))
+    inside = Column("generic.suspect", X[:, :10] @ rng.normal(size=10))
+    for cols in (columns, columns + [inside], [inside] + columns):
+        assert solve(d, np.ones(n), cols).chi2 == pytest.approx(exact, rel=1e-9)
+    bounded = solve(d, np.ones(n), columns + [inside, Column("b", rng.normal(size=n), lower=0.0)])
+    assert bounded.chi2 <= exact * (1 + 1e-9)
