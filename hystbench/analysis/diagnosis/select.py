@@ -4,8 +4,7 @@ Each candidate effect is switched on in the same simulation as the baseline (:mo
 measured as columns of the linearised fit (:mod:`.columns`: one replay per parameter; a grid of
 replays, then a local column, for a time constant, whose effect is far from linear).  Scored by BIC
 against the recalibrated baseline, an effect is named only when decisively better than the baseline
-(NAME_MARGIN) and than the runner-up (RUNNER_UP_MARGIN, unless the two are not look-alikes: it
-explains NAME_MARGIN beyond the runner-up, ``score_beyond``), and when, modelled, it predicts the held-out
+(NAME_MARGIN) and than the runner-up (RUNNER_UP_MARGIN), and when, modelled, it predicts the held-out
 frequencies MIN_HELD_OUT_GAIN better where it acts; otherwise nothing significant is left.  The named
 effect joins the baseline, re-simulated at its fitted values (Gauss-Newton), and the rest are scored
 again (forward selection, at most MAX_ROUNDS effects).  Mains pick-up is scored on the lines
@@ -30,7 +29,7 @@ from .vector import CHANNELS
 from .result import Candidate
 
 __all__ = ["CandidateEffect", "Selection", "candidate_effects", "best_on_grid", "setting_at", "dc_blind", "named_parameters", "forward_selection", "family", "parameters_of",
-           "column_groups", "mimicry", "channel_variants", "score_beyond",
+           "column_groups", "mimicry", "channel_variants",
            "NAME_MARGIN", "RUNNER_UP_MARGIN", "MAX_ROUNDS"]
 
 #: BIC margins that make a finding decisive: over the baseline (Kass & Raftery's "very strong") and
@@ -182,22 +181,6 @@ def channel_variants(effects: Mapping[str, CandidateEffect]) -> dict[str, Candid
     return out
 
 
-def score_beyond(problem: Problem, m: np.ndarray, base: Sequence[Column], eff: CandidateEffect,
-                 other: CandidateEffect, log_n: float) -> float:
-    """``eff``'s score on top of the baseline with ``other`` in it: what it explains that ``other``
-    cannot.  Two effects close in score are look-alikes only when this is small; when each explains
-    its own misfit (a magnet's drift along the day beside a stiffer load cell) the better is named and
-    the other scored again in the next round.  Charged as :func:`forward_selection` charges a score."""
-    judge = dc_blind(dc_blind(problem, other.name), eff.name)
-    freed = dc_blind(problem, other.name).rows.size - judge.rows.size
-    m_other = m if other.offset is None else m + other.offset
-    m_both = m_other if eff.offset is None else m_other + eff.offset
-    without = judge.solve(m_other, list(base) + other.columns)
-    both = judge.solve(m_both, list(base) + other.columns + eff.columns)
-    return ((without.chi2 + without.chi2_prior) - (both.chi2 + both.chi2_prior)
-            - (len(eff.columns) + freed) * log_n)
-
-
 def dc_blind(problem: Problem, name: str) -> Problem:
     """``problem`` without the DC of the channel whose DC ``name`` makes unknowable (DC_BLIND)."""
     channel = DC_BLIND.get(family(name))
@@ -267,13 +250,9 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
         if not scores:
             break
         top, runner = scores[0], (scores[1][0] if len(scores) > 1 else -math.inf)
-        close = [s[1] for s in scores[1:] if top[0] - s[0] < RUNNER_UP_MARGIN]  # look-alikes, or not
-        if not (top[0] >= NAME_MARGIN and all(score_beyond(problem, m_named, base_cols, effects[top[1]], effects[k], log_n)
-                                               >= NAME_MARGIN for k in close)):
+        if not (top[0] >= NAME_MARGIN and top[0] - runner >= RUNNER_UP_MARGIN):
             say(f"round {rnd}: nothing decisive (best {family(top[1])} {top[0]:.1f}, runner-up {runner:.1f})")
             break
-        if close:
-            say(f"round {rnd}: {family(top[1])} still decisive beside {', '.join(map(family, close))} (not look-alikes)")
         eff = effects[top[1]]
         say(f"round {rnd}: {family(top[1])} (score {top[0]:.1f}, runner-up {runner:.1f}); re-simulating it")
         before = (named, [dataclasses.replace(e) for e in named], m_named, sol, calibration, problem)
