@@ -26,6 +26,7 @@ finding of its own.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from concurrent.futures import Executor
@@ -71,7 +72,7 @@ GAINS = {"gain.flux_Wb": ("flux_Wb", 0.1), "gain.force_N": ("force_N", 0.1)}
 class Probe:
     """One fitted parameter of a candidate effect: the effect's catalogue parameters at coordinate
     ``u`` are ``params(u)``; ``u = probe`` is where its column is measured; ``value(u)`` is the
-    catalogue value reported (and ``unit`` its unit), ``lower`` the bound on u."""
+    catalogue value reported (and ``unit`` its unit), ``lower`` and ``upper`` the bounds on u."""
 
     effect: str
     param: str
@@ -79,6 +80,7 @@ class Probe:
     params: Callable[[float], Mapping[str, Any]]
     value: Callable[[float], float]
     lower: float = -math.inf
+    upper: float = math.inf
     #: For an effect far from linear in u (a high-pass's time constant moves the force's DC and its
     #: transients at once): u values to simulate first; the best is refined by a local column.
     grid: tuple[float, ...] = ()
@@ -161,7 +163,11 @@ PROBES: Mapping[str, tuple[Probe, ...]] = {
     "excess_loss": (_linear("excess_loss", "coefficient_a_per_m_per_sqrt_t_per_s", 0.3, lower=0.0),),
     # the time constant on a grid (as its inverse; the loss peak w tau = 1 from 16 Hz to 1.6 kHz), the
     # reluctivity it adds (linear) measured there
-    "magnetic_relaxation": (_inverse("magnetic_relaxation", "time_constant_s", 1e3, RELAXATION_GRID),
+    # refined only within the grid's span: a shorter tau is, at every frequency the iron is played at,
+    # kappa tau dB/dt, the classical eddy field's form (refined to 2 us, it outscored the lamination eddy
+    # currents that were there); a longer one a lossless kappa B, a reluctivity
+    "magnetic_relaxation": (dataclasses.replace(_inverse("magnetic_relaxation", "time_constant_s", 1e3, RELAXATION_GRID),
+                                                lower=1.0 / max(RELAXATION_GRID), upper=1.0 / min(RELAXATION_GRID)),
                             _linear("magnetic_relaxation", "reluctivity_a_per_m_per_t", 40.0, lower=0.0)),
     "static_hysteresis": (_switch("static_hysteresis"),),
     "lamination_eddy_currents": (_switch("lamination_eddy_currents"),),

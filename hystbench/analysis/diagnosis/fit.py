@@ -31,12 +31,13 @@ MODEL_ERROR_FLOOR: Mapping[str, float] = {"current vs command": 2e-5, "flux vs c
 @dataclass(frozen=True)
 class Column:
     """One linear parameter: how the model vector moves per unit, its prior width (None: no prior,
-    a candidate's parameter) and its lower bound."""
+    a candidate's parameter) and its bounds."""
 
     name: str
     values: np.ndarray
     prior: float | None = None
     lower: float = -math.inf
+    upper: float = math.inf
 
 
 @dataclass(frozen=True)
@@ -137,6 +138,8 @@ def solve(residual: np.ndarray, sigma: np.ndarray, columns: Sequence[Column], ro
     A = np.vstack([J, P]) / norms
     y = np.concatenate([b, np.zeros(len(prior_rows))])
     lower = np.array([c.lower for c in columns]) * norms
+    upper = np.array([c.upper for c in columns]) * norms
+    bounded = np.isfinite(lower) | np.isfinite(upper)
     # ||A x - y||^2 = ||R x - Q'y||^2 + const (A = QR): the bounded solver's many inner least-squares
     # solves then work on an n x n triangle instead of thousands of rows, with the same minimiser
     Q, R = np.linalg.qr(A)
@@ -144,12 +147,12 @@ def solve(residual: np.ndarray, sigma: np.ndarray, columns: Sequence[Column], ro
     # adds nothing to the fit and makes R singular: the solver's first least squares keeps singular
     # values down to machine precision and lost 15 of chi2 to rounding on such a fit.  Fitted without it
     # (its coefficient 0), when it is free; the span, and so the fit, is the same.
-    keep = (np.abs(np.diag(R)) > DEPENDENT_TOLERANCE) | np.isfinite(lower)
+    keep = (np.abs(np.diag(R)) > DEPENDENT_TOLERANCE) | bounded
     if not keep.all():
         Q, R = np.linalg.qr(A[:, keep])
     x = np.zeros(len(columns))
-    x[keep] = lsq_linear(R, Q.T @ y, bounds=(lower[keep], np.full(int(keep.sum()), np.inf)),
-                         method="bvls" if np.isfinite(lower).any() else "trf", lsmr_tol="auto").x
+    x[keep] = lsq_linear(R, Q.T @ y, bounds=(lower[keep], upper[keep]),
+                         method="bvls" if bounded.any() else "trf", lsmr_tol="auto").x
     beta = x / norms
     resid = b - J @ beta
     prior_term = P @ beta

@@ -136,10 +136,11 @@ def candidate_effects(problem: Problem, pool: Sequence[str], presets: Mapping[st
     runs = iter(problem.model_many(requests))
     for name, pr in linear:
         eff = effects.setdefault(name, CandidateEffect(name, [], ()))
-        eff.columns.append(Column(f"{name}.{pr.param}", (next(runs) - m0) / pr.probe, lower=pr.lower))
+        eff.columns.append(Column(f"{name}.{pr.param}", (next(runs) - m0) / pr.probe, lower=pr.lower, upper=pr.upper))
         eff.probes += (pr,)
     for name, prs in gridded:  # measured around its best grid value
-        u, change = best_on_grid(prs[0], problem, calibration, [next(runs) for _ in prs[0].grid])
+        u, change = best_on_grid(prs[0], problem, calibration, [next(runs) for _ in prs[0].grid],
+                                 any_size=len(prs) > 1)
         around.append((name, prs, {**_probed(prs), prs[0].param: u}, change))
     # each of those around its starting point: a replay there (unless the grid made it) and one per
     # parameter stepped (a time constant or a frequency by a share of itself), all at once
@@ -152,7 +153,8 @@ def candidate_effects(problem: Problem, pool: Sequence[str], presets: Mapping[st
     runs = iter(problem.model_many(requests))
     for name, probes, at, *rest in around:
         change = rest[0] if rest else next(runs) - m0
-        cols = [Column(f"{name}.{pr.param}", (next(runs) - m0 - change) / _step(pr, at), lower=pr.lower - at[pr.param])
+        cols = [Column(f"{name}.{pr.param}", (next(runs) - m0 - change) / _step(pr, at), lower=pr.lower - at[pr.param],
+                       upper=pr.upper - at[pr.param])
                 for pr in probes]
         effects[name] = CandidateEffect(name, cols, probes, offset=change, at=dict(at))
     effects.update(channel_variants(effects))
@@ -272,8 +274,9 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
             e.at = {pr.param: 1.0 if pr.is_switch else e.at.get(pr.param, 0.0) + sol.value(f"{e.name}.{pr.param}")[0]
                     for pr in e.probes}
             e.offset = None
-            bounds = {f"{e.name}.{pr.param}": pr.lower - e.at[pr.param] for pr in e.probes}
-            e.columns = [dataclasses.replace(c, lower=bounds.get(c.name, c.lower)) for c in e.columns]
+            bounds = {f"{e.name}.{pr.param}": (pr.lower - e.at[pr.param], pr.upper - e.at[pr.param]) for pr in e.probes}
+            e.columns = [dataclasses.replace(c, lower=bounds[c.name][0], upper=bounds[c.name][1]) if c.name in bounds else c
+                         for c in e.columns]
         calibration = recalibrate(problem, fitted)
         m_named = calibration.m0
         sol = problem.solve(m_named, calibration.columns + generic + [c for e in named for c in e.columns])
@@ -291,7 +294,8 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
             effects.pop(top[1])  # the next round tries the others without it, beside what it fitted
             # (the named effects' fit, ``sol``, stays as it was: a generic term must not take from them)
             term = [Column(f"generic.{family(top[1])}", acts)] + [dataclasses.replace(c, name=f"generic.{c.name}",
-                                                                                  lower=-math.inf) for c in eff.columns]
+                                                                                  lower=-math.inf, upper=math.inf)
+                                                                  for c in eff.columns]
             generic += term
             if gain >= PREDICTIVE_GAIN:
                 predictive += term
@@ -402,7 +406,7 @@ def effect_params(named: Sequence[CandidateEffect], sol: Solution) -> dict[str, 
     out = {}
     for e in named:
         if e.probes:
-            at = {pr.param: max(e.at.get(pr.param, 0.0) + sol.value(f"{e.name}.{pr.param}")[0], pr.lower)
+            at = {pr.param: min(max(e.at.get(pr.param, 0.0) + sol.value(f"{e.name}.{pr.param}")[0], pr.lower), pr.upper)
                   for pr in e.probes}
             out[family(e.name)] = clamp(family(e.name), setting_at(e.probes, at))
     return out
@@ -427,11 +431,20 @@ def clamp(effect: str, params: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def best_on_grid(probe: Probe, problem: Problem, calibration: Calibration,
-                 runs: Sequence[np.ndarray]) -> tuple[float, np.ndarray]:
+                 runs: Sequence[np.ndarray], any_size: bool = False) -> tuple[float, np.ndarray]:
     """A nonlinear candidate simulated at each grid value: the value whose change fits best with the
-    calibration re-solved, and that change (the candidate's offset; local columns refine it)."""
+    calibration re-solved, and that change (the candidate's offset; local columns refine it).
+    ``any_size``: the effect has a size of its own beside the gridded parameter (a relaxation's
+    reluctivity beside its time constant), so each change is fitted at any size >= 0, not only at the
+    probe's: else the grid picks the time constant whose change at the probe's size does least harm."""
     m0, cal = calibration.m0, calibration.columns
-    best = min(((problem.solve(m, cal).chi2, u, m - m0) for u, m in zip(probe.grid, runs)), key=lambda b: b[0])
+
+    def chi2(m: np.ndarray) -> float:
+        if not any_size:
+            return problem.solve(m, cal).chi2
+        return problem.solve(m0, cal + [Column("size", m - m0, lower=0.0)]).chi2
+
+    best = min(((chi2(m), u, m - m0) for u, m in zip(probe.grid, runs)), key=lambda b: b[0])
     return best[1], best[2]
 
 

@@ -37,6 +37,15 @@ def test_a_lower_bound_holds_and_the_rest_refits():
     assert sol.value("offset")[0] == pytest.approx(np.mean(y), rel=1e-9)
 
 
+def test_an_upper_bound_holds_and_the_rest_refits():
+    """A relaxation's time constant is refined only within its grid's span: an upper bound on 1/tau."""
+    x = np.linspace(0, 1, 50)
+    y = 3.0 * x + 2.0  # the best slope is 3: a bound at 1 must hold it there, the offset takes the rest
+    sol = solve(y, np.ones_like(x), [Column("slope", x, upper=1.0), Column("offset", np.ones_like(x))])
+    assert sol.value("slope")[0] == pytest.approx(1.0, abs=1e-12)
+    assert sol.value("offset")[0] == pytest.approx(np.mean(y - x), rel=1e-9)
+
+
 def test_only_the_given_rows_are_fitted():
     x = np.arange(10.0)
     y = np.where(x < 5, 3.0 * x, 100.0)

@@ -1,6 +1,8 @@
 """What a candidate claims, where the held-out proof judges it (select.contribution, claimed=True), and which
 refused suspects stay in the model that is proven (select.forward_selection)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -223,3 +225,30 @@ def test_a_skew_of_one_channel_is_charged_for_one_parameter():
     assert family(sel.named[0].name) == "channel_skew" and sel.named[0].name == "channel_skew@flux_Wb"
     assert sel.ranked[0].name == "channel_skew"
     assert sel.ranked[0].score == pytest.approx(121.0 - np.log(n), abs=1e-6)
+
+
+def test_a_time_constant_with_a_size_of_its_own_is_chosen_at_any_size():
+    """A relaxation's grid of time constants is simulated at the probe's reluctivity.  The data hold
+    0.3 of the probe's change at the second time constant; the first's change is small and elsewhere.
+    At the probe's size the first does less harm (chi2 |d|^2 + |s1|^2 = 90 + 40 against 0.49 |s2|^2 = 490):
+    picked so, the relaxation's fitted size went to its bound of 0 on the independent bench's Cole-Cole
+    day.  Fitted at any size >= 0 the second explains the data exactly and is chosen; a high-pass's time
+    constant, which is its size too, is still chosen at the probe's."""
+    from hystbench.analysis.diagnosis.calibrate import Calibration
+    from hystbench.analysis.diagnosis.columns import PROBES
+    from hystbench.analysis.diagnosis.fit import Problem
+    from hystbench.analysis.diagnosis.select import best_on_grid
+
+    n = 30
+    first, second, _ = _blocks(n, (10, 10, 10))
+    s1, s2 = 2.0 * SIGMA * first, 10.0 * SIGMA * second  # chi2 40 and 1000 each alone
+    d = 0.3 * s2
+    sigma = np.full(n, SIGMA)
+    problem = Problem(d, sigma, np.arange(n), lambda requests: [], None, sigma, np.zeros(0, int))
+    calibration = Calibration([], [], np.zeros(n), {}, problem.solve(np.zeros(n), []), np.zeros((n, 0)))
+    probe = dataclasses.replace(PROBES["magnetic_relaxation"][0], grid=(1e3, 1e2))
+    assert problem.solve(s1, []).chi2 == pytest.approx(90.0 + 40.0)
+    assert problem.solve(s2, []).chi2 == pytest.approx(490.0)
+    assert best_on_grid(probe, problem, calibration, [s1, s2])[0] == 1e3
+    u, change = best_on_grid(probe, problem, calibration, [s1, s2], any_size=True)
+    assert u == 1e2 and np.array_equal(change, s2)
