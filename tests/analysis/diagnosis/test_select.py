@@ -252,3 +252,6 @@ def test_a_time_constant_with_a_size_of_its_own_is_chosen_at_any_size():
     assert best_on_grid(probe, problem, calibration, [s1, s2])[0] == 1e3
     u, change = best_on_grid(probe, problem, calibration, [s1, s2], any_size=True)
     assert u == 1e2 and np.array_equal(change, s2)
+    # candidate_effects asks for any size where a gridded effect has another parameter: the relaxation,
+    # not the high-pass or the leak, whose time constant is all they have
+    assert [name for name, prs in PROBES.items() if prs[0].grid and len(prs) > 1] == ["magnetic_relaxation"]
