@@ -12,6 +12,15 @@ from hystbench.analysis.diagnosis.select import CandidateEffect, contribution
 SIGMA = 0.01
 
 
+def _blocks(n: int, sizes: tuple[int, ...]) -> list[np.ndarray]:
+    """Indicator vectors of consecutive disjoint blocks of the given sizes."""
+    out, start = [], 0
+    for size in sizes:
+        out.append(np.r_[np.zeros(start), np.ones(size), np.zeros(n - start - size)])
+        start += size
+    return out
+
+
 def fitted(strength_a: float, noise_at_60: float):
     """An effect with two parameters: ``a`` moves numbers 0-49, ``b`` moves number 60 alone, where the
     data hold only noise (``noise_at_60`` sigmas): b is fitted at that, +- one sigma."""
@@ -51,7 +60,7 @@ def _selection_with_suspects():
     from hystbench.analysis.diagnosis.select import forward_selection
 
     n = 30
-    block = [np.r_[np.zeros(10 * k), np.ones(10), np.zeros(n - 10 * (k + 1))] for k in range(3)]
+    block = _blocks(n, (10, 10, 10))
     d = SIGMA * (50 * block[0] + 30 * block[1] + 20 * block[2])
     sigma = np.full(n, SIGMA)
     problem = Problem(d, sigma, np.arange(n), lambda requests: [np.zeros(n) for _ in requests], None, sigma,
@@ -136,7 +145,7 @@ def test_what_a_candidate_does_that_the_baseline_cannot_is_measured_exactly():
     from hystbench.analysis.diagnosis.select import column_groups, mimicry
 
     n, eps = 30, 1e-3
-    A, B, e = (np.r_[np.zeros(10 * k), np.ones(10), np.zeros(n - 10 * (k + 1))] for k in range(3))
+    A, B, e = _blocks(n, (10, 10, 10))
     sigma = np.full(n, SIGMA)
     problem = Problem(np.zeros(n), sigma, np.arange(n), lambda requests: [], None, sigma, np.zeros(0, int))
     groups = column_groups([Column("geometry.airgap_m", A), Column("discrepancy.iron.ecore@1A.k1.re.const", B)], [], [])
@@ -164,15 +173,6 @@ def test_the_report_says_what_share_of_a_candidate_is_its_own():
     assert c.own_text() == "1.5e-06 its own, 99.8 % within the calibration's knobs"
     assert c.to_json()["mimicry"]["own"] == 1.5e-6
     assert Candidate("x", 1.0, {}).own_text() == ""
-
-
-def _blocks(n: int, sizes: tuple[int, ...]) -> list[np.ndarray]:
-    """Indicator vectors of consecutive disjoint blocks of the given sizes."""
-    out, start = [], 0
-    for size in sizes:
-        out.append(np.r_[np.zeros(start), np.ones(size), np.zeros(n - start - size)])
-        start += size
-    return out
 
 
 def _select(d: np.ndarray, effects: dict, held_out_gain: float = 3.0):
