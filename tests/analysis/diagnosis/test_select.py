@@ -255,3 +255,22 @@ def test_a_time_constant_with_a_size_of_its_own_is_chosen_at_any_size():
     # candidate_effects asks for any size where a gridded effect has another parameter: the relaxation,
     # not the high-pass or the leak, whose time constant is all they have
     assert [name for name, prs in PROBES.items() if prs[0].grid and len(prs) > 1] == ["magnetic_relaxation"]
+
+
+def test_a_named_switch_reports_the_strength_the_final_fit_puts_on_it():
+    """A switch is simulated at strength 1 and its column (its change at 1) scales it in the final
+    fit, so the model holds 1 + that coefficient of the change: that is the strength reported, with the
+    coefficient's error (a continuous parameter reports the value it is simulated at, as before)."""
+    from hystbench.analysis.diagnosis.columns import PROBES
+    from hystbench.analysis.diagnosis.fit import Solution
+    from hystbench.analysis.diagnosis.select import named_parameters
+
+    switch = CandidateEffect("iron_saturation", [], PROBES["iron_saturation"], at={"strength": 1.0},
+                             std={"strength": 9.5})
+    drift = CandidateEffect("magnet_thermal_drift", [], PROBES["magnet_thermal_drift"], at={"kelvin_per_s": 0.02},
+                            std={"kelvin_per_s": 0.002})
+    sol = Solution(np.array([57.0, 0.5]), np.diag([2.5**2, 0.1**2]), 0.0, 0.0,
+                   ("iron_saturation.strength", "magnet_thermal_drift.kelvin_per_s"), np.zeros(1))
+    assert named_parameters(switch, sol) == {"strength": (58.0, 2.5)}
+    value, std = named_parameters(drift, sol)["kelvin_per_s"]
+    assert value == pytest.approx(0.02) and std == pytest.approx(0.002)
