@@ -42,7 +42,7 @@ from .calibrate import calibrate, recalibrated
 from .columns import Simulator, accepts, catalogue_params, check_known
 from .features import RecordFeatures, record_features
 from .fit import Problem, floor_scales, variance
-from .forward import MEASURED_DIRECTLY, points_of
+from .forward import MEASURED_DIRECTLY, clock_follows_frequency, points_of
 from .locate import locate_residual
 from .prove import cross_validate, folds, held_out
 from .result import Diagnosis
@@ -99,6 +99,11 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
                                 [2.0 * abs(f.harmonics["current_A"][1]) for f in data])
     if not clocked:
         warnings.append("the sidecars hold no start_time_s: slow effects cannot be placed along the day")
+    elif clock_follows_frequency(recs) and {"magnet_thermal_drift", "iron_thermal_drift"} & set(pool_names):
+        warnings.append("each block's frequencies were played in order, so there the day's clock runs with the "
+                        "frequency: a slow change along the day (a magnet or iron warming) looks like a smooth "
+                        "frequency dependence, which the baseline's discrepancy takes; play each block's "
+                        "frequencies in a shuffled order to tell them apart")
     # one BLAS thread: the fits are many small least squares, which a thread pool spread over busy
     # cores makes ten times slower (and a diagnosis is one core's work; the replays parallelise)
     with _replay_pool(jobs) as pool, threadpool_limits(limits=1, user_api="blas"):

@@ -28,7 +28,7 @@ from ...sim_backend.rig import SimulatedRig
 from ..method import recording_name
 from .features import RecordFeatures, record_features
 
-__all__ = ["Point", "Replayed", "points_of", "replay", "replay_rig", "record_mean", "replayed_features", "replay_features", "MEASURED_DIRECTLY", "with_effects", "with_value", "preset_value"]
+__all__ = ["Point", "Replayed", "points_of", "clock_follows_frequency", "replay", "replay_rig", "record_mean", "replayed_features", "replay_features", "MEASURED_DIRECTLY", "with_effects", "with_value", "preset_value"]
 
 #: Effects the replay leaves out: they add no periodic signal (noise, the ADC's grid) or one the
 #: features see as non-harmonic lines (mains), and are measured from the recording directly.
@@ -66,6 +66,23 @@ def points_of(recordings: Sequence[Recording], averaged_s: Sequence[float] | Non
                             rec.fs_hz, math.nan if averaged_s is None else float(averaged_s[n])))
         t = start + rec.duration_s
     return points, clocked
+
+
+def clock_follows_frequency(recordings: Sequence[Recording]) -> bool:
+    """Whether every block of the day that records flux (a rig at one current, three points or more) was
+    played in the order of its frequencies, up or down.  Why it matters: the baseline's iron discrepancy
+    is smooth in frequency per block, so there a slow change along the day's clock (a magnet or iron
+    warming) is one direction with it, and no fit can tell them apart."""
+    blocks: dict[tuple[str, float], list[tuple[float, float]]] = {}
+    for rec in recordings:
+        if rec.start_time_s is not None and "flux_Wb" in rec.channels:
+            blocks.setdefault((rec.rig, round(rec.current_pp_a, 6)), []).append((rec.start_time_s, rec.frequency_hz))
+    ordered = []
+    for block in blocks.values():
+        if len(block) >= 3:
+            f = [freq for _, freq in sorted(block)]
+            ordered.append(f == sorted(f) or f == sorted(f, reverse=True))
+    return bool(ordered) and all(ordered)
 
 
 def preset_value(preset: Mapping[str, Any], path: str) -> float:

@@ -104,3 +104,26 @@ def test_with_no_memory_a_short_high_pass_leaks_into_the_force_harmonics(monkeyp
     more than a noise floor."""
     whole = _highpass_force_harmonics(monkeypatch, 0.25, 1.25)
     assert np.max(np.abs(_highpass_force_harmonics(monkeypatch, 0.25, 0.0) - whole)) > FORCE_FLOOR_N
+
+
+def _rec(rig: str, f: float, ipp: float, start: float, flux: bool = True):
+    from hystbench.formats.recording import Recording
+
+    channels = {"current_A": np.zeros(8), **({"flux_Wb": np.zeros(8)} if flux else {})}
+    return Recording(None, 100e3, channels, {"rig": rig, "frequency_Hz": f, "current_pp_A": ipp,
+                                             "sample_rate_Hz": 100e3, "start_time_s": start})
+
+
+def test_a_day_played_in_frequency_order_is_told_its_clock_runs_with_the_frequency():
+    """The bench-day plan (each block's frequencies up, one clock): the clock and frequency are one
+    direction in every block that records flux.  One block shuffled breaks it; the voice coil's ordered
+    sweep (no flux, no iron discrepancy) and a block of two points do not count."""
+    freqs = (40.0, 80.0, 160.0, 320.0, 480.0)
+    day = [_rec("voicecoil_ferrite", f, 1.0, t, flux=False) for t, f in enumerate((40.0, 400.0, 3000.0))]
+    day += [_rec("ecore", f, 1.27, 100 + 10 * i) for i, f in enumerate(freqs)]
+    day += [_rec("ecore_pm", f, 0.7, 200 + 10 * i) for i, f in enumerate(freqs[::-1])]  # down counts too
+    day += [_rec("ecore_pm", f, 1.4, 300 + 10 * i) for i, f in enumerate((40.0, 480.0))]
+    assert forward.clock_follows_frequency(day)
+    shuffled = day[:3] + [_rec("ecore", f, 1.27, 100 + 10 * i) for i, f in enumerate((40.0, 480.0, 160.0, 80.0, 320.0))]
+    assert not forward.clock_follows_frequency(shuffled + day[8:])
+    assert not forward.clock_follows_frequency(day[:3])  # no block with flux: nothing to say
