@@ -21,7 +21,7 @@ only.  The procedure is issue 13's, on W instead of waveforms:
    ferrite the bulk eddy-current / relaxation analogue) and the excess term k_e f^0.5 B^1.5 (the
    catalogue's ``excess_loss``); then the generic forms with their orders in the rate fixed (a series
    of the dynamic field in dB/dt, a first-order relaxation after ramps into flat segments, a
-   temperature factor); last a free power law in f, B and dB/dt; each generic term reported as "not
+   temperature factor, a loss per cycle falling with f); last a free power law in f, B and dB/dt; each generic term reported as "not
    in the catalogue: <form> with <parameters>".  A term is taken only when better than the current
    model by >= 10 and than the runner-up by >= 6, when its size is determined (its energy at 100 kHz
    and 0.1 T beyond two standard errors; in the model without an earlier term it makes redundant, if
@@ -517,6 +517,10 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
     by_name = {t.name: t for t in LIBRARY}
     reported = [form(by_name[n], params[n]) for n in chosen]
     verdict = _verdict(chosen, reported, located, beyond, after, shapes, suspects, skipped)
+    if chosen and after > before:
+        verdict += (f"; the model with them predicts the held-out rows worse than the baseline ({before:.3f} -> "
+                    f"{after:.3f} log10): what they describe holds where they were calibrated and does not carry "
+                    "beyond it; weigh them with that")
     return {
         "material": material, "split": split, "calibrate_on": calibrate_on,
         "effect": next((n for n in chosen if by_name[n].in_catalogue), None),

@@ -20,6 +20,11 @@ show others.  What no catalogue name explains is still modelled, with a generic 
   MagNet's flat segments are the bridge's zero-voltage intervals (duty_2, duty_4; B truly flat when
   duty_1 == duty_3, otherwise slowly drifting), each after the ramp before it.  A sine or a triangle has
   none: the term is zero there, so it can be fitted only where flat segments were calibrated on.
+* ``falling`` (``falling_rate_dependence``): k_f (f/100 kHz)^-gamma (B/0.1 T)^delta, a loss per cycle that
+  falls with frequency, which no sum of the rate terms above can do (each adds loss as f grows).  Real
+  ferrites show it below a few hundred kHz (N87's sines: gamma 1.6, delta 1.9-2.0 from either split): the
+  high-frequency side of a relaxation peak below the band (a Debye's falls as 1/f, with B^2), or a loop
+  that the rate shrinks.  Shape-independent (a sine's and a triangle's alike at the same f and B_pk).
 * ``temperature``: the whole loop's energy scaled by exp(c1 (T - T0) + c2 (T - T0)^2), T0 = 25 degC --
   the usual Steinmetz temperature polynomial in log form; only where the rows carry a temperature that
   varies.
@@ -40,7 +45,7 @@ from ...formats.flux_shapes import segment_steps
 from .loss_shapes import sine_integral
 
 __all__ = ["Term", "Rows", "TERMS", "STEINMETZ", "SERIES", "RELAXATION", "TEMPERATURE", "TIERS", "LIBRARY", "B0_T", "RATE0_T_PER_S",
-           "T0_C", "FREE_BOUNDS", "n_params", "term_part", "term_gradient", "term_start", "term_bounds", "natural", "inert", "form"]
+           "T0_C", "FREE_BOUNDS", "FALLING", "n_params", "term_part", "term_gradient", "term_start", "term_bounds", "natural", "inert", "form"]
 
 B0_T = 0.1  # the reference flux density
 RATE0_T_PER_S = 1e6  # the relaxation's reference ramp rate, 1 T/us
@@ -184,6 +189,10 @@ SERIES = Term("rate_series", False,
               "a dynamic field in powers of dB/dt, H = a_1(B) dB/dt + a_2(B) dB/dt |dB/dt| (Taylor in the rate): "
               "k_1 (f/100 kHz) (B/0.1 T)^delta_1 S_2 + k_2 (f/100 kHz)^2 (B/0.1 T)^delta_2 S_3, not in the catalogue",
               1.0, 2.0, "k_1_J_per_m3_at_100kHz_0.1T", kind="series")
+FALLING = Term("falling_rate_dependence", False,
+               "a loss per cycle falling with frequency, k_f (f/100 kHz)^-gamma (B/0.1 T)^delta (the high-frequency side "
+               "of a relaxation peak below the band, or a loop the rate shrinks), not in the catalogue", 0.0, 2.0,
+               "k_f_J_per_m3_at_100kHz_0.1T", kind="falling")
 TEMPERATURE = Term("temperature_dependence", False,
                    "the loop's energy scaled by exp(c1 (T - 25 degC) + c2 (T - 25 degC)^2), not in the catalogue",
                    0.0, 0.0, "c1_per_K", kind="temperature")
@@ -195,14 +204,14 @@ TEMPERATURE = Term("temperature_dependence", False,
 #: and predicted 0.155 log10, where the series predicts 0.038 (docs/diagnosis.md, "The rate series").
 #: Where a calibration window cannot tell the two apart, the order decides; across the band a free
 #: exponent that is the truth is decisive on top of the series and drops it (``_drop_redundant``).
-TIERS = (tuple(TERMS.values()), (SERIES, RELAXATION, TEMPERATURE), (STEINMETZ,))
+TIERS = (tuple(TERMS.values()), (SERIES, RELAXATION, TEMPERATURE, FALLING), (STEINMETZ,))
 LIBRARY = tuple(t for tier in TIERS for t in tier)
 F0_HZ = 1e5  # the free term's reference frequency (its k is the energy there at B0, a sine)
 ENERGY_FLOOR_J_PER_M3 = 1e-9  # the least a term's energy per cycle may be at its reference point
 
 
 def n_params(t: Term) -> int:
-    return {"power": 3 if t.free else 1, "series": 4, "relaxation": 4, "temperature": 2}[t.kind]
+    return {"power": 3 if t.free else 1, "series": 4, "relaxation": 4, "temperature": 2, "falling": 3}[t.kind]
 
 
 def _relax_energy(x: np.ndarray, rows: Rows) -> np.ndarray:
@@ -226,6 +235,8 @@ def term_part(t: Term, x: np.ndarray, rows: Rows) -> np.ndarray:
         lf, lb = rows.ln_f - math.log(F0_HZ), rows.ln_b - math.log(B0_T)
         return np.logaddexp(x[0] + lf + x[1] * lb + rows.ln_shape_factor_of_order(2.0),
                             x[2] + 2.0 * lf + x[3] * lb + rows.ln_shape_factor_of_order(3.0))
+    if t.kind == "falling":
+        return x[0] - x[1] * (rows.ln_f - math.log(F0_HZ)) + x[2] * (rows.ln_b - math.log(B0_T))
     if t.kind == "relaxation":
         e = _relax_energy(x[1:], rows)
         with np.errstate(divide="ignore"):
@@ -253,6 +264,8 @@ def term_gradient(t: Term, x: np.ndarray, rows: Rows) -> np.ndarray:
         b = x[2] + 2.0 * lf + x[3] * lb + rows.ln_shape_factor_of_order(3.0)
         share = np.exp(a - np.logaddexp(a, b))
         return np.column_stack([share, share * lb, 1.0 - share, (1.0 - share) * lb])
+    if t.kind == "falling":
+        return np.column_stack([np.ones(n), -lf, lb])
     if t.kind == "relaxation":
         alpha, tau = x[1], math.exp(x[3])
         total, d_alpha, d_tau = np.zeros(n), np.zeros(n), np.zeros(n)
@@ -283,6 +296,8 @@ def term_start(t: Term, y: np.ndarray, rows: Rows, share: float, g0: float) -> l
         return [0.0, 0.0]
     if t.kind == "relaxation":
         return [float(np.median(y)) + math.log(share), 1.0, 2.5, g0]
+    if t.kind == "falling":
+        return [float(np.median(y)) + math.log(share), g0, 2.5]
     if t.kind == "series":
         return [float(np.median(y)) + math.log(share * g0), 2.0, float(np.median(y)) + math.log(share * (1 - g0)), 2.0]
     if t.free:
@@ -298,7 +313,9 @@ def term_starts(t: Term) -> tuple[float, ...]:
     if t.kind == "relaxation":
         return (math.log(1e-7), math.log(1e-5))
     if t.kind == "series":
-        return (0.9, 0.3)  # the first order's share of the start
+        return (0.9, 0.3)
+    if t.kind == "falling":
+        return (0.5, 1.0)  # the first order's share of the start
     return (0.0,)
 
 
@@ -311,6 +328,8 @@ def term_bounds(t: Term) -> tuple[list[float], list[float]]:
         return [-0.2, -0.01], [0.2, 0.01]
     if t.kind == "relaxation":
         return [floor, *RELAX_BOUNDS[0]], [np.inf, *RELAX_BOUNDS[1]]
+    if t.kind == "falling":  # gamma 0.1-2 (a Debye's tail falls as 1/f), delta as the free term's
+        return [floor, 0.1, FREE_BOUNDS[0][1]], [np.inf, 2.0, FREE_BOUNDS[1][1]]
     if t.kind == "series":
         return [floor, FREE_BOUNDS[0][1], floor, FREE_BOUNDS[0][1]], [np.inf, FREE_BOUNDS[1][1], np.inf, FREE_BOUNDS[1][1]]
     if t.free:
@@ -341,6 +360,9 @@ def natural(t: Term, x: np.ndarray, se: np.ndarray) -> dict[str, tuple[float, fl
             if k_order < 1e-6 * (k + k2):  # an order fitted to nothing has no exponent to report
                 del p[key]
         return p
+    if t.kind == "falling":
+        p.update({"gamma": (x[1], se[1]), "delta": (x[2], se[2])})
+        return p
     if t.kind == "relaxation":
         tau = math.exp(x[3])
         p.update({"alpha_r": (x[1], se[1]), "beta_r": (x[2], se[2]), "tau_s": (tau, tau * se[3])})
@@ -367,5 +389,8 @@ def form(t: Term, p: dict[str, tuple[float, float]]) -> str:
                              "field a_1(B) dB/dt + a_2(B) dB/dt |dB/dt|)",
               "flat_segment_relaxation": "k_r (|dB/dt|/1 T/us)^alpha_r (B_pk/0.1 T)^beta_r (1 - exp(-t_flat/tau)) "
                                      "per ramp into a flat segment (i2GSE)",
-              "temperature_dependence": "W exp(c1 (T - 25 degC) + c2 (T - 25 degC)^2)"}
+              "temperature_dependence": "W exp(c1 (T - 25 degC) + c2 (T - 25 degC)^2)",
+              "falling_rate_dependence": "k_f (f/100 kHz)^-gamma (B/0.1 T)^delta, a loss per cycle falling with "
+                                         "frequency (the high-frequency side of a relaxation peak below the band, or a "
+                                         "loop the rate shrinks)"}
     return f"{t.name} (not in the catalogue: {shapes.get(t.name, t.description)} with {pm})"

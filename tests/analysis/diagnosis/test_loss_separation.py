@@ -96,20 +96,24 @@ def _held_out_rms_direct(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.
     return float(np.sqrt(np.mean(np.log10(w[~train] / pred[~train]) ** 2)))
 
 
-def _held_out_rms_series(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.ndarray) -> float:
+def _held_out_rms_series(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.ndarray,
+                         falling: bool = False) -> float:
     """An independent fit of a second-order rate series on sines, ln W = ln(k_h B^beta exp(c ln^2 B)
-    + k_1 f B^d_1 + k_2 f^2 B^d_2), by scipy's least squares in log space from a few starts; held-out
-    rms log10 error."""
+    + k_1 f B^d_1 + k_2 f^2 B^d_2 [+ k_f f^-g B^d_f]), by scipy's least squares in log space from a few
+    starts; held-out rms log10 error."""
     from scipy.optimize import least_squares
 
     lf, lb = np.log(f / 1e5), np.log(b / 0.1)
 
     def model(x: np.ndarray, m: np.ndarray) -> np.ndarray:
-        return np.logaddexp.reduce([x[0] + x[1] * lb[m] + x[2] * lb[m] ** 2, x[3] + lf[m] + x[4] * lb[m],
-                                    x[5] + 2 * lf[m] + x[6] * lb[m]])
+        parts = [x[0] + x[1] * lb[m] + x[2] * lb[m] ** 2, x[3] + lf[m] + x[4] * lb[m], x[5] + 2 * lf[m] + x[6] * lb[m]]
+        if falling:
+            parts.append(x[7] - np.exp(x[8]) * lf[m] + x[9] * lb[m])
+        return np.logaddexp.reduce(parts)
 
     y = np.log(w)
-    fits = [least_squares(lambda x: model(x, train) - y[train], [0.0, 2.5, 0.0, k1, 2.5, k2, 2.5])
+    extra = [-3.0, 0.0, 2.0] if falling else []
+    fits = [least_squares(lambda x: model(x, train) - y[train], [0.0, 2.5, 0.0, k1, 2.5, k2, 2.5] + extra)
             for k1 in (-4.0, -1.0) for k2 in (-4.0, -1.0)]
     x = min(fits, key=lambda s: s.cost).x
     return float(np.sqrt(np.mean(((y[~train] - model(x, ~train)) / math.log(10)) ** 2)))
@@ -125,28 +129,34 @@ def test_n87_rate_dependent_term_named_and_held_out_error_shrinks():
     assert after < before / 1.5  # the direction, measured here without the tool
     series = _held_out_rms_series(f, b, w, train)
     assert series < after / 1.5  # a second order in the rate extrapolates better still (measured 0.041, 0.106)
+    both = _held_out_rms_series(f, b, w, train, falling=True)
+    assert both < series / 1.5  # with a loss per cycle falling with f beside it, better again (0.019, 0.041)
     r = diagnose_loss_table(REAL / "magnet_N87_sine.csv", split="low_third")
-    # the library's rate series (not in the catalogue) is taken; a free Steinmetz term on top of it is a
-    # suspect, its size undetermined.  Fitted on 50-190 kHz in the series' place, the free term went to
-    # alpha ~3.8 and predicted 0.155 (1.55x)
-    assert "rate_series" in r["effects"] and "rate_series" in r["not_in_catalogue"] and r["reported"]
+    # the library's rate series and falling term (not in the catalogue) are taken; a free Steinmetz term on
+    # top of them is a suspect, its size undetermined.  Fitted on 50-190 kHz in the series' place, the free
+    # term went to alpha ~3.8 and predicted 0.155 (1.55x)
+    assert r["effects"] == ["rate_series", "falling_rate_dependence"] and r["not_in_catalogue"] == r["effects"]
     assert r["rows"]["calibration"] == int(train.sum())
     assert r["residual_before_log10"] == pytest.approx(before, rel=0.25)
-    assert r["residual_after_log10"] == pytest.approx(series, rel=0.3)  # measured 0.038
-    assert r["improvement"] > 5  # measured 6.27
+    assert r["residual_after_log10"] == pytest.approx(both, rel=0.3)  # measured 0.019
+    assert r["improvement"] > 10  # measured 12.8
     assert r["located"]["trend"]["slope_log_f"] > 0.3  # W per cycle grows with f
-    assert r["other_split"]["improvement"] > 7  # the interleaved split: measured 11.6
+    assert r["other_split"]["improvement"] > 12  # the interleaved split: measured 18.2
 
 
 def test_a_rate_term_whose_size_is_undetermined_is_a_suspect_not_a_finding():
-    """N49's loss per cycle is flat to 190 kHz (docs/diagnosis.md): fitted there, the free term goes to its
-    lower bounds in alpha and delta with its size unresolved (relative standard error > 1): it trades
-    with the baseline's B shape.  It is reported as a suspect, and nothing is named."""
+    """N49's loss per cycle falls with f to about 140 kHz and rises above 190 kHz (docs/diagnosis.md).
+    Fitted at 50-190 kHz the falling term is taken (the data do fall there); the rate terms beside it fit
+    decisively with their sizes unresolved (relative standard error > 0.5: they trade with it and the
+    baseline's B shape), so they are suspects, not findings.  Held out to 500 kHz the model then predicts
+    worse than the baseline, and the verdict says so rather than leaving the name to speak."""
     r = diagnose_loss_table(REAL / "magnet_N49_sine.csv", split="low_third")
-    assert r["effects"] == []
-    sizes = [s["scale_rel_std"] for s in r["suspects"] if "scale_rel_std" in s]
-    assert sizes and min(sizes) > 0.5
+    assert r["effects"] == ["falling_rate_dependence"]
+    sizes = {s["name"]: s["scale_rel_std"] for s in r["suspects"] if "scale_rel_std" in s}
+    assert "rate_series" in sizes and min(sizes.values()) > 0.5
     assert "is not determined" in r["verdict"]
+    assert r["residual_after_log10"] > r["residual_before_log10"]
+    assert "predicts the held-out rows worse than the baseline" in r["verdict"]
 
 
 def test_n87_permeability_energy_grows_with_frequency():
@@ -299,10 +309,10 @@ def test_real_n87_sine_and_shapes_are_diagnosed_together():
     assert set(r["other_split"]["shape_groups"]) == {"sine", "triangle", "trapezoid"}
     # the figures, as measured with margin (docs/diagnosis.md): low_third 3.22x (the rate series, not in
     # the catalogue; the free exponent on top of it is refused, it extrapolates worse inside the
-    # calibration window), interleaved 6.62x (the free exponent, which makes the series taken before it
-    # redundant)
+    # calibration window), interleaved 6.37x (the series and the loss falling with f)
     assert r["improvement"] > 2.7 and r["effects"] == ["rate_series"]
-    assert r["other_split"]["improvement"] > 5.5 and r["other_split"]["effects"] == ["steinmetz_rate_dependence"]
+    assert r["other_split"]["improvement"] > 5.5
+    assert r["other_split"]["effects"] == ["rate_series", "falling_rate_dependence"]
     json.dumps(r, allow_nan=False)
 
 

@@ -39,11 +39,13 @@ def _shape_factor(d: tuple[float, ...], p: float) -> float:
 
 def table(seed: int, *, k_c: float = 0.0, steinmetz: tuple[float, float, float] | None = None,
           relax: tuple[float, float, float, float] | None = None,
-          series: tuple[float, float, float, float] | None = None):
+          series: tuple[float, float, float, float] | None = None,
+          falling: tuple[float, float, float] | None = None):
     """A grid of 16 frequencies 50-500 kHz x 6 flux densities 20-250 mT x SHAPES, W per cycle known:
     rate-independent K_H (B/0.1)^BETA, + k_c f B^2 S_2, + k_s (f/100 kHz)^g (B/0.1)^d S_(1+g), + per flat
     segment k_r (|dB/dt| / 1 T/us)^a_r (B/0.1)^b_r (1 - exp(-t_flat/tau)), + the rate series
-    k_1 (f/100 kHz) (B/0.1)^d_1 S_2 + k_2 (f/100 kHz)^2 (B/0.1)^d_2 S_3."""
+    k_1 (f/100 kHz) (B/0.1)^d_1 S_2 + k_2 (f/100 kHz)^2 (B/0.1)^d_2 S_3, + a loss falling with f,
+    k_f (f/100 kHz)^-g_f (B/0.1)^d_f (every shape alike)."""
     rng = np.random.default_rng(seed)
     f0 = np.arange(50e3, 501e3, 30e3)
     grid = [(f, b, d) for f in f0 for b in np.geomspace(0.02, 0.25, 8) for d in SHAPES]
@@ -61,6 +63,9 @@ def table(seed: int, *, k_c: float = 0.0, steinmetz: tuple[float, float, float] 
         k_1, d_1, k_2, d_2 = series
         s3 = np.array([_shape_factor(tuple(d), 3.0) for d in duty])
         w = w + k_1 * (f / 1e5) * (b / 0.1) ** d_1 * s2 + k_2 * (f / 1e5) ** 2 * (b / 0.1) ** d_2 * s3
+    if falling is not None:
+        k_f, g_f, d_f = falling
+        w = w + k_f * (f / 1e5) ** -g_f * (b / 0.1) ** d_f
     if relax is not None:
         k_r, a_r, b_r, tau = relax
         flat = duty[:, 1] > 0
@@ -213,3 +218,21 @@ def test_the_fits_jacobian_is_the_derivative_of_the_model_for_every_term_and_wav
         numeric = np.array([approx_fprime(x, lambda v, r=r: log_energy(v, LIBRARY, rows)[r], 1e-7) for r in range(n)])
         assert np.all(np.isfinite(exact))
         np.testing.assert_allclose(exact, numeric, rtol=1e-4, atol=1e-6)
+
+
+FALLING_TRUTH = (0.1, 1.5, 2.0)  # k_f J/m^3 at 100 kHz, 0.1 T; gamma; delta: N87's sines fit 0.05-0.07, 1.6, 1.9-2.0
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_loss_falling_with_frequency_is_recovered_beside_the_rate_series(seed: int):
+    """A loss per cycle that falls with f (the tail of a relaxation peak below the band), beside the rate
+    series, calibrated on 50-170 kHz: no rate term can fall, so the falling term is taken, named as not in
+    the catalogue, its exponents within their errors of the truth, and the rows to 500 kHz are predicted
+    within a few noise floors, as the series alone is (its first order is not resolved by the window)."""
+    f, b, w, duty = table(seed, series=SERIES_TRUTH, falling=FALLING_TRUTH)
+    r = diagnose_energy(f, b, w, duty=duty)
+    assert "falling_rate_dependence" in r["effects"] and "falling_rate_dependence" in r["not_in_catalogue"]
+    p = r["parameters"]["falling_rate_dependence"]
+    for key, truth in zip(("k_f_J_per_m3_at_100kHz_0.1T", "gamma", "delta"), FALLING_TRUTH):
+        assert _within(p[key], truth), (key, p[key], truth)
+    assert r["improvement"] > 5 and r["residual_after"] < 6  # measured 16.3x, 3.3 and 10.1x, 5.5 noise floors
