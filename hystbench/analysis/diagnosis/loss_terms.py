@@ -313,9 +313,9 @@ def term_starts(t: Term) -> tuple[float, ...]:
     if t.kind == "relaxation":
         return (math.log(1e-7), math.log(1e-5))
     if t.kind == "series":
-        return (0.9, 0.3)
+        return (0.9, 0.3)  # the first order's share of the start
     if t.kind == "falling":
-        return (0.5, 1.0)  # the first order's share of the start
+        return (0.5, 1.0)  # gamma
     return (0.0,)
 
 
