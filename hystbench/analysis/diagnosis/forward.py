@@ -69,8 +69,8 @@ def points_of(recordings: Sequence[Recording], averaged_s: Sequence[float] | Non
 
 
 def clock_follows_frequency(recordings: Sequence[Recording]) -> bool:
-    """Whether every block of the day that records flux (a rig at one current, three points or more) was
-    played in the order of its frequencies, up or down.  Why it matters: the baseline's iron discrepancy
+    """Whether every block of the day that records flux (a rig at one current, three frequencies or more)
+    was played in the order of its frequencies, up or down.  Why it matters: the baseline's iron discrepancy
     is smooth in frequency per block, so there a slow change along the day's clock (a magnet or iron
     warming) is one direction with it, and no fit can tell them apart."""
     blocks: dict[tuple[str, float], list[tuple[float, float]]] = {}
@@ -79,7 +79,7 @@ def clock_follows_frequency(recordings: Sequence[Recording]) -> bool:
             blocks.setdefault((rec.rig, round(rec.current_pp_a, 6)), []).append((rec.start_time_s, rec.frequency_hz))
     ordered = []
     for block in blocks.values():
-        if len(block) >= 3:
+        if len({freq for _, freq in block}) >= 3:  # a point repeated at one frequency has no order to hide in
             f = [freq for _, freq in sorted(block)]
             ordered.append(f == sorted(f) or f == sorted(f, reverse=True))
     return bool(ordered) and all(ordered)

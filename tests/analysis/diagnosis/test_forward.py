@@ -117,7 +117,7 @@ def _rec(rig: str, f: float, ipp: float, start: float, flux: bool = True):
 def test_a_day_played_in_frequency_order_is_told_its_clock_runs_with_the_frequency():
     """The bench-day plan (each block's frequencies up, one clock): the clock and frequency are one
     direction in every block that records flux.  One block shuffled breaks it; the voice coil's ordered
-    sweep (no flux, no iron discrepancy) and a block of two points do not count."""
+    sweep (no flux, no iron discrepancy), a block of two points and one frequency repeated do not count."""
     freqs = (40.0, 80.0, 160.0, 320.0, 480.0)
     day = [_rec("voicecoil_ferrite", f, 1.0, t, flux=False) for t, f in enumerate((40.0, 400.0, 3000.0))]
     day += [_rec("ecore", f, 1.27, 100 + 10 * i) for i, f in enumerate(freqs)]
@@ -127,3 +127,5 @@ def test_a_day_played_in_frequency_order_is_told_its_clock_runs_with_the_frequen
     shuffled = day[:3] + [_rec("ecore", f, 1.27, 100 + 10 * i) for i, f in enumerate((40.0, 480.0, 160.0, 80.0, 320.0))]
     assert not forward.clock_follows_frequency(shuffled + day[8:])
     assert not forward.clock_follows_frequency(day[:3])  # no block with flux: nothing to say
+    repeated = [_rec("ecore", 320.0, 1.27, 10 * i) for i in range(4)]  # one frequency again and again
+    assert not forward.clock_follows_frequency(repeated)
