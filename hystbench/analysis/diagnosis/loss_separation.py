@@ -22,8 +22,9 @@ only.  The procedure is issue 13's, on W instead of waveforms:
    catalogue's ``excess_loss``); then the generic forms with their orders in the rate fixed (a series
    of the dynamic field in dB/dt, a first-order relaxation after ramps into flat segments, a
    temperature factor, a loss per cycle falling with f); last a free power law in f, B and dB/dt; each
-   generic term reported as "not in the catalogue: <form> with <parameters>".  A term is taken only when better than the current
-   model by >= 10 and than the runner-up by >= 6, when its size is determined (its energy at 100 kHz
+   generic term reported as "not in the catalogue: <form> with <parameters>".  A term is taken only
+   when better than the current model by >= 10 and than the runner-up by >= 6, when its size is
+   determined (its energy at 100 kHz
    and 0.1 T beyond two standard errors; in the model without an earlier term it makes redundant, if
    there is one), and when, fitted on the split's own rule inside the calibration rows, it predicts
    the rest of them better (else a suspect); a generic term that makes earlier ones redundant drops
