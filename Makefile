@@ -33,8 +33,10 @@ demo: $(STAMP)
 # daemons, command lines), and each compiled the package and rewrote the tests from source (a worker
 # took 10 s to collect, 5 s with the cache).  --no-loadscope-reorder keeps the order tests/conftest.py
 # gives the files (longest first); xdist's default reorders them by their number of tests, which sent
-# the 70 s diagnosis file out last, to run alone at the end.
-PYTEST := env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -q -n 4 --dist loadfile --no-loadscope-reorder
+# the 70 s diagnosis file out last, to run alone at the end.  One BLAS thread per process: four
+# workers with two OpenBLAS threads each on two cores spent a third of the suite's CPU spinning
+# (240 -> 187 s, docs/performance.md).
+PYTEST := env -u PYTHONDONTWRITEBYTECODE OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 4 --dist loadfile --no-loadscope-reorder
 
 test: $(STAMP)
 	$(PYTEST)

@@ -59,6 +59,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.constants import mu_0
 from scipy.optimize import least_squares
+from threadpoolctl import threadpool_limits
 
 from ...errors import EstimationError, RecordingError, script_status
 from ...formats.material_data import LossTable, read_material_table
@@ -471,7 +472,11 @@ def select_on_split(rows: Rows, w: np.ndarray, split: str, calibrate_on: str
         if train.sum() < 12:
             raise EstimationError(f"split {split!r}: {int(train.sum())} calibration rows at the calibration "
                                   "frequencies; at least 12 are needed")
-    seq, candidates, chosen, suspects, skipped = _select(rows.take(train), w[train], split)
+    # The fits' linear algebra is a few thousand SVDs of tall, thin Jacobians: a second BLAS thread
+    # makes them no faster alone and, beside other work, spins for its share (a fit took 53 s instead
+    # of 4 s in the parallel test run; docs/performance.md).
+    with threadpool_limits(limits=1, user_api="blas"):
+        seq, candidates, chosen, suspects, skipped = _select(rows.take(train), w[train], split)
     return train, seq, candidates, chosen, suspects, skipped
 
 
