@@ -284,12 +284,14 @@ def write_report(diagnosis: Diagnosis, out_dir: str | Path, *, overwrite: bool =
 def render_loss_report(results: list[Mapping[str, Any]], folder: str | Path) -> Path:
     """A page for measured loss tables (``analysis.diagnosis.loss_separation``): per table the verdict,
     the named terms' parameters, the held-out error before and after, and its figure."""
+    from ..analysis.diagnosis.loss_separation import SPLITS
     from .loss_figures import loss_separation_figure, loss_shapes_figure
 
     folder = Path(folder)
     lines = ["# Diagnosis of measured loss tables", "",
              "A rate-independent loss (energy per cycle independent of frequency, as the catalogue's "
-             "static_hysteresis) is calibrated at the lowest frequencies; the rest is held out.", ""]
+             "static_hysteresis) is calibrated at the lowest frequencies; the rest is held out. Each table is "
+             "then calibrated across the band as well, the frequencies between held out.", ""]
     for n, r in enumerate(results):
         name = Path(str(r["path"])).stem
         png = f"loss_{n}_{name}.png"
@@ -301,6 +303,11 @@ def render_loss_report(results: list[Mapping[str, Any]], folder: str | Path) -> 
         lines += [f"## {r.get('material') or name} ({name})", "", str(r["verdict"]) + ".", "",
                   f"Held-out rms error of log10(energy per cycle): {r['residual_before_log10']:.3f} before, "
                   f"{r['residual_after_log10']:.3f} after ({'n/a' if imp is None else f'{imp:.2f}x'}).", ""]
+        if "other_split" in r:  # the same library calibrated across the band, held out between
+            o = r["other_split"]
+            o_imp = "n/a" if o.get("improvement") is None else f"{o['improvement']:.2f}x"
+            lines += [f"Calibrated instead at the {SPLITS[o['split']]} of the frequencies ({o['split']}): {', '.join(o['effects']) or 'nothing'} named, "
+                      f"held out {o['residual_before_log10']:.3f} -> {o['residual_after_log10']:.3f} ({o_imp}).", ""]
         for g, v in r.get("shapes", {}).get("groups", {}).items():
             lines.append(f"- {g}: {v['residual_before_log10']:.3f} -> {v['residual_after_log10']:.3f} "
                          f"({v['held_out']} held out)")

@@ -157,6 +157,12 @@ def test_a_loss_table_goes_to_the_loss_separation(capsys):
     assert code == 0, err
     doc = json.loads(out)
     assert doc["path"] == str(table) and {"effect", "effects", "residual_before", "residual_after"} <= set(doc)
+    # the table shows both splits: the prescribed one, then across the band (its own figure in the row)
+    code, out, err = _run([str(table)], capsys)
+    rows = [line for line in out.splitlines() if "lowest" in line]
+    assert code == 0 and len(rows) == 2 and "lowest third" in rows[0] and "lowest fifth + every" in rows[1]
+    other = doc["other_split"]
+    assert f"{other['residual_after_log10']:.3f}" in rows[1] and f"{other['improvement']:.2f}x" in rows[1]
 
 
 REAL = Path(__file__).parents[1] / "data" / "real"

@@ -266,6 +266,23 @@ def test_record_verbose_into_a_closed_pipe_still_records_everything(tmp_path):
     assert sum(b.n for b in iter_blocks(log)) == 50_000  # 0.5 s at 100 kS/s
 
 
+def test_diagnose_into_a_closed_pipe_still_writes_its_report(tmp_path):
+    """``diagnose TABLE --report DIR | head``: the report is written whole before the table is printed."""
+    table = Path(__file__).parents[1] / "data" / "real" / "magnet_N87_sine.csv"
+    rep = tmp_path / "rep"
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "hystbench", "diagnose", str(table), "--report", str(rep)],
+                              stdout=w, stderr=subprocess.PIPE, text=True, timeout=300)
+    finally:
+        os.close(w)
+    assert proc.stderr == "" and proc.returncode == 1  # 1: the table had no reader
+    page = (rep / "README.md").read_text()
+    assert "rate_series" in page and "(interleaved)" in page and (rep / "loss_0_magnet_N87_sine.png").stat().st_size
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rep"]  # no staging folder left
+
+
 # --- 4. fit-material --refit writes to --out, never into the package -----------------------------------
 def test_refit_writes_the_material_files_to_out_and_leaves_the_shipped_ones(tmp_path, capsys):
     shipped = sorted((CONFIG_DIR / "materials").glob("*.toml"))

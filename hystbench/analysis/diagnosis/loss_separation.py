@@ -67,7 +67,7 @@ from .loss_shapes import calibration_shapes, locate_shapes
 from .loss_terms import (B0_T, FREE_BOUNDS, LIBRARY, STEINMETZ, TERMS, TIERS, Rows, Term, form, inert, n_params, natural,
                          term_bounds, term_gradient, term_part, term_start, term_starts)
 
-__all__ = ["TERMS", "Term", "TermFit", "bic", "energy_per_cycle", "split_mask", "fit_terms", "noise_floor",
+__all__ = ["TERMS", "Term", "TermFit", "bic", "energy_per_cycle", "SPLITS", "split_mask", "fit_terms", "noise_floor",
            "calibrate_split", "log_energy", "select_on_split", "energy_table", "diagnose_energy", "diagnose_loss_table", "loss_table_groups", "rate_trend", "main"]
 
 NAME_DELTA_BIC = 10.0  # decisively better than the current model (issue 13)
@@ -132,6 +132,10 @@ def energy_per_cycle(table: LossTable, *, shapes: bool = False) -> np.ndarray:
         return table.columns["loss_W_per_m3"] / f
     mu = table.columns["mu_real"] + 1j * table.columns["mu_imag"]
     return np.pi * b**2 * (-mu.imag) / (mu_0 * np.abs(mu) ** 2)
+
+
+#: Which of a table's distinct frequencies each split calibrates at, in words (the rest is held out).
+SPLITS = {"low_third": "lowest third", "interleaved": "lowest fifth + every third"}
 
 
 def split_mask(f: np.ndarray, how: str) -> np.ndarray:
