@@ -190,6 +190,7 @@ def _loss_tables(groups: list[list[Any]], stage: Any) -> tuple[list[dict[str, An
 
 
 def _print_loss_tables(results: list[dict[str, Any]], page: Path | None, args: argparse.Namespace) -> int:
+    """The JSON document, or a row per split of each table and its verdict (after the report is written)."""
     if args.json:
         print(json.dumps(results[0] if len(results) == 1 else results, indent=2, allow_nan=False))
         return 0

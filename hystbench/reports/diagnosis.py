@@ -306,8 +306,9 @@ def render_loss_report(results: list[Mapping[str, Any]], folder: str | Path) -> 
         if "other_split" in r:  # the same library calibrated across the band, held out between
             o = r["other_split"]
             o_imp = "n/a" if o.get("improvement") is None else f"{o['improvement']:.2f}x"
-            lines += [f"Calibrated instead at the {SPLITS[o['split']]} of the frequencies ({o['split']}): {', '.join(o['effects']) or 'nothing'} named, "
-                      f"held out {o['residual_before_log10']:.3f} -> {o['residual_after_log10']:.3f} ({o_imp}).", ""]
+            lines += [f"Calibrated instead at the {SPLITS[o['split']]} of the frequencies ({o['split']}): "
+                      f"{', '.join(o['effects']) or 'nothing'} named, held out {o['residual_before_log10']:.3f} -> "
+                      f"{o['residual_after_log10']:.3f} ({o_imp}).", ""]
         for g, v in r.get("shapes", {}).get("groups", {}).items():
             lines.append(f"- {g}: {v['residual_before_log10']:.3f} -> {v['residual_after_log10']:.3f} "
                          f"({v['held_out']} held out)")
