@@ -206,6 +206,9 @@ def _print_loss_tables(results: list[dict[str, Any]], page: Path | None, args: a
     for r in results:  # the prescribed split, then the other one (a proof across the band)
         names = " + ".join(Path(p).name for p in r.get("paths", [r["path"]]))
         for label, s in ((names, r), ("", r["other_split"])):
+            if "refused" in s:  # too few frequencies for this split
+                t.add_row(escape(label), SPLITS[s["split"]], "not possible: too few frequencies", "", "", "")
+                continue
             imp = s.get("improvement")
             t.add_row(escape(label), SPLITS[s["split"]], escape(", ".join(s["effects"]) or "none"),
                       f"{s['residual_before_log10']:.3f}", f"{s['residual_after_log10']:.3f}",

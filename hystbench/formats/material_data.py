@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import RecordingError
 from .small_files import MAX_TABLE_BYTES, excerpt, read_json, read_text
 
-__all__ = ["DUTY_COLUMNS", "LossTable", "LAYOUTS", "REQUIRED_SIDECAR_KEYS", "REQUIRED_WAVEFORM_KEYS",
+__all__ = ["COLUMN_UNITS", "DUTY_COLUMNS", "LossTable", "LAYOUTS", "REQUIRED_SIDECAR_KEYS", "REQUIRED_WAVEFORM_KEYS",
            "WAVEFORM_COLUMNS", "WaveformTable", "read_material_table", "read_waveform_table"]
 
 #: Column layouts by kind (the sidecar's ``kind`` must match the header's).
@@ -44,11 +44,16 @@ LAYOUTS = {
 #: MagNet's duty fractions, optional in a core-loss table (between the flux density and the loss).
 DUTY_COLUMNS = ("duty_1", "duty_2", "duty_3", "duty_4")
 
+#: The unit of every column a material table may have, as its sidecar must give it.
+COLUMN_UNITS = {"frequency_Hz": "Hz", "flux_density_peak_T": "T", "loss_W_per_m3": "W/m^3", "mu_real": "1",
+                "mu_imag": "1", **{c: "1" for c in DUTY_COLUMNS}}
+
 #: Sidecar keys every table must have.
 REQUIRED_SIDECAR_KEYS = ("material", "kind", "source", "licence", "units", "core_shape", "temperature_C", "trimmed")
 
 _NUMBER = re.compile(r"\s*[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?\s*", re.A)  # finite decimals only
 _POSITIVE = ("frequency_Hz", "flux_density_peak_T")
+MAX_FLUX_DENSITY_T = 5.0  # twice the highest saturation of any magnetic material (FeCo, 2.45 T)
 _DUTY_SUM_TOL = 1e-9  # MagNet's tenths in float64 sum to 1 within 2e-16
 
 
@@ -91,9 +96,14 @@ def read_material_table(path: str | Path) -> LossTable:
     kind = meta["kind"]
     names, data = _read_rows(csv_path, _layouts(kind), kind)
     units = meta["units"]
+    side = csv_path.with_suffix(".json")
     if not isinstance(units, dict) or sorted(units) != sorted(names):
-        raise RecordingError(f"{csv_path.with_suffix('.json')}: key 'units' must give the unit of every column "
-                             f"({', '.join(names)}), got {units!r}")
+        raise RecordingError(f"{side}: key 'units' must give the unit of every column ({', '.join(names)}), "
+                             f"got {units!r}")
+    for name in names:  # the header names the unit too: a sidecar that says otherwise is a table in other units
+        if units[name] != COLUMN_UNITS[name]:
+            raise RecordingError(f"{side}: key 'units': {name} is in {units[name]!r}; this reader takes "
+                                 f"{COLUMN_UNITS[name]!r} (convert the column)")
     _check_values(csv_path, names, data)
     return LossTable(csv_path, kind, {n: data[:, j].copy() for j, n in enumerate(names)}, meta)
 
@@ -137,7 +147,8 @@ def _read_rows(path: Path, layouts: tuple[tuple[str, ...], ...], kind: str) -> t
         raise RecordingError(f"{path}: no rows after the header")
     try:  # the fast path; the loop below runs only to name a defect
         data = np.array([[float(x) for x in line.split(",")] for line in lines[1:]], dtype=np.float64)
-        ok = data.ndim == 2 and data.shape[1] == len(names) and all(_NUMBER.fullmatch(x) for x in ",".join(lines[1:]).split(","))
+        ok = (data.ndim == 2 and data.shape[1] == len(names) and bool(np.all(np.isfinite(data)))
+              and all(_NUMBER.fullmatch(x) for x in ",".join(lines[1:]).split(",")))
     except ValueError:
         ok = False
     if not ok:
@@ -146,18 +157,21 @@ def _read_rows(path: Path, layouts: tuple[tuple[str, ...], ...], kind: str) -> t
             if len(fields) != len(names):
                 raise RecordingError(f"{path}:{lineno}: {len(fields)} fields, the header has {len(names)}")
             for j, field in enumerate(fields):
-                if not _NUMBER.fullmatch(field):
+                if not _NUMBER.fullmatch(field) or not np.isfinite(float(field)):  # 1e999 reads as inf
                     what = "empty field" if not field.strip() else f"{excerpt(field.strip())} is not a finite number"
                     raise RecordingError(f"{path}:{lineno}: column {j + 1} ({names[j]}): {what}")
     return names, data
 
 
 def _check_values(path: Path, names: list[str], data: np.ndarray) -> None:
-    """Physical signs: frequency and peak flux density > 0, loss >= 0, mu' > 0, mu'' >= 0; duties
+    """Physical signs: frequency > 0, peak flux density in (0, 5 T], loss >= 0, mu' > 0, mu'' >= 0; duties
     fractions in [0, 1] summing to 1, or all four -1 (a sine)."""
     if DUTY_COLUMNS[0] in names:
         _check_duties(path, names, data)
     rules = {n: (lambda c: c > 0, "must be > 0") for n in _POSITIVE}
+    rules["flux_density_peak_T"] = (lambda c: (c > 0) & (c <= MAX_FLUX_DENSITY_T),
+                                    f"must be > 0 and <= {MAX_FLUX_DENSITY_T:g} T (no iron saturates above 2.5 T: "
+                                    "a column in mT?)")
     rules["loss_W_per_m3"] = (lambda c: c >= 0, "must be >= 0 (a negative loss would be a core giving energy)")
     rules["mu_real"] = (lambda c: c > 0, "must be > 0")
     rules["mu_imag"] = (lambda c: c <= 0, "must be <= 0 (mu_r = mu' - j mu''; mu'' < 0 would be a core giving energy)")

@@ -303,8 +303,10 @@ def render_loss_report(results: list[Mapping[str, Any]], folder: str | Path) -> 
         lines += [f"## {r.get('material') or name} ({name})", "", str(r["verdict"]) + ".", "",
                   f"Held-out rms error of log10(energy per cycle): {r['residual_before_log10']:.3f} before, "
                   f"{r['residual_after_log10']:.3f} after ({'n/a' if imp is None else f'{imp:.2f}x'}).", ""]
-        if "other_split" in r:  # the same library calibrated across the band, held out between
-            o = r["other_split"]
+        o = r.get("other_split", {})
+        if "refused" in o:
+            lines += [f"Not calibrated across the band as well: {o['refused']}.", ""]
+        elif o:  # the same library calibrated across the band, held out between
             o_imp = "n/a" if o.get("improvement") is None else f"{o['improvement']:.2f}x"
             lines += [f"Calibrated instead at the {SPLITS[o['split']]} of the frequencies ({o['split']}): "
                       f"{', '.join(o['effects']) or 'nothing'} named, held out {o['residual_before_log10']:.3f} -> "

@@ -45,18 +45,21 @@ def loss_separation_figure(table_path: str | Path, out: str | Path, split: str =
     ax.set_ylabel("energy per cycle (J/m$^3$)")
     ax.set_title(f"{table.material} ({table.kind.replace('_', ' ')}), {split}: held-out rms "
                  f"{result['residual_before_log10']:.3f} -> {result['residual_after_log10']:.3f} log10 "
-                 f"({result['improvement']:.1f}x)", fontsize=9)
+                 f"({_times(result['improvement'])})", fontsize=9)
     ax.legend(fontsize=7, loc="upper left")
     loc = result["located"]
     z = np.array([[np.nan if v is None else v for v in row] for row in loc["z"]])
     lim = max(np.nanmax(np.abs(z)), 1.0)
     im = hm.imshow(z.T, origin="lower", aspect="auto", cmap="RdBu_r", vmin=-lim, vmax=lim)
-    hm.set_xticks(range(len(loc["frequencies_Hz"])), [f"{x / 1e3:.0f}" for x in loc["frequencies_Hz"]])
-    hm.set_yticks(range(len(loc["flux_densities_T"])), [f"{x * 1e3:.0f}" for x in loc["flux_densities_T"]])
-    hm.set_xlabel("held-out frequency (kHz)")
+    top = max(loc["frequencies_Hz"])  # a steel's table is in Hz, a ferrite's in kHz
+    scale, unit = (1e6, "MHz") if top >= 1e6 else (1e3, "kHz") if top >= 1e3 else (1.0, "Hz")
+    hm.set_xticks(range(len(loc["frequencies_Hz"])), [f"{x / scale:.3g}" for x in loc["frequencies_Hz"]])
+    hm.set_yticks(range(len(loc["flux_densities_T"])), [f"{x * 1e3:.4g}" for x in loc["flux_densities_T"]])
+    hm.set_xlabel(f"held-out frequency ({unit})")
     hm.set_ylabel("peak flux density (mT)")
     tr = loc["trend"]
-    hm.set_title(f"located: z of log10(W meas / W baseline); grows as f^{tr['slope_log_f']:.2f}", fontsize=9)
+    way = "grows" if tr["slope_log_f"] >= 0 else "falls"
+    hm.set_title(f"located: z of log10(W meas / W baseline); {way} as f^{tr['slope_log_f']:.2f}", fontsize=9)
     fig.colorbar(im, ax=hm, label="z (noise + model-error floor)")
     return save_figure(fig, Path(out))
 
@@ -94,7 +97,7 @@ def loss_shapes_figure(table_paths: list[str | Path], out: str | Path, split: st
         ax.axvline(f[train].max() if split == "low_third" else np.nan, color="grey", lw=0.8, ls=":")
         g = groups.get(name)
         fig_txt = ("" if g is None else f": held-out rms {g['residual_before_log10']:.3f} -> "
-                   f"{g['residual_after_log10']:.3f} log10 ({g['improvement']:.1f}x)")
+                   f"{g['residual_after_log10']:.3f} log10 ({_times(g['improvement'])})")
         ax.set_title(f"{name}{fig_txt}", fontsize=9)
         ax.set_xlabel("frequency (Hz)")
         ax.plot([], [], "k--", lw=1, label="before: rate independent")
@@ -104,5 +107,10 @@ def loss_shapes_figure(table_paths: list[str | Path], out: str | Path, split: st
     axes[0].set_ylabel(f"energy per cycle (J/m$^3$) at B = {1e3 * 10**level:.0f} mT")
     fig.suptitle(f"{group[0].material}: sine, triangles and trapezoids, {split} (calibrated on sines and symmetric "
                  f"triangles left of the dotted line); all held out: rms {result['residual_before_log10']:.3f} -> "
-                 f"{result['residual_after_log10']:.3f} log10 ({result['improvement']:.1f}x)", fontsize=10)
+                 f"{result['residual_after_log10']:.3f} log10 ({_times(result['improvement'])})", fontsize=10)
     return save_figure(fig, Path(out))
+
+
+def _times(improvement: float | None) -> str:
+    """``12.8x``, or n/a where the model left nothing to improve on (a computed table)."""
+    return "n/a" if improvement is None else f"{improvement:.1f}x"

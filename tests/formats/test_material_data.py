@@ -57,6 +57,8 @@ def _edit_line(path: Path, lineno: int, text: str) -> None:
     ("50000.0,0.01", ":5: 2 fields, the header has 3"),
     ("0,0.01,5", ":5: column 1 (frequency_Hz): 0.0 must be > 0"),
     ("50000.0,0.01,1_0", ":5: column 3 (loss_W_per_m3): '1_0' is not a finite number"),
+    ("50000.0,1e999,180.18", ":5: column 2 (flux_density_peak_T): '1e999' is not a finite number"),  # float(): inf
+    ("50000.0,20.0,180.18", ":5: column 2 (flux_density_peak_T): 20.0 must be > 0 and <= 5 T"),  # mT in a T column
 ])
 def test_bad_value_named_by_line_and_column(table: Path, line: str, message: str):
     _edit_line(table, 5, line)
@@ -97,6 +99,16 @@ def test_units_must_cover_the_columns(table: Path):
     meta["units"].pop("loss_W_per_m3")
     side.write_text(json.dumps(meta))
     with pytest.raises(RecordingError, match=r"key 'units' must give the unit of every column"):
+        read_material_table(table)
+
+
+def test_a_unit_other_than_the_headers_is_refused(table: Path):
+    """The header says Hz; a sidecar saying kHz is a table in other units, not read as Hz."""
+    side = table.with_suffix(".json")
+    meta = json.loads(side.read_text())
+    meta["units"]["frequency_Hz"] = "kHz"
+    side.write_text(json.dumps(meta))
+    with pytest.raises(RecordingError, match=r"t\.json: key 'units': frequency_Hz is in 'kHz'; this reader takes 'Hz'"):
         read_material_table(table)
 
 

@@ -71,6 +71,7 @@ __all__ = ["TERMS", "Term", "TermFit", "bic", "energy_per_cycle", "SPLITS", "spl
            "calibrate_split", "log_energy", "select_on_split", "energy_table", "diagnose_energy", "diagnose_loss_table", "loss_table_groups", "rate_trend", "main"]
 
 NAME_DELTA_BIC = 10.0  # decisively better than the current model (issue 13)
+NOISE_FLOOR_MIN_LOG10 = 1e-12  # the scatter of a table written to 12 digits
 RUNNER_UP_DELTA_BIC = 6.0  # and than the runner-up
 LN10 = math.log(10.0)
 MAX_TERMS = 3  # rate terms a model may take
@@ -139,16 +140,23 @@ SPLITS = {"low_third": "lowest third", "interleaved": "lowest fifth + every thir
 
 
 def split_mask(f: np.ndarray, how: str) -> np.ndarray:
-    """Calibration rows: ``low_third`` (the lowest third of the distinct frequencies) or
-    ``interleaved`` (the lowest fifth plus every 3rd frequency)."""
+    """Calibration rows: ``low_third`` (the lowest third of the distinct frequencies, at least three)
+    or ``interleaved`` (the lowest fifth plus every 3rd frequency).  Why three: a rate term's
+    frequency dependence is not fitted from fewer (on one frequency every rate term is a constant,
+    and "nothing needed" would be said of what cannot be seen there); and one frequency at least is
+    held out."""
     bins = np.unique(f)
-    if bins.size < 3:
-        raise EstimationError(f"split {how!r}: {bins.size} distinct frequencies; at least 3 are needed")
     if how == "low_third":
-        return f <= bins[max(bins.size // 3, 1) - 1]
-    if how == "interleaved":
-        return (f <= bins[max(bins.size // 5, 1) - 1]) | np.isin(f, bins[::3])
-    raise EstimationError(f"split {how!r}: choose low_third or interleaved")
+        cal = bins[:max(bins.size // 3, 3)]
+    elif how == "interleaved":
+        cal = np.union1d(bins[:max(bins.size // 5, 1)], bins[::3])
+    else:
+        raise EstimationError(f"split {how!r}: choose low_third or interleaved")
+    if cal.size < 3 or cal.size >= bins.size:
+        raise EstimationError(f"split {how!r}: the table has {bins.size} distinct frequencies; calibrating a rate "
+                              "term's frequency dependence needs 3 of them and one more to hold out"
+                              + ("" if how == "low_third" else " (the interleaved split takes every third: 7 or more)"))
+    return np.isin(f, cal)
 
 
 def log_energy(x: np.ndarray, terms: Sequence[Term], rows: Rows) -> np.ndarray:
@@ -244,7 +252,10 @@ def fit_terms(f: np.ndarray, b: np.ndarray, w: np.ndarray, terms: Sequence[Term]
 def noise_floor(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | None = None) -> float:
     """The measurement scatter (rms, log10 units) from the table alone: at each frequency (and duty
     shape) with >= 6 points, the deviations from a quadratic in log B through them, pooled with their
-    degrees of freedom.  It holds repeatability and any roughness finer than a quadratic; no model of f."""
+    degrees of freedom.  It holds repeatability and any roughness finer than a quadratic; no model of f.
+    A table with no such frequency (every row at its own frequency, or a sparse grid) gets the scatter
+    about a smooth surface in log f and log B per shape instead: an upper bound, as the surface's own
+    misfit is in it.  Never below :data:`NOISE_FLOOR_MIN_LOG10` (a table computed, not measured)."""
     y, lb = np.log10(w), np.log10(b)
     ss, dof = 0.0, 0
     keys = f[:, None] if duty is None else np.column_stack([f, duty])
@@ -256,9 +267,19 @@ def noise_floor(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | 
             a = np.column_stack([np.ones(m.sum()), lb[m], lb[m] ** 2])
             r = y[m] - a @ np.linalg.lstsq(a, y[m], rcond=None)[0]
             ss, dof = ss + float(r @ r), dof + int(m.sum()) - 3
+    if dof == 0:  # a sparse or off-grid table: the scatter about a smooth surface per shape, an upper bound
+        _, shape = np.unique(np.zeros((f.size, 1)) if duty is None else duty, axis=0, return_inverse=True)
+        lf = np.log10(f)
+        for k in range(int(shape.max()) + 1):
+            m = shape.ravel() == k
+            a = np.column_stack([np.ones(m.sum()), lf[m], lf[m] ** 2, lb[m], lb[m] ** 2, lb[m] ** 3, lf[m] * lb[m]])
+            if m.sum() >= 2 * a.shape[1]:
+                r = y[m] - a @ np.linalg.lstsq(a, y[m], rcond=None)[0]
+                ss, dof = ss + float(r @ r), dof + int(m.sum()) - a.shape[1]
     if dof == 0:
-        raise EstimationError("noise floor: no frequency has 6 or more flux densities to measure the scatter")
-    return math.sqrt(ss / dof)
+        raise EstimationError("noise floor: neither 6 flux densities at one frequency nor 14 rows of one shape "
+                              "to measure the scatter on")
+    return max(math.sqrt(ss / dof), NOISE_FLOOR_MIN_LOG10)
 
 
 def rate_trend(f: np.ndarray, b: np.ndarray, resid_log10: np.ndarray) -> dict[str, Any]:
@@ -578,7 +599,8 @@ def _verdict(chosen: list[str], reported: list[str], located: dict[str, Any], be
              named_after: float, shapes: dict[str, Any] | None, suspects: list[dict[str, Any]],
              skipped: dict[str, str]) -> str:
     tr = located["trend"]
-    where = (f"held-out energy per cycle grows with frequency beyond the rate-independent baseline as f^"
+    way = "grows with" if tr["slope_log_f"] >= 0 else "falls with"
+    where = (f"held-out energy per cycle {way} frequency beyond the rate-independent baseline as f^"
              f"{tr['slope_log_f']:.2f} +- {tr['slope_log_f_std']:.2f} (max |z| {located['max_abs_z']:.1f})")
     out = (f"{where}; modelled: {'; '.join(reported)}" if chosen
            else f"{where}; nothing significant named at the calibration frequencies")
@@ -654,6 +676,11 @@ def energy_table(tables: list[LossTable]) -> tuple[np.ndarray, np.ndarray, np.nd
             raise RecordingError(f"{t.path}: {t.kind} table of {t.material!r} read with {first.path} ({first.kind} "
                                  f"of {first.material!r}); tables are diagnosed together only as core-loss tables "
                                  "of one material")
+    for t in tables:  # the reader takes a loss of 0; the diagnosis works on its logarithm
+        zero = t.columns["loss_W_per_m3"] <= 0 if t.kind == "core_loss" else np.zeros(len(t), bool)
+        if zero.any():
+            raise RecordingError(f"{t.path}:{int(np.argmax(zero)) + 2}: column loss_W_per_m3: a loss of 0; the "
+                                 "diagnosis compares log(energy per cycle) and needs a loss > 0 in every row")
     f = np.concatenate([t.frequency_hz for t in tables])
     b = np.concatenate([t.flux_density_t for t in tables])
     w = np.concatenate([energy_per_cycle(t, shapes=True) for t in tables])
@@ -663,7 +690,10 @@ def energy_table(tables: list[LossTable]) -> tuple[np.ndarray, np.ndarray, np.nd
 
 def _diagnose_group(tables: list[LossTable], split: str, calibrate_on: str = "sine_triangle") -> dict[str, Any]:
     f, b, w, duty = energy_table(tables)
-    out = diagnose_energy(f, b, w, material=tables[0].material, split=split, duty=duty, calibrate_on=calibrate_on)
+    try:
+        out = diagnose_energy(f, b, w, material=tables[0].material, split=split, duty=duty, calibrate_on=calibrate_on)
+    except EstimationError as err:  # what the table cannot give, said with its name
+        raise EstimationError(f"{tables[0].path}: {err}") from None
     out["path"], out["kind"] = str(tables[0].path), tables[0].kind
     if len(tables) > 1:
         out["paths"] = [str(t.path) for t in tables]
@@ -696,7 +726,10 @@ def diagnose_loss_table(tables: TableArg | Sequence[TableArg], split: str = "low
     group.sort(key=lambda t: bool(np.any(t.duty[:, 0] != -1)))
     out = _diagnose_group(group, split)
     other = "interleaved" if split == "low_third" else "low_third"
-    out["other_split"] = _headline(_diagnose_group(group, other))
+    try:
+        out["other_split"] = _headline(_diagnose_group(group, other))
+    except EstimationError as err:  # a table with few frequencies may allow one split only
+        out["other_split"] = {"split": other, "refused": str(err)}
     if all_shapes and "shapes" in out:
         out["all_shapes"] = _headline(_diagnose_group(group, split, "all_shapes"))
     return out

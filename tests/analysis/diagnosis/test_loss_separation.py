@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from hystbench.analysis.diagnosis.loss_separation import diagnose_energy, diagnose_loss_table
-from hystbench.errors import EstimationError
+from hystbench.errors import EstimationError, RecordingError
 from hystbench.formats.material_data import read_material_table
 
 pytestmark = pytest.mark.slow(30)  # ~30 s with the term library: handed to a worker before lighter files (tests/conftest.py)
@@ -83,6 +83,58 @@ def test_too_small_a_table_is_refused():
     f, b, w = synthetic()
     with pytest.raises(EstimationError, match="need >= 12 rows"):
         diagnose_energy(f[:5], b[:5], w[:5])
+
+
+def test_an_off_grid_table_measures_its_scatter_about_a_smooth_surface():
+    """Every row at its own frequency (no six flux densities share one): the noise floor comes from a
+    smooth surface in log f and log B, and the classical term put in is named with its value."""
+    rng = np.random.default_rng(5)
+    f = np.exp(rng.uniform(np.log(50e3), np.log(500e3), 400))
+    b = np.exp(rng.uniform(np.log(0.01), np.log(0.25), 400))
+    w = (K_H * (b / 0.1) ** BETA + 1e-4 * f * b**2) * np.exp(rng.normal(0.0, NOISE_LN, f.size))
+    r = diagnose_energy(f, b, w)
+    assert r["effects"] == ["lamination_eddy_currents"]
+    assert _within(r["parameters"]["lamination_eddy_currents"]["k_c_J_s_per_m3_T2"], 1e-4)
+    # an upper bound (the surface's own misfit is in it), here within a fifth of the scatter put in
+    assert 0.9 < r["noise_floor"]["log10_W"] / (NOISE_LN / math.log(10)) < 1.2
+
+
+def test_a_table_with_too_few_frequencies_is_refused_and_a_falling_loss_is_said_to_fall(tmp_path: Path):
+    """Three frequencies: the lowest third would be one, where every rate term is a constant (it said
+    "nothing needed" of a table with eddy currents); five: calibrated on three, the interleaved split
+    (every third frequency) not possible, and said so beside the figures.  A loss per cycle falling
+    with f is said to fall."""
+    rng = np.random.default_rng(2)
+
+    def write(name: str, freqs: np.ndarray, scale=lambda f, b: 1e-4 * f * b**2) -> Path:
+        f, b = (a.ravel() for a in np.meshgrid(freqs, np.geomspace(0.02, 0.25, 8), indexing="ij"))
+        w = (K_H * (b / 0.1) ** BETA + scale(f, b)) * np.exp(rng.normal(0.0, NOISE_LN, f.size))
+        path = tmp_path / f"{name}.csv"
+        path.write_text("frequency_Hz,flux_density_peak_T,loss_W_per_m3\n"
+                        + "".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in zip(f.tolist(), b.tolist(), (w * f).tolist())))
+        path.with_suffix(".json").write_text((REAL / "magnet_N87_sine.json").read_text())
+        return path
+
+    three = write("three", np.array([50e3, 100e3, 200e3]))
+    with pytest.raises(EstimationError, match=r"three\.csv: split 'low_third': the table has 3 distinct frequencies"):
+        diagnose_loss_table(three)
+    r = diagnose_loss_table(write("five", np.geomspace(50e3, 400e3, 5)))
+    assert r["rows"]["calibration_max_Hz"] == pytest.approx(50e3 * 8 ** 0.5)  # the third of five
+    assert r["effects"] == ["lamination_eddy_currents"]
+    assert "the table has 5 distinct frequencies" in r["other_split"]["refused"]
+    falling = write("falling", np.geomspace(50e3, 500e3, 12), lambda f, b: 0.3 * (f / 1e5) ** -1.0 * (b / 0.1) ** 2)
+    r = diagnose_loss_table(falling)
+    assert r["located"]["trend"]["slope_log_f"] < 0 and "energy per cycle falls with frequency" in r["verdict"]
+
+
+def test_a_zero_loss_is_refused_naming_its_line(tmp_path: Path):
+    """The reader takes a loss of 0 (a physical bound); the diagnosis, on log(energy), names where it is."""
+    lines = (REAL / "magnet_N87_sine.csv").read_text().splitlines()
+    lines[7] = ",".join(lines[7].split(",")[:2] + ["0.0"])
+    (tmp_path / "z.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "z.json").write_text((REAL / "magnet_N87_sine.json").read_text())
+    with pytest.raises(RecordingError, match=r"z\.csv:8: column loss_W_per_m3: a loss of 0"):
+        diagnose_loss_table(tmp_path / "z.csv")
 
 
 def _held_out_rms_direct(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.ndarray, classical: bool) -> float:
