@@ -21,6 +21,7 @@ from hystbench.acquisition.pipeline import CompensatorHook, Pipeline
 from hystbench.acquisition.sources import Controllable, RigSource, Source, SyntheticSource
 from hystbench.acquisition.stages import WindowEstimator
 from hystbench.blocks import SampleBlock, concatenate
+from hystbench.errors import RecordingError
 from hystbench.messages import CompensatorUpdate, Estimate, OperatingPoint
 from hystbench.sim_backend.rig import SimulatedRig
 
@@ -69,6 +70,18 @@ def test_record_then_replay_gives_the_same_estimates(tmp_path: Path) -> None:
     same_estimates(replay_log(tmp_path / "run.mcap"), live)
     # ... and recorded again, the same again
     same_estimates(replay_log(tmp_path / "run.mcap", out=tmp_path / "again.mcap"), live)
+    # a replay never replaces the log it replays; one that fails late (a damaged chunk) leaves the log
+    # it was to replace as it was, and no part of its own
+    kept = (tmp_path / "again.mcap").read_bytes()
+    with pytest.raises(RecordingError, match="must not replace the log it replays"):
+        replay_log(tmp_path / "again.mcap", out=tmp_path / "again.mcap", overwrite=True)
+    data = bytearray((tmp_path / "run.mcap").read_bytes())
+    data[int(0.6 * len(data)):int(0.6 * len(data)) + 64] = bytes(64)
+    (tmp_path / "damaged.mcap").write_bytes(bytes(data))
+    with pytest.raises(RecordingError, match=r"again\.mcap: recording failed"):
+        replay_log(tmp_path / "damaged.mcap", out=tmp_path / "again.mcap", overwrite=True)
+    assert (tmp_path / "again.mcap").read_bytes() == kept
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["again.mcap", "damaged.mcap", "run.mcap"]
     assert [m.json() for m in iter_log(tmp_path / "run.mcap", [STATS])][-1]["stages"]["record"]["lost_samples"] == 0
 
 
