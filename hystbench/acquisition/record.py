@@ -59,17 +59,16 @@ def replay_log(path: str | Path, *, speed: str = "max", out: str | Path | None =
     With ``out``, the replay is itself recorded.  ``prepare`` gets the pipeline before it starts
     (a live view attaches to it and waits for its client there; not with ``out``).  A failure is a
     :class:`RecordingError` naming ``path`` (or ``out``)."""
-    if out is not None and Path(out).resolve() == Path(path).resolve():  # checked before the source opens it
-        raise RecordingError(f"{out}: the replay's log must not replace the log it replays")
-    src = McapSource(path, pace="realtime" if speed == "realtime" else "max")
     if out is not None:
         if prepare is not None:
             raise ValueError("replay_log: prepare is not for a recorded replay")
         # all or nothing, unlike a recording (whose log is the measurement, kept as far as it got): a
         # replay that fails leaves no part of a log, and a log it replaces stays until it succeeds
-        with output_file(out, overwrite=overwrite) as tmp:
+        with output_file(out, overwrite=overwrite, inputs=[path]) as tmp:
+            src = McapSource(path, pace="realtime" if speed == "realtime" else "max")
             return record_log(src, tmp, estimation=estimation_settings(src.config), overwrite=True,
                               on_message=on_message)["estimates"]
+    src = McapSource(path, pace="realtime" if speed == "realtime" else "max")
     est = WindowEstimator(src.fs_hz, src.metadata(), **estimation_settings(src.config))
     pipe = Pipeline(src, estimator=est, dtype=src.dtype)
     if prepare is not None:

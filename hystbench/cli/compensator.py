@@ -56,7 +56,8 @@ def cmd_model_fit(args: argparse.Namespace) -> int:
     if unknown or not args.kinds:
         raise ConfigError(f"--kinds {','.join(args.kinds)!r}: choose from {', '.join(KINDS)}")
     # --out is checked (exists? a folder we can write in?) before the minutes of fitting
-    with output_file(args.out, overwrite=args.overwrite) as tmp, progress() as bar:
+    inputs = [args.sweep] + ([args.instrument_sweep] if args.instrument_sweep is not None else [])
+    with output_file(args.out, overwrite=args.overwrite, inputs=inputs) as tmp, progress() as bar:
         instrument = None
         if args.instrument_sweep is not None:
             from ..analysis.identification import fit_instrument, frequency_response
@@ -115,7 +116,9 @@ def cmd_model_predict(args: argparse.Namespace) -> int:
     from ..formats.recording import read_recording
 
     out = Path(args.out)
-    with output_file(out, overwrite=args.overwrite) as tmp:
+    rec_path = Path(args.recording)
+    inputs = [args.model, rec_path, rec_path.with_suffix(".csv"), rec_path.with_suffix(".json")]
+    with output_file(out, overwrite=args.overwrite, inputs=inputs) as tmp:
         models = ModelSet.load(args.model)
         rec = read_recording(args.recording)
         t, f = predict_recording(models, rec, args.kind)

@@ -19,7 +19,7 @@ import secrets
 import shutil
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Iterable, Iterator
 
 from ..errors import BenchError, ConfigError, RecordingError
 
@@ -63,11 +63,24 @@ def _remove_folders(made: list[Path]) -> None:
             pass
 
 
+def _refuse_inputs(path: Path, inputs: Iterable[str | Path], option: str) -> None:
+    """An output may not be an input of the same command, nor be written into an input folder: with
+    ``--overwrite`` it would destroy what the command reads (a recording's samples, a sweep's sidecar)."""
+    target = path.resolve()
+    for given in inputs:
+        p = Path(given).resolve()
+        if target == p or (p.is_dir() and p in target.parents) or (target.is_dir() and target in p.parents):
+            raise ConfigError(f"{option} {path}: the command reads {given}; write its output elsewhere")
+
+
 @contextmanager
-def output_file(path: str | Path, *, overwrite: bool = False, option: str = "--out") -> Iterator[Path]:
+def output_file(path: str | Path, *, overwrite: bool = False, option: str = "--out",
+                inputs: Iterable[str | Path] = ()) -> Iterator[Path]:
     """A temporary path beside ``path`` (same suffix, so writers that go by it still do); renamed
-    onto ``path`` when the block ends normally, removed (with any folder made for it) otherwise."""
+    onto ``path`` when the block ends normally, removed (with any folder made for it) otherwise.
+    ``inputs``: what the command reads, refused as the output or a folder it goes into."""
     path = Path(path)
+    _refuse_inputs(path, inputs, option)
     if path.is_dir():
         raise ConfigError(f"{option} {path}: is a folder; give a file name")
     if path.exists() and not overwrite:
@@ -103,13 +116,15 @@ class StagedFolder:
 
 
 @contextmanager
-def output_folder(path: str | Path, *, overwrite: bool = False, option: str = "--out") -> Iterator[StagedFolder]:
+def output_folder(path: str | Path, *, overwrite: bool = False, option: str = "--out",
+                  inputs: Iterable[str | Path] = ()) -> Iterator[StagedFolder]:
     """A folder to write into; when the block ends normally its files move into ``path`` (made if
     missing), each by an atomic rename; otherwise it is removed and ``path`` is as it was.
 
     An existing ``path`` that holds anything is refused unless ``overwrite`` (then files of the
-    same name are replaced, others kept)."""
+    same name are replaced, others kept); so is one that is, holds or lies in one of ``inputs``."""
     target = Path(path)
+    _refuse_inputs(target, inputs, option)
     if target.exists() and not target.is_dir():
         raise ConfigError(f"{option} {target}: is a file, not a folder")
     if target.is_dir() and not overwrite and any(target.iterdir()):

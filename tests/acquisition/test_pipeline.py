@@ -21,7 +21,7 @@ from hystbench.acquisition.pipeline import CompensatorHook, Pipeline
 from hystbench.acquisition.sources import Controllable, RigSource, Source, SyntheticSource
 from hystbench.acquisition.stages import WindowEstimator
 from hystbench.blocks import SampleBlock, concatenate
-from hystbench.errors import RecordingError
+from hystbench.errors import ConfigError, RecordingError
 from hystbench.messages import CompensatorUpdate, Estimate, OperatingPoint
 from hystbench.sim_backend.rig import SimulatedRig
 
@@ -73,7 +73,7 @@ def test_record_then_replay_gives_the_same_estimates(tmp_path: Path) -> None:
     # a replay never replaces the log it replays; one that fails late (a damaged chunk) leaves the log
     # it was to replace as it was, and no part of its own
     kept = (tmp_path / "again.mcap").read_bytes()
-    with pytest.raises(RecordingError, match="must not replace the log it replays"):
+    with pytest.raises(ConfigError, match="the command reads"):
         replay_log(tmp_path / "again.mcap", out=tmp_path / "again.mcap", overwrite=True)
     data = bytearray((tmp_path / "run.mcap").read_bytes())
     data[int(0.6 * len(data)):int(0.6 * len(data)) + 64] = bytes(64)

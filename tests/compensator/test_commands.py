@@ -57,6 +57,21 @@ def test_model_predict_writes_time_and_force(model_file, tmp_path, capsys):
     assert np.std(resid) < 0.04 and abs(np.mean(resid)) < 0.01  # the sensor's 0.03 N noise, nothing more
     assert run(["model", "predict", str(model_file), str(tmp_path / "r320.csv"), "--out", str(out)]) == 2
     assert "exists; give --overwrite" in capsys.readouterr().err
+    # --overwrite onto what the command reads (the recording, given by its stem; the model) is refused
+    samples, model = (tmp_path / "r320.csv").read_bytes(), model_file.read_bytes()
+    for target in (tmp_path / "r320.csv", model_file):
+        assert run(["model", "predict", str(model_file), str(tmp_path / "r320"), "--out", str(target), "--overwrite"]) == 2
+        assert f"--out {target}: the command reads" in capsys.readouterr().err
+    assert (tmp_path / "r320.csv").read_bytes() == samples and model_file.read_bytes() == model
+
+
+def test_model_fit_writes_nothing_into_the_sweep_it_reads(fitted, capsys):
+    sweep = fitted[0].parent / "sweep"
+    sidecar = next(sweep.glob("*.json"))
+    before = sidecar.read_bytes()
+    assert run(["model", "fit", str(sweep), "--out", str(sidecar), "--overwrite"]) == 2
+    assert f"--out {sidecar}: the command reads {sweep}" in capsys.readouterr().err
+    assert sidecar.read_bytes() == before
 
 
 def test_model_predict_refuses_another_rigs_recording(model_file, tmp_path, capsys):

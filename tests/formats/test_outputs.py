@@ -95,3 +95,21 @@ def test_a_parent_folder_made_meanwhile_by_another_writer_is_used(tmp_path, monk
         with output_folder(shared / "case_b"):
             raise RuntimeError("the writer fails")
     assert shared.is_dir() and not (shared / "case_b").exists()
+
+
+def test_an_input_is_never_an_output(tmp_path):
+    """What the command reads is refused as its output, or as a folder the output goes into, even with
+    --overwrite; an output folder that holds an input is refused too (a sweep written over its source)."""
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    (sweep / "a.csv").write_text("x")
+    for out in (sweep / "a.csv", sweep / "model.json"):
+        with pytest.raises(ConfigError, match=f"--out {out}: the command reads"):
+            with output_file(out, overwrite=True, inputs=[sweep]):
+                pass
+    with pytest.raises(ConfigError, match="the command reads"):
+        with output_folder(tmp_path, overwrite=True, inputs=[sweep / "a.csv"]):
+            pass
+    with output_file(tmp_path / "elsewhere.json", inputs=[sweep]) as tmp:  # beside it: fine
+        tmp.write_text("y")
+    assert (sweep / "a.csv").read_text() == "x" and (tmp_path / "elsewhere.json").read_text() == "y"
