@@ -90,6 +90,7 @@ def parse_rig_effects(args: list[str], rigs: tuple[str, ...]) -> dict[str, dict[
 
 def cmd_simulate_bench_day(args: argparse.Namespace) -> int:
     """`hystbench simulate-bench-day OUT`: a bench day as one sweep folder per rig under OUT."""
+    from ..formats.outputs import output_folder
     from ..formats.recording import write_sweep
     from ..reports.console import progress as make_progress
     from ..sim_backend.bench_day import BenchDayPlan, public_metadata, simulate_bench_day
@@ -97,7 +98,10 @@ def cmd_simulate_bench_day(args: argparse.Namespace) -> int:
     plan = BenchDayPlan.quick() if args.quick else BenchDayPlan()
     effects = parse_rig_effects(args.effect, plan.rigs)
     out = Path(args.out)
-    if not args.overwrite:  # before simulating, and before any folder is written
+    for rig in plan.rigs:  # before simulating, and before any folder is written
+        if (out / rig).exists() and not (out / rig).is_dir():
+            raise ConfigError(f"{args.out}: {out / rig} is a file; the day's {rig} sweep is a folder of that name")
+    if not args.overwrite:
         for block in plan.blocks:
             for f, ipp in block.points:
                 stem = out / block.rig / f"{block.rig}_{f:g}Hz_{ipp:g}App"
@@ -112,9 +116,12 @@ def cmd_simulate_bench_day(args: argparse.Namespace) -> int:
     for rec in recs:
         refuse_clipped(rec)
         rec.metadata = public_metadata(rec.metadata)
-    for rig in plan.rigs:
-        mine = [r for r in recs if r.rig == rig]
-        write_sweep(mine, out / rig, overwrite=args.overwrite)
+    days = {rig: [r for r in recs if r.rig == rig] for rig in plan.rigs}
+    # the whole day or nothing (a full disk at the last rig left the first two), then what was written
+    with output_folder(out, overwrite=True) as stage:  # what exists was refused above, unless --overwrite
+        for rig, mine in days.items():
+            write_sweep(mine, stage.path / rig, overwrite=True)
+    for rig, mine in days.items():
         print(f"wrote {len(mine)} recordings to {out / rig} ({mine[0].start_time_s:.3f}-"
               f"{mine[-1].start_time_s + mine[-1].duration_s:.3f} s on the day's clock)")
     return 0

@@ -456,10 +456,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     """`hystbench export`: an MCAP log's segments as interchange-format recordings (CSV + JSON), for
     the offline commands and other programs."""
     from ..analysis.log_recordings import read_mcap_segments
-    from ..formats.recording import sweep_stem, write_recording
+    from ..formats.recording import sweep_stem, write_sweep
 
     recs = read_mcap_segments(args.log, include_idle=args.include_idle)
-    out = Path(args.out)
     stems: list[str] = []
     for k, rec in enumerate(recs):
         off, settling = rec.metadata.get("output_on") is False, bool(rec.metadata.get("settling"))
@@ -467,15 +466,12 @@ def cmd_export(args: argparse.Namespace) -> int:
         if stem in stems:
             stem = f"{stem}_seg{k}"
         stems.append(stem)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise RecordingError(f"{out}: cannot create the folder: {err.strerror}") from err
-    for rec, stem in zip(recs, stems):
-        csv_path, _ = write_recording(rec, out / stem, overwrite=args.overwrite)
+    # every recording written before a line is printed: a closed stdout loses none of them
+    for rec, stem in zip(recs, write_sweep(recs, args.out, overwrite=args.overwrite, names=stems)):
         state = "output off" if rec.metadata.get("output_on") is False else f"{rec.current_pp_a:g} A-pp"
         state += ", settling" if rec.metadata.get("settling") else ""
-        print(f"wrote {csv_path} ({rec.n} samples at {rec.fs_hz:g} Hz, {rec.frequency_hz:g} Hz, {state})")
+        print(f"wrote {stem.with_suffix('.csv')} ({rec.n} samples at {rec.fs_hz:g} Hz, {rec.frequency_hz:g} Hz, "
+              f"{state})")
     return 0
 
 

@@ -25,7 +25,7 @@ import re
 import secrets
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO, Callable, Iterable, Iterator, Mapping, TextIO
+from typing import Any, BinaryIO, Callable, Iterable, Iterator, Mapping, Sequence, TextIO
 
 import numpy as np
 
@@ -33,6 +33,7 @@ from ..blocks import CHANNEL_UNITS, BlockFlags, SampleBlock, concatenate
 from ..config import rig_names
 from ..errors import RecordingError
 from ..messages import OperatingPoint
+from .outputs import output_folder
 from .small_files import MAX_SIDECAR_BYTES, excerpt, read_json
 from .text_chunks import count_line_ends, text_chunks
 
@@ -523,23 +524,24 @@ def read_sweep(folder: str | Path, *, one_rig: bool = False) -> list[Recording]:
     return recs
 
 
-def write_sweep(recordings: Iterable[Recording], folder: str | Path, *,
-                overwrite: bool = False) -> list[Path]:
-    """Write each recording as ``folder/<sweep_stem>``; returns the stems.  Name clashes and (unless
-    ``overwrite``) existing files are refused before anything is written."""
+def write_sweep(recordings: Iterable[Recording], folder: str | Path, *, overwrite: bool = False,
+                names: Sequence[str] | None = None) -> list[Path]:
+    """Write each recording as ``folder/<sweep_stem>`` (or ``folder/<names[k]>``); returns the stems.
+    Name clashes and (unless ``overwrite``) existing files are refused before anything is written;
+    the recordings are written into a hidden folder beside ``folder`` and moved in when all are
+    there, so a failure half-way (a full disk, Ctrl-C) leaves the folder as it was."""
     recs, folder = list(recordings), Path(folder)
     if not recs:
         raise RecordingError(f"{folder}: no recordings to write")
-    stems = [folder / sweep_stem(r) for r in recs]
+    stems = [folder / n for n in (names if names is not None else [sweep_stem(r) for r in recs])]
     for k, s in enumerate(stems):
         if s in stems[:k]:
             raise RecordingError(f"{s}: recordings {stems.index(s)} and {k} would both be written here")
     if not overwrite:
         _refuse_existing(p for s in stems for p in _paths(s)[1:])
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise RecordingError(f"{folder}: cannot create the folder: {err}") from err
+    with output_folder(folder, overwrite=True) as stage:  # what exists was refused above, unless overwrite
+        for r, s in zip(recs, stems):
+            write_recording(r, stage.path / s.name, overwrite=True)
     for r, s in zip(recs, stems):
-        write_recording(r, s, overwrite=overwrite)
+        r.path = s
     return stems

@@ -266,6 +266,21 @@ def test_record_verbose_into_a_closed_pipe_still_records_everything(tmp_path):
     assert sum(b.n for b in iter_blocks(log)) == 50_000  # 0.5 s at 100 kS/s
 
 
+def test_a_bench_day_into_a_closed_pipe_is_written_whole(tmp_path):
+    """``simulate-bench-day --quick DAY | head -1``: all three rigs' folders, not the first two."""
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "hystbench", "simulate-bench-day", "--quick", str(tmp_path / "d")],
+                              stdout=w, stderr=subprocess.PIPE, text=True, timeout=300)
+    finally:
+        os.close(w)
+    assert proc.stderr == "" and proc.returncode == 1
+    day = {p.name: len(list(p.glob("*.csv"))) for p in (tmp_path / "d").iterdir()}
+    assert set(day) == {"voicecoil_ferrite", "ecore", "ecore_pm"} and all(n >= 2 for n in day.values())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"]
+
+
 def test_diagnose_into_a_closed_pipe_still_writes_its_report(tmp_path):
     """``diagnose TABLE --report DIR | head``: the report is written whole before the table is printed."""
     table = Path(__file__).parents[1] / "data" / "real" / "magnet_N87_sine.csv"

@@ -447,3 +447,18 @@ def test_write_sweep_refuses_name_clash_before_writing(tmp_path):
     with pytest.raises(RecordingError, match="recordings 0 and 1 would both be written"):
         write_sweep([sample_rec(), sample_rec()], tmp_path / "sw")
     assert not (tmp_path / "sw").exists()
+
+
+def test_a_sweep_that_fails_half_way_leaves_its_folder_as_it_was(tmp_path):
+    """The third recording cannot be written (its metadata is not JSON): the two before it are not
+    left behind, in a new folder or beside what an existing one held."""
+    recs = [sample_rec(frequency_Hz=f) for f in (40.0, 80.0, 160.0)]
+    recs[2].metadata["note"] = object()
+    for folder in (tmp_path / "new", tmp_path / "old"):
+        if folder.name == "old":
+            write_sweep([sample_rec(frequency_Hz=320.0)], folder)
+        before = sorted(p.name for p in folder.iterdir()) if folder.exists() else None
+        with pytest.raises(RecordingError, match="ecore_pm_160Hz.*metadata cannot be written as JSON"):
+            write_sweep(recs, folder)
+        assert (sorted(p.name for p in folder.iterdir()) if folder.exists() else None) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old"]  # no hidden folder left
