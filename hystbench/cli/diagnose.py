@@ -84,7 +84,14 @@ def read_inputs(paths: list[Path]) -> list[Any]:
     from ..formats.recording import read_sweep
 
     recs: list[Any] = []
-    for path in paths:
+    seen: dict[Path, Path] = {}
+    for path in paths:  # a recording given twice would count twice: a false drift on a clean day
+        where = path.resolve()
+        twice = next((given for p, given in seen.items() if where == p or p in where.parents or where in p.parents), None)
+        if twice is not None:
+            raise ConfigError(f"{path}: given twice ({'the same as' if where == twice.resolve() else 'overlaps'} "
+                              f"{twice}); give each recording once")
+        seen[where] = path
         if path.is_dir():
             rigs = _rig_folders(path)  # a day written one folder per rig (simulate-bench-day)
             part, what = [r for sub in rigs for r in read_sweep(sub)] if rigs else read_sweep(path), "sweep"

@@ -54,6 +54,16 @@ def _run(args: list[str], capsys) -> tuple[int, str, str]:
     return code, out, err
 
 
+def test_a_folder_given_twice_is_refused_before_the_work(day, capsys):
+    """The same folder twice, or a day and one of its rigs, would count recordings twice (a clean day
+    then showed a force drift): refused, naming both."""
+    root = day[0].parent
+    for args in ([str(root), str(root)], [str(root), str(day[1])]):
+        code, out, err = _run(args, capsys)
+        assert code == 2 and out == "" and err.count("\n") == 1
+        assert f"{args[1]}: given twice" in err and str(root) in err
+
+
 def test_a_sweep_with_one_recording_is_refused(ecore_one, capsys):
     code, out, err = _run([str(ecore_one)], capsys)
     assert code == 2 and out == ""
