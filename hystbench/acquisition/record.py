@@ -48,6 +48,10 @@ def record_log(source: Source, out: str | Path, *, estimation: Mapping[str, floa
     with McapRecorder(out, metadata=meta, compression=compression, overwrite=overwrite) as rec:
         pipe = Pipeline(source, estimator=est, recorder=rec)
         estimates = _run_collecting(pipe, on_message, timeout_s, f"{out}: recording failed")
+    if pipe.log_error is not None:  # the disk's fault: the run went on, the log stopped (not a success)
+        raise RecordingError(f"{out}: the log stopped after {pipe.stats['record'].samples} of "
+                             f"{pipe.stats['source'].samples} samples ({pipe.log_error}); `hystbench recover {out}` "
+                             "salvages its complete chunks")
     return {"log": [str(p) for p in rec.paths], "samples": pipe.stats["source"].samples, "estimates": estimates,
             "bytes": sum(Path(p).stat().st_size for p in rec.paths), "stats": pipe.stats_dict()}
 

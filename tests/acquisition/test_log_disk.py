@@ -157,6 +157,21 @@ def test_a_write_error_names_the_part_the_folder_and_its_free_space(small_disk) 
     assert not (disk / "y.mcap").exists()  # no empty part
 
 
+def test_record_on_a_full_disk_fails_saying_how_far_the_log_got(small_disk, capsys) -> None:
+    """``hystbench record`` whose log stops at a full disk is not a success (it said "wrote ..." and
+    exit 0): status 2, the samples the log holds against those recorded, and how to salvage it."""
+    from hystbench.cli.main import main
+
+    disk = small_disk(1)
+    fill(disk, 300_000)
+    code = main(["record", "--source", "sim", "--seconds", "2", "--pace", "max", "--out", str(disk / "r.mcap")])
+    err = capsys.readouterr().err
+    assert code == 2 and "wrote" not in err
+    line = next(ln for ln in err.splitlines() if "the log stopped" in ln)
+    assert f"{disk / 'r.mcap'}: the log stopped after" in line and "of 200000 samples" in line
+    assert "No space left on device" in line and f"hystbench recover {disk / 'r.mcap'}" in line
+
+
 def test_retention_keeps_the_cap_as_the_log_grows(tmp_path: Path) -> None:
     """A 2 MiB cap and a log written as fast as the simulation runs: at every point where the
     recorder tells its size, this bench's parts add up to no more than the cap."""
