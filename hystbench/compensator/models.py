@@ -23,6 +23,7 @@ the first format, ``hystbench-force-models/1``, are still read: their models are
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -130,14 +131,31 @@ class ModelSet:
         if d["format"] not in READABLE_FORMATS:
             raise ConfigError(f"{path}: model file format {d['format']!r} is newer than this hystbench reads "
                               f"({', '.join(READABLE_FORMATS)}); fit the models again with `hystbench model fit`")
+        bad = _non_finite(d)
+        if bad is not None:  # json reads NaN and Infinity; a model of them predicts NaN without a word
+            raise ConfigError(f"{path}: key {bad}: not a finite number")
         try:
-            ins = d["instrument"]
-            instrument = InstrumentModel(float(ins["fn_Hz"]), float(ins["zeta_n"]), float(ins["f0_Hz"]),
-                                         float(ins["zeta_0"]))
+            ins = {k: float(d["instrument"][k]) for k in ("fn_Hz", "zeta_n", "f0_Hz", "zeta_0")}
             models = {k: model_from_dict(m) for k, m in d["models"].items()}
-        except (KeyError, TypeError, ValueError, CompensatorError) as err:
+        except (KeyError, TypeError, ValueError, AttributeError, CompensatorError) as err:  # a list for a dict
             raise ConfigError(f"{path}: malformed model file: {err!r}") from err
+        for key, v in ins.items():  # a resonance at -1 Hz predicts nonsense, not an error
+            if not v > 0:
+                raise ConfigError(f"{path}: key instrument.{key}: must be > 0, got {v!r}")
+        instrument = InstrumentModel(*ins.values())
         return cls(str(d["rig"]), instrument, models, dict(d.get("report", {})))
+
+
+def _non_finite(obj: Any, where: str = "") -> str | None:
+    """The dotted key of the first NaN or infinite number in a loaded JSON document, or None."""
+    if isinstance(obj, float):
+        return None if math.isfinite(obj) else (where or "(the document)")
+    items = obj.items() if isinstance(obj, dict) else enumerate(obj) if isinstance(obj, list) else ()
+    for k, v in items:
+        found = _non_finite(v, f"{where}.{k}" if where else str(k))
+        if found is not None:
+            return found
+    return None
 
 
 def _json_default(x):

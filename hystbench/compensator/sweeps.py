@@ -23,6 +23,7 @@ from ..errors import RecordingError
 from ..formats.recording import Recording
 from ..physics.instrument import InstrumentModel
 from .data import PeriodData
+from .errors import CompensatorError
 from .models import ModelSet, fit_models, predict_measured
 from .periodic import resample
 
@@ -105,7 +106,11 @@ def predict_recording(models: ModelSet, rec: Recording, kind: str) -> tuple[np.n
     n = 1000
     avg = synchronous_average(rec, f, n, ("current_A",))
     noise = avg.noise_rms["current_A"] / math.sqrt(avg.periods) if avg.periods > 1 else math.nan
-    pred = predict_measured(models[kind], avg.channels["current_A"], f, models.instrument, current_noise_a=noise)
+    with np.errstate(over="ignore", invalid="ignore"):  # said below, in one line
+        pred = predict_measured(models[kind], avg.channels["current_A"], f, models.instrument, current_noise_a=noise)
+    if not np.all(np.isfinite(pred)):  # a model file of values beyond any force (1e308 passes as a number)
+        raise CompensatorError(f"{where}: the {kind} model predicts a force that is not finite; its file's "
+                               "parameters are beyond any bench (fit it again with `hystbench model fit`)")
     fine = resample(pred, 8 * n)  # then linear interpolation at each sample's phase
     phase = np.mod(np.arange(rec.n) / rec.fs_hz * f, 1.0) * fine.size  # the average's phase 0: sample 0
     return rec.time_s(), np.interp(phase, np.arange(fine.size + 1), np.append(fine, fine[0]))

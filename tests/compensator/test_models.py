@@ -57,6 +57,32 @@ def test_bad_model_files_are_refused(tmp_path, text, match):
         ModelSet.load(tmp_path / "missing.json")
 
 
+def test_a_model_file_edited_into_nonsense_is_refused_by_key(models_pm, tmp_path):
+    """A list where a model goes (a traceback), a NaN (json reads it; the predictions were all NaN), a
+    resonance at -1 Hz, and a law of 1e308 N (a number, and no force: refused where it predicts)."""
+    from hystbench.compensator.errors import CompensatorError
+    from hystbench.compensator.sweeps import predict_recording
+    from hystbench.sim_backend.recordings import simulated_sweep
+
+    d = models_pm.to_dict()
+    path = tmp_path / "m.json"
+    for edit, match in ((lambda m: m["models"].update(best=[]), "malformed model file: AttributeError"),
+                        (lambda m: m["models"]["nonhysteretic"]["law"].update(k0_N=float("nan")),
+                         r"key models\.nonhysteretic\.law\.k0_N: not a finite number"),
+                        (lambda m: m["instrument"].update(fn_Hz=-1.0), r"key instrument\.fn_Hz: must be > 0, got -1\.0")):
+        m = json.loads(json.dumps(d))
+        edit(m)
+        path.write_text(json.dumps(m))
+        with pytest.raises(ConfigError, match=match):
+            ModelSet.load(path)
+    m = json.loads(json.dumps(d))
+    m["models"]["nonhysteretic"]["law"]["k0_N"] = 1e308
+    path.write_text(json.dumps(m))
+    rec = simulated_sweep("ecore_pm", [320.0], [1.0], seed=77, duration_s=0.05)[0]
+    with pytest.raises(CompensatorError, match="the nonhysteretic model predicts a force that is not finite"):
+        predict_recording(ModelSet.load(path), rec, "nonhysteretic")
+
+
 @pytest.mark.parametrize("kind", ["nonhysteretic", "paper", "best"])
 @pytest.mark.parametrize("spec", ["offset=170,amp=40,freq=320", "offset=170,amp=30,freq=160,h2=10@45,h3=5"])
 def test_each_inverse_gives_back_its_force(models_pm, kind, spec):
