@@ -63,7 +63,7 @@ CASES = [
     # an empty name: pathlib's "." (a ValueError, or the current folder written into)
     ("simulate --out ''", SIM[:-1] + [""], ["argument --out", "''"]),
     # a folder for a recording's stem: '.' was a ValueError, 'DIR/' wrote DIR.csv beside the folder
-    *[(f"simulate --out {o}", SIM[:-1] + [o], ["--out", ": a folder", "file stem"]) for o in ("TMP/out/", "TMP", ".")],
+    *[(f"simulate --out {o}", SIM[:-1] + [o], ["--out", ": a folder", "file stem"]) for o in ("TMP/out/", "TMP/..", ".")],
     ("simulate-sweep --out ''", ["simulate-sweep", "--out", ""], ["argument --out", "''"]),
     ("estimate ''", ["estimate", ""], ["argument path", "''"]),
     ("model predict M ''", ["model", "predict", "MODEL", "", "--out", "TMP/out/p.csv"], ["argument recording"]),
