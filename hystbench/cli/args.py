@@ -9,6 +9,7 @@ file is opened or instrument touched.  Every command module takes its numbers th
 from __future__ import annotations
 
 import argparse
+import os
 from typing import Callable
 
 from ..config.schema import Key
@@ -99,4 +100,7 @@ def path_arg(text: str) -> str:
     so ``--out ""`` would write into it and ``--model ""`` would quietly mean "none"."""
     if not text:
         raise argparse.ArgumentTypeError(f"must be a file or folder name, got {text!r}")
+    if os.path.exists(text) and not (os.path.isfile(text) or os.path.isdir(text)):  # a FIFO with no writer
+        raise argparse.ArgumentTypeError(f"{text!r} is not a file or folder (a pipe or device: it would be "
+                                         "waited on, not read)")
     return text

@@ -231,10 +231,11 @@ def _print_loss_tables(results: list[dict[str, Any]], page: Path | None, args: a
 
 def _is_waveform_table(path: Path) -> bool:
     """A ``.csv`` whose sidecar says ``kind: waveform`` (measured B(t)/H(t) rows, not a loss table)."""
-    if not _is_loss_table(path):
+    side = path.with_suffix(".json")
+    if not _is_loss_table(path) or not side.is_file():  # not a FIFO's open either: the reader names it
         return False
     try:
-        return json.loads(path.with_suffix(".json").read_text(encoding="utf-8")).get("kind") == "waveform"
+        return json.loads(side.read_text(encoding="utf-8")).get("kind") == "waveform"
     except (OSError, ValueError, AttributeError):
         return False  # the loss-table reader names what is wrong with the sidecar
 

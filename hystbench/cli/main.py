@@ -65,7 +65,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     _check_size(args)
     stem = Path(args.out)
-    if str(args.out).endswith(("/", os.sep)) or stem.is_dir() or stem.name in ("", ".", ".."):
+    if str(args.out).endswith(("/", os.sep)) or os.path.isdir(stem) or stem.name in ("", ".", ".."):
         raise ConfigError(f"--out {args.out}: a folder; give the recording's file stem (e.g. {stem / 'run'})")
     stem = stem.with_suffix("") if stem.suffix in (".csv", ".json") else stem
     taken = [p for p in (stem.with_name(stem.name + ".csv"), stem.with_name(stem.name + ".json")) if p.exists()]

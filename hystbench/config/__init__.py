@@ -8,6 +8,7 @@ filled in; a bad key is refused at load, naming the file, the table and the key.
 
 from __future__ import annotations
 
+import os
 import tomllib
 from pathlib import Path
 from typing import Any, Mapping
@@ -38,6 +39,8 @@ def material_names() -> list[str]:
 def read_toml(path: str | Path, what: str = "file") -> dict[str, Any]:
     """A TOML file as a dict; a missing, unreadable or malformed file is a ConfigError naming it."""
     path = Path(path)
+    if os.path.exists(path) and not os.path.isfile(path):  # a FIFO with no writer would block the open for ever
+        raise ConfigError(f"{path}: not a regular file (a folder, pipe or device); cannot read the {what}")
     try:
         with path.open("rb") as fh:
             return tomllib.load(fh)

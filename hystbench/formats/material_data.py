@@ -23,6 +23,7 @@ the sidecar's by ``MAX_SIDECAR_BYTES``).
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -110,7 +111,7 @@ def read_material_table(path: str | Path) -> LossTable:
 
 def _sidecar_with(path: Path, what: str, required: tuple[str, ...]) -> dict:
     """The JSON object of a table's sidecar, with every ``required`` key, or an error naming the file."""
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise RecordingError(f"{path}: missing sidecar (a {what} needs its source, licence and units)")
     meta = read_json(path)
     if not isinstance(meta, dict):

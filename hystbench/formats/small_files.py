@@ -11,6 +11,7 @@ about a 500 kB field is still one line.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,8 @@ def excerpt(text: str, limit: int = _EXCERPT_CHARS) -> str:
 
 def read_text(path: Path, max_bytes: int, what: str, limit_name: str) -> str:
     """The UTF-8 text of ``path`` with '\\n' line ends, refused unread past ``max_bytes``."""
+    if os.path.exists(path) and not os.path.isfile(path):  # a FIFO with no writer would block the open for ever
+        raise RecordingError(f"{path}: not a regular file (a folder, pipe or device); a {what} is a file")
     try:
         with open(path, "rb") as fh:
             raw = fh.read(max_bytes + 1)  # not the size on disk: a pipe or device has none

@@ -266,6 +266,21 @@ def test_record_verbose_into_a_closed_pipe_still_records_everything(tmp_path):
     assert sum(b.n for b in iter_blocks(log)) == 50_000  # 0.5 s at 100 kS/s
 
 
+@pytest.mark.parametrize("case", ["log", "sidecar", "rig"])
+def test_a_pipe_for_a_file_is_refused_not_waited_on(tmp_path, case):
+    """A FIFO with no writer where a file goes: opening it would block for ever. Refused by name (the
+    timeout only bounds a failure of this test)."""
+    fifo = tmp_path / {"log": "x.mcap", "sidecar": "t.json", "rig": "r.toml"}[case]
+    os.mkfifo(fifo)
+    if case == "sidecar":
+        (tmp_path / "t.csv").write_text((Path(__file__).parents[1] / "data" / "real" / "magnet_N87_sine.csv").read_text())
+    argv = {"log": ["estimate", str(fifo)], "sidecar": ["diagnose", str(tmp_path / "t.csv")],
+            "rig": ["simulate", "--rig", str(fifo), "--freq", "80", "--ipp", "1", "--out", str(tmp_path / "s")]}[case]
+    proc = subprocess.run([sys.executable, "-m", "hystbench", *argv], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert fifo.name in proc.stderr and ("not a file or folder" in proc.stderr or "not a regular file" in proc.stderr)
+
+
 def test_a_bench_day_into_a_closed_pipe_is_written_whole(tmp_path):
     """``simulate-bench-day --quick DAY | head -1``: all three rigs' folders, not the first two."""
     r, w = os.pipe()
