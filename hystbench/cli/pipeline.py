@@ -313,7 +313,7 @@ def _print_estimate(topic: str, obj: dict) -> None:
 
 
 def _quiet_on_broken_pipe(show: Callable[[str, dict], None]) -> Callable[[str, dict], None]:
-    """``record -v | head``: once the reader has gone, stop printing and go on recording."""
+    """``record -v | head``, ``replay | head``: once the reader has gone, stop printing and go on."""
     gone = False
 
     def listener(topic: str, obj: dict) -> None:
@@ -398,7 +398,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.foxglove is not None:
         return _replay_to_foxglove(args)
     ests = replay_log(args.log, speed=args.speed or "max", out=args.out, overwrite=args.overwrite,
-                      on_message=None if args.json else _print_estimate)
+                      on_message=None if args.json else _quiet_on_broken_pipe(_print_estimate))
     if args.json:
         print(json.dumps(ests, indent=2))
     else:

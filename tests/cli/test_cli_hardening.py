@@ -264,6 +264,15 @@ def test_record_verbose_into_a_closed_pipe_still_records_everything(tmp_path):
         os.close(w)
     assert proc.stderr == "" and proc.returncode == 1  # 1: the final "wrote ..." line had no reader
     assert sum(b.n for b in iter_blocks(log)) == 50_000  # 0.5 s at 100 kS/s
+    # ``replay LOG | head``: silent too (each estimate's listener said "Broken pipe" on stderr)
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "hystbench", "replay", str(log)], stdout=w,
+                              stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(w)
+    assert proc.stderr == "" and proc.returncode == 1
 
 
 @pytest.mark.parametrize("case", ["log", "sidecar", "rig"])
