@@ -36,6 +36,13 @@ MAX_SAMPLES = 10_000_000
 
 
 def _check_size(args, recordings: int = 1) -> None:
+    """Before simulating: the samples fit in memory, and the rig is one a recording can name."""
+    from ..config import load_rig, rig_names
+
+    name = load_rig(args.rig)["name"]
+    if name not in rig_names():  # the recording format names a rig by its preset (it refused it after the work)
+        raise ConfigError(f"--rig {args.rig}: its recordings would name the rig {name!r}, and a recording's rig is a "
+                          f"preset's name ({', '.join(rig_names())}); name a variant after the preset it varies")
     n = args.duration * args.fs * recordings
     if args.duration * args.fs < 1:
         raise ConfigError(f"--duration {args.duration:g} s is less than one sample at --fs {args.fs:g} Hz")

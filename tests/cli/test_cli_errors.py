@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from hystbench.cli.main import main
+from hystbench.config import CONFIG_DIR
 
 pytestmark = pytest.mark.slow(25)  # ~25 s: handed to a worker before lighter files (tests/conftest.py)
 
@@ -62,6 +63,8 @@ CASES = [
                    ("magnet_thermal_drift=1e30", "magnet_thermal_drift.kelvin_per_s"))],
     # an empty name: pathlib's "." (a ValueError, or the current folder written into)
     ("simulate --out ''", SIM[:-1] + [""], ["argument --out", "''"]),
+    # a rig file whose name no recording can carry: refused before the simulation, not after it
+    ("simulate --rig ok.toml", SIM[:2] + ["RIG_TOML"] + SIM[3:], ["--rig", "ok.toml", "would name the rig 'ok'"]),
     # a folder for a recording's stem: '.' was a ValueError, 'DIR/' wrote DIR.csv beside the folder
     *[(f"simulate --out {o}", SIM[:-1] + [o], ["--out", ": a folder", "file stem"]) for o in ("TMP/out/", "TMP/..", ".")],
     ("simulate-sweep --out ''", ["simulate-sweep", "--out", ""], ["argument --out", "''"]),
@@ -126,7 +129,10 @@ def _files(tmp_path: Path, model_file: Path) -> dict[str, str]:
                       '[source]\nkind = "sim"\n[recording]\nenabled = false\n[zenoh]\nenabled = false\n'
                       f'[compensator]\nenabled = true\nmodel = "{garbage.as_posix()}"\n'
                       'force = "offset=170,amp=40,freq=320"\n', encoding="utf-8")
-    return {"GARBAGE": str(garbage), "EMPTY_CSV": str(empty), "MODEL": str(model_file), "DAEMON_TOML": str(daemon)}
+    rig = tmp_path / "ok.toml"  # the ecore_pm preset under another name
+    rig.write_text((CONFIG_DIR / "rigs" / "ecore_pm.toml").read_text(encoding="utf-8"), encoding="utf-8")
+    return {"GARBAGE": str(garbage), "EMPTY_CSV": str(empty), "MODEL": str(model_file), "DAEMON_TOML": str(daemon),
+            "RIG_TOML": str(rig)}
 
 
 @pytest.mark.parametrize("argv, words", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
