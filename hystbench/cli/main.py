@@ -196,7 +196,10 @@ def cmd_fit_material(args: argparse.Namespace) -> int:
     from ..reports.material_report import run_material_fit
     from ..formats.outputs import output_folder
 
-    with output_folder(args.out, overwrite=args.overwrite) as stage:
+    from ..config import CONFIG_DIR
+
+    # the shipped material files are what it reads: never its output, even with --overwrite
+    with output_folder(args.out, overwrite=args.overwrite, inputs=[CONFIG_DIR / "materials"]) as stage:
         result = run_material_fit(stage.path, refit=args.refit)
         result = _moved(result, stage)
     if args.json:

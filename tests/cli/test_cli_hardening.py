@@ -335,6 +335,10 @@ def test_refit_writes_the_material_files_to_out_and_leaves_the_shipped_ones(tmp_
         assert load_material(toml)["name"] == name and "[preisach]" in toml.read_text()
         assert str(toml) in stdout
     assert not any(p.name.startswith(".") for p in tmp_path.iterdir())  # the staging folder is gone
+    # nor into the package's own folder, even with --overwrite (it rewrote the shipped files there)
+    code, stdout, err = run(["fit-material", "--refit", "--out", CONFIG_DIR / "materials", "--overwrite"], capsys)
+    assert code == 2 and "the command reads" in error_line(err)
+    assert {p: (p.read_bytes(), p.stat().st_mtime_ns) for p in shipped} == before
 
 
 # --- 5. force-map says what it draws ---------------------------------------------------------------------
