@@ -9,10 +9,11 @@ file is opened or instrument touched.  Every command module takes its numbers th
 from __future__ import annotations
 
 import argparse
+import math
 import os
 from typing import Callable
 
-from ..config.schema import Key
+from ..config.schema import MAX_MAGNITUDE, Key
 
 __all__ = ["positive_float", "nonnegative_float", "finite_float", "positive_int", "nonnegative_int",
            "positive_floats", "float_in", "float_list_in", "int_in", "path_arg", "SIM_MAX_IPP_A"]
@@ -35,7 +36,9 @@ def _parser(key: Key, noun: str) -> Callable[[str], float]:
         except ValueError:
             raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
         if key.problem(value):
-            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+            size = math.isfinite(value) and abs(value) > MAX_MAGNITUDE  # in range, and beyond any bench's
+            raise argparse.ArgumentTypeError(f"must be {what}{f' and at most {MAX_MAGNITUDE:g}' if size else ''}, "
+                                             f"got {text!r}")
         return value
 
     parse.__name__ = what.removeprefix("a ")

@@ -18,10 +18,13 @@ from typing import Any, Iterator, Mapping
 
 from ..errors import ConfigError
 
-__all__ = ["Key", "NUM", "OPTIONAL", "Schema", "type_name", "check_value", "check_table", "tables"]
+__all__ = ["Key", "MAX_MAGNITUDE", "NUM", "OPTIONAL", "Schema", "type_name", "check_value", "check_table", "tables"]
 
 #: A number: a TOML integer or float (a bool is neither); checked values are floats.
 NUM = (int, float)
+#: The largest number any setting may take, whatever its own range: beyond every quantity of a bench
+#: (a petabyte of log included), and small enough that the physics' squares and products stay finite.
+MAX_MAGNITUDE = 1e15
 
 
 class _Optional:
@@ -111,6 +114,8 @@ class Key:
             x = _float(value)
             if not math.isfinite(x):
                 return f"must be {self.range_text() or 'a finite number'}"
+            if abs(x) > MAX_MAGNITUDE:  # no setting of a bench is this large; 1e300 T overflowed the physics
+                return f"must be {self.range_text() + ' and ' if self.range_text() else ''}at most {MAX_MAGNITUDE:g} in size"
             if (self.gt is not None and not x > self.gt) or (self.ge is not None and not x >= self.ge) or (
                     self.lt is not None and not x < self.lt) or (self.le is not None and not x <= self.le):
                 return f"must be {self.range_text()}"

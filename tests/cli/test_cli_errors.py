@@ -53,7 +53,9 @@ CASES = [
     ("record --seconds 1e308", ["record", "--source", "synthetic", "--pace", "max", "--seconds", "1e308", "--out",
                                 "TMP/out/r.mcap"], ["argument --seconds", "'1e308'"]),
     ("record synthetic --fs 1e308", ["record", "--source", "synthetic", "--fs", "1e308", "--out", "TMP/out/r.mcap"],
-     ["1e+308 S/s", "lower fs_hz"]),
+     ["argument --fs", "at most 1e+15", "'1e308'"]),  # every number's bound (config.schema.MAX_MAGNITUDE)
+    ("record synthetic --fs 1e12", ["record", "--source", "synthetic", "--fs", "1e12", "--out", "TMP/out/r.mcap"],
+     ["1e+12 S/s", "lower fs_hz"]),
     # effect parameters whose range had no upper end: the filters' numbers overflowed (LinAlgError),
     # the magnet's flux ran out of the iron model's range (IndexError)
     *[(f"simulate --effect {e}", SIM[:2] + ["ecore_pm"] + SIM[3:] + ["--effect", e], [f"--effect {p}: must be in"])

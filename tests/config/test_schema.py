@@ -90,3 +90,13 @@ def test_read_toml_names_the_file_for_every_way_it_can_fail(tmp_path: Path) -> N
         read_toml(latin)
     with pytest.raises(ConfigError, match=r"cannot read the file"):
         read_toml(tmp_path)  # a folder
+
+
+def test_every_number_has_a_size_bound_beside_its_own_range():
+    """A rig's remanence of 1e300 T passed 'must be > 0' and overflowed the force map (a traceback)."""
+    from hystbench.config.schema import MAX_MAGNITUDE
+
+    key = Key(NUM, None, "remanent flux density", "T", gt=0.0)
+    assert key.problem(MAX_MAGNITUDE) is None and key.problem(1.5) is None
+    assert key.problem(1e300) == "must be > 0 and at most 1e+15 in size"
+    assert Key(NUM, None, "an offset").problem(-1e300) == "must be at most 1e+15 in size"
