@@ -58,7 +58,6 @@ def sample_rec(n: int = 50, fs: float = 1000.0, **meta: object) -> Recording:
 # --- round trip -----------------------------------------------------------------------------
 
 finite = st.floats(allow_nan=False, allow_infinity=False, allow_subnormal=True)
-sample = st.floats(min_value=-rmod.MAX_SAMPLE_MAGNITUDE, max_value=rmod.MAX_SAMPLE_MAGNITUDE, allow_subnormal=True)
 json_scalar = st.none() | st.booleans() | st.integers(-2**53, 2**53) | finite | st.text(max_size=8)
 extra_meta = st.dictionaries(st.text(min_size=1, max_size=8).filter(lambda k: k not in META),
                              json_scalar | st.lists(json_scalar, max_size=3), max_size=4)
@@ -69,7 +68,7 @@ extra_meta = st.dictionaries(st.text(min_size=1, max_size=8).filter(lambda k: k 
        fs=st.floats(1e3, 1e6), t0=st.floats(-100, 100), rig=st.sampled_from(rig_names()))
 def test_write_read_is_bit_identical(tmp_path, n, ncols, data, extra, fs, t0, rig):
     names = ["current_A", "force_N", "flux_Wb", "sense_V", "command_V", "gap_um"][:ncols]
-    chans = {k: np.array(data.draw(st.lists(sample, min_size=n, max_size=n))) for k in names}
+    chans = {k: np.array(data.draw(st.lists(finite, min_size=n, max_size=n))) for k in names}
     meta = {"rig": rig, "frequency_Hz": fs / 7, "sample_rate_Hz": fs, "current_pp_A": 1.25, **extra}
     rec = Recording(path=None, fs_hz=fs, channels=chans, metadata=meta, t0_s=t0)
     write_recording(rec, tmp_path / "r", overwrite=True)
@@ -272,14 +271,6 @@ def test_blank_line_between_samples(tmp_path):
 def test_non_finite_sample(tmp_path, field):
     bad(make(tmp_path, rows().replace("0.003,1.5,2.5", f"0.003,1.5,{field}")),
         "rec.csv:5: column 3 (force_N)", f"{field!r} is not a finite number")
-
-
-def test_a_sample_beyond_any_bench_quantity_is_refused(tmp_path):
-    """1e155 A overflowed the sine fits' sums of squares (a traceback); 1e30 is the bound."""
-    bad(make(tmp_path, rows().replace("0.003,1.5,2.5", "0.003,1.5,1e155")),
-        "rec.csv:5: column 3 (force_N)", "'1e155' exceeds 1e+30 in magnitude")
-    make(tmp_path, rows().replace("0.003,1.5,2.5", "0.003,1.5,1e30"))  # at the bound: read
-    assert read_recording(tmp_path / "rec").channels["force_N"][3] == 1e30
 
 
 def test_sidecar_not_utf8(tmp_path):
