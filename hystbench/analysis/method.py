@@ -152,6 +152,12 @@ def _check_clipping(where: str, name: str, x: np.ndarray, lo: float, hi: float) 
                               f"{100 * max(MAX_PINNED_FRACTION, expected):.1f} %)")
 
 
+#: The largest a channel may reach apart from its outliers: far beyond any current, flux, force or
+#: voltage, and small enough that the fits' squares stay finite (a channel at 1e157 overflowed them;
+#: one glitch of 1e308 is an outlier, found and left out).
+MAX_CHANNEL_MAGNITUDE = 1e30
+
+
 def check_channels(rec: Recording, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     """The named channels, each checked present, finite, varying and not clipped (judged without
     its gross outliers: one 1e308 sample would make every other one sit at the minimum), and the
@@ -182,6 +188,9 @@ def check_channels(rec: Recording, names: tuple[str, ...]) -> dict[str, np.ndarr
             if hi - lo == 0.0:
                 raise EstimationError(f"{where}: channel {name!r} is flat apart from {int(gross.sum())} outlier "
                                       f"sample(s) (first at {int(np.argmax(gross))}): it carries no phase")
+        if max(abs(lo), abs(hi)) > MAX_CHANNEL_MAGNITUDE:  # a whole channel this large overflowed the fits
+            raise EstimationError(f"{where}: channel {name!r} reaches {max(abs(lo), abs(hi)):.3g} apart from its "
+                                  f"outliers: beyond {MAX_CHANNEL_MAGNITUDE:g}, no quantity of a bench (a unit or a scale?)")
         _check_clipping(where, name, kept, lo, hi)
         out[name] = x
     f = rec.frequency_hz

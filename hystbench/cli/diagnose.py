@@ -120,6 +120,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if any(_is_waveform_table(p) for p in paths):
         return _waveform_tables(paths, args)
     tables = [p for p in paths if _is_loss_table(p)]
+    for p in tables:  # a recording's CSV given by itself: the loss-table reader would ask for its 'material'
+        with open(p, "rb") as fh:
+            if fh.readline(200).split(b",")[0].strip().lstrip(b"\xef\xbb\xbf") == b"time_s":
+                raise ConfigError(f"{p}: a recording (its first column is time_s), not a loss table; give the sweep "
+                                  f"folder that holds it ({p.parent}) to diagnose a bench day")
     if tables and len(tables) < len(paths):
         raise ConfigError(f"{tables[0]}: a loss table is diagnosed on its own, not with sweeps or logs; "
                           "give loss tables or recordings, not both")

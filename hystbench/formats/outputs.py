@@ -14,6 +14,7 @@ any work, unless ``--overwrite``.
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
 import shutil
@@ -142,6 +143,9 @@ def output_folder(path: str | Path, *, overwrite: bool = False, option: str = "-
         try:
             yield staged
         except OSError as err:
+            full = err.filename is None and err.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)  # a write's, unnamed
+            if full:
+                raise RecordingError(f"{option} {target}: cannot write: {err.strerror}") from err
             if not _under(err.filename, stage):  # not a write of ours (an input, say): as it came
                 raise
             # a writer's: named by where its file was going, not by the hidden stage

@@ -75,6 +75,15 @@ def test_a_1e308_sample_is_an_outlier_not_clipping() -> None:
     json.dumps(out)  # and the JSON carries them
 
 
+def test_a_channel_of_absurd_size_is_refused_naming_it() -> None:
+    """A whole channel at 1e157 (a scale gone wrong) is no glitch: it overflowed the fits' sums of squares
+    (a traceback); refused, naming the channel and its size."""
+    rec = simulate()
+    rec.channels["current_A"] = rec.channels["current_A"] * 1e157
+    with pytest.raises(EstimationError, match=r"channel 'current_A' reaches .*e\+15\d apart from its outliers"):
+        estimate(rec)
+
+
 def test_clean_recordings_have_no_outliers(clean) -> None:
     rec, ref = clean
     assert ref.outliers == {} and ref.as_dict()["outliers_excluded"] is False

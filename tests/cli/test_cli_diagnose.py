@@ -64,6 +64,13 @@ def test_a_folder_given_twice_is_refused_before_the_work(day, capsys):
         assert f"{args[1]}: given twice" in err and str(root) in err
 
 
+def test_a_recordings_csv_given_alone_is_told_to_be_given_as_its_folder(ecore_one, capsys):
+    csv = next(ecore_one.glob("*.csv"))
+    code, out, err = _run([str(csv)], capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert f"{csv}: a recording (its first column is time_s), not a loss table" in err and f"({ecore_one})" in err
+
+
 def test_a_sweep_with_one_recording_is_refused(ecore_one, capsys):
     code, out, err = _run([str(ecore_one)], capsys)
     assert code == 2 and out == ""

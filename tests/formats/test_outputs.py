@@ -113,3 +113,15 @@ def test_an_input_is_never_an_output(tmp_path):
     with output_file(tmp_path / "elsewhere.json", inputs=[sweep]) as tmp:  # beside it: fine
         tmp.write_text("y")
     assert (sweep / "a.csv").read_text() == "x" and (tmp_path / "elsewhere.json").read_text() == "y"
+
+
+def test_a_full_disk_under_a_folder_names_the_output(tmp_path):
+    """A write that fills the disk raises ENOSPC with no file name (a stream's write, a figure's): the
+    error names the output, not only '[Errno 28] No space left on device' (``paper`` said just that)."""
+    import errno
+
+    with pytest.raises(RecordingError, match=f"--out {tmp_path / 'rep'}: cannot write: No space left on device"):
+        with output_folder(tmp_path / "rep") as stage:
+            (stage.path / "a.txt").write_text("half")
+            raise OSError(errno.ENOSPC, "No space left on device")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
