@@ -7,7 +7,9 @@ import argparse
 import json
 import logging
 import os
+import signal
 import sys
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, NoReturn, Sequence
@@ -432,6 +434,29 @@ def _os_error_line(err: OSError) -> str:
     return f"{paths}: {err.strerror or err}"
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C would be: every staged output and open log is cleaned up as for an
+    interrupt (a sweep killed half-way left its hidden folder and temporaries)."""
+
+
+@contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises :class:`Terminated` in the main thread while a command runs; a command with its
+    own handler (the daemon, the emulators, the router) replaces this one."""
+    if threading.current_thread() is not threading.main_thread():  # main() called from a thread: no signals
+        yield
+        return
+
+    def terminated(signum, frame):
+        raise Terminated
+
+    before = signal.signal(signal.SIGTERM, terminated)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
 def main(argv: list[str] | None = None) -> int:
     """The ``hystbench`` command; returns the exit status.  Anything a user can trigger (a
     :class:`~hystbench.errors.BenchError`, a path the filesystem refuses) is one line on stderr and
@@ -443,7 +468,7 @@ def main(argv: list[str] | None = None) -> int:
         return stop.code if isinstance(stop.code, int) else 2
     where = f"hystbench {args.command}" + (f" {args.model_command}" if getattr(args, "model_command", None) else "")
     try:
-        with _one_line_logging(args.command):
+        with _one_line_logging(args.command), _sigterm_as_interrupt():
             return args.func(args)
     except BenchError as err:
         print(f"{where}: error: {err}", file=sys.stderr)
@@ -454,6 +479,9 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as err:  # the filesystem refused a path the user gave (too long, not a folder, full disk)
         print(f"{where}: error: {_os_error_line(err)}", file=sys.stderr)
         return 2
+    except Terminated:  # SIGTERM (``timeout``, a service manager): cleaned up as Ctrl-C is, then 128 + 15
+        print(f"{where}: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:  # Ctrl-C: said, so that 130 is not read as a silent failure
         print(f"{where}: interrupted", file=sys.stderr)
         return 130

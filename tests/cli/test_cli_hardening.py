@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 import os
 import pty
+import select
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -288,6 +290,32 @@ def test_a_pipe_for_a_file_is_refused_not_waited_on(tmp_path, case):
     proc = subprocess.run([sys.executable, "-m", "hystbench", *argv], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert fifo.name in proc.stderr and ("not a file or folder" in proc.stderr or "not a regular file" in proc.stderr)
+
+
+def _handles_sigterm(pid: int) -> bool:
+    """Whether the process has a handler for SIGTERM (its SigCgt mask in /proc)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("SigCgt:"):
+            return bool(int(line.split()[1], 16) & (1 << (signal.SIGTERM - 1)))
+    return False
+
+
+def test_sigterm_ends_a_command_as_ctrl_c_does_leaving_no_partial_output(tmp_path):
+    """``timeout`` or a service manager's SIGTERM: said, status 143, and no sweep folder, staging folder or
+    temporary left (it used to kill the process where it stood). Sent once the handler is in place."""
+    proc = subprocess.Popen([sys.executable, "-m", "hystbench", "simulate-sweep", "--freqs", "40,80,160,320",
+                             "--ipp", "0.5,1,1.5", "--duration", "2", "--out", str(tmp_path / "sw")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        while proc.poll() is None and not _handles_sigterm(proc.pid):  # polls the event, not a guess of time
+            select.select([], [], [], 0.005)
+        assert proc.poll() is None, "the command ran to its end without a SIGTERM handler"  # 12 x 2 s to simulate
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143 and err.strip().endswith("hystbench simulate-sweep: terminated"), err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_bench_day_into_a_closed_pipe_is_written_whole(tmp_path):
