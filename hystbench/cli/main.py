@@ -434,21 +434,19 @@ def _os_error_line(err: OSError) -> str:
     return f"{paths}: {err.strerror or err}"
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised where Ctrl-C would be: every staged output and open log is cleaned up as for an
-    interrupt (a sweep killed half-way left its hidden folder and temporaries)."""
-
-
 @contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM raises :class:`Terminated` in the main thread while a command runs; a command with its
-    own handler (the daemon, the emulators, the router) replaces this one."""
+def _sigterm_as_interrupt(seen: list[bool]) -> Iterator[None]:
+    """SIGTERM raises KeyboardInterrupt in the main thread while a command runs (noted in ``seen``), so
+    every staged output and open log is cleaned up or closed as for Ctrl-C (a sweep killed half-way
+    left its hidden folder and temporaries); a command with its own handler (the daemon, the
+    emulators, the router) replaces this one."""
     if threading.current_thread() is not threading.main_thread():  # main() called from a thread: no signals
         yield
         return
 
     def terminated(signum, frame):
-        raise Terminated
+        seen.append(True)
+        raise KeyboardInterrupt
 
     before = signal.signal(signal.SIGTERM, terminated)
     try:
@@ -467,8 +465,9 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as stop:  # --help, --version, or usage + one line naming the option (status 2)
         return stop.code if isinstance(stop.code, int) else 2
     where = f"hystbench {args.command}" + (f" {args.model_command}" if getattr(args, "model_command", None) else "")
+    terminated: list[bool] = []
     try:
-        with _one_line_logging(args.command), _sigterm_as_interrupt():
+        with _one_line_logging(args.command), _sigterm_as_interrupt(terminated):
             return args.func(args)
     except BenchError as err:
         print(f"{where}: error: {err}", file=sys.stderr)
@@ -479,9 +478,6 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as err:  # the filesystem refused a path the user gave (too long, not a folder, full disk)
         print(f"{where}: error: {_os_error_line(err)}", file=sys.stderr)
         return 2
-    except Terminated:  # SIGTERM (``timeout``, a service manager): cleaned up as Ctrl-C is, then 128 + 15
-        print(f"{where}: terminated", file=sys.stderr)
-        return 143
-    except KeyboardInterrupt:  # Ctrl-C: said, so that 130 is not read as a silent failure
-        print(f"{where}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt:  # Ctrl-C: said, so that 130 is not read as a silent failure; SIGTERM: 128 + 15
+        print(f"{where}: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)
+        return 143 if terminated else 130

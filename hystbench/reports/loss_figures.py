@@ -96,8 +96,9 @@ def loss_shapes_figure(table_paths: list[str | Path], out: str | Path, split: st
             ax.loglog(fgrid, np.exp(final.log_w(fgrid, bl, dl)), "-", color=color, lw=1.4)
         ax.axvline(f[train].max() if split == "low_third" else np.nan, color="grey", lw=0.8, ls=":")
         g = groups.get(name)
-        fig_txt = ("" if g is None else f": held-out rms {g['residual_before_log10']:.3f} -> "
-                   f"{g['residual_after_log10']:.3f} log10 ({_times(g['improvement'])})")
+        fig_txt = (": none in the table (the models' curves only)" if g is None else
+                   f": held-out rms {g['residual_before_log10']:.3f} -> {g['residual_after_log10']:.3f} log10 "
+                   f"({_times(g['improvement'])})")
         ax.set_title(f"{name}{fig_txt}", fontsize=9)
         ax.set_xlabel("frequency (Hz)")
         ax.plot([], [], "k--", lw=1, label="before: rate independent")
