@@ -9,7 +9,6 @@ import logging
 import os
 import signal
 import sys
-import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, NoReturn, Sequence
@@ -17,6 +16,7 @@ from typing import Iterator, NoReturn, Sequence
 from .. import __version__
 from ..errors import BenchError, ConfigError
 from .args import SIM_MAX_IPP_A, float_in, float_list_in, nonnegative_int, path_arg, positive_float, positive_floats
+from .signals import noting
 
 __all__ = ["main"]
 
@@ -434,27 +434,6 @@ def _os_error_line(err: OSError) -> str:
     return f"{paths}: {err.strerror or err}"
 
 
-@contextmanager
-def _sigterm_as_interrupt(seen: list[bool]) -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt in the main thread while a command runs (noted in ``seen``), so
-    every staged output and open log is cleaned up or closed as for Ctrl-C (a sweep killed half-way
-    left its hidden folder and temporaries); a command with its own handler (the daemon, the
-    emulators, the router) replaces this one."""
-    if threading.current_thread() is not threading.main_thread():  # main() called from a thread: no signals
-        yield
-        return
-
-    def terminated(signum, frame):
-        seen.append(True)
-        raise KeyboardInterrupt
-
-    before = signal.signal(signal.SIGTERM, terminated)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, before)
-
-
 def main(argv: list[str] | None = None) -> int:
     """The ``hystbench`` command; returns the exit status.  Anything a user can trigger (a
     :class:`~hystbench.errors.BenchError`, a path the filesystem refuses) is one line on stderr and
@@ -467,7 +446,9 @@ def main(argv: list[str] | None = None) -> int:
     where = f"hystbench {args.command}" + (f" {args.model_command}" if getattr(args, "model_command", None) else "")
     terminated: list[bool] = []
     try:
-        with _one_line_logging(args.command), _sigterm_as_interrupt(terminated):
+        # SIGTERM (``timeout``, a service manager) cleans up as Ctrl-C does: it killed a sweep half-way,
+        # leaving its hidden folder; the daemon, the emulators and the router install their own handlers
+        with _one_line_logging(args.command), noting(signal.SIGTERM) as terminated:
             return args.func(args)
     except BenchError as err:
         print(f"{where}: error: {err}", file=sys.stderr)

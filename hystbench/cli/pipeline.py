@@ -11,13 +11,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from ..deadline import Deadline
 from ..errors import BenchError, RecordingError
+from .signals import noting
 
 __all__ = ["register", "format_message"]
 
@@ -336,7 +337,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     ours = args.overwrite or not out.exists()  # else the recorder refuses it and it must stay as it is
     src = _source_from_args(args)
     try:
-        with _noting_ctrl_c() as interrupted:  # record_log ends the log cleanly on Ctrl-C and returns
+        with noting(signal.SIGINT) as interrupted:  # record_log ends the log cleanly on Ctrl-C and returns
             res = record_log(src, out, compression=args.compression, overwrite=args.overwrite,
                              on_message=_quiet_on_broken_pipe(_print_estimate) if args.verbose else None)
     except BenchError as err:  # a log with no measurement in it would only block the retry: remove it
@@ -361,29 +362,6 @@ def cmd_record(args: argparse.Namespace) -> int:
               f"recorded before it: {', '.join(res['log'])}", file=sys.stderr)
         return 130
     return 0
-
-
-@contextmanager
-def _noting_ctrl_c() -> Iterator[list[bool]]:
-    """A list that holds True once Ctrl-C (SIGINT) came while the block ran; the interrupt is
-    raised as usual (for the code that handles it), only now somebody knows it happened."""
-    import signal
-    import threading
-
-    seen: list[bool] = []
-    if threading.current_thread() is not threading.main_thread():  # only the main thread gets signals
-        yield seen
-        return
-
-    def note(signum, frame):
-        seen.append(True)
-        raise KeyboardInterrupt
-
-    before = signal.signal(signal.SIGINT, note)
-    try:
-        yield seen
-    finally:
-        signal.signal(signal.SIGINT, before)
 
 
 #: how long ``replay --foxglove`` waits for a Foxglove client to subscribe before it gives up
