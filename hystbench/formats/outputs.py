@@ -67,6 +67,9 @@ def _remove_folders(made: list[Path]) -> None:
 def _refuse_inputs(path: Path, inputs: Iterable[str | Path], option: str) -> None:
     """An output may not be an input of the same command, nor be written into an input folder: with
     ``--overwrite`` it would destroy what the command reads (a recording's samples, a sweep's sidecar)."""
+    inputs = list(inputs)
+    if not inputs:
+        return
     target = path.resolve()
     for given in inputs:
         p = Path(given).resolve()
