@@ -425,6 +425,11 @@ def _quiet_broken_pipe() -> None:
         pass
 
 
+def _one_line(message: str) -> str:
+    """An error is one line, whatever a path in it holds (a file name may contain a newline)."""
+    return message.replace("\r", "\\r").replace("\n", "\\n")
+
+
 def _os_error_line(err: OSError) -> str:
     """``PATH: reason`` (the path first, as every other message names its file), not Python's
     ``[Errno 36] File name too long: 'PATH'``; an error with no path keeps its own text."""
@@ -451,13 +456,13 @@ def main(argv: list[str] | None = None) -> int:
         with _one_line_logging(args.command), noting(signal.SIGTERM) as terminated:
             return args.func(args)
     except BenchError as err:
-        print(f"{where}: error: {err}", file=sys.stderr)
+        print(f"{where}: error: {_one_line(str(err))}", file=sys.stderr)
         return 2
     except BrokenPipeError:
         _quiet_broken_pipe()
         return 1
     except OSError as err:  # the filesystem refused a path the user gave (too long, not a folder, full disk)
-        print(f"{where}: error: {_os_error_line(err)}", file=sys.stderr)
+        print(f"{where}: error: {_one_line(_os_error_line(err))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # Ctrl-C: said, so that 130 is not read as a silent failure; SIGTERM: 128 + 15
         print(f"{where}: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)

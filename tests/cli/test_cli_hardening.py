@@ -277,6 +277,11 @@ def test_record_verbose_into_a_closed_pipe_still_records_everything(tmp_path):
     assert proc.stderr == "" and proc.returncode == 1
 
 
+def test_an_error_naming_a_path_with_a_newline_is_still_one_line(tmp_path, capsys):
+    code, out, err = run(["estimate", tmp_path / "a\nb.csv"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "a\\nb" in error_line(err)
+
+
 @pytest.mark.parametrize("case", ["log", "sidecar", "rig"])
 def test_a_pipe_for_a_file_is_refused_not_waited_on(tmp_path, case):
     """A FIFO with no writer where a file goes: opening it would block for ever. Refused by name (the
