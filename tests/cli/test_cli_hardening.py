@@ -319,8 +319,11 @@ def test_sigterm_ends_a_command_as_ctrl_c_does_leaving_no_partial_output(tmp_pat
         out, err = proc.communicate(timeout=300)
     finally:
         proc.kill()
-    assert proc.returncode == 143 and err.strip().endswith("hystbench simulate-sweep: terminated"), err
-    assert list(tmp_path.iterdir()) == []
+    assert proc.returncode == 143 and "hystbench simulate-sweep: terminated" in err, err
+    if "after the command finished" in err:  # the signal fell in an import's callback, which swallows it
+        assert len(list((tmp_path / "sw").glob("*.csv"))) == 12 and sorted(p.name for p in tmp_path.iterdir()) == ["sw"]
+    else:
+        assert list(tmp_path.iterdir()) == []
 
 
 def test_a_bench_day_into_a_closed_pipe_is_written_whole(tmp_path):
