@@ -70,6 +70,7 @@ def _simulate_one(args, frequency_hz: float, ipp_a: float, seed: int):
 def cmd_simulate(args: argparse.Namespace) -> int:
     """`hystbench simulate`: one recording (STEM.csv + STEM.json) of a simulated rig, to try the
     method with no hardware; an existing output is refused before the simulation runs."""
+    from ..formats.outputs import parent_folders
     from ..formats.recording import write_recording
 
     _check_size(args)
@@ -81,8 +82,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if taken and not args.overwrite:  # before the simulation, not after it
         raise ConfigError(f"--out {args.out}: {taken[0]} exists; give --overwrite to replace it")
     rec = _simulate_one(args, args.freq, args.ipp, args.seed)
-    stem.parent.mkdir(parents=True, exist_ok=True)  # --out new/run: the folder as simulate-sweep makes its own
-    csv_path, json_path = write_recording(rec, args.out, overwrite=args.overwrite)
+    with parent_folders(stem):  # --out new/run: the folder as simulate-sweep makes its own, gone if it fails
+        csv_path, json_path = write_recording(rec, args.out, overwrite=args.overwrite)
     print(f"wrote {csv_path} and {json_path} ({rec.n} samples at {rec.fs_hz:g} Hz)")
     return 0
 

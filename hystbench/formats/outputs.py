@@ -24,7 +24,7 @@ from typing import Iterable, Iterator
 
 from ..errors import BenchError, ConfigError, RecordingError
 
-__all__ = ["output_file", "output_folder", "StagedFolder"]
+__all__ = ["output_file", "output_folder", "parent_folders", "StagedFolder"]
 
 
 def _make_parent(path: Path, option: str) -> list[Path]:
@@ -62,6 +62,18 @@ def _remove_folders(made: list[Path]) -> None:
             folder.rmdir()
         except OSError:
             pass
+
+
+@contextmanager
+def parent_folders(path: str | Path, *, option: str = "--out") -> Iterator[None]:
+    """``path``'s missing parent folders, made for a writer that stages its own files (a recording's
+    pair), and removed again if the block fails: a name the filesystem refuses leaves no empty folder."""
+    made = _make_parent(Path(path), option)
+    try:
+        yield
+    except BaseException:
+        _remove_folders(made)
+        raise
 
 
 def _refuse_inputs(path: Path, inputs: Iterable[str | Path], option: str) -> None:

@@ -25,6 +25,11 @@ def test_a_path_the_filesystem_refuses_is_one_line_naming_it(tmp_path: Path, cap
     assert code == 2
     assert err == f"hystbench simulate: error: {stem}.csv: File name too long\n", err
     assert list(tmp_path.iterdir()) == []
+    # in a folder the command makes for it: the folder does not stay behind, empty
+    code = main(["simulate", "--rig", "ecore", "--freq", "320", "--ipp", "1", "--duration", "0.01",
+                 "--out", str(tmp_path / "new" / "deeper" / stem.name)])
+    assert code == 2 and "File name too long" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_value_error_is_a_bug_not_a_user_error(monkeypatch) -> None:
