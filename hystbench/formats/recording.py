@@ -108,8 +108,10 @@ class Recording:
             sizes = ", ".join(f"{k}={v.size}" for k, v in self.channels.items())
             raise RecordingError(f"{where}: channels differ in length: {sizes}")
         if np.spacing(abs(t0) + self.n / fs) > TIME_TOL_PERIODS / fs / 8:  # float64 time resolution
-            raise RecordingError(f"{where}: t0_s={t0!r} is too far from 0 to write time_s at {fs} Hz "
-                                 "within TIME_TOL_PERIODS; keep the offset in the metadata instead")
+            raise RecordingError(f"{where}: time_s starts at {t0!r} s (t0_s), too far from 0 for float64 to hold "
+                                 f"the sample times at {fs:g} Hz within {TIME_TOL_PERIODS:g} of a period "
+                                 "(TIME_TOL_PERIODS); start time_s near 0 and keep the clock's offset in the "
+                                 "sidecar's start_time_s")
 
     @property
     def rig(self) -> str:
