@@ -552,6 +552,11 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
         verdict += (f"; the model with them predicts the held-out rows worse than the baseline ({before:.3f} -> "
                     f"{after:.3f} log10): what they describe holds where they were calibrated and does not carry "
                     "beyond it; weigh them with that")
+    keys = np.column_stack([f, b, w] + ([] if duty is None else [duty]))
+    repeated = int(f.size - np.unique(keys, axis=0).shape[0])
+    if repeated:  # a table appended twice counts its evidence twice (N87's sines doubled took a third term)
+        verdict += (f"; {repeated} rows repeat another exactly (a table appended twice?): each is counted, which "
+                    "overstates the evidence")
     return {
         "material": material, "split": split, "calibrate_on": calibrate_on,
         "effect": next((n for n in chosen if by_name[n].in_catalogue), None),
@@ -570,6 +575,7 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
         "rows": {"calibration": int(train.sum()), "held_out": int(held.sum()),
                  "calibration_max_Hz": float(f[train].max())},
         **({} if shapes is None else {"shapes": shapes}),
+        "repeated_rows": repeated,
         "seconds": time.perf_counter() - t0,
     }
 

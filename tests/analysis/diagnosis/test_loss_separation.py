@@ -127,6 +127,14 @@ def test_a_table_with_too_few_frequencies_is_refused_and_a_falling_loss_is_said_
     assert r["located"]["trend"]["slope_log_f"] < 0 and "energy per cycle falls with frequency" in r["verdict"]
 
 
+def test_rows_repeated_exactly_are_said_to_overstate_the_evidence():
+    """A table appended to itself: each of its rows twice (no vendored table repeats a row)."""
+    f, b, w = (np.tile(a, 2) for a in synthetic(k_c=1e-4))
+    r = diagnose_energy(f, b, w)
+    assert r["repeated_rows"] == f.size // 2 and f"{f.size // 2} rows repeat another exactly" in r["verdict"]
+    assert diagnose_energy(*synthetic(k_c=1e-4))["repeated_rows"] == 0
+
+
 def test_a_zero_loss_is_refused_naming_its_line(tmp_path: Path):
     """The reader takes a loss of 0 (a physical bound); the diagnosis, on log(energy), names where it is."""
     lines = (REAL / "magnet_N87_sine.csv").read_text().splitlines()
