@@ -2,6 +2,7 @@
 refused suspects stay in the model that is proven (select.forward_selection)."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -274,3 +275,20 @@ def test_a_named_switch_reports_the_strength_the_final_fit_puts_on_it():
     assert named_parameters(switch, sol) == {"strength": (58.0, 2.5)}
     value, std = named_parameters(drift, sol)["kelvin_per_s"]
     assert value == pytest.approx(0.02) and std == pytest.approx(0.002)
+
+
+def test_every_probe_at_the_ends_of_its_range_is_a_setting_the_rig_accepts():
+    """A fit may push a candidate's parameter to its bound: a compliance or a high-pass to u = 0 (the
+    effect off) was simulated at 1/1e-300, and the rig refused the stiffness of 1e300 N/m (settings
+    are at most 1e15 in size), which ended the independent bench's benchmark in a traceback.  Every
+    probe at its bounds, at 0 and at its probe step must give parameters the catalogue accepts."""
+    from hystbench.analysis.diagnosis.columns import PROBES
+    from hystbench.config.effects import CATALOGUE, validate_effects
+
+    for name, probes in PROBES.items():
+        for probe in probes:
+            at = [u for u in (probe.lower, probe.upper, 0.0, 1e-300, probe.probe, *probe.grid) if math.isfinite(u)]
+            for u in at:
+                u = min(max(u, probe.lower), probe.upper)
+                params = {**CATALOGUE[name].defaults, **probe.setting(u)}
+                validate_effects({name: params}, f"{name} at u = {u:g}")
