@@ -156,6 +156,9 @@ def _check_clipping(where: str, name: str, x: np.ndarray, lo: float, hi: float) 
 #: voltage, and small enough that the fits' squares stay finite (a channel at 1e157 overflowed them;
 #: one glitch of 1e308 is an outlier, found and left out).
 MAX_CHANNEL_MAGNITUDE = 1e30
+#: The smallest swing a channel may have: below any quantity of a bench in SI units, and large enough
+#: that the fits' squares stay normal numbers (a channel scaled to 1e-200 ended in "Singular matrix").
+MIN_CHANNEL_SWING = 1e-30
 
 
 def check_channels(rec: Recording, names: tuple[str, ...]) -> dict[str, np.ndarray]:
@@ -191,6 +194,9 @@ def check_channels(rec: Recording, names: tuple[str, ...]) -> dict[str, np.ndarr
         if max(abs(lo), abs(hi)) > MAX_CHANNEL_MAGNITUDE:  # a whole channel this large overflowed the fits
             raise EstimationError(f"{where}: channel {name!r} reaches {max(abs(lo), abs(hi)):.3g} apart from its "
                                   f"outliers: beyond {MAX_CHANNEL_MAGNITUDE:g}, no quantity of a bench (a unit or a scale?)")
+        if hi - lo < MIN_CHANNEL_SWING:
+            raise EstimationError(f"{where}: channel {name!r} swings by {hi - lo:.3g} apart from its outliers: below "
+                                  f"{MIN_CHANNEL_SWING:g}, no quantity of a bench (a unit or a scale?)")
         _check_clipping(where, name, kept, lo, hi)
         out[name] = x
     f = rec.frequency_hz

@@ -84,6 +84,21 @@ def test_a_channel_of_absurd_size_is_refused_naming_it() -> None:
         estimate(rec)
 
 
+def test_a_channel_too_small_for_the_fits_is_refused_naming_it(clean) -> None:
+    """A channel scaled to 1e-200 (its squares underflow) ended in "Singular matrix"; it is refused,
+    naming the channel and its swing.  At 1e-20 the delays are the same: they do not depend on a scale."""
+    rec, ref = clean
+
+    def scaled(k: float) -> Recording:
+        return Recording(rec.path, rec.fs_hz, {**rec.channels, "flux_Wb": rec.channels["flux_Wb"] * k}, dict(rec.metadata))
+
+    with pytest.raises(EstimationError, match=r"channel 'flux_Wb' swings by .*e-20\d apart from its outliers"):
+        estimate(scaled(1e-200))
+    d = measure_delays(scaled(1e-20))
+    for k in NAMES:
+        assert abs(d.delays_s[k] - ref.delays_s[k]) < 0.01 * ref.delays_std_s[k], k
+
+
 def test_clean_recordings_have_no_outliers(clean) -> None:
     rec, ref = clean
     assert ref.outliers == {} and ref.as_dict()["outliers_excluded"] is False
