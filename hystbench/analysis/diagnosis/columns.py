@@ -34,7 +34,6 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 from ...config.effects import CATALOGUE
-from ...config.schema import MAX_MAGNITUDE
 from ...errors import ConfigError
 from .forward import Point, preset_value, replay_features, with_effects, with_value
 
@@ -104,13 +103,8 @@ class Probe:
 
 
 def _inverse(effect: str, param: str, probe: float, grid: tuple[float, ...] = ()) -> Probe:
-    """A parameter fitted as its inverse (u = 0: the effect off).  Near 0 it is simulated at the
-    largest value the catalogue accepts (a time constant of 1e6 s, a stiffness of 1e15 N/m: no effect
-    the bench can see), not at 1/u, which the rig refuses."""
-    key = CATALOGUE[effect].params[param]
-    largest = min(x for x in (key.le, MAX_MAGNITUDE) if x is not None)
-    return Probe(effect, param, probe, lambda u: {param: 1.0 / max(u, 1.0 / largest)},
-                 lambda u: 1.0 / u if u > 0 else math.inf, lower=0.0, grid=tuple(1.0 / g for g in grid))
+    return Probe(effect, param, probe, lambda u: {param: 1.0 / max(u, 1e-300)}, lambda u: 1.0 / u if u > 0 else math.inf,
+                 lower=0.0, grid=tuple(1.0 / g for g in grid))
 
 
 #: The catalogue's own frame modes (the paper's, at their catalogue frequencies and damping), their

@@ -278,17 +278,20 @@ def test_a_named_switch_reports_the_strength_the_final_fit_puts_on_it():
 
 
 def test_every_probe_at_the_ends_of_its_range_is_a_setting_the_rig_accepts():
-    """A fit may push a candidate's parameter to its bound: a compliance or a high-pass to u = 0 (the
-    effect off) was simulated at 1/1e-300, and the rig refused the stiffness of 1e300 N/m (settings
-    are at most 1e15 in size), which ended the independent bench's benchmark in a traceback.  Every
-    probe at its bounds, at 0 and at its probe step must give parameters the catalogue accepts."""
+    """A fit may push a candidate's parameter to its bound: a compliance fitted as its inverse went
+    to u = 0 (the effect off), was simulated at 1/1e-300, and the rig refused the stiffness of 1e300
+    N/m (settings are at most 1e15 in size), which ended the independent bench's benchmark in a
+    traceback.  Every probe at its bounds, at 0, at its probe step and far beyond, as the fit hands
+    it to the simulation (clamped), must give parameters the catalogue accepts."""
     from hystbench.analysis.diagnosis.columns import PROBES
+    from hystbench.analysis.diagnosis.select import clamp
     from hystbench.config.effects import CATALOGUE, validate_effects
 
     for name, probes in PROBES.items():
         for probe in probes:
-            at = [u for u in (probe.lower, probe.upper, 0.0, 1e-300, probe.probe, *probe.grid) if math.isfinite(u)]
-            for u in at:
+            for u in (probe.lower, probe.upper, 0.0, 1e-300, -1e300, 1e300, probe.probe, *probe.grid):
                 u = min(max(u, probe.lower), probe.upper)
-                params = {**CATALOGUE[name].defaults, **probe.setting(u)}
+                if not math.isfinite(u):
+                    continue
+                params = clamp(name, {**CATALOGUE[name].defaults, **probe.setting(u)})
                 validate_effects({name: params}, f"{name} at u = {u:g}")
