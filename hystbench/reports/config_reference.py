@@ -119,7 +119,7 @@ def render() -> str:
            "`[source] effects` is checked by the effect catalogue (below), and `[compensator] enabled` "
            "needs `[estimation] enabled`.", ""]
     out += _file(DAEMON)
-    out += ["## The bench file (`[source] bench_file`, `hystbench emulate --config`, `hystbench pipeline --bench-file`, default "
+    out += ["## The bench file (`[source] bench_file`, `hystbench emulate --config`, `hystbench record --bench-file`, default "
             "`hystbench/config/bench.toml`)", "",
             "Tables `[bench]`, `[sim]` and one per instrument (all four required). An instrument with "
             "`backend = \"hardware\"` needs its address (`url`, `host` or `serial_port`, `channel`). "
