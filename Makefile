@@ -28,12 +28,12 @@ demo: $(STAMP)
 
 # Four workers, a test file on one worker (its module fixtures are computed once): many tests wait on a
 # daemon, a socket or a subprocess, so on this 2-core machine four keep both cores busy where two left
-# a third of the time idle (docs/performance.md, section 1).  Bytecode is cached even where the
+# a third of the time idle.  Bytecode is cached even where the
 # environment says PYTHONDONTWRITEBYTECODE: the suite starts some sixty Python processes (workers,
 # daemons, command lines), and each compiled the package and rewrote the tests from source (a worker
 # took 10 s to collect, 5 s with the cache).  --no-loadscope-reorder keeps the order tests/conftest.py
 # gives the files (longest first); xdist's default reorders them by their number of tests, which sent
-# the 70 s diagnosis file out last, to run alone at the end.  One BLAS thread per process: four
+# the concealed suite's file (26 s alone, a fixture of one worker) out last, to run alone at the end.  One BLAS thread per process: four
 # workers with two OpenBLAS threads each on two cores spent a third of the suite's CPU spinning
 # (240 -> 187 s, docs/performance.md).
 PYTEST := env -u PYTHONDONTWRITEBYTECODE OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 4 --dist loadfile --no-loadscope-reorder

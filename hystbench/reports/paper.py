@@ -52,7 +52,7 @@ PAPER = {
 
 @dataclass(frozen=True)
 class PaperGrid:
-    """What to simulate; record lengths chosen for a default run of about a minute on one core."""
+    """What to simulate; record lengths chosen for a default run of a few seconds (6 s on 2026-11-30)."""
 
     vc_rigs: tuple[str, ...] = ("voicecoil_ferrite", "voicecoil_ndfeb", "voicecoil_smco")
     vc_freqs_hz: tuple[float, ...] = tuple(float(f) for f in np.round(np.geomspace(10.0, 45000.0, 40), 2))
