@@ -61,13 +61,15 @@ def plus_minus(value: float, std: float | None) -> str:
     return body if scale == 1.0 else f"({body})e{exp:+03d}"
 
 
-def parameter_lines(parameters: Mapping[str, Mapping[str, tuple[float, float]]]) -> list[str]:
-    """``effect.param = value +- std unit``, one per fitted parameter, in the catalogue's names."""
+def parameter_lines(parameters: Mapping[str, Mapping[str, tuple[float, float | None]]], no_std: str = "") -> list[str]:
+    """``effect.param = value +- std unit``, one per fitted parameter, in the catalogue's names; a
+    parameter without a std (None) gets ``(no_std)`` when given (why it has none)."""
     out = []
     for effect, params in parameters.items():
         for p, (v, s) in params.items():
             unit = unit_of(f"{effect}.{p}")
-            out.append(f"{effect}.{p} = {plus_minus(v, s)}" + (f" {unit}" if unit else ""))
+            why = f" ({no_std})" if no_std and s is None else ""
+            out.append(f"{effect}.{p} = {plus_minus(v, s)}" + (f" {unit}" if unit else "") + why)
     return out
 
 
@@ -317,7 +319,7 @@ def render_loss_report(results: list[Mapping[str, Any]], folder: str | Path) -> 
         lines += [""] if "shapes" in r else []
         params = {e: {k: (v["value"], v["std"]) for k, v in ps.items()} for e, ps in r.get("parameters", {}).items()}
         if params:
-            lines += ["```"] + parameter_lines(params) + ["```", ""]
+            lines += ["```"] + parameter_lines(params, no_std="not determined by the rows") + ["```", ""]
         lines += [f"![{name}]({png})", ""]
     page = folder / PAGE
     page.write_text("\n".join(lines), encoding="utf-8")

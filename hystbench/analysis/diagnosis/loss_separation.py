@@ -93,6 +93,9 @@ class TermFit:
     cov: np.ndarray
     rss: float  # sum of squared ln residuals on the calibration points
     n: int
+    #: per parameter: in a direction the rows do not determine, which the covariance's pseudo-inverse
+    #: cuts off (it reported a term on its energy floor as "1.0e-09 +- 1.4e-19"): no standard error
+    undetermined: np.ndarray | None = None
 
     @property
     def bic(self) -> float:
@@ -105,6 +108,8 @@ class TermFit:
     def parameters(self) -> dict[str, dict[str, tuple[float, float]]]:
         """Effect -> parameter -> (value, std), natural units (delta method from the ln-k covariance)."""
         se = np.sqrt(np.maximum(np.diag(self.cov), 0.0))
+        if self.undetermined is not None:
+            se[self.undetermined] = math.nan
         kh = math.exp(self.x[0])
         out = {"static_hysteresis": {"k_h_J_per_m3_at_0.1T": (kh, kh * se[0]), "beta": (self.x[1], se[1]),
                                      "curvature": (self.x[2], se[2])}}
@@ -245,8 +250,20 @@ def fit_terms(f: np.ndarray, b: np.ndarray, w: np.ndarray, terms: Sequence[Term]
                 best = sol
     resid = best.fun
     dof = max(resid.size - best.x.size, 1)
-    cov = np.linalg.pinv(best.jac.T @ best.jac) * float(resid @ resid) / dof
-    return TermFit(tuple(terms), best.x, cov, float(resid @ resid), int(resid.size))
+    cov = np.linalg.pinv(best.jac.T @ best.jac, rcond=PINV_RCOND) * float(resid @ resid) / dof
+    return TermFit(tuple(terms), best.x, cov, float(resid @ resid), int(resid.size), undetermined(best.jac))
+
+
+#: The pseudo-inverse's cut-off (numpy's default, written out): J'J's directions below it are dropped.
+PINV_RCOND = 1e-15
+
+
+def undetermined(jac: np.ndarray) -> np.ndarray:
+    """Per parameter: mostly in the directions pinv(J'J) cuts off (J's singular values below
+    sqrt(PINV_RCOND) of its largest), where the rows do not determine it and the covariance says ~0."""
+    _, s, vt = np.linalg.svd(jac, full_matrices=False)
+    lost = s < s[0] * math.sqrt(PINV_RCOND)
+    return (vt[lost] ** 2).sum(axis=0) > 0.5
 
 
 def noise_floor(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | None = None) -> float:
@@ -462,8 +479,9 @@ def _scale_rel_std(fit: TermFit) -> float:
     return float(math.sqrt(max(grad @ cov @ grad, 0.0)))
 
 
-def _param_json(p: dict[str, tuple[float, float]]) -> dict[str, dict[str, float]]:
-    return {k: {"value": float(v), "std": float(s)} for k, (v, s) in p.items()}
+def _param_json(p: dict[str, tuple[float, float]]) -> dict[str, dict[str, float | None]]:
+    """A parameter the rows do not determine has no standard error: ``"std": null``."""
+    return {k: {"value": float(v), "std": float(s) if math.isfinite(s) else None} for k, (v, s) in p.items()}
 
 
 CALIBRATE_ON = ("sine_triangle", "all_shapes")

@@ -348,7 +348,8 @@ def inert(t: Term, rows: Rows) -> str | None:
 
 
 def natural(t: Term, x: np.ndarray, se: np.ndarray) -> dict[str, tuple[float, float]]:
-    """The term's parameters (value, std) in physical units, by the delta method from the fit's."""
+    """The term's parameters (value, std) in physical units, by the delta method from the fit's (NaN:
+    not determined)."""
     if t.kind == "temperature":
         return {"c1_per_K": (x[0], se[0]), "c2_per_K2": (x[1], se[1])}
     k = math.exp(x[0])
@@ -356,8 +357,8 @@ def natural(t: Term, x: np.ndarray, se: np.ndarray) -> dict[str, tuple[float, fl
     if t.kind == "series":
         k2 = math.exp(x[2])
         p.update({"delta_1": (x[1], se[1]), "k_2_J_per_m3_at_100kHz_0.1T": (k2, k2 * se[2]), "delta_2": (x[3], se[3])})
-        for key, k_order in (("delta_1", k), ("delta_2", k2)):
-            if k_order < 1e-6 * (k + k2):  # an order fitted to nothing has no exponent to report
+        for key, k_order, k_std in (("delta_1", k, se[0]), ("delta_2", k2, se[2])):
+            if k_order < 1e-6 * (k + k2) or not math.isfinite(k_std):  # fitted to nothing: no exponent
                 del p[key]
         return p
     if t.kind == "falling":
@@ -382,7 +383,8 @@ def form(t: Term, p: dict[str, tuple[float, float]]) -> str:
     """'not in the catalogue: <form> with <parameters>' for a generic term, its name for a catalogue one."""
     if t.in_catalogue:
         return t.name
-    pm = ", ".join(f"{k} = {v:.4g} +- {s:.2g}" for k, (v, s) in p.items())
+    pm = ", ".join(f"{k} = {v:.4g} +- {s:.2g}" if math.isfinite(s) else f"{k} = {v:.4g} (not determined by the rows)"
+                   for k, (v, s) in p.items())
     shapes = {"excess_loss": "k_e f^0.5 B^1.5 S_1.5",
               "steinmetz_rate_dependence": "k_s (f/100 kHz)^gamma (B/0.1 T)^delta S_(1+gamma) (iGSE), alpha = 1 + gamma",
               "rate_series": "k_1 (f/100 kHz) (B/0.1 T)^delta_1 S_2 + k_2 (f/100 kHz)^2 (B/0.1 T)^delta_2 S_3 (a dynamic "

@@ -236,3 +236,27 @@ def test_a_loss_falling_with_frequency_is_recovered_beside_the_rate_series(seed:
     for key, truth in zip(("k_f_J_per_m3_at_100kHz_0.1T", "gamma", "delta"), FALLING_TRUTH):
         assert _within(p[key], truth), (key, p[key], truth)
     assert r["improvement"] > 5 and r["residual_after"] < 6  # measured 16.3x, 3.3 and 10.1x, 5.5 noise floors
+
+
+def test_a_term_fitted_to_nothing_reports_no_standard_error_and_a_real_one_does():
+    """On a table without a falling loss, the falling term fitted alone sits at its floor (1e-9 J/m^3
+    at the reference point, eight decades below the loss): the pseudo-inverse of J'J cut off its
+    directions and reported k_f = 1.65e-09 +- 5.7e-21, certainty where the rows say nothing.  Its
+    parameters are now said not determined (JSON null); a series that is in the table keeps its
+    errors, and the truth is within three of them."""
+    from hystbench.analysis.diagnosis.loss_separation import _param_json, fit_terms
+    from hystbench.analysis.diagnosis.loss_terms import FALLING, SERIES, form
+
+    f, b, w, duty = table(1)
+    nothing = fit_terms(f, b, w, (FALLING,), duty).parameters()[FALLING.name]
+    k_f = nothing["k_f_J_per_m3_at_100kHz_0.1T"]
+    assert k_f[0] < 1e-8 and math.isnan(k_f[1])
+    assert _param_json(nothing)["k_f_J_per_m3_at_100kHz_0.1T"]["std"] is None
+    assert "not determined by the rows" in form(FALLING, nothing) and "e-21" not in form(FALLING, nothing)
+    json.dumps(_param_json(nothing), allow_nan=False)
+
+    f, b, w, duty = table(1, series=SERIES_TRUTH)
+    found = _param_json(fit_terms(f, b, w, (SERIES,), duty).parameters()[SERIES.name])
+    for key, truth in zip(("k_1_J_per_m3_at_100kHz_0.1T", "delta_1", "k_2_J_per_m3_at_100kHz_0.1T", "delta_2"),
+                          SERIES_TRUTH):
+        assert found[key]["std"] is not None and _within(found[key], truth), key
