@@ -614,8 +614,7 @@ def _beyond_catalogue(rows: Rows, w: np.ndarray, train: np.ndarray, named: TermF
     return {"name": STEINMETZ.name, "delta_bic": named.bic - fit.bic, "at_bound": at_bound,
             "needed": named.bic - fit.bic >= NAME_DELTA_BIC,
             "modelled": STEINMETZ.name in [t.name for t in named.terms], "refused": refused,
-            "alpha": {"value": p["alpha"][0], "std": p["alpha"][1]},
-            "delta": {"value": p["delta"][0], "std": p["delta"][1]},
+            **_param_json({"alpha": p["alpha"], "delta": p["delta"]}),
             "residual_held_out_log10": _rms(r[~train])}
 
 
@@ -643,7 +642,8 @@ def _verdict(chosen: list[str], reported: list[str], located: dict[str, Any], be
                 "refused as a suspect (it does not extrapolate)")
     if beyond["needed"] and not beyond["modelled"]:
         a = beyond["alpha"]
-        out += (f"; alone, the free rate term (alpha = {a['value']:.2f} +- {a['std']:.2f}"
+        spread = "not determined" if a["std"] is None else f"+- {a['std']:.2f}"
+        out += (f"; alone, the free rate term (alpha = {a['value']:.2f} {spread}"
                 f"{', on its bound' if beyond['at_bound'] else ''}) would give {beyond['residual_held_out_log10']:.3f} "
                 f"log10 held out, against {named_after:.3f} with the model selected")
     if shapes is not None:
