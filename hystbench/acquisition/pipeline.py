@@ -40,7 +40,7 @@ from numpy.typing import DTypeLike
 
 from ..blocks import BlockFlags, SampleBlock
 from ..deadline import Deadline
-from ..errors import ConfigError, LogWriteError
+from ..errors import CommandRefused, ConfigError, LogWriteError
 from ..formats.mcaplog.schemas import COMPENSATOR, ESTIMATE, STATS, STATUS
 from ..messages import CompensatorUpdate, Estimate
 from .ring import RingBuffer, RingRead, RingReader
@@ -605,6 +605,11 @@ class CompensatorHook:
                 state["output_switched_off"] = True
         if update.waveform_a is not None and isinstance(self.source, Controllable):
             f = estimate.nominal_frequency_hz if update.frequency_hz is None else update.frequency_hz
-            self.source.set_waveform(update.waveform_a, float(f))
-            state["waveform_applied"] = True
+            try:
+                self.source.set_waveform(update.waveform_a, float(f))
+                state["waveform_applied"] = True
+            except (ConfigError, CommandRefused) as err:  # beyond the bench's limits (or busy): a trip, not a fault
+                self.source.set_output(False)
+                self.tripped = f"its waveform was refused ({err})"
+                state.update(output_switched_off=True, waveform_refused=str(err))
         return state

@@ -14,7 +14,6 @@ one operating point, stated in its ``meta`` (``frequency_hz``, ``current_pp_a``,
 from __future__ import annotations
 
 import math
-import queue
 import threading
 import time
 from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping, Protocol, runtime_checkable
@@ -23,6 +22,7 @@ import numpy as np
 from numpy.typing import DTypeLike
 
 from ..blocks import SampleBlock
+from .command_queue import CommandQueue
 from ..errors import ConfigError, InstrumentError, SimulationError
 from ..messages import OPERATING_KEYS, OperatingPoint
 
@@ -117,7 +117,7 @@ class RigSource:
         self.fs_hz = rig.fs_hz
         self.block_samples, self.pace, self.duration_s = int(block_samples), pace, duration_s
         self.dtype = np.dtype(dtype)
-        self._commands: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        self._commands = CommandQueue(self.name, lambda: setattr(self.rig, "output_enabled", False))
         self._tables = 0  # changes of what the generator plays
         #: the peak coil current (|offset| + amplitude) no command may exceed; None: unchecked
         self.max_current_a = None if max_current_a is None else float(max_current_a)
@@ -127,8 +127,8 @@ class RigSource:
 
     def _check_peak(self, what: str, peak_a: float) -> None:
         if self.max_current_a is not None and not peak_a <= self.max_current_a * (1 + 1e-9):
-            raise ConfigError(f"{self.name}: refused {what}: peak {peak_a:.4g} A exceeds the bench's "
-                              f"max_current_a = {self.max_current_a:g} A")
+            raise ConfigError(f"{self.name}: refused {what}: the coil current it really drives peaks at {peak_a:.4g} A, "
+                              f"beyond the bench's max_current_a = {self.max_current_a:g} A")
 
     def set_excitation(self, frequency_hz: float | None = None, current_pp_a: float | None = None,
                        offset_a: float | None = None) -> None:
@@ -138,32 +138,34 @@ class RigSource:
             raise ConfigError(f"current_pp_a must be >= 0, got {current_pp_a}")
         ipp = self.rig.current_pp_a if current_pp_a is None else current_pp_a
         off = self.rig.offset_a if offset_a is None else offset_a
-        self._check_peak(f"{ipp:g} A-pp {off:+g} A", abs(off) + ipp / 2)
+        f = self.rig.frequency_hz if frequency_hz is None else frequency_hz
+        if self.max_current_a is not None:  # the rig's physics: a flux-fed toroid draws far more than its command
+            self._check_peak(f"{ipp:g} A-pp {off:+g} A at {f:g} Hz", self.rig.peak_current_a(f, ipp, off))
         self._commands.put(_counted(self, lambda: self.rig.set_excitation(frequency_hz, current_pp_a, offset_a)))
 
     def set_output(self, on: bool) -> None:
-        self._commands.put(lambda: setattr(self.rig, "output_enabled", bool(on)))
+        """On: queued, applied between blocks.  Off: at once (:class:`CommandQueue`)."""
+        if on:
+            self._commands.put(lambda: setattr(self.rig, "output_enabled", True), output_on=True)
+        else:
+            self._commands.output_off()
 
     def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
         table = np.array(current_a, dtype=float)
-        if table.size:
-            self._check_peak(f"a waveform of {table.size} points", float(np.max(np.abs(table))))
+        if not 0 < frequency_hz < self.fs_hz / 2:
+            raise ConfigError(f"{self.name}: refused a waveform at {frequency_hz} Hz: outside (0, {self.fs_hz / 2:g}) Hz")
+        if table.size and self.max_current_a is not None:
+            self._check_peak(f"a waveform of {table.size} points at {frequency_hz:g} Hz",
+                             self.rig.peak_current_a(frequency_hz, waveform=table))
         self._commands.put(_counted(self, lambda: self.rig.set_waveform(table, frequency_hz)))
 
-
-    def _apply(self) -> None:
-        while True:
-            try:
-                self._commands.get_nowait()()
-            except queue.Empty:
-                return
 
     def _raw(self, stop: threading.Event | None) -> Iterator[SampleBlock]:
         left = None if self.duration_s is None else int(round(self.duration_s * self.fs_hz))
         while left is None or left > 0:
             if stop is not None and stop.is_set():
                 return
-            self._apply()
+            self._commands.apply()
             n = self.block_samples if left is None else min(self.block_samples, left)
             b = self.rig.read(n)
             r = self.rig
@@ -177,7 +179,7 @@ class RigSource:
         return _paced(self._raw(stop), self.fs_hz, self.pace, stop)
 
     def close(self) -> None:
-        self.rig.output_enabled = False
+        self._commands.close()
 
 
 class SyntheticSource:
@@ -313,7 +315,11 @@ class BenchSource:
         self._output = False
         self._tables = 0  # changes of what the generator plays
         self.name = f"bench {cfg.source}" + (" (emulated instruments)" if self.emu else "")
-        self._commands: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        self._commands = CommandQueue(self.name, self._output_off)
+
+    def _output_off(self) -> None:
+        self._output = False
+        self.bench.safe_off()
 
     def metadata(self) -> dict:
         g = self.bench.generator.state
@@ -330,28 +336,19 @@ class BenchSource:
             g.state["offset_v"] if offset_a is None else offset_a / self.gain)))
 
     def set_output(self, on: bool) -> None:
-        def apply() -> None:
+        """On: queued, applied between blocks.  Off: at once (:class:`CommandQueue`)."""
+        def switch_on() -> None:
             self._output = False  # off first: a failing start_output leaves it off
-            if on:
-                self.bench.start_output()
-                self._output = True
-            else:
-                self.bench.safe_off()
-        self._commands.put(apply)
+            self.bench.start_output()
+            self._output = True
+        if on:
+            self._commands.put(switch_on, output_on=True)
+        else:
+            self._commands.output_off()
 
     def set_waveform(self, current_a: np.ndarray, frequency_hz: float) -> None:
         volts = np.asarray(current_a, dtype=float) / self.gain
         self._commands.put(_counted(self, lambda: self.bench.generator.upload_waveform(volts, frequency_hz)))
-
-    def _apply_commands(self) -> bool:
-        """Apply the queued commands (between blocks); True if there were any."""
-        applied = False
-        while True:
-            try:
-                self._commands.get_nowait()()
-            except queue.Empty:
-                return applied
-            applied = True
 
     def blocks(self, stop: threading.Event | None = None) -> Iterator[SampleBlock]:
         """The bench's aligned blocks (``Bench.read_aligned``, the drivers' one acquisition loop),
@@ -382,7 +379,7 @@ class BenchSource:
             cursor = bench.next_index if started else None
             # after the first sample (settling is counted from it), every sample the instruments
             # may still hold is marked settling
-            if cursor is not None and self._apply_commands():
+            if cursor is not None and self._commands.apply():
                 bench.commanded()
                 pending = True
             if pending and (change := bench.change_index()) is not None:
@@ -413,7 +410,10 @@ class BenchSource:
                               meta={**b.meta, **meta})
 
     def close(self) -> None:
-        """Output off and everything closed (the drivers switch the output off first)."""
+        """Output off and everything closed (no queued command after the off; the drivers switch the
+        output off first)."""
+        if getattr(self, "_commands", None) is not None:
+            self._commands.close()
         if getattr(self, "bench", None) is not None:
             self.bench.close()
         if self.emu is not None:

@@ -404,12 +404,12 @@ class BenchService:
                         break
                     try:  # the point as it will be played: with the offset set_excitation left
                         self._apply(src, replace(self.point, frequency_hz=f, current_pp_a=ipp), f"start_sweep point {k}")
-                    except ConfigError as err:
+                        src.set_output(True)
+                    except (ConfigError, CommandRefused) as err:  # refused, or the source busy with a flood
                         src.set_output(False)
                         p.status("error", "sweep_stopped", f"stopped before point {k} ({f:g} Hz): {err}; output off",
                                  point=k, frequency_hz=f, current_pp_a=ipp, offset_a=self.point.offset_a)
                         return
-                    src.set_output(True)
                     reached = p.after_samples(round(dwell * src.fs_hz))  # from the command on
                 p.status("info", "sweep_point", f"{f:g} Hz, {ipp:g} A-pp", point=k, frequency_hz=f, current_pp_a=ipp)
                 fault = self._dwell(p, reached, stop)

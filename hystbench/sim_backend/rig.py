@@ -30,6 +30,10 @@ DEFAULT_GENERATOR_CLOCK_PPM = 25.0
 #: The largest peak coil current the rig simulates, A: beyond any bench amplifier, still far inside
 #: the range where the iron model's numbers stay finite (they overflow somewhere above 1e12 A).
 MAX_CURRENT_A = 1e4
+#: Periods of an excitation simulated from rest to find the current it really drives (the toroid's
+#: flux feedback reaches its steady loop within the first), and at most this many samples of them.
+PEAK_PERIODS = 3
+MAX_PEAK_SAMPLES = 1_000_000
 #: The most samples the rig computes to settle before sample 0 (5 periods, at least 50 ms): a lower
 #: frequency or a higher rate would take hours, or overflow the sample index.
 MAX_WARMUP_SAMPLES = 10_000_000
@@ -180,15 +184,13 @@ class SimulatedRig:
         """The sine command in numpy: the reference the kernel is tested against."""
         return self.offset_a + amp * np.sin(2 * np.pi * cycles), amp * w * np.cos(2 * np.pi * cycles)
 
-    def _generate(self, n: int) -> SampleBlock:
-        """The next n samples.  A block the actuator refuses (SimulationError) changes nothing: the
-        generator's phase and the sample index move on only once the block is made, so the same
-        samples can be asked for again (the emulated bench does, with the output off)."""
+    def _coil_current(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Times, command voltage, and the amplifier's output current and its rate for the next n
+        samples (from the generator's phase; nothing moves on)."""
         k0 = self._next_index
         t = np.arange(k0, k0 + n, dtype=float) / self.fs_hz  # whole numbers: exact, as (k0 + arange(n)) / fs
         step = self.generator_frequency_hz / self.fs_hz
         i_cmd, di_cmd = self._command_current(self._cycle, step, n)
-        cycle = (self._cycle + step * n) % 1.0  # >= 0: exact, as np.mod
         command_v = i_cmd / self.amplifier_gain_a_per_v
         if not self.output_enabled:
             i_cmd, di_cmd = np.zeros(n), np.zeros(n)
@@ -198,6 +200,37 @@ class SimulatedRig:
             k2, k3 = float(d["second"]), float(d["third"])
             current = i_cmd + k2 * i_cmd**2 + k3 * i_cmd**3
             dcurrent = di_cmd * (1 + 2 * k2 * i_cmd + 3 * k3 * i_cmd**2)
+        return t, command_v, current, dcurrent
+
+    def peak_current_a(self, frequency_hz: float | None = None, current_pp_a: float | None = None,
+                       offset_a: float | None = None, waveform: np.ndarray | None = None) -> float:
+        """The largest |coil current| an excitation (this rig's, with the arguments changed; a
+        ``waveform``: one period of command) really drives with the output on: the command through
+        the amplifier's distortion, or, where the actuator sets the current (the toroid's flux
+        feedback, i = H l / N, which near saturation or at a high rate is far above the command:
+        8.3 A for a nominal 1.71 A), what a copy of it started from rest draws over PEAK_PERIODS
+        periods.  The rig itself is untouched: a command is checked with this before it is applied."""
+        probe = SimulatedRig({k: v for k, v in self.preset.items() if k != "_source"} | {"effects": dict(self.effects)},
+                             fs_hz=self.fs_hz, seed=self.seed)
+        probe.set_excitation(self.frequency_hz, self.current_pp_a, self.offset_a)
+        if waveform is None:
+            probe.set_excitation(frequency_hz, current_pp_a, offset_a)
+        else:
+            probe.set_waveform(waveform, self.frequency_hz if frequency_hz is None else frequency_hz)
+        probe.output_enabled = True
+        n = min(int(math.ceil(PEAK_PERIODS * self.fs_hz / probe.frequency_hz)), MAX_PEAK_SAMPLES)
+        t, _, current, dcurrent = probe._coil_current(n)
+        if probe.actuator.sets_current:
+            current = probe.actuator.step(t, current, dcurrent).current_a
+        return float(np.max(np.abs(current)))
+
+    def _generate(self, n: int) -> SampleBlock:
+        """The next n samples.  A block the actuator refuses (SimulationError) changes nothing: the
+        generator's phase and the sample index move on only once the block is made, so the same
+        samples can be asked for again (the emulated bench does, with the output off)."""
+        k0 = self._next_index
+        t, command_v, current, dcurrent = self._coil_current(n)
+        cycle = (self._cycle + self.generator_frequency_hz / self.fs_hz * n) % 1.0  # >= 0: exact, as np.mod
         out = self.actuator.step(t, current, dcurrent)
         truth = {"current_A": current if out.current_a is None else out.current_a, "command_V": command_v}
         if out.force_n is not None:

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hystbench.acquisition.sources import RigSource
 from hystbench.drivers.safety import DEFAULT_MARGIN, CurrentBudget, SafetyLimitError
 from hystbench.errors import CommandRefused, ConfigError
 from hystbench.formats.mcaplog import iter_blocks
@@ -154,3 +155,40 @@ def test_the_budget_bounds_commands_by_the_trip_level_less_the_margin() -> None:
     b.check_limit("amp", "current_limit = 1.8 A", 1.8)
     with pytest.raises(SafetyLimitError, match="exceeds max_current_a"):
         b.check_limit("amp", "current_limit = 2.1 A", 2.1)
+
+
+# --- the current a command really drives (the simulated rig's physics, checked before it is applied) ---
+
+def test_a_flux_fed_toroid_is_refused_the_current_its_eddy_field_draws_at_10_khz():
+    """The toroid runs in flux feedback: 2.4 A-pp of command is B = 1.2 T, and the current is what the
+    iron needs, i = H l / N.  At 10 kHz the lamination's eddy field alone, sigma d^2/12 dB/dt, needs
+    2.2e6 S/m x (0.5 mm)^2 / 12 x 1.2 T x 2 pi 10 kHz = 3456 A/m, 7.06 A through 100 turns on a 204 mm
+    path: far beyond the 1.71 A limit that the nominal 1.2 A passed (the coil drew 7.1 A)."""
+    import math
+
+    rig = SimulatedRig("toroid", frequency_hz=40.0, current_pp_a=0.8)
+    rig.output_enabled = False
+    src = RigSource(rig, block_samples=100, pace="max", max_current_a=1.71)
+    eddy_h = 2.2e6 * 0.5e-3**2 / 12 * 1.2 * 2 * math.pi * 1e4
+    eddy_i = eddy_h * math.pi * (25e-3 + 40e-3) / 100
+    assert 7.0 < eddy_i < 7.1
+    peak = rig.peak_current_a(1e4, 2.4, 0.0)
+    assert eddy_i <= peak <= 1.1 * eddy_i  # at B = 0, where dB/dt peaks, the static field adds only its coercivity
+    with pytest.raises(ConfigError, match=r"really drives peaks at 7\.\d+ A, beyond the bench's max_current_a = 1\.71 A"):
+        src.set_excitation(frequency_hz=1e4, current_pp_a=2.4)
+    src.set_excitation(frequency_hz=40.0, current_pp_a=2.4)  # 1.2 T at 40 Hz: the loop's own field, well inside
+    src.close()
+
+
+def test_an_amplifier_distortion_is_in_the_current_checked():
+    """i = i0 + k2 i0^2 + k3 i0^3 with k2 = k3 = 0.1 /A, /A^2: a command of 1.5 A peak drives
+    1.5 + 0.225 + 0.3375 = 2.06 A, beyond 1.71 A (it tripped the emulated amplifier); 1.2 A peak
+    drives 1.2 + 0.144 + 0.1728 = 1.52 A and is accepted."""
+    rig = SimulatedRig("ecore", effects={"amplifier_distortion": {"second": 0.1, "third": 0.1}})
+    rig.output_enabled = False
+    src = RigSource(rig, block_samples=100, pace="max", max_current_a=1.71)
+    assert rig.peak_current_a(current_pp_a=3.0, offset_a=0.0) == pytest.approx(2.0625, rel=1e-6)
+    with pytest.raises(ConfigError, match=r"peaks at 2\.06\d* A"):
+        src.set_excitation(current_pp_a=3.0, offset_a=0.0)
+    src.set_excitation(current_pp_a=2.4, offset_a=0.0)
+    src.close()

@@ -309,6 +309,32 @@ def test_the_hook_applies_the_update_fields_and_publishes_only_the_state() -> No
         CompensatorUpdate({}, waveform_a=np.zeros((2, 3)))
 
 
+def test_a_waveform_beyond_the_limit_is_a_trip_of_the_compensator_not_a_fault() -> None:
+    """A compensator whose table peaks at 2 A on a 1.71 A bench: the source refuses it (ConfigError),
+    and the hook used to let that out of the pipeline as a fault, so six ``output on`` within a minute
+    stopped the service.  Now the output goes off, the hook is tripped (output on refused until a
+    reload) and the state says why; nothing is raised."""
+    from hystbench.acquisition.sources import RigSource
+    from hystbench.sim_backend.rig import SimulatedRig
+
+    est = Estimate(0, 100, 0, nominal_frequency_hz=40.0, current_pp_a=1.0, frequency_hz=40.0,
+                   delays_s={"hysteresis": 1e-5})
+
+    class TooMuch:
+        def update(self, estimate: Estimate) -> CompensatorUpdate:
+            return CompensatorUpdate({"status": "tracking"}, waveform_a=2.0 * np.sin(2 * np.pi * np.arange(64) / 64))
+
+    rig = SimulatedRig("voicecoil_ferrite", frequency_hz=40.0)
+    src = RigSource(rig, block_samples=100, pace="max", max_current_a=1.71)
+    hook = CompensatorHook(TooMuch(), src)
+    state = hook(est)
+    assert rig.output_enabled is False and state["output_switched_off"] is True
+    assert "beyond the bench's max_current_a = 1.71 A" in state["waveform_refused"]
+    assert "waveform_applied" not in state and hook.tripped.startswith("its waveform was refused")
+    assert hook.errors == 0
+    src.close()
+
+
 def test_stop_is_prompt_and_a_failing_source_is_reported() -> None:
     src = SyntheticSource(fs_hz=100_000.0, block_samples=1000, pace="realtime")  # endless
     pipe = Pipeline(src, estimator=WindowEstimator(src.fs_hz, src.metadata())).start()

@@ -31,6 +31,9 @@ class Actuator(Protocol):
 
     has_force: bool
     has_flux: bool
+    #: the actuator sets the coil current itself (flux feedback: the command is a flux density), so
+    #: the current it draws is not the command's (SimulatedRig.peak_current_a simulates it)
+    sets_current: bool
 
     def step(self, t_s: np.ndarray, current_a: np.ndarray, dcurrent_dt: np.ndarray) -> ActuatorOutput:
         """The next block (times in s, current in A, dI/dt in A/s); it continues the previous one."""

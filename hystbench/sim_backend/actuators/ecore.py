@@ -84,6 +84,7 @@ class ECoreActuator:
 
     has_force = True
     has_flux = True
+    sets_current = False
 
     def __init__(self, preset: Mapping[str, Any], effects: Mapping[str, Mapping[str, Any]], fs_hz: float):
         self.fs_hz = fs_hz

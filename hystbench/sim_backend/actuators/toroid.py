@@ -30,6 +30,7 @@ class ToroidCore:
 
     has_force = False
     has_flux = True
+    sets_current = True
 
     def __init__(self, preset: Mapping[str, Any], effects: Mapping[str, Mapping[str, Any]], fs_hz: float):
         from ...physics.iron import ComplexPermeabilityIron, iron_model, refuse_saturation

@@ -19,6 +19,7 @@ class VoiceCoilActuator:
 
     has_force = True
     has_flux = False
+    sets_current = False
 
     def __init__(self, preset: Mapping[str, Any], effects: Mapping[str, Mapping[str, Any]], fs_hz: float):
         self.model = voice_coil(preset)
