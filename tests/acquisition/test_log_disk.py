@@ -114,6 +114,49 @@ def test_a_full_disk_pauses_the_log_output_off_and_it_resumes_by_itself(tmp_path
     assert len(parts) == 2 and all(p.stat().st_size > 0 for p in parts)  # the cut part and the resumed one
 
 
+def test_a_log_folder_removed_while_running_pauses_the_log_with_the_output_off(tmp_path: Path) -> None:
+    """``rm -rf`` of the log folder: the daemon wrote on into the deleted part for as long as it ran,
+    said ``logging: on`` and, at stop, "log <a path that is gone>": everything from then on was lost
+    without a word.  Now the next flush finds the open part deleted: logging pauses, the output goes
+    off, ``output on`` is refused naming the part, and it resumes in a new part once the folder is
+    back."""
+    import shutil
+
+    logs = tmp_path / "logs"
+    port, cfg = free_port(), tmp_path / "daemon.toml"
+    cfg.write_text(f'[daemon]\nbench = "gone"\nlog_dir = "{logs.as_posix()}"\nstop_timeout_s = {HANG_S}\n[source]\n'
+                   'kind = "sim"\n[recording]\nidle_raw = "full"\nflush_interval_s = 0.25\nmax_total_gib = 0.0\n'
+                   f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
+    d = Daemon(tmp_path, cfg)
+    session = None
+    try:
+        d.wait_for("READY=1")
+        session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
+        raw = Subscription(session, "hystbench/gone/raw")
+        first = health_when(session, "gone", lambda h: h["logging"] == "on" and h["log"])
+        send_command(session, "gone", "output", {"on": True}, timeout_s=30.0)
+        shutil.rmtree(logs)
+        paused = health_when(session, "gone", lambda h: h["logging"] == "paused")
+        assert "was deleted" in paused["log_error"] and first["log"] in paused["log_error"]
+        assert paused["state"] == "running" and d.proc.poll() is None
+        output_off = False  # a raw block with the output off comes once the part was found deleted
+        while not output_off:
+            got = raw.get(HANG_S)
+            assert got is not None, "no raw block with the output off after the log was deleted"
+            output_off = not OperatingPoint.from_meta(decode(got[1]).meta).output_on
+        with pytest.raises(CommandRefused, match="log cannot be written .*was deleted"):
+            send_command(session, "gone", "output", {"on": True}, timeout_s=30.0)
+        logs.mkdir()  # the folder back: a new part
+        resumed = health_when(session, "gone", lambda h: h["logging"] == "on")
+        assert Path(resumed["log"]).exists()  # a new part, in the new folder
+        d.proc.send_signal(signal.SIGTERM)
+        assert d.proc.wait(timeout=2 * HANG_S) == 0, d.stderr()[-2000:]
+    finally:
+        if session is not None:
+            session.close()
+        d.close()
+
+
 def test_sigterm_on_a_full_disk_ends_the_daemon_and_frees_the_bench(tmp_path: Path, small_disk) -> None:
     """Started on a folder with no room: the daemon serves (log paused, output refused), a restart
     leaves no empty part, SIGTERM ends it with exit 0 and the bench's lock is free again."""

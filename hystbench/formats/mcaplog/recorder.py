@@ -287,9 +287,16 @@ class McapRecorder:
             try:
                 self._writer.flush()
                 self._fh.flush()  # in the OS's hands: what a kill -9 keeps, and where a full disk shows
+                deleted = os.fstat(self._fh.fileno()).st_nlink == 0
             except OSError as err:
                 self.abandon()
                 raise write_error(self.paths[-1], err, "write the log") from err
+            if deleted:  # written on, it would be lost whole at close, and say nothing until then
+                path = self.paths[-1]
+                self.abandon()
+                raise LogWriteError(f"{path}: the open log part was deleted (its folder {path.parent} removed?); what "
+                                    "it held is gone, nothing more is written there", errno=errno.ENOENT,
+                                    folder=str(path.parent))
             self._last_flush = now
             self.raw_end_flushed = self.raw_end_added
 
