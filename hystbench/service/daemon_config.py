@@ -246,6 +246,20 @@ def _validate_effects(effects: dict, where: str, fs_hz: float) -> None:
     validate_effects(effects, f"{where} [source] effects", fs_hz=fs_hz)
 
 
+def _check_emulated_channels(rig: str, refuse: Any) -> None:
+    """The emulated bench streams the force through its charge amplifier and the flux through its
+    integrator: a rig without one of them (the toroid has no force, a voice coil no flux) gave no
+    sample ever, while the daemon said it was running and answered every command ok."""
+    from ..config import load_rig
+    from ..sim_backend.actuators import ACTUATORS
+
+    actuator = ACTUATORS[load_rig(rig)["actuator"]]
+    missing = [f"no {what} channel for the emulated bench's {instrument}" for what, instrument, has in (
+        ("force", "charge amplifier", actuator.has_force), ("flux", "flux integrator", actuator.has_flux)) if not has]
+    if missing:
+        refuse("rig", f"{rig!r} has {' and '.join(missing)}; run it as kind = \"sim\"")
+
+
 def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]], where: str) -> Limits:
     """Check ``values["source"]`` (and the excitations of ``[sweep]``) for its kind; returns the
     bench's limits.  With an emulated bench and no ``rig`` given, ``rig`` is set to the bench
@@ -265,6 +279,7 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
             if ("source", "rig") not in given:
                 s["rig"] = bench.sim["rig"]
             _validate_effects(s["effects"], where, bench.fs_hz)
+            _check_emulated_channels(s["rig"], refuse)
         else:
             for k in ("seed", "effects"):
                 if ("source", k) in given and (k == "seed" or s[k]):

@@ -72,6 +72,15 @@ def test_hardware_bench_refuses_the_emulated_rigs_keys(tmp_path: Path) -> None:
     assert cfg["source"]["rig"] == "ecore"  # with hardware the rig only names the recordings
 
 
+def test_an_emulated_bench_refuses_a_rig_without_the_channels_it_streams(tmp_path: Path) -> None:
+    """kind = "bench" with the toroid (no force for the charge amplifier) was accepted, then gave no
+    sample while health said running and every command was answered ok; a voice coil has no flux."""
+    for rig, what in (("toroid", "force"), ("voicecoil_ferrite", "flux")):
+        with pytest.raises(ConfigError, match=rf"\[source\] rig: '{rig}' has no {what} channel for the emulated bench's .*; run it as kind = \"sim\""):
+            load_daemon_config(_cfg(tmp_path, f'[source]\nkind = "bench"\nrig = "{rig}"\n'))
+    assert load_daemon_config(_cfg(tmp_path, '[source]\nkind = "bench"\nrig = "ecore"\n'))["source"]["rig"] == "ecore"
+
+
 def test_an_emulated_bench_reports_the_bench_files_rig() -> None:
     assert load_daemon_config(None)["source"]["rig"] == "ecore_pm"  # the shipped bench.toml's [sim] rig
 
