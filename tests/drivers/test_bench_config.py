@@ -39,6 +39,10 @@ def test_shipped_bench_file_loads_all_sim():
     (("heartbeat_s = 0.1", "heartbeat_s = 0"), "[bench] heartbeat_s: must be > 0, got 0"),
     (("unit = 1", "unit = \"one\""), "[current_amplifier] unit: must be int"),
     (("attempts = 6", "attempts = 2.5"), "[bench.backoff] attempts: must be int"),
+    # an amplifier set to trip above the bench's limit: the drivers refuse to set it when the bench opens
+    # (a reload to such a file stopped the running service first, then failed)
+    (("max_current_a = 2.0", "max_current_a = 1.0"),
+     "[current_amplifier.settings] current_limit_a = 1.8 A exceeds [bench] max_current_a = 1 A"),
 ])
 def test_bad_keys_name_file_and_key(tmp_path, edit, expected):
     text = shipped().replace(*edit, 1)

@@ -405,6 +405,11 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
     bench = cfg["bench"]
     backoff = bench.pop("backoff")
     instruments = {n: _instrument(n, cfg[n], data[n], src) for n in INSTRUMENTS}
+    trip = instruments["current_amplifier"].settings.get("current_limit_a")
+    if trip is not None and float(trip) > bench["max_current_a"]:  # the drivers refuse to set it (CurrentBudget)
+        raise ConfigError(f"{src} [current_amplifier.settings] current_limit_a = {float(trip):g} A exceeds [bench] "
+                          f"max_current_a = {bench['max_current_a']:g} A: the amplifier may not be set to trip above "
+                          "the bench's limit; lower it, or raise max_current_a")
     return BenchConfig(src, bench["max_current_a"], bench["fs_hz"], bench["timeout_s"], bench["stall_timeout_s"],
                        bench["heartbeat_s"], backoff, cfg["sim"], instruments,
                        _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None, bench["in_flight_s"],
