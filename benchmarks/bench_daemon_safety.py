@@ -5,12 +5,15 @@
   whether the amplifier tripped;
 - ``at_limit``: six cycles of a DC offset at the command limit + ``output on`` (and the refusal of one
   at the 1.8 A trip level itself): faults and trips counted, the peak current;
+- ``flood_off``: 20 000 ``set_excitation`` as fast as a client sends them with the output on, then
+  ``output off``: how many were taken and refused as busy, and seconds until the emulated generator
+  and amplifier were off;
 - ``full_disk`` (root: a tmpfs): a daemon process whose log fills a 16 MiB disk: seconds from the
   ``log_write_failed`` status to the first raw block with the output off, as a zenoh subscriber
   receives them, seconds to resume
   once room is back, and seconds from SIGTERM to exit, paused and running.
 
-Run: ``python -m benchmarks daemon_safety [--cases sweep_offset,at_limit,full_disk]``; one JSON line per case.
+Run: ``python -m benchmarks daemon_safety [--cases sweep_offset,at_limit,flood_off,full_disk]``; one JSON line per case.
 """
 
 from __future__ import annotations
@@ -96,6 +99,42 @@ def at_limit() -> dict:
                 "faults": faults, "peak_current_a": round(_peak(paths), 4)}
 
 
+def flood_off(n: int = 20_000) -> dict:
+    """``n`` set_excitation as fast as one client thread sends them to the emulated bench's service
+    with the output on, then ``output off``: how many were taken and refused as busy, and how long the
+    off took until the emulated generator and amplifier were off (the off used to wait behind every
+    queued command: 10 s after 20 000)."""
+    from hystbench.errors import CommandRefused
+
+    with tempfile.TemporaryDirectory() as tmp:
+        svc = _service(Path(tmp), "flood")
+        emu = svc.source.emu
+        try:
+            svc.command("output", {"on": True})
+            t0 = time.monotonic()
+            while not emu.generator.state["output"] and time.monotonic() - t0 < HANG_S:
+                time.sleep(0.01)
+            taken = refused = 0
+            t0 = time.monotonic()
+            for k in range(n):
+                try:
+                    svc.command("set_excitation", {"current_pp_a": 1.0 + 0.5 * (k % 2)})
+                    taken += 1
+                except CommandRefused:
+                    refused += 1
+            flood_s = time.monotonic() - t0
+            t0 = time.monotonic()
+            svc.command("output", {"on": False})
+            while (emu.generator.state["output"] or emu.amplifier.enabled) and time.monotonic() - t0 < HANG_S:
+                time.sleep(0.001)
+            off_s = time.monotonic() - t0
+            off = not (emu.generator.state["output"] or emu.amplifier.enabled)
+        finally:
+            svc.stop()
+        return {"case": "flood_off", "commands": n, "taken": taken, "refused_busy": refused,
+                "flood_s": round(flood_s, 2), "off_after_s": round(off_s, 4), "off": off}
+
+
 def _health(session, bench: str, cond) -> dict:
     from hystbench.acquisition.zenoh_bus import query_json
 
@@ -164,7 +203,7 @@ def full_disk() -> dict:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-CASES = {"sweep_offset": sweep_offset, "at_limit": at_limit, "full_disk": full_disk}
+CASES = {"sweep_offset": sweep_offset, "at_limit": at_limit, "flood_off": flood_off, "full_disk": full_disk}
 
 
 def main(argv: list[str] | None = None) -> int:
