@@ -516,6 +516,8 @@ class SampleStream:
 
     def _reader(self) -> None:
         quiet = Deadline(self.stall_timeout_s)  # a stall: no frame before it passes
+        silent = 0  # reconnections since the last frame: an instrument that takes the connection and
+        # sends nothing reconnects fine every time, and would be retried for ever, the daemon "running"
         while not self._stop.is_set():
             started = time.monotonic()
             try:
@@ -526,12 +528,17 @@ class SampleStream:
                 quiet = Deadline(self.stall_timeout_s)
                 continue
             if frames:
-                quiet = Deadline(self.stall_timeout_s)
+                quiet, silent = Deadline(self.stall_timeout_s), 0
                 self._accept(frames)
             if self.source.drained and self._next_index is not None:
                 self._live.append((started, self._next_index))
             if not frames and quiet.expired:
                 self.stats.stalls += 1
+                silent += 1
+                if silent > self.backoff.attempts:
+                    self._lost(f"(no frame through {silent - 1} reconnections: the instrument takes the connection and "
+                               "sends no samples)")
+                    return
                 if not self._reopen(f"no frame for {self.stall_timeout_s:g} s"):
                     return
                 quiet = Deadline(self.stall_timeout_s)
@@ -552,8 +559,11 @@ class SampleStream:
                 continue
             self.stats.reconnects += 1
             return True
-        with self._cond:
-            self._error = ConnectionLost(f"{self.name}: sample stream lost ({why}); "
-                                         f"{self.backoff.attempts} reconnection attempts failed")
-            self._cond.notify_all()
+        self._lost(f"({why}); {self.backoff.attempts} reconnection attempts failed")
         return False
+
+    def _lost(self, why: str) -> None:
+        """The stream is given up: ``read`` raises ConnectionLost saying why."""
+        with self._cond:
+            self._error = ConnectionLost(f"{self.name}: sample stream lost {why}")
+            self._cond.notify_all()

@@ -115,6 +115,20 @@ def test_reconnection_gives_up_with_connection_lost():
             s.read(HANG_S)
 
 
+def test_an_instrument_that_connects_and_sends_nothing_is_given_up():
+    """Every reopen of a silent instrument succeeded (it takes the TCP connection), so the stream
+    retried for ever and the daemon said "running" with no sample; after as many silent reopens as
+    the back-off's attempts, read raises ConnectionLost saying so (a fault the service sees)."""
+    src = FakeSource([[frame(0, 10, 0)]])
+    with SampleStream("amp", src, ["x"], 1000.0, stall_timeout_s=0.02, backoff=Backoff(0.001, 2.0, 0.01, 3)) as s:
+        assert s.read(HANG_S).n == 10
+        with pytest.raises(ConnectionLost, match="amp: sample stream lost .no frame through 3 reconnections: the "
+                                                 "instrument takes the connection and sends no samples"):
+            while True:
+                assert s.read(HANG_S) is not None
+    assert s.stats.reconnects == 3 and s.stats.stalls == 4
+
+
 def test_silence_counts_as_a_stall_and_reopens():
     src = FakeSource([[frame(0, 10, 0)]])
     with SampleStream("s", src, ["x"], 1000.0, stall_timeout_s=0.05, backoff=Backoff(0.001, 2, 0.01, 3)) as s:
