@@ -8,10 +8,12 @@ the bench's lock.  Retention keeps ``max_total_gib`` as the log grows, not once 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
 from pathlib import Path
+from typing import Any, Iterator
 
 import pytest
 
@@ -66,38 +68,64 @@ def fill(disk: Path, leave_bytes: int) -> Path:
     return filler
 
 
-def test_a_full_disk_pauses_the_log_output_off_and_it_resumes_by_itself(tmp_path: Path, small_disk) -> None:
-    disk = small_disk(16)
-    logs = disk / "logs"
+def logging_daemon(tmp_path: Path, bench: str, logs: Path) -> tuple[Daemon, int]:
+    """A daemon on the simulated rig logging every raw sample to ``logs`` (flushed every 0.25 s, no
+    cap), and the loopback port it listens on."""
     port, cfg = free_port(), tmp_path / "daemon.toml"
-    cfg.write_text(f'[daemon]\nbench = "full"\nlog_dir = "{logs.as_posix()}"\nstop_timeout_s = {HANG_S}\n[source]\nkind = "sim"\n'
-                   '[recording]\nidle_raw = "full"\nflush_interval_s = 0.25\nmax_total_gib = 0.0\n'
+    cfg.write_text(f'[daemon]\nbench = "{bench}"\nlog_dir = "{logs.as_posix()}"\nstop_timeout_s = {HANG_S}\n[source]\n'
+                   'kind = "sim"\n[recording]\nidle_raw = "full"\nflush_interval_s = 0.25\nmax_total_gib = 0.0\n'
                    f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
-    filler = fill(disk, 3 * 2**20)  # 3 MiB left: the log fills it in a couple of seconds
-    d = Daemon(tmp_path, cfg)
+    return Daemon(tmp_path, cfg), port
+
+
+@contextlib.contextmanager
+def watched(d: Daemon, port: int, bench: str) -> Iterator[tuple[Any, Subscription, Subscription]]:
+    """The daemon ready, a session to it with its ``status`` and ``raw`` subscriptions; all closed after."""
     session = None
     try:
         d.wait_for("READY=1")
         session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
-        status = Subscription(session, "hystbench/full/status")
-        raw = Subscription(session, "hystbench/full/raw")
+        yield session, Subscription(session, f"hystbench/{bench}/status"), Subscription(session, f"hystbench/{bench}/raw")
+    finally:
+        if session is not None:
+            session.close()
+        d.close()
+
+
+def events_until(status: Subscription, last: str) -> dict:
+    """The status events received up to ``last`` (by event name)."""
+    events: dict = {}
+    while last not in events:
+        got = status.get(HANG_S)
+        assert got is not None, f"no {last} status; got {list(events)}"
+        events[json.loads(got[1])["event"]] = json.loads(got[1])
+    return events
+
+
+def raw_until(raw: Subscription, output_on: bool, after: str) -> None:
+    """Raw blocks received until one with the output ``output_on`` (a block that shows it)."""
+    while True:
+        got = raw.get(HANG_S)
+        assert got is not None, f"no raw block with the output {'on' if output_on else 'off'} {after}"
+        if OperatingPoint.from_meta(decode(got[1]).meta).output_on == output_on:
+            return
+
+
+def test_a_full_disk_pauses_the_log_output_off_and_it_resumes_by_itself(tmp_path: Path, small_disk) -> None:
+    disk = small_disk(16)
+    logs = disk / "logs"
+    filler = fill(disk, 3 * 2**20)  # 3 MiB left: the log fills it in a couple of seconds
+    d, port = logging_daemon(tmp_path, "full", logs)
+    with watched(d, port, "full") as (session, status, raw):
         health_when(session, "full", lambda h: True)  # connected: the subscriptions see what follows
         send_command(session, "full", "output", {"on": True}, timeout_s=30.0)
         paused = health_when(session, "full", lambda h: h["logging"] == "paused")
         assert "No space left on device" in paused["log_error"] and str(logs) in paused["log_error"]
         assert "MiB free" in paused["log_error"] and paused["log_free_bytes"] < RESUME_FREE_BYTES
         assert paused["state"] == "running" and d.proc.poll() is None  # zenoh still answers
-        events = {}
-        while "logging_paused" not in events:
-            got = status.get(HANG_S)
-            assert got is not None, f"no logging_paused status; got {list(events)}"
-            events[json.loads(got[1])["event"]] = json.loads(got[1])
+        events = events_until(status, "logging_paused")
         assert events["log_write_failed"]["folder"] == str(logs) and "output off" in events["logging_paused"]["message"]
-        output_off_after_failure = False  # a raw block with the output off comes once the log failed
-        while not output_off_after_failure:
-            got = raw.get(HANG_S)
-            assert got is not None, "no raw block with the output off after the log failed"
-            output_off_after_failure = not OperatingPoint.from_meta(decode(got[1]).meta).output_on
+        raw_until(raw, False, "after the log failed")
         with pytest.raises(CommandRefused, match=r"log cannot be written .*No space left on device.*resumes by itself"):
             send_command(session, "full", "output", {"on": True}, timeout_s=30.0)
         filler.unlink()  # room again
@@ -106,10 +134,6 @@ def test_a_full_disk_pauses_the_log_output_off_and_it_resumes_by_itself(tmp_path
         assert send_command(session, "full", "output", {"on": True}, timeout_s=30.0)["ok"]
         d.proc.send_signal(signal.SIGTERM)  # bounded by stop_timeout_s = HANG_S: on a busy machine closing a log
         assert d.proc.wait(timeout=2 * HANG_S) == 0, d.stderr()[-2000:]  # on a full disk outlasted the 4.5 s default
-    finally:
-        if session is not None:
-            session.close()
-        d.close()
     parts = bench_logs(logs, "full")
     assert len(parts) == 2 and all(p.stat().st_size > 0 for p in parts)  # the cut part and the resumed one
 
@@ -123,46 +147,21 @@ def test_a_log_folder_removed_while_running_pauses_the_log_with_the_output_off(t
     import shutil
 
     logs = tmp_path / "logs"
-    port, cfg = free_port(), tmp_path / "daemon.toml"
-    cfg.write_text(f'[daemon]\nbench = "gone"\nlog_dir = "{logs.as_posix()}"\nstop_timeout_s = {HANG_S}\n[source]\n'
-                   'kind = "sim"\n[recording]\nidle_raw = "full"\nflush_interval_s = 0.25\nmax_total_gib = 0.0\n'
-                   f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n', encoding="utf-8")
-    d = Daemon(tmp_path, cfg)
-    session = None
-    try:
-        d.wait_for("READY=1")
-        session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
-        status = Subscription(session, "hystbench/gone/status")
-        raw = Subscription(session, "hystbench/gone/raw")
+    d, port = logging_daemon(tmp_path, "gone", logs)
+    with watched(d, port, "gone") as (session, status, raw):
         first = health_when(session, "gone", lambda h: h["logging"] == "on" and h["log"])
         send_command(session, "gone", "output", {"on": True}, timeout_s=30.0)
-        output_on = False  # the output on in the raw blocks first: what follows shows it going off
-        while not output_on:
-            got = raw.get(HANG_S)
-            assert got is not None, "no raw block with the output on"
-            output_on = OperatingPoint.from_meta(decode(got[1]).meta).output_on
+        raw_until(raw, True, "after output on")  # on first: what follows shows it going off
         shutil.rmtree(logs)
-        events: dict = {}
-        while "log_resumed" not in events:
-            got = status.get(HANG_S)
-            assert got is not None, f"no log_resumed status; got {list(events)}"
-            events[json.loads(got[1])["event"]] = json.loads(got[1])
+        events = events_until(status, "log_resumed")
         assert "logging_paused" in events and "output off" in events["logging_paused"]["message"]
         failed = events["log_write_failed"]["message"]
         assert "was deleted" in failed and first["log"] in failed
-        output_off = False  # a raw block with the output off comes once the part was found deleted
-        while not output_off:
-            got = raw.get(HANG_S)
-            assert got is not None, "no raw block with the output off after the log was deleted"
-            output_off = not OperatingPoint.from_meta(decode(got[1]).meta).output_on
+        raw_until(raw, False, "after the log was deleted")
         resumed = health_when(session, "gone", lambda h: h["logging"] == "on")
         assert Path(resumed["log"]).exists() and d.proc.poll() is None  # a new part, in the folder made again
         d.proc.send_signal(signal.SIGTERM)
         assert d.proc.wait(timeout=2 * HANG_S) == 0, d.stderr()[-2000:]
-    finally:
-        if session is not None:
-            session.close()
-        d.close()
 
 
 def test_sigterm_on_a_full_disk_ends_the_daemon_and_frees_the_bench(tmp_path: Path, small_disk) -> None:
