@@ -59,18 +59,23 @@ class CommandQueue:
             self._off()
 
     def apply(self) -> bool:
-        """Apply what is queued, in order (the source's thread); True if anything changed the output
-        or the excitation since the last call."""
+        """Apply what was queued when called, in order (the source's thread; what comes meanwhile waits
+        for the next block, so a sustained flood cannot hold the samples up); True if anything changed
+        the output or the excitation since the last call."""
+        with self._guard:
+            due = len(self._pending)
         applied = False
-        while True:
+        for _ in range(due):
             with self._applying:
                 with self._guard:
                     if self._closed or not self._pending:
-                        changed, self._changed = self._changed, False
-                        return applied or changed
+                        break
                     _, command = self._pending.popleft()
                 command()
             applied = True
+        with self._guard:
+            changed, self._changed = self._changed, False
+        return applied or changed
 
     def close(self) -> None:
         """No command after this one: the queue emptied, then the output off."""

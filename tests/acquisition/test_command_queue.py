@@ -90,3 +90,21 @@ def test_a_command_in_flight_finishes_before_the_close_switches_the_output_off()
     assert log == ["on", "off"]
     assert queue.apply() is False
 
+
+
+def test_what_comes_while_the_queue_is_applied_waits_for_the_next_block():
+    """A command that arrives while the source applies the queue waits for the next turn: a client
+    sending as fast as commands are applied would otherwise keep the source from its samples."""
+    done: list[int] = []
+    queue = CommandQueue("test bench", lambda: None)
+
+    def command(k: int) -> None:
+        done.append(k)
+        if k < 3:
+            queue.put(lambda: command(k + 10))  # a new command arrives as each is applied
+
+    for k in range(3):
+        queue.put(lambda k=k: command(k))
+    assert queue.apply() is True and done == [0, 1, 2]  # the three queued when the turn began
+    assert queue.apply() is True and done == [0, 1, 2, 10, 11, 12]
+    assert queue.apply() is False
