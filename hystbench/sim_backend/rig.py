@@ -208,8 +208,10 @@ class SimulatedRig:
         ``waveform``: one period of command) really drives with the output on: the command through
         the amplifier's distortion, or, where the actuator sets the current (the toroid's flux
         feedback, i = H l / N, which near saturation or at a high rate is far above the command:
-        8.3 A for a nominal 1.71 A), what a copy of it started from rest draws over PEAK_PERIODS
-        periods.  The rig itself is untouched: a command is checked with this before it is applied."""
+        8.3 A for a nominal 1.71 A), what a new copy of the rig (warmed up at the preset's excitation,
+        as any new rig is) draws over the first PEAK_PERIODS periods of the excitation, its switch-on
+        transient included.  The rig itself is untouched: a command is checked with this before it is
+        applied."""
         probe = SimulatedRig({k: v for k, v in self.preset.items() if k != "_source"} | {"effects": dict(self.effects)},
                              fs_hz=self.fs_hz, seed=self.seed)
         probe.set_excitation(self.frequency_hz, self.current_pp_a, self.offset_a)

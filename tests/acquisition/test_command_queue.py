@@ -17,6 +17,8 @@ from hystbench.acquisition.sources import RigSource
 from hystbench.errors import CommandRefused
 from hystbench.sim_backend.rig import SimulatedRig
 
+HANG_S = 60.0  # what a wait may take only if the code under test hangs
+
 
 def _source() -> RigSource:
     rig = SimulatedRig("voicecoil_ferrite", frequency_hz=320.0)
@@ -75,18 +77,18 @@ def test_a_command_in_flight_finishes_before_the_close_switches_the_output_off()
 
     def slow_on() -> None:  # an output-on whose round trips take a while
         started.set()
-        release.wait()
+        release.wait(HANG_S)
         log.append("on")
 
     queue.put(slow_on, output_on=True)
     applier = threading.Thread(target=queue.apply)
     applier.start()
-    started.wait()
+    assert started.wait(HANG_S)  # the bound is for a hang only
     closer = threading.Thread(target=queue.close)
     closer.start()
     release.set()
-    applier.join()
-    closer.join()
+    applier.join(HANG_S)
+    closer.join(HANG_S)
     assert log == ["on", "off"]
     assert queue.apply() is False
 
