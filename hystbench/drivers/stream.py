@@ -5,7 +5,8 @@ prefixes, serial with COBS, CAN FD), checks their first-sample index against the
 queues contiguous runs.  ``read(timeout_s)`` hands them out as blocks; a block after missing samples
 has ``BlockFlags.GAP`` and ``gap_samples`` = exactly how many indices are missing, however many
 frames were lost or damaged.  A silent or dropped transport is reopened with back-off; when the
-attempts run out, ``read`` raises ``ConnectionLost``.
+attempts run out, or an instrument that takes every reconnection stays silent for ``lost_after_s``,
+``read`` raises ``ConnectionLost``.
 """
 
 from __future__ import annotations
@@ -37,6 +38,12 @@ __all__ = ["FrameSource", "TcpFrameSource", "SerialFrameSource", "CanFrameSource
 _TCP_READ = 1 << 18  # bytes asked of one recv
 _SERIAL_READ = 1 << 18
 _LIVE_HISTORY = 256  # drained reads remembered per stream (a few seconds of them at the live edge)
+
+#: A stream silent this long, through every reconnection, is given up (``ConnectionLost``): an
+#: instrument that takes the connection and sends nothing would be retried for ever, the daemon
+#: "running" with no sample.  Counted in time, not in reconnections: a starved test machine held
+#: the emulated streams silent through six 0.7 s reconnections and they came back (CI, 2026-11-30).
+LOST_AFTER_S = 20.0
 
 
 def parse_stream_url(url: str) -> tuple[str, str]:
@@ -303,16 +310,18 @@ class SampleStream:
 
     ``channels`` names the frame's rows; ``scale`` maps a channel to the factor from wire units to
     SI (e.g. N/V for a charge amplifier's voltage).  ``skew_s`` is the instrument's known sampling
-    delay on the common clock, recorded in each block's meta as ``skew_s.<channel>``."""
+    delay on the common clock, recorded in each block's meta as ``skew_s.<channel>``.
+    ``lost_after_s``: see :data:`LOST_AFTER_S`."""
 
     def __init__(self, name: str, source: FrameSource, channels: Sequence[str], fs_hz: float, *,
                  scale: Mapping[str, float] | None = None, skew_s: float = 0.0,
                  stall_timeout_s: float = 0.5, backoff: Backoff | None = None,
-                 max_queued_samples: int = 2_000_000) -> None:
+                 max_queued_samples: int = 2_000_000, lost_after_s: float = LOST_AFTER_S) -> None:
         self.name, self.source, self.channels, self.fs_hz = name, source, list(channels), float(fs_hz)
         self.scale = dict(scale or {})
         self.skew_s = float(skew_s)
         self.stall_timeout_s = stall_timeout_s
+        self.lost_after_s = lost_after_s
         self.backoff = backoff or Backoff()
         self.max_queued_samples = max_queued_samples
         self.stats = StreamStats(deframer=source.deframer_stats)
@@ -516,8 +525,8 @@ class SampleStream:
 
     def _reader(self) -> None:
         quiet = Deadline(self.stall_timeout_s)  # a stall: no frame before it passes
-        silent = 0  # reconnections since the last frame: an instrument that takes the connection and
-        # sends nothing reconnects fine every time, and would be retried for ever, the daemon "running"
+        heard = Deadline(self.lost_after_s)  # given up: no frame before it passes, however many reopens
+        silent = 0  # succeeded since (an instrument that takes the connection and sends nothing)
         while not self._stop.is_set():
             started = time.monotonic()
             try:
@@ -528,17 +537,17 @@ class SampleStream:
                 quiet = Deadline(self.stall_timeout_s)
                 continue
             if frames:
-                quiet, silent = Deadline(self.stall_timeout_s), 0
+                quiet, heard, silent = Deadline(self.stall_timeout_s), Deadline(self.lost_after_s), 0
                 self._accept(frames)
             if self.source.drained and self._next_index is not None:
                 self._live.append((started, self._next_index))
             if not frames and quiet.expired:
                 self.stats.stalls += 1
-                silent += 1
-                if silent > self.backoff.attempts:
-                    self._lost(f"(no frame through {silent - 1} reconnections: the instrument takes the connection and "
-                               "sends no samples)")
+                if heard.expired:
+                    self._lost(f"(no frame for {self.lost_after_s:g} s through {silent} reconnections: the instrument "
+                               "takes the connection and sends no samples)")
                     return
+                silent += 1
                 if not self._reopen(f"no frame for {self.stall_timeout_s:g} s"):
                     return
                 quiet = Deadline(self.stall_timeout_s)
