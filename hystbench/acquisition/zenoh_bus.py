@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterator, Mapping
 
 from ..blocks import SampleBlock
 from ..deadline import Deadline
+from ..log_budget import LogBudget
 from ..errors import BenchError, CommandRefused, ConfigError, NetworkError, NoReply
 from .bench_commands import COMMANDS as _COMMAND_ARGS
 from .bench_commands import show
@@ -52,6 +53,9 @@ log = logging.getLogger("hystbench.zenoh")
 
 PREFIX = "hystbench"
 COMMANDS = tuple(_COMMAND_ARGS)
+#: Refused commands logged one by one per second and bench; the rest of a flood is counted in one
+#: line (a 20 000-command flood wrote 19 887 lines), and in health's ``commands_refused``.
+REFUSALS_LOGGED_PER_S = 10
 #: The largest command payload the daemon takes, in bytes (docs/zenoh.md): a larger one is refused
 #: before it is copied out of zenoh or parsed.  The largest legal command, a sweep of
 #: ``MAX_SWEEP_POINTS`` (1000) frequencies, is about 20 kB of JSON.
@@ -271,7 +275,9 @@ class ZenohBus:
         self.put_errors = 0
         self.published = 0
         self.commands = 0
-        self.refused = 0  # commands answered ok: false (each logged in one line)
+        self.refused = 0  # commands answered ok: false (one line each, up to the budget)
+        #: refusals logged one by one: a flood of them is counted, not written line by line
+        self.refusal_log = LogBudget(REFUSALS_LOGGED_PER_S, 1.0)
         self._failures: set[tuple[str, str]] = set()  # (verb, exception) whose traceback was logged
 
     def open(self) -> "ZenohBus":
@@ -288,7 +294,13 @@ class ZenohBus:
         self._decls.append(s.declare_queryable(key(self.bench, "cmd", "*"), self._command))
         return self
 
+    def report_held_refusals(self) -> None:
+        """The refusals held back since the last report, in one line (the daemon's loop calls it every
+        turn, so a flood's count is in the log a second after it, not at the next refusal)."""
+        self._log_held(self.refusal_log.take_held())
+
     def close(self) -> None:
+        self.report_held_refusals()
         for d in self._decls + list(self._pubs.values()):
             try:
                 d.undeclare()
@@ -366,18 +378,32 @@ class ZenohBus:
                 query.reply(query.key_expr, json_bytes({"ok": True, **(result or {})}), encoding="application/json")
             except (BenchError, ValueError) as err:
                 self.refused += 1
-                log.warning("cmd/%s refused: %s", _verb_text(verb), _one_line(str(err)))
+                turn = self.refusal_log.admit()
+                self._log_held(turn.held)
+                if turn.log:
+                    log.warning("cmd/%s refused: %s%s", _verb_text(verb), _one_line(str(err)),
+                                f" (refusals beyond {self.refusal_log.per_window} a second are counted, not logged: "
+                                "health's commands_refused)" if turn.last else "")
                 query.reply_err(json_bytes({"ok": False, "error": str(err)}), encoding="application/json")
             except Exception as err:  # never let a command go unanswered (nor kill zenoh's thread)
                 self.refused += 1
                 kind = (verb if verb in COMMANDS else "?", type(err).__name__)
                 first = kind not in self._failures and len(self._failures) < 100
                 self._failures.add(kind)  # a traceback once per kind, not once per command a client repeats
-                log.error("cmd/%s failed: %s: %s%s", _verb_text(verb), type(err).__name__, _one_line(str(err)),
-                          "" if first else " (traceback logged before)", exc_info=first)
+                turn = self.refusal_log.admit(always=first)
+                self._log_held(turn.held)
+                if turn.log:
+                    log.error("cmd/%s failed: %s: %s%s", _verb_text(verb), type(err).__name__, _one_line(str(err)),
+                              "" if first else " (traceback logged before)", exc_info=first)
                 query.reply_err(json_bytes({"ok": False, "error": f"cmd/{_verb_text(verb)} failed: "
                                             f"{type(err).__name__}: {_one_line(str(err))}"}),
                                 encoding="application/json")
+
+    @staticmethod
+    def _log_held(held: int) -> None:
+        if held:
+            log.warning("%d more commands refused, not logged one by one (health's commands_refused counts every one)",
+                        held)
 
     @staticmethod
     def _arguments(verb: str, payload) -> dict:

@@ -301,9 +301,11 @@ class BenchService:
         return True
 
     def housekeeping(self) -> None:
-        """Every turn of the daemon's loop: the log's retention, and logging resumed (output still
-        off) once a full folder has room again."""
+        """Every turn of the daemon's loop: the log's retention, logging resumed (output still off)
+        once a full folder has room again, and the count of refused commands not logged one by one."""
         self.log.housekeeping()
+        if self.bus is not None:
+            self.bus.report_held_refusals()
         if self.log.fault and self.pipeline is not None and self.state in ("running", "sweeping"):
             rec = self.log.resume()
             if rec is not None:

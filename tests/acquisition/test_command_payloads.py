@@ -17,6 +17,7 @@ import pytest
 
 from hystbench.acquisition.zenoh_bus import (MAX_COMMAND_BYTES, MAX_COMMAND_DEPTH, MAX_MESSAGE_BYTES, ZenohBus,
                                              free_port, key, load_zenoh_config, open_session, peer_config)
+from hystbench.log_budget import LogBudget
 
 HANG_S = 30.0  # a reply's timeout: it only turns a hang into a failure
 
@@ -160,6 +161,33 @@ def test_a_failing_handler_logs_its_traceback_once_then_one_line_each(bus, caplo
     records = zenoh_records(caplog)
     assert len(records) == 4 and [bool(r.exc_info) for r in records] == [True, False, False, False]
     assert all(r.getMessage().startswith("cmd/output failed: ZeroDivisionError: a bug") for r in records)
+
+
+def test_a_flood_of_refused_commands_is_counted_not_logged_line_by_line(bus, caplog):
+    """A client repeating a refused command wrote one line each (20 000 commands, 19 887 lines): past
+    the budget the rest are counted, and the count is one line, when the daemon's loop asks for it
+    (every turn) or when the next window opens; every one is in ``refused``.  The budget's clock is
+    the test's, so the windows are the test's choice."""
+    client, _, b = bus
+    now = [0.0]
+    b.refusal_log = LogBudget(3, 1.0, clock=lambda: now[0])
+    held = "{} more commands refused, not logged one by one (health's commands_refused counts every one)"
+    with caplog.at_level(logging.INFO, logger="hystbench.zenoh"):
+        for _ in range(7):
+            assert not ask(client, "self_destruct", b"{}")["ok"]
+        lines = [r.getMessage() for r in zenoh_records(caplog)]
+        assert len(lines) == 3 and all(ln.startswith("cmd/'self_destruct' refused: ") for ln in lines)
+        assert "refusals beyond 3 a second are counted, not logged" in lines[-1]
+        b.report_held_refusals()  # the daemon's loop, every turn
+        for _ in range(2):
+            assert not ask(client, "self_destruct", b"{}")["ok"]
+        now[0] = 1.0  # the next window: the two held back since are said first
+        assert not ask(client, "output", b"[1]")["ok"]
+        b.close()
+    lines = [r.getMessage() for r in zenoh_records(caplog)]
+    assert lines[3:] == [held.format(4), held.format(2),
+                         "cmd/output refused: cmd/output: the payload must be a JSON object, got list"], lines
+    assert b.refused == 10
 
 
 def _get(cfg, path: str):
