@@ -90,14 +90,24 @@ class LossTable:
         return int(self.frequency_hz.size)
 
 
+def _table_paths(path: str | Path) -> tuple[Path, Path]:
+    """The table's ``.csv`` (as given, ``N87.CSV`` too) and its sidecar, the same stem's ``.json``
+    (or ``.JSON`` when only that one is there)."""
+    path = Path(path)
+    csv_path = path if path.suffix.lower() == ".csv" else path.with_suffix(".csv")
+    side = csv_path.with_suffix(".json")
+    if not os.path.lexists(side) and os.path.lexists(csv_path.with_suffix(".JSON")):
+        side = csv_path.with_suffix(".JSON")
+    return csv_path, side
+
+
 def read_material_table(path: str | Path) -> LossTable:
     """Read ``path`` (the ``.csv``; the sidecar is the same stem's ``.json``)."""
-    csv_path = Path(path).with_suffix(".csv")
-    meta = _read_sidecar(csv_path.with_suffix(".json"))
+    csv_path, side = _table_paths(path)
+    meta = _read_sidecar(side)
     kind = meta["kind"]
     names, data = _read_rows(csv_path, _layouts(kind), kind)
     units = meta["units"]
-    side = csv_path.with_suffix(".json")
     if not isinstance(units, dict) or sorted(units) != sorted(names):
         raise RecordingError(f"{side}: key 'units' must give the unit of every column ({', '.join(names)}), "
                              f"got {units!r}")
@@ -124,7 +134,7 @@ def _sidecar_with(path: Path, what: str, required: tuple[str, ...]) -> dict:
 
 def _read_sidecar(path: Path) -> dict:
     meta = _sidecar_with(path, "material table", REQUIRED_SIDECAR_KEYS)
-    if meta["kind"] not in LAYOUTS:
+    if not isinstance(meta["kind"], str) or meta["kind"] not in LAYOUTS:
         raise RecordingError(f"{path}: key 'kind' must be one of {', '.join(LAYOUTS)}, got {meta['kind']!r}")
     if not isinstance(meta["material"], str) or not meta["material"]:
         raise RecordingError(f"{path}: key 'material' must be a non-empty string, got {meta['material']!r}")
@@ -200,6 +210,20 @@ def _check_duties(path: Path, names: list[str], data: np.ndarray) -> None:
         r = int(np.argmax(bad_sum))
         raise RecordingError(f"{path}:{r + 2}: columns {j + 1}-{j + 4} (duty_1..duty_4): {duty[r].tolist()} sum to "
                              f"{float(duty[r].sum())!r}, not 1 (the four fractions of one period)")
+    # what formats.flux_shapes rebuilds: a rise and a fall (a step in B has no dB/dt to integrate), and
+    # MagNet's trapezoids' equal flat segments
+    no_ramp = ~sine & ((duty[:, 0] <= 0) | (duty[:, 2] <= 0))
+    if no_ramp.any():
+        r = int(np.argmax(no_ramp))
+        k = 0 if duty[r, 0] <= 0 else 2
+        raise RecordingError(f"{path}:{r + 2}: column {j + k + 1} ({DUTY_COLUMNS[k]}): {float(duty[r, k])!r}; "
+                             "the rise (duty_1) and the fall (duty_3) of a triangle or trapezoid take time (> 0)")
+    uneven = ~sine & (np.abs(duty[:, 1] - duty[:, 3]) > _DUTY_SUM_TOL)
+    if uneven.any():
+        r = int(np.argmax(uneven))
+        raise RecordingError(f"{path}:{r + 2}: columns {j + 2} and {j + 4} (duty_2, duty_4): {float(duty[r, 1])!r} and "
+                             f"{float(duty[r, 3])!r}; MagNet's trapezoids have equal flat segments, another waveform "
+                             "is not rebuilt")
 
 
 # --- measured waveforms ------------------------------------------------------------------------
@@ -244,8 +268,7 @@ def read_waveform_table(path: str | Path) -> WaveformTable:
     column its unit, which must be the one the fields are named for (a file in kHz or mT would
     otherwise be read a thousand times off).  Strict as :func:`read_material_table`.
     """
-    csv_path = Path(path).with_suffix(".csv")
-    side = csv_path.with_suffix(".json")
+    csv_path, side = _table_paths(path)
     meta = _read_waveform_sidecar(side)
     lines = read_text(csv_path, MAX_TABLE_BYTES, "waveform table", "MAX_TABLE_BYTES").rstrip("\n").split("\n")
     names = [n.strip() for n in lines[0].split(",")]

@@ -83,6 +83,25 @@ def test_missing_sidecar_key_is_named(table: Path, key: str):
         read_material_table(table)
 
 
+@pytest.mark.parametrize("kind", [["core_loss"], {"a": 1}, None])
+def test_a_kind_that_is_no_name_is_refused_naming_the_key(table: Path, kind):
+    side = table.with_suffix(".json")
+    meta = json.loads(side.read_text())
+    meta["kind"] = kind
+    side.write_text(json.dumps(meta))
+    with pytest.raises(RecordingError, match=r"t\.json: key 'kind' must be one of core_loss, complex_permeability"):
+        read_material_table(table)
+
+
+@pytest.mark.parametrize("sidecar", ["T.json", "T.JSON"])
+def test_an_upper_case_suffix_is_the_table_as_given(tmp_path: Path, sidecar: str):
+    """``N87.CSV`` was read as ``N87.csv`` (no such file), its ``N87.JSON`` called missing."""
+    shutil.copy(REAL / "magnet_N87_sine.csv", tmp_path / "T.CSV")
+    shutil.copy(REAL / "magnet_N87_sine.json", tmp_path / sidecar)
+    t = read_material_table(tmp_path / "T.CSV")
+    assert len(t) == len(read_material_table(REAL / "magnet_N87_sine.csv")) and t.path == tmp_path / "T.CSV"
+
+
 def test_missing_sidecar_and_bad_json(table: Path):
     side = table.with_suffix(".json")
     side.write_text('{"material": "N87",\n "kind": }')
@@ -166,6 +185,9 @@ def shapes(tmp_path: Path) -> Path:
     ("50000.0,0.087,0.1,0.0,nan,0.0,30000.0", ":7: column 5 (duty_3): 'nan' is not a finite number"),
     ("50000.0,0.087,-1,-1,-1,0.0,30000.0", ":7: column 3 (duty_1): -1.0 must be a fraction in [0, 1] (or all four -1"),
     ("50000.0,0.087,0.1,0.0,0.9,0.0", ":7: 6 fields, the header has 7"),
+    ("50000.0,0.087,0.0,0.5,0.0,0.5,30000.0", ":7: column 3 (duty_1): 0.0; the rise (duty_1) and the fall (duty_3)"),
+    ("50000.0,0.087,1.0,0.0,0.0,0.0,30000.0", ":7: column 5 (duty_3): 0.0; the rise (duty_1) and the fall (duty_3)"),
+    ("50000.0,0.087,0.3,0.1,0.4,0.2,30000.0", ":7: columns 4 and 6 (duty_2, duty_4): 0.1 and 0.2; MagNet's"),
 ])
 def test_bad_duty_named_by_line_and_column(shapes: Path, line: str, message: str):
     _edit_line(shapes, 7, line)
