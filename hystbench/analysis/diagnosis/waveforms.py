@@ -23,6 +23,7 @@ thresholds (relative L2 < 0.15, correlation > 0.95) are checked on.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -32,6 +33,7 @@ from scipy.optimize import least_squares, lsq_linear
 from scipy.signal import lfilter
 
 from ...config.effects import CATALOGUE
+from ...errors import RecordingError
 from ...formats.material_data import WaveformTable, read_waveform_table
 from ...physics.hysteresis import PreisachHysteresis, PreisachParams
 from ...physics.hysteresis_kernel import field_along
@@ -462,19 +464,38 @@ def _cross_rows(b: np.ndarray, h: np.ndarray, fs_hz: float, temp: np.ndarray, te
     return out
 
 
+def _checked_rows(t: WaveformTable, warmup: int) -> tuple[float, np.ndarray, np.ndarray]:
+    """The sample rate, B(t) and H(t) of a table the diagnosis can take, or an error naming the file,
+    the sidecar key or the row (a RecordingError: the command line says it in one line)."""
+    side = t.path.with_suffix(".json")
+    if t.h_t is None:
+        raise RecordingError(f"{t.path}: no H(t) columns; a waveform diagnosis compares the model's H with the "
+                             "measured one (rows of B(t) and loss alone: `python -m hystbench.analysis.diagnosis."
+                             "loss_waveforms FILE TABLE.csv ...` predicts their loss from a material's loss tables)")
+    fs = t.metadata.get("sample_rate_Hz")
+    if isinstance(fs, bool) or not isinstance(fs, (int, float)) or not (math.isfinite(fs) and fs > 0):
+        raise RecordingError(f"{side}: key 'sample_rate_Hz' must be a number of samples a second > 0 (dB/dt needs "
+                             f"it), got {fs!r}")
+    if len(t) < 2:
+        raise RecordingError(f"{t.path}: {len(t)} row; the diagnosis needs two at least (each row is held out "
+                             "whole, predicted by a model calibrated on the others)")
+    if t.samples < 2 * warmup + 16:
+        raise RecordingError(f"{t.path}: {t.samples} samples per row; the diagnosis needs {2 * warmup + 16} at "
+                             f"least (a warm-up of {warmup}, then a calibrated and a held-out half)")
+    for name, x in (("B(t)", t.b_t), ("H(t)", t.h_t)):
+        flat = np.ptp(x, axis=1) <= 0
+        if flat.any():
+            raise RecordingError(f"{t.path}: row {int(np.argmax(flat)) + 1}: {name} is constant; a loop needs it to "
+                                 "move")
+    return float(fs), t.b_t, t.h_t
+
+
 def diagnose_waveforms(table: WaveformTable | str | Path, *, warmup: int = WARMUP_SAMPLES,
                        candidates: Sequence[str] | None = None,
                        say: Callable[[str], None] = lambda s: None) -> WaveformDiagnosis:
     """Locate, name, model and prove on a measured waveform table (B(t) and H(t) per row)."""
     t = table if isinstance(table, WaveformTable) else read_waveform_table(table)
-    if t.h_t is None:
-        raise ValueError(f"{t.path}: no H(t) columns; a waveform diagnosis compares the model's H with the measured")
-    fs_hz = float(t.metadata.get("sample_rate_Hz", 0.0))
-    if not fs_hz > 0:
-        raise ValueError(f"{t.path}: the sidecar gives no sample_rate_Hz; dB/dt needs it")
-    if t.samples < 2 * warmup + 16:
-        raise ValueError(f"{t.path}: {t.samples} samples per row; the warm-up is {warmup}")
-    b, h = t.b_t, t.h_t
+    fs_hz, b, h = _checked_rows(t, warmup)
     temp = t.temperature_c if t.temperature_c is not None else np.full(len(t), 25.0)
     half = warmup + (t.samples - warmup) // 2
     cal = np.zeros_like(b, bool)

@@ -145,6 +145,63 @@ def test_the_cli_routes_a_waveform_table_by_its_sidecar():
     assert _is_waveform_table(REAL)
     assert not _is_waveform_table(REAL.parents[1] / "magnet_3C90_sine.csv")
     assert not _is_waveform_table(REAL.with_name("no_such_table.csv"))
+    assert not _is_waveform_table(Path("."))  # ``diagnose .`` in a sweep's folder: a traceback (no suffix to replace)
+
+
+def _table_copy(tmp_path: Path, rows: slice = slice(None), sidecar: dict | None = None,
+                edit=None) -> Path:
+    """The vendored 3C90 sequence table, its rows cut to ``rows``, its sidecar's keys replaced by
+    ``sidecar`` (None values removed), its values passed through ``edit(b, h)``."""
+    import json
+
+    lines = REAL.read_text().splitlines()
+    header, body = lines[0], lines[1:][rows]
+    if edit is not None:
+        names = header.split(",")
+        nb = sum(n.startswith("B_t_") for n in names)
+        nh = sum(n.startswith("H_t_") for n in names)
+        out = []
+        for ln in body:
+            v = ln.split(",")
+            b, h = np.array(v[:nb], float), np.array(v[nb:nb + nh], float)
+            b, h = edit(b, h)
+            out.append(",".join([*map(repr, b.tolist()), *map(repr, h.tolist()), *v[nb + nh:]]))
+        body = out
+    (tmp_path / "seq.csv").write_text("\n".join([header, *body]) + "\n")
+    meta = json.loads(REAL.with_suffix(".json").read_text())
+    for k, v in (sidecar or {}).items():
+        if v is None:
+            meta.pop(k, None)
+        else:
+            meta[k] = v
+    if "rows" in meta:
+        meta["rows"] = len(body)
+    (tmp_path / "seq.json").write_text(json.dumps(meta))
+    return tmp_path / "seq.csv"
+
+
+@pytest.mark.parametrize("rows, sidecar, edit, message", [
+    (slice(None), {"sample_rate_Hz": None}, None, r"seq\.json: key 'sample_rate_Hz' must be a number .* got None"),
+    (slice(None), {"sample_rate_Hz": "16 MHz"}, None, r"seq\.json: key 'sample_rate_Hz' .* got '16 MHz'"),
+    (slice(None), {"sample_rate_Hz": [16e6]}, None, r"seq\.json: key 'sample_rate_Hz' .* got \[16000000\.0\]"),
+    (slice(None), {"sample_rate_Hz": True}, None, r"seq\.json: key 'sample_rate_Hz' .* got True"),
+    (slice(0, 1), None, None, r"seq\.csv: 1 row; the diagnosis needs two at least"),
+    (slice(None), None, lambda b, h: (np.full_like(b, 0.1), h), r"seq\.csv: row 1: B\(t\) is constant"),
+    (slice(None), None, lambda b, h: (b, 0 * h), r"seq\.csv: row 1: H\(t\) is constant"),
+])
+def test_a_table_the_diagnosis_cannot_take_is_refused_naming_the_key_or_row(tmp_path, rows, sidecar, edit, message):
+    """Each was a ValueError or TypeError traceback, or (H all zero) "relative L2 inf" with exit 0."""
+    from hystbench.errors import RecordingError
+
+    with pytest.raises(RecordingError, match=message):
+        diagnose_waveforms(_table_copy(tmp_path, rows, sidecar, edit))
+
+
+def test_rows_of_b_and_loss_alone_are_refused_naming_the_command_that_takes_them():
+    from hystbench.errors import RecordingError
+
+    with pytest.raises(RecordingError, match=r"maghub_ploss_at_450kWpm3\.csv: no H\(t\) columns; .*loss_waveforms"):
+        diagnose_waveforms(REAL.with_name("maghub_ploss_at_450kWpm3.csv"))
 
 
 def test_a_loop_that_follows_temperature_is_named_by_the_catalogue(synthetic):
