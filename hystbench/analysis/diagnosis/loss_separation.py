@@ -315,6 +315,8 @@ def _locate(f: np.ndarray, b: np.ndarray, resid: np.ndarray, held: np.ndarray, n
             model: float) -> dict[str, Any]:
     """The held-out residual (log10) on a grid of up to 8 frequency x 6 flux-density bins, z-scored."""
     fe = np.unique(np.quantile(f[held], np.linspace(0, 1, min(8, np.unique(f[held]).size) + 1)))
+    if fe.size < 2:  # one frequency held out (a table of four): one bin of it
+        fe = np.repeat(fe, 2)
     be = np.quantile(b[held], np.linspace(0, 1, 7))
     fi = np.clip(np.searchsorted(fe, f[held], side="right") - 1, 0, fe.size - 2)
     bi = np.clip(np.searchsorted(be, b[held], side="right") - 1, 0, be.size - 2)

@@ -122,6 +122,10 @@ def test_a_table_with_too_few_frequencies_is_refused_and_a_falling_loss_is_said_
     assert r["rows"]["calibration_max_Hz"] == pytest.approx(50e3 * 8 ** 0.5)  # the third of five
     assert r["effects"] == ["lamination_eddy_currents"]
     assert "the table has 5 distinct frequencies" in r["other_split"]["refused"]
+    # four: calibrated on three, one held out; the located grid is that one frequency (it was an empty
+    # grid and a traceback)
+    r = diagnose_loss_table(write("four", np.array([50e3, 100e3, 200e3, 400e3])))
+    assert r["located"]["frequencies_Hz"] == pytest.approx([400e3]) and sum(map(sum, r["located"]["count"])) == 8
     falling = write("falling", np.geomspace(50e3, 500e3, 12), lambda f, b: 0.3 * (f / 1e5) ** -1.0 * (b / 0.1) ** 2)
     r = diagnose_loss_table(falling)
     assert r["located"]["trend"]["slope_log_f"] < 0 and "energy per cycle falls with frequency" in r["verdict"]
