@@ -106,7 +106,27 @@ def read_inputs(paths: list[Path]) -> list[Any]:
             raise RecordingError(f"{path}: only one recording ({r.rig} at {r.frequency_hz:g} Hz, {r.current_pp_a:g} "
                                  f"A-pp); a diagnosis needs several operating points per {what}")
         recs += part
+    _refuse_copies(recs)
     return recs
+
+
+def _refuse_copies(recs: list[Any]) -> None:
+    """A recording copied under another name (into the same folder, or another given) would count
+    its evidence twice, as a folder given twice does: refused, naming both."""
+    import hashlib
+
+    from ..analysis.method import recording_name
+
+    seen: dict[str, Any] = {}
+    for rec in recs:
+        h = hashlib.blake2b(digest_size=16)
+        for name in sorted(rec.channels):
+            h.update(name.encode())
+            h.update(rec.channels[name].tobytes())
+        first = seen.setdefault(h.hexdigest(), rec)
+        if first is not rec:
+            raise RecordingError(f"{recording_name(rec)}: the same samples as {recording_name(first)}; a recording "
+                                 "counted twice would overstate its evidence (give each recording once)")
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
@@ -236,8 +256,10 @@ def _print_loss_tables(results: list[dict[str, Any]], page: Path | None, args: a
 
 def _is_waveform_table(path: Path) -> bool:
     """A ``.csv`` whose sidecar says ``kind: waveform`` (measured B(t)/H(t) rows, not a loss table)."""
+    if not _is_loss_table(path):  # a folder (``diagnose .``) has no suffix to replace
+        return False
     side = path.with_suffix(".json")
-    if not _is_loss_table(path) or not side.is_file():  # not a FIFO's open either: the reader names it
+    if not side.is_file():  # not a FIFO's open either: the reader names it
         return False
     try:
         return json.loads(side.read_text(encoding="utf-8")).get("kind") == "waveform"

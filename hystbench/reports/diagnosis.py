@@ -344,7 +344,9 @@ def print_summary(diagnosis: Diagnosis, console: Any) -> None:
         t.add_row("in its signature", f"{escape(effect)}: {_num(sig['before'])} -> {_num(sig['after'])} "
                                       f"({_num(sig['improvement'])}x, {sig['numbers']:.0f} held-out numbers)")
     for c in d.suspects:
-        t.add_row("suspect", f"{escape(c.name)} (score {_num(c.score)}, held out {_num(c.held_out_gain)}x)")
+        gain = c.held_out_gain
+        held = "not checked held out" if gain is None or math.isnan(gain) else f"held out {_num(gain)}x"
+        t.add_row("suspect", f"{escape(c.name)} (score {_num(c.score)}, {held})")
     first = [c for c in d.candidates if c.round == 1 and (not d.effects or c.name != d.effects[0])]
     if first:
         best = max(first, key=lambda c: c.score if math.isfinite(c.score) else -math.inf)

@@ -105,6 +105,37 @@ def test_an_effect_outside_the_catalogue_is_refused_naming_option_and_name(day, 
     assert f"argument {option}" in err and "'magnet_creep'" in err and "charge_amp_highpass" in err  # lists the known
 
 
+def test_a_candidate_already_in_the_baseline_is_refused_naming_it(day, capsys):
+    """``--baseline excess_loss --candidates excess_loss`` dropped the candidate silently and said
+    "nothing significant left" at 6730 noise floors."""
+    code, out, err = _run([str(day[1]), "--baseline", "static_hysteresis,excess_loss",
+                           "--candidates", "excess_loss,instrument_filter"], capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "--candidates: excess_loss already in every rig's baseline" in err and "instrument_filter" not in err
+
+
+def test_a_recording_copied_under_another_name_is_refused_naming_both(day, tmp_path, capsys):
+    """Copied into its own folder, a recording counted twice with no word (the best candidate moved
+    from a skew to a frame mode), where the same folder given twice is refused."""
+    import shutil
+
+    folder = tmp_path / "sweep"
+    shutil.copytree(day[0], folder)
+    original = sorted(folder.glob("*.csv"))[0]
+    for suffix in (".csv", ".json"):
+        shutil.copy(original.with_suffix(suffix), folder / f"copy{suffix}")
+    code, out, err = _run([str(folder)], capsys)
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "the same samples as" in err and original.stem in err and "copy" in err
+
+
+def test_diagnose_dot_is_the_folder_it_is_run_in(day, capsys, monkeypatch):
+    """``cd SWEEP && hystbench diagnose .`` was a traceback (the waveform check replaced the suffix of '.')."""
+    monkeypatch.chdir(day[1])
+    code, out, err = _run([".", "--json"], capsys)
+    assert code == 0 and "Traceback" not in err and json.loads(out)["seconds"] > 0
+
+
 def test_a_rig_the_presets_do_not_know_is_refused_naming_file_and_rig(tmp_path, capsys):
     folder = tmp_path / "odd"
     recs = [simulate_recording("ecore", f, 1.27, 0.05, seed=n) for n, f in enumerate((80.0, 320.0))]

@@ -45,7 +45,7 @@ from .fit import Problem, floor_scales, variance
 from .forward import MEASURED_DIRECTLY, clock_follows_frequency, points_of
 from .locate import locate_residual
 from .prove import cross_validate, folds, held_out
-from .result import Diagnosis
+from .result import Candidate, Diagnosis
 from .select import DC_BLIND, MIN_HELD_OUT_GAIN, PREDICTIVE_GAIN, candidate_effects, dc_blind, family, forward_selection, named_parameters
 from .vector import CHANNELS, layout_of, line_values, values_of
 
@@ -91,6 +91,10 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
     # while the E-cores' model leaves them out: one load cell)
     declared = {rig: set(p["effects"]) if baseline is None else set(baseline) for rig, p in presets.items()}
     lacking = {e for e in CATALOGUE for rig, p in presets.items() if accepts(rig, p, e) and e not in declared[rig]}
+    if candidates is not None and (known := [e for e in candidates if e not in lacking]):
+        raise ConfigError(f"--candidates: {', '.join(known)} already in every rig's baseline (or acting on none of "
+                          f"the day's rigs: {', '.join(presets)}); a candidate is an effect the baseline leaves out "
+                          "(see --baseline)")
     pool_names = [e for e in (candidates if candidates is not None else CATALOGUE) if e in lacking]
     say(f"features of {len(recs)} recordings")
     data = [_features(r) for r in recs]
@@ -162,14 +166,7 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
 
     recal = recalibrated(sim, selection.calibration, selection.solution)
     findings = [v["finding"] for v in recal.values() if v.get("finding")]
-    findings += [f"suspect: {c.name} scores {c.score:.0f} but, modelled, predicts its signature at the held-out "
-                 f"operating points only {c.held_out_gain:.2f}x better (at least {MIN_HELD_OUT_GAIN:g}x names it); "
-                 + ("what it fitted stays in the model as a generic term, not in the catalogue"
-                    if c.held_out_gain >= PREDICTIVE_GAIN else
-                    "it predicts them worse, so what it fitted is left out of the model that is proven (the later "
-                    "rounds were scored beside it)")
-                 + (f" (of what it does, {c.own_text()})" if c.own_text() else "")
-                 for c in selection.suspects]
+    findings += [_suspect_finding(c) for c in selection.suspects]
     signature = {family(e.name): {"before": e.signature[0], "after": e.signature[1],
                                   "improvement": e.signature[0] / e.signature[1] if e.signature[1] > 0 else math.inf,
                                   "numbers": e.signature[2]}
@@ -184,6 +181,22 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
         noise_floor=_noise_floor(data), seconds=time.perf_counter() - start, baseline=in_base,
         candidates_considered=pool_names, findings=findings, warnings=warnings, recordings=len(recs), rigs=list(presets),
         loops=proof["loops"], grid=grid, signature=signature, suspects=list(selection.suspects))
+
+
+def _suspect_finding(c: Candidate) -> str:
+    """Why a decisive effect is a suspect: its held-out gain, or that none could be measured."""
+    if c.held_out_gain is None or math.isnan(c.held_out_gain):  # no operating point where it acts was held out
+        why = (f"suspect: {c.name} scores {c.score:.0f} but its signature could not be checked at held-out operating "
+               f"points (none of them shows it: the day holds too few points of its rig); it is left out of the "
+               "model that is proven")
+    else:
+        why = (f"suspect: {c.name} scores {c.score:.0f} but, modelled, predicts its signature at the held-out "
+               f"operating points only {c.held_out_gain:.2f}x better (at least {MIN_HELD_OUT_GAIN:g}x names it); "
+               + ("what it fitted stays in the model as a generic term, not in the catalogue"
+                  if c.held_out_gain >= PREDICTIVE_GAIN else
+                  "it predicts them worse, so what it fitted is left out of the model that is proven (the later "
+                  "rounds were scored beside it)"))
+    return why + (f" (of what it does, {c.own_text()})" if c.own_text() else "")
 
 
 def worse_in_total(names: list[str], before: float, after: float) -> list[str]:

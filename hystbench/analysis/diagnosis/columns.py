@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 from ...config.effects import CATALOGUE
+from ...config.schema import MAX_MAGNITUDE
 from ...errors import ConfigError
 from .forward import Point, preset_value, replay_features, with_effects, with_value
 
@@ -254,9 +255,33 @@ class Simulator:
                     eff.pop(name, None)
                 elif accepts(rig, p, name):
                     eff[name] = {**catalogue_params(preset, name), **eff.get(name, {}), **params}
-            full = with_effects(p, eff)
+            # every replay inside the catalogue's ranges: a probe's step from a value on a bound (a
+            # calibrated frame depth at its 100) must not be a setting the simulator refuses
+            full = with_effects(p, {name: clamp(name, params) for name, params in eff.items()})
             out[rig] = (json.dumps([rig, full], sort_keys=True, default=str), full)
         return out
+
+
+def clamp(effect: str, params: Mapping[str, Any]) -> dict[str, Any]:
+    """``params`` held inside the catalogue's ranges and sizes (a linear step may overshoot a bound the
+    simulator refuses; an effect fitted as an inverse and turned off is simulated at 1/1e-300, a
+    stiffness of 1e300 N/m, where the largest setting, 1e15, is the same physics)."""
+    out = dict(params)
+    for k, v in params.items():
+        key = CATALOGUE[effect].params.get(k)
+        if key is None or not isinstance(v, (int, float)):
+            continue
+        v = min(max(v, -MAX_MAGNITUDE), MAX_MAGNITUDE)
+        if key.ge is not None:
+            v = max(v, key.ge)
+        if key.gt is not None and v <= key.gt:
+            v = key.gt + 1e-12 * max(1.0, abs(key.gt))
+        if key.le is not None:
+            v = min(v, key.le)
+        if key.lt is not None and v >= key.lt:
+            v = key.lt - 1e-12 * max(1.0, abs(key.lt))
+        out[k] = v
+    return out
 
 
 def _has(preset: Mapping[str, Any], path: str) -> bool:

@@ -96,8 +96,8 @@ def record_features(rec: Recording, harmonics: int = 7, lines_hz: Sequence[float
     try:
         f = (float(frequency_hz) if frequency_hz
              else estimate_frequency(rec.channels[CURRENT], fs_hz, rec.frequency_hz))
-    except ValueError as err:
-        raise ValueError(f"{name}: {err}") from err
+    except ValueError as err:  # the estimator names its argument (x): say which column that is
+        raise ValueError(f"{name}: column {CURRENT}, from which the frequency is estimated: {err}") from err
     if f >= NYQUIST_SHARE * fs_hz:
         raise ValueError(f"{name}: the fundamental {f:g} Hz is above {NYQUIST_SHARE} of the sample rate "
                          f"{fs_hz:g} Hz")

@@ -123,12 +123,17 @@ def solve(residual: np.ndarray, sigma: np.ndarray, columns: Sequence[Column], ro
     """Fit ``residual`` (data minus model) with ``columns`` on ``rows`` (all when None): bounded
     weighted least squares with each calibration column's prior as a pseudo-observation."""
     sel = np.arange(residual.size) if rows is None else np.asarray(rows)
+    sel = sel[np.isfinite(residual[sel])]  # a model the simulator could not compute there: those rows say nothing
     w = 1.0 / sigma[sel]
     b = residual[sel] * w
     names = tuple(c.name for c in columns)
     if not columns:
         return Solution(np.zeros(0), np.zeros((0, 0)), float(b @ b), 0.0, names, np.zeros(residual.size))
     J = np.column_stack([c.values[sel] for c in columns]) * w[:, None]
+    # A column the simulator could not compute on these rows (a replay that diverged: a recording
+    # whose sidecar names another rig) is fitted without, its coefficient 0, as a dependent one is
+    finite = np.all(np.isfinite(J), axis=0)
+    J[:, ~finite] = 0.0
     norms = np.sqrt(np.sum(J ** 2, axis=0))
     norms = np.where(norms > 0, norms, 1.0)
     prior_rows = [(i, c.prior) for i, c in enumerate(columns) if c.prior is not None]
@@ -147,18 +152,24 @@ def solve(residual: np.ndarray, sigma: np.ndarray, columns: Sequence[Column], ro
     # adds nothing to the fit and makes R singular: the solver's first least squares keeps singular
     # values down to machine precision and lost 15 of chi2 to rounding on such a fit.  Fitted without it
     # (its coefficient 0), when it is free; the span, and so the fit, is the same.
-    keep = (np.abs(np.diag(R)) > DEPENDENT_TOLERANCE) | bounded
+    keep = ((np.abs(np.diag(R)) > DEPENDENT_TOLERANCE) | bounded) & finite
     if not keep.all():
         Q, R = np.linalg.qr(A[:, keep])
     x = np.zeros(len(columns))
-    x[keep] = lsq_linear(R, Q.T @ y, bounds=(lower[keep], upper[keep]),
-                         method="bvls" if bounded.any() else "trf", lsmr_tol="auto").x
+    if keep.any():
+        x[keep] = lsq_linear(R, Q.T @ y, bounds=(lower[keep], upper[keep]),
+                             method="bvls" if bounded.any() else "trf", lsmr_tol="auto").x
     beta = x / norms
     resid = b - J @ beta
     prior_term = P @ beta
     info = A.T @ A
-    cov = np.linalg.pinv(info) / np.outer(norms, norms)
-    full = np.column_stack([c.values for c in columns]) @ beta
+    try:
+        cov = np.linalg.pinv(info) / np.outer(norms, norms)
+    except np.linalg.LinAlgError:  # LAPACK's SVD gave up (a finite, ill-conditioned 174 x 174 of a
+        # recording labelled with another rig): the symmetric eigensolver, which the matrix allows
+        cov = np.linalg.pinv(info, hermitian=True) / np.outer(norms, norms)
+    full = np.column_stack([c.values for c, ok in zip(columns, finite) if ok]) @ beta[finite] if finite.any() \
+        else np.zeros(residual.size)
     return Solution(beta, cov, float(resid @ resid), float(prior_term @ prior_term), names, full)
 
 

@@ -21,9 +21,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ...config.effects import CATALOGUE
-from ...config.schema import MAX_MAGNITUDE
 from .calibrate import Calibration
-from .columns import CATALOGUE_FRAME, PROBES, Probe, accepts
+from .columns import CATALOGUE_FRAME, PROBES, Probe, accepts, clamp
 from .fit import Column, Problem, Solution
 from .search import frame_mode_search
 from .vector import CHANNELS
@@ -410,28 +409,6 @@ def effect_params(named: Sequence[CandidateEffect], sol: Solution) -> dict[str, 
             at = {pr.param: min(max(e.at.get(pr.param, 0.0) + sol.value(f"{e.name}.{pr.param}")[0], pr.lower), pr.upper)
                   for pr in e.probes}
             out[family(e.name)] = clamp(family(e.name), setting_at(e.probes, at))
-    return out
-
-
-def clamp(effect: str, params: Mapping[str, Any]) -> dict[str, Any]:
-    """``params`` held inside the catalogue's ranges and sizes (a linear step may overshoot a bound the
-    simulator refuses; an effect fitted as an inverse and turned off is simulated at 1/1e-300, a
-    stiffness of 1e300 N/m, where the largest setting, 1e15, is the same physics)."""
-    out = dict(params)
-    for k, v in params.items():
-        key = CATALOGUE[effect].params.get(k)
-        if key is None or not isinstance(v, (int, float)):
-            continue
-        v = min(max(v, -MAX_MAGNITUDE), MAX_MAGNITUDE)
-        if key.ge is not None:
-            v = max(v, key.ge)
-        if key.gt is not None and v <= key.gt:
-            v = key.gt + 1e-12 * max(1.0, abs(key.gt))
-        if key.le is not None:
-            v = min(v, key.le)
-        if key.lt is not None and v >= key.lt:
-            v = key.lt - 1e-12 * max(1.0, abs(key.lt))
-        out[k] = v
     return out
 
 

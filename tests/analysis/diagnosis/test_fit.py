@@ -72,3 +72,40 @@ def test_a_column_inside_the_span_of_the_others_changes_nothing():
         assert solve(d, np.ones(n), cols).chi2 == pytest.approx(exact, rel=1e-9)
     bounded = solve(d, np.ones(n), columns + [inside, Column("b", rng.normal(size=n), lower=0.0)])
     assert bounded.chi2 <= exact * (1 + 1e-9)
+
+
+def test_a_column_or_a_row_the_simulator_could_not_compute_is_fitted_without():
+    """A recording whose sidecar names another rig gave a replay with non-finite numbers, and the fit a
+    traceback.  A column with a NaN on the rows is fitted without (coefficient 0) and a row whose
+    residual is NaN says nothing: the fit is numpy's lstsq on what is left."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(40, 2))
+    y = x @ np.array([2.0, -1.0]) + 0.01 * rng.normal(size=40)
+    broken = rng.normal(size=40)
+    broken[7] = np.nan
+    y_nan = y.copy()
+    y_nan[11] = np.nan
+    sol = solve(y_nan, np.ones(40), [Column("a", x[:, 0]), Column("b", x[:, 1]), Column("broken", broken)])
+    keep = np.arange(40) != 11
+    expected, *_ = np.linalg.lstsq(x[keep], y[keep], rcond=None)
+    np.testing.assert_allclose(sol.beta[:2], expected, rtol=1e-9)
+    assert sol.beta[2] == 0.0 and np.all(np.isfinite(sol.fitted)) and np.isfinite(sol.chi2)
+
+
+def test_when_lapacks_svd_gives_up_the_covariance_comes_from_the_symmetric_solver(monkeypatch):
+    """numpy's pinv raised "SVD did not converge" on a finite, ill-conditioned information matrix; the
+    covariance is then the symmetric pseudo-inverse, the same matrix here (where the SVD would work)."""
+    rng = np.random.default_rng(4)
+    J = rng.normal(size=(60, 3))
+    y = J @ np.array([1.0, 2.0, 3.0])
+    cols = [Column(n, J[:, i]) for i, n in enumerate("abc")]
+    expected = solve(y, np.ones(60), cols).cov
+    pinv = np.linalg.pinv
+
+    def svd_gives_up(a, *args, hermitian=False, **kw):
+        if not hermitian:
+            raise np.linalg.LinAlgError("SVD did not converge")
+        return pinv(a, *args, hermitian=True, **kw)
+
+    monkeypatch.setattr(np.linalg, "pinv", svd_gives_up)
+    np.testing.assert_allclose(solve(y, np.ones(60), cols).cov, expected, rtol=1e-8)

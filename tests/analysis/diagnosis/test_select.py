@@ -9,6 +9,7 @@ import pytest
 
 from hystbench.analysis.diagnosis.fit import Column, solve
 from hystbench.analysis.diagnosis.select import CandidateEffect, contribution
+from hystbench.config.effects import CATALOGUE
 
 SIGMA = 0.01
 
@@ -283,8 +284,7 @@ def test_every_probe_at_the_ends_of_its_range_is_a_setting_the_rig_accepts():
     N/m (settings are at most 1e15 in size), which ended the independent bench's benchmark in a
     traceback.  Every probe at its bounds, at 0, at its probe step and far beyond, as the fit hands
     it to the simulation (clamped), must give parameters the catalogue accepts."""
-    from hystbench.analysis.diagnosis.columns import PROBES
-    from hystbench.analysis.diagnosis.select import clamp
+    from hystbench.analysis.diagnosis.columns import PROBES, clamp
     from hystbench.config.effects import CATALOGUE, validate_effects
 
     for name, probes in PROBES.items():
@@ -295,3 +295,38 @@ def test_every_probe_at_the_ends_of_its_range_is_a_setting_the_rig_accepts():
                     continue
                 params = clamp(name, {**CATALOGUE[name].defaults, **probe.setting(u)})
                 validate_effects({name: params}, f"{name} at u = {u:g}")
+
+
+def test_every_replay_the_simulator_asks_for_is_a_preset_the_rig_accepts():
+    """``diagnose --baseline excess_loss`` on a simulated bench day exited 2 with "[effects.
+    frame_resonance] depth: must be in (-1, 100], got 100.05": a calibrated depth on its bound, then a
+    probe's step beyond it.  Knobs and effects past the catalogue's ranges, as a fit may hand them
+    on, are replayed at the range's end, never refused by the rig."""
+    from hystbench.analysis.diagnosis.columns import Simulator
+    from hystbench.config import load_rig
+
+    nominal = load_rig("ecore")
+    frame = {**CATALOGUE["frame_resonance"].defaults, "depth": 100.0}
+    sim = Simulator({"ecore": nominal}, {"ecore": {"frame_resonance": frame}}, points=[])
+    for knobs, effects in [({"effects.frame_resonance.depth": 0.05}, None),
+                           (None, {"frame_resonance": {"depth": 100.05}}),
+                           (None, {"frame_resonance": {"depth": -5.0}})]:
+        (_, preset), = sim._presets(knobs, effects).values()
+        checked = load_rig(preset)  # the simulator's own check: refused before the fix
+        assert -1.0 < checked["effects"]["frame_resonance"]["depth"] <= 100.0
+
+
+@pytest.mark.parametrize("gain, says", [
+    (math.nan, "could not be checked at held-out operating points"),
+    (None, "could not be checked at held-out operating points"),
+    (0.8, "only 0.80x better (at least 1.5x names it); it predicts them worse"),
+    (1.2, "only 1.20x better (at least 1.5x names it); what it fitted stays in the model as a generic term"),
+])
+def test_a_suspect_says_why_in_numbers_or_that_none_could_be_measured(gain, says):
+    """A day holding too few points of a rig had no held-out point of a suspect's signature: its
+    gain was NaN, printed as "nanx better ... it predicts them worse"."""
+    from hystbench.analysis.diagnosis import _suspect_finding
+    from hystbench.analysis.diagnosis.result import Candidate
+
+    text = _suspect_finding(Candidate("charge_amp_highpass", 329.0, {}, held_out_gain=gain))
+    assert text.startswith("suspect: charge_amp_highpass scores 329 ") and says in text and "nan" not in text
