@@ -23,6 +23,7 @@ the sidecar's by ``MAX_SIDECAR_BYTES``).
 
 from __future__ import annotations
 
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -138,6 +139,10 @@ def _read_sidecar(path: Path) -> dict:
         raise RecordingError(f"{path}: key 'kind' must be one of {', '.join(LAYOUTS)}, got {meta['kind']!r}")
     if not isinstance(meta["material"], str) or not meta["material"]:
         raise RecordingError(f"{path}: key 'material' must be a non-empty string, got {meta['material']!r}")
+    t = meta["temperature_C"]
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or not (math.isfinite(t) and t > -273.15):
+        raise RecordingError(f"{path}: key 'temperature_C' must be the measurement's temperature in degC (a number "
+                             f"above -273.15), got {t!r}")
     return meta
 
 

@@ -129,6 +129,23 @@ def test_a_recording_copied_under_another_name_is_refused_naming_both(day, tmp_p
     assert "the same samples as" in err and original.stem in err and "copy" in err
 
 
+def test_a_sidecar_without_its_start_time_is_named(day, tmp_path, capsys):
+    """One of the sidecars without start_time_s was reported as "the sidecars hold no start_time_s"."""
+    import shutil
+
+    folder = tmp_path / "sweep"
+    shutil.copytree(day[0], folder)
+    side = sorted(folder.glob("*.json"))[0]
+    meta = json.loads(side.read_text())
+    del meta["start_time_s"]
+    side.write_text(json.dumps(meta))
+    code, out, err = _run([str(folder), "--json"], capsys)
+    n = len(list(folder.glob("*.json")))
+    assert code == 0
+    said = [w for w in json.loads(out)["warnings"] if "start_time_s" in w]
+    assert said and said[0].startswith(f"1 of {n} sidecars hold no start_time_s ({side.with_suffix('')})"), said
+
+
 def test_diagnose_dot_is_the_folder_it_is_run_in(day, capsys, monkeypatch):
     """``cd SWEEP && hystbench diagnose .`` was a traceback (the waveform check replaced the suffix of '.')."""
     monkeypatch.chdir(day[1])

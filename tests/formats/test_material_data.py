@@ -93,6 +93,16 @@ def test_a_kind_that_is_no_name_is_refused_naming_the_key(table: Path, kind):
         read_material_table(table)
 
 
+@pytest.mark.parametrize("temperature", ["hot", None, [25, 50], True, -300.0])
+def test_a_temperature_that_is_no_temperature_is_refused_naming_the_key(table: Path, temperature):
+    side = table.with_suffix(".json")
+    meta = json.loads(side.read_text())
+    meta["temperature_C"] = temperature
+    side.write_text(json.dumps(meta))
+    with pytest.raises(RecordingError, match=r"t\.json: key 'temperature_C' must be the measurement's temperature"):
+        read_material_table(table)
+
+
 @pytest.mark.parametrize("sidecar", ["T.json", "T.JSON"])
 def test_an_upper_case_suffix_is_the_table_as_given(tmp_path: Path, sidecar: str):
     """``N87.CSV`` was read as ``N87.csv`` (no such file), its ``N87.JSON`` called missing."""

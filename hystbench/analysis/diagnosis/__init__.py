@@ -102,7 +102,11 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
     points, clocked = points_of(recs, [f.periods / f.frequency_hz for f in data],
                                 [2.0 * abs(f.harmonics["current_A"][1]) for f in data])
     if not clocked:
-        warnings.append("the sidecars hold no start_time_s: slow effects cannot be placed along the day")
+        without = [recording_name(r) for r in recs if r.start_time_s is None]
+        warnings.append("the sidecars hold no start_time_s: slow effects cannot be placed along the day"
+                        if len(without) == len(recs) else
+                        f"{len(without)} of {len(recs)} sidecars hold no start_time_s ({', '.join(without[:3])}"
+                        f"{', ...' if len(without) > 3 else ''}): slow effects cannot be placed along the day")
     elif clock_follows_frequency(recs) and {"magnet_thermal_drift", "iron_thermal_drift"} & set(pool_names):
         warnings.append("each block's frequencies were played in order, so there the day's clock runs with the "
                         "frequency: a slow change along the day (a magnet or iron warming) looks like a smooth "

@@ -167,8 +167,8 @@ def record_features(rec: Recording, harmonics: int = 7, lines_hz: Sequence[float
     ci = names.index(CURRENT)
     i1 = spec[ci, 1]
     if not np.isfinite(i1) or abs(i1) <= 3 * se[ci, 1]:
-        raise ValueError(f"{name}: the current's fundamental ({abs(i1):.3g} A) is lost in its noise; "
-                         "phases have no reference")
+        raise ValueError(f"{name}: the current's fundamental at {f:g} Hz ({abs(i1):.3g} A) is lost in its noise; "
+                         "phases have no reference (is the sidecar's frequency_Hz the excitation's?)")
     turn = np.exp(-1j * np.arange(K + 1) * np.angle(i1))
     spec = spec * turn[None]
     # The reference's own noise turns every channel: k |X_k| sigma_theta, shared by Re and Im.
