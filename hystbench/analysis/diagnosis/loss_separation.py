@@ -707,9 +707,19 @@ def energy_table(tables: list[LossTable]) -> tuple[np.ndarray, np.ndarray, np.nd
         if zero.any():
             raise RecordingError(f"{t.path}:{int(np.argmax(zero)) + 2}: column loss_W_per_m3: a loss of 0; the "
                                  "diagnosis compares log(energy per cycle) and needs a loss > 0 in every row")
+    ws = []
+    for t in tables:  # a loss of 1e-320 W/m^3, a permeability of 1e300: a row's energy that is no number
+        with np.errstate(all="ignore"):
+            w_t = energy_per_cycle(t, shapes=True)
+        bad = ~(np.isfinite(w_t) & (w_t > 0))
+        if bad.any():
+            r = int(np.argmax(bad))
+            raise RecordingError(f"{t.path}:{r + 2}: the row's energy per cycle is {float(w_t[r])!r} J/m^3; the "
+                                 "diagnosis compares log(energy per cycle) and needs a finite one > 0 in every row")
+        ws.append(w_t)
     f = np.concatenate([t.frequency_hz for t in tables])
     b = np.concatenate([t.flux_density_t for t in tables])
-    w = np.concatenate([energy_per_cycle(t, shapes=True) for t in tables])
+    w = np.concatenate(ws)
     duty = np.concatenate([t.duty for t in tables])
     return f, b, w, (None if np.all(duty[:, 0] == -1) else duty)
 

@@ -147,6 +147,12 @@ def test_a_zero_loss_is_refused_naming_its_line(tmp_path: Path):
     (tmp_path / "z.json").write_text((REAL / "magnet_N87_sine.json").read_text())
     with pytest.raises(RecordingError, match=r"z\.csv:8: column loss_W_per_m3: a loss of 0"):
         diagnose_loss_table(tmp_path / "z.csv")
+    # a loss so small that its energy per cycle underflows to 0: named by its line too (it said only
+    # "N87: energy per cycle must be finite and > 0 in every row")
+    lines[7] = ",".join(lines[7].split(",")[:2] + ["1e-320"])
+    (tmp_path / "z.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError, match=r"z\.csv:8: the row's energy per cycle is 0\.0 J/m\^3"):
+        diagnose_loss_table(tmp_path / "z.csv")
 
 
 def _held_out_rms_direct(f: np.ndarray, b: np.ndarray, w: np.ndarray, train: np.ndarray, classical: bool) -> float:
