@@ -137,8 +137,11 @@ def _read_sidecar(path: Path) -> dict:
     meta = _sidecar_with(path, "material table", REQUIRED_SIDECAR_KEYS)
     if not isinstance(meta["kind"], str) or meta["kind"] not in LAYOUTS:
         raise RecordingError(f"{path}: key 'kind' must be one of {', '.join(LAYOUTS)}, got {meta['kind']!r}")
-    if not isinstance(meta["material"], str) or not meta["material"]:
+    if not isinstance(meta["material"], str) or not meta["material"].strip():
         raise RecordingError(f"{path}: key 'material' must be a non-empty string, got {meta['material']!r}")
+    if meta["material"] != meta["material"].strip():  # 'N87 ' would keep a table apart from N87's others
+        raise RecordingError(f"{path}: key 'material' {meta['material']!r} has spaces around it; tables of one "
+                             "material are diagnosed together by its name")
     t = meta["temperature_C"]
     if isinstance(t, bool) or not isinstance(t, (int, float)) or not (math.isfinite(t) and t > -273.15):
         raise RecordingError(f"{path}: key 'temperature_C' must be the measurement's temperature in degC (a number "

@@ -103,6 +103,16 @@ def test_a_temperature_that_is_no_temperature_is_refused_naming_the_key(table: P
         read_material_table(table)
 
 
+def test_a_material_name_with_spaces_around_it_is_refused(table: Path):
+    """'N87 ' kept a shapes table apart from the N87 sine table: each was diagnosed alone, silently."""
+    side = table.with_suffix(".json")
+    meta = json.loads(side.read_text())
+    meta["material"] = "N87 "
+    side.write_text(json.dumps(meta))
+    with pytest.raises(RecordingError, match=r"t\.json: key 'material' 'N87 ' has spaces around it"):
+        read_material_table(table)
+
+
 @pytest.mark.parametrize("sidecar", ["T.json", "T.JSON"])
 def test_an_upper_case_suffix_is_the_table_as_given(tmp_path: Path, sidecar: str):
     """``N87.CSV`` was read as ``N87.csv`` (no such file), its ``N87.JSON`` called missing."""
