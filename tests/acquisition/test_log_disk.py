@@ -149,14 +149,16 @@ def test_a_log_folder_removed_while_running_pauses_the_log_with_the_output_off(t
     logs = tmp_path / "logs"
     d, port = logging_daemon(tmp_path, "gone", logs)
     with watched(d, port, "gone") as (session, status, raw):
-        first = health_when(session, "gone", lambda h: h["logging"] == "on" and h["log"])
+        health_when(session, "gone", lambda h: h["logging"] == "on" and h["log"])
         send_command(session, "gone", "output", {"on": True}, timeout_s=30.0)
         raw_until(raw, True, "after output on")  # on first: what follows shows it going off
         shutil.rmtree(logs)
         events = events_until(status, "log_resumed")
         assert "logging_paused" in events and "output off" in events["logging_paused"]["message"]
         failed = events["log_write_failed"]["message"]
-        assert "was deleted" in failed and first["log"] in failed
+        # the part open when the folder went (not necessarily the first: a fault on a starved machine
+        # rotates the log, as it should)
+        assert "was deleted" in failed and f"{logs}/gone" in failed, failed
         raw_until(raw, False, "after the log was deleted")
         resumed = health_when(session, "gone", lambda h: h["logging"] == "on")
         assert Path(resumed["log"]).exists() and d.proc.poll() is None  # a new part, in the folder made again
