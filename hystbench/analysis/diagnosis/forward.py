@@ -22,6 +22,7 @@ import numpy as np
 
 from ...config import load_rig
 from ...config.effects import CATALOGUE
+from ...errors import SimulationError
 from ...formats.recording import Recording
 from ...sim_backend.bench_day import default_settle_s
 from ...sim_backend.rig import SimulatedRig
@@ -149,32 +150,46 @@ def replay_rig(preset: Mapping[str, Any], points: Sequence[Point], *, periods: i
     drifts = memory > 0 or any(e in (preset.get("effects") or {}) for e in CLOCKED)
     for i in sorted(range(len(points)), key=lambda i: points[i].start_time_s):
         p = points[i]
-        if sim is None or sim.fs_hz != p.fs_hz:  # a stepped sine may change rate: a new rig, no memory kept
-            # the bench day's procedure: a rig settles 5 periods (at least 20 ms) before its first
-            # recording; its filters' transients start there
-            sim = SimulatedRig(load_rig(preset), fs_hz=p.fs_hz, seed=0,
-                               effects={e: False for e in MEASURED_DIRECTLY}, frequency_hz=p.frequency_hz,
-                               current_pp_a=p.current_pp_a, warmup_s=settle_s(p.frequency_hz),
-                               clock_offset_s=p.start_time_s)
-        else:  # the operating point changes when the previous recording ends (the rig ran on through it)
-            _advance(sim, previous_end, pre_roll)  # the previous point's: its state when the point changes
-            sim.set_excitation(p.frequency_hz, p.current_pp_a)
-        pre_roll = max(settle_s(p.frequency_hz), RING_DOWN_S, memory)
-        end = p.start_time_s + p.duration_s
-        previous_end = end
-        keep = (max(2, int(periods)) + 0.5) / p.frequency_hz
-        begin = p.start_time_s + max(0.0, 0.5 * (p.duration_s - keep))
-        if p.duration_s * p.fs_hz <= WHOLE_RECORD_SAMPLES:  # short: the whole record, its transients as they were
-            out[i] = Replayed(_window(sim, p.start_time_s, p.duration_s, pre_roll), None, (p.start_time_s, end))
-        elif drifts and p.duration_s >= 3.5 * keep:
-            first = _window(sim, p.start_time_s, keep, pre_roll)
-            middle = _window(sim, begin, keep, pre_roll)
-            last = _window(sim, end - keep, keep, pre_roll)
-            averaged = p.averaged_s if math.isfinite(p.averaged_s) else p.duration_s
-            out[i] = Replayed(middle, (first, last), (p.start_time_s, p.start_time_s + averaged))
-        else:
-            out[i] = Replayed(_window(sim, begin, keep, pre_roll), None, (p.start_time_s, end))
+        try:
+            sim, previous_end, pre_roll, out[i] = _replay_point(sim, preset, p, previous_end, pre_roll, memory,
+                                                                drifts, periods)
+        except SimulationError as err:  # which recording: a sidecar naming another rig lands here
+            raise SimulationError(f"{p.name}: its replay on the simulated {p.rig} at {p.frequency_hz:g} Hz, "
+                                  f"{p.current_pp_a:.3g} A-pp failed (is the sidecar's rig the one recorded?): "
+                                  f"{err}") from err
     return [r for r in out if r is not None]
+
+
+def _replay_point(sim: SimulatedRig | None, preset: Mapping[str, Any], p: Point, previous_end: float,
+                  pre_roll: float, memory: float, drifts: bool, periods: int
+                  ) -> tuple[SimulatedRig, float, float, Replayed]:
+    """One point of :func:`replay_rig`: the rig (made, or moved on to the point), the point's end,
+    its pre-roll and what the replay of it is."""
+    if sim is None or sim.fs_hz != p.fs_hz:  # a stepped sine may change rate: a new rig, no memory kept
+        # the bench day's procedure: a rig settles 5 periods (at least 20 ms) before its first
+        # recording; its filters' transients start there
+        sim = SimulatedRig(load_rig(preset), fs_hz=p.fs_hz, seed=0,
+                           effects={e: False for e in MEASURED_DIRECTLY}, frequency_hz=p.frequency_hz,
+                           current_pp_a=p.current_pp_a, warmup_s=settle_s(p.frequency_hz),
+                           clock_offset_s=p.start_time_s)
+    else:  # the operating point changes when the previous recording ends (the rig ran on through it)
+        _advance(sim, previous_end, pre_roll)  # the previous point's: its state when the point changes
+        sim.set_excitation(p.frequency_hz, p.current_pp_a)
+    pre_roll = max(settle_s(p.frequency_hz), RING_DOWN_S, memory)
+    end = p.start_time_s + p.duration_s
+    keep = (max(2, int(periods)) + 0.5) / p.frequency_hz
+    begin = p.start_time_s + max(0.0, 0.5 * (p.duration_s - keep))
+    if p.duration_s * p.fs_hz <= WHOLE_RECORD_SAMPLES:  # short: the whole record, its transients as they were
+        replayed = Replayed(_window(sim, p.start_time_s, p.duration_s, pre_roll), None, (p.start_time_s, end))
+    elif drifts and p.duration_s >= 3.5 * keep:
+        first = _window(sim, p.start_time_s, keep, pre_roll)
+        middle = _window(sim, begin, keep, pre_roll)
+        last = _window(sim, end - keep, keep, pre_roll)
+        averaged = p.averaged_s if math.isfinite(p.averaged_s) else p.duration_s
+        replayed = Replayed(middle, (first, last), (p.start_time_s, p.start_time_s + averaged))
+    else:
+        replayed = Replayed(_window(sim, begin, keep, pre_roll), None, (p.start_time_s, end))
+    return sim, end, pre_roll, replayed
 
 
 def _window(sim: SimulatedRig, begin: float, keep: float, pre_roll: float) -> Recording:

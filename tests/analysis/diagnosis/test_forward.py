@@ -129,3 +129,20 @@ def test_a_day_played_in_frequency_order_is_told_its_clock_runs_with_the_frequen
     assert not forward.clock_follows_frequency(day[:3])  # no block with flux: nothing to say
     repeated = [_rec("ecore", 320.0, 1.27, 10 * i) for i in range(4)]  # one frequency again and again
     assert not forward.clock_follows_frequency(repeated)
+
+
+def test_a_replay_the_simulator_cannot_make_names_its_recording(monkeypatch):
+    """A voice coil's recording whose sidecar said ``ecore`` ended the diagnosis with "ecore (ecore):
+    the iron's field did not converge at 200 Hz ...", naming no file: the recording is named first."""
+    from hystbench.analysis.diagnosis import forward
+    from hystbench.config import load_rig
+    from hystbench.errors import SimulationError
+
+    def fails(self, n):
+        raise SimulationError("ecore (ecore): the iron's field did not converge")
+
+    monkeypatch.setattr(forward.SimulatedRig, "read", fails)
+    point = forward.Point("day/ecore/vc_200Hz_1App", "ecore", 200.0, 1.0, 0.0, 0.1, 100_000.0)
+    with pytest.raises(SimulationError, match=r"^day/ecore/vc_200Hz_1App: its replay on the simulated ecore at 200 Hz, "
+                                              r"1 A-pp failed \(is the sidecar's rig the one recorded\?\): ecore \(ecore\)"):
+        forward.replay_rig(load_rig("ecore"), [point])
