@@ -244,8 +244,8 @@ class Instrument(abc.ABC):
             t0 = time.monotonic()
             try:
                 result = fn()
-            except InstrumentError:
-                raise
+            except (InstrumentError, ConfigError):  # ours, already saying what is wrong (a ConfigError
+                raise  # is a ValueError too: not an answer the instrument gave)
             except (ValueError, KeyError, IndexError) as err:
                 raise ProtocolError(f"{self.name}: unexpected answer to {command!r}: {err}") from err
             except Exception as err:

@@ -77,8 +77,15 @@ class CanFluxIntegrator(Instrument):
         kw = dict(self.bus_kwargs)
         if can_ids:
             kw["can_filters"] = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in can_ids]
-        return can.Bus(interface=self.interface, channel=channel or self.channel, receive_own_messages=False,
-                       fd=self.fd, **kw)
+        ch = channel or self.channel
+        try:
+            return can.Bus(interface=self.interface, channel=ch, receive_own_messages=False, fd=self.fd, **kw)
+        except (can.CanInterfaceNotImplementedError, ImportError, ValueError) as err:  # not there to retry
+            raise ConfigError(f"{self.name}: interface {self.interface!r}, channel {ch!r}: python-can cannot open it "
+                              f"({type(err).__name__}: {err}); check [flux_integrator] interface and channel") from err
+        except OSError as err:  # a CAN device that is not up (yet): reopened with back-off, said by name
+            raise OSError(err.errno, f"{self.name}: CAN interface {self.interface!r}, channel {ch!r}: "
+                                     f"{err.strerror or err}") from err
 
     # --- hooks -----------------------------------------------------------------------------------
     def _open_hook(self) -> None:

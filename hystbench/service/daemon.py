@@ -249,25 +249,34 @@ def _check_reload(new: DaemonConfig, cfg: DaemonConfig, claim: _Claim) -> None:
                               "change [foxglove] port (or host)")
 
 
+def _why(err: Exception) -> str:
+    """What a refused or failed reload says: our errors as they are, others with their type."""
+    return str(err) if isinstance(err, BenchError) else f"{type(err).__name__}: {err}"
+
+
 def _reload(path, svc: BenchService, cfg: DaemonConfig, claim: _Claim):
     """Check the file again and all it needs; a bad one is refused (the old config keeps running,
     its sweep and log part untouched)."""
     try:
         new = load_daemon_config(path)
         _check_reload(new, cfg, claim)
-    except BenchError as err:
-        log.error("reload refused, keeping the running configuration: %s", err)
-        svc.pipeline.status("error", "reload_refused", str(err))
+    except Exception as err:  # a BenchError names the file and key; anything else is said with its traceback
+        why = _why(err)
+        log.error("reload refused, keeping the running configuration: %s", why, exc_info=not isinstance(err, BenchError))
+        svc.pipeline.status("error", "reload_refused", why)
         return svc, cfg
     svc.stop()
     try:
         claim.take(new)
         svc = BenchService(new, session=claim.session).start()
-    except BenchError as err:  # e.g. the new port is taken, the log folder not writable
-        log.error("reload failed (%s); restarting the previous configuration", err)
+    except Exception as err:  # e.g. the new port is taken, the log folder not writable, a bench file's
+        # CAN interface python-can does not know: whatever it is, the running configuration comes back
+        why = _why(err)
+        log.error("reload failed (%s); restarting the previous configuration", why,
+                  exc_info=not isinstance(err, BenchError))
         claim.take(cfg)
         svc = BenchService(cfg, session=claim.session).start()
-        svc.pipeline.status("error", "reload_failed", str(err))
+        svc.pipeline.status("error", "reload_failed", why)
         return svc, cfg
     svc.pipeline.status("info", "reloaded", f"config {new.source}")
     _started(new, svc)

@@ -112,7 +112,14 @@ def _load_compensator(c: dict, source):
         obj = getattr(importlib.import_module(mod), attr or "make_compensator")
     except (ImportError, AttributeError) as err:
         raise ConfigError(f"[compensator] factory {factory!r}: {err}") from err
-    return CompensatorHook(obj(), source)
+    if not callable(obj):
+        raise ConfigError(f"[compensator] factory {factory!r}: {type(obj).__name__} {obj!r} is not callable; give "
+                          "module:function, a function that makes the compensator")
+    try:
+        made = obj()
+    except Exception as err:  # a user's code: its failure is the configuration's, said in one line
+        raise ConfigError(f"[compensator] factory {factory!r}: calling it raised {type(err).__name__}: {err}") from err
+    return CompensatorHook(made, source)
 
 
 class BenchService:
@@ -235,6 +242,8 @@ class BenchService:
     def stop(self, timeout_s: float = 3.0) -> list[Path]:
         """Output off first, then the pipeline drains, the log is finished, zenoh is closed; every
         wait bounded (the daemon's SIGTERM ends it within STOP_S)."""
+        if self.state == "stopped":  # a reload that failed stopped it already: nothing is open
+            return self.log.finish()
         self.state = "stopping"
         self._sweep_stop.set()
         if hasattr(self.source, "set_output"):

@@ -64,3 +64,64 @@ def test_a_reload_that_cannot_take_effect_is_refused_and_the_sweep_goes_on(tmp_p
         taken.close()
         other.release()
     assert len(list(logs.glob("rl-*.mcap"))) == 1  # one configuration ran, in one part
+
+
+#: ``hystbench daemon`` whose pipeline fails to start, with an error that is not one of ours, for a
+#: configuration whose [daemon] stats_interval_s is 7 (the test's marker)
+INJECTED = """
+import sys
+import hystbench.service.service as service
+start = service.BenchService._start_pipeline
+def failing(self, tripped=""):
+    if self.cfg["daemon"]["stats_interval_s"] == 7.0:
+        raise RuntimeError("injected: a failure that is not one of ours")
+    return start(self, tripped)
+service.BenchService._start_pipeline = failing
+from hystbench.cli.main import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_reload_that_fails_as_it_starts_brings_the_running_configuration_back(tmp_path: Path) -> None:
+    """Checked and accepted, a configuration can still fail as it starts: a bench file's CAN interface
+    python-can does not know (its CanInterfaceNotImplementedError), or any error that is not one of
+    ours (injected here: a RuntimeError as the pipeline starts).  Either ended the daemon in a
+    traceback (and a second one from stopping the stopped service); now the previous configuration is
+    started again and the failure is said."""
+    port, logs, cfg = free_port(), tmp_path / "logs", tmp_path / "daemon.toml"
+    bench_file = tmp_path / "bench.toml"
+    bench_file.write_text((Path(__file__).parents[2] / "hystbench" / "config" / "bench.toml").read_text())
+    good = (f'[daemon]\nbench = "rf"\nlog_dir = "{logs.as_posix()}"\nstop_timeout_s = {HANG_S}\n'
+            f'[source]\nkind = "bench"\nbench_file = "{bench_file.as_posix()}"\n'
+            f'[zenoh]\nlisten = ["tcp/127.0.0.1:{port}"]\n')
+    cfg.write_text(good, encoding="utf-8")
+    d = Daemon(tmp_path, cfg, python=("-c", INJECTED))
+    session = None
+    try:
+        d.wait_for("READY=1")
+        session = open_session(load_zenoh_config(peer_config(connect=[f"tcp/127.0.0.1:{port}"])))
+        status = Subscription(session, "hystbench/rf/status")
+        before = health_when(session, "rf", lambda h: h["state"] == "running")
+        other_bench = tmp_path / "bench_typo.toml"
+        other_bench.write_text(bench_file.read_text().replace('interface = "virtual"', 'interface = "socketcann"'))
+        bad = {"not ours": (good.replace("[source]", "stats_interval_s = 7.0\n[source]"),
+                            "RuntimeError: injected: a failure that is not one of ours"),
+               "CAN interface": (good.replace(bench_file.as_posix(), other_bench.as_posix()), "'socketcann'")}
+        for case, (text, why) in bad.items():
+            cfg.write_text(text, encoding="utf-8")
+            d.proc.send_signal(signal.SIGHUP)
+            while True:  # the statuses until this reload's verdict
+                got = status.get(HANG_S)
+                assert got is not None, f"{case}: no reload verdict"
+                msg = json.loads(got[1])
+                if msg["event"].startswith("reload"):
+                    break
+            assert msg["event"] == "reload_failed" and why in msg["message"], (case, msg)
+            now = health_when(session, "rf", lambda h: h["state"] == "running")
+            assert now["pid"] == before["pid"] and d.proc.poll() is None, case
+        d.proc.send_signal(signal.SIGTERM)
+        assert d.proc.wait(timeout=HANG_S) == 0, d.stderr()[-3000:]
+    finally:
+        if session is not None:
+            session.close()
+        d.close()

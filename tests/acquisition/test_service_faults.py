@@ -126,3 +126,19 @@ def test_an_emulated_rig_that_fails_is_named_as_the_cause_and_counts_as_a_fault(
         assert svc.recover() and svc.health()["faults"] == 1 and svc.trips == 0
     finally:
         svc.stop()
+
+
+@pytest.mark.parametrize("factory, says", [
+    ("os:sep", "str '/' is not callable"),
+    ("json:loads", "calling it raised TypeError"),
+])
+def test_a_compensator_factory_that_is_no_function_or_fails_is_refused_by_key(tmp_path: Path, factory, says) -> None:
+    """A factory that is not callable, or whose call raises, was a TypeError traceback at the start
+    (and, on a reload, ended the daemon): it is the configuration's error, said by key."""
+    from hystbench.errors import ConfigError
+
+    toml = tmp_path / "d.toml"
+    toml.write_text(f'[daemon]\nbench = "cf"\n[source]\nkind = "sim"\n[recording]\nenabled = false\n'
+                    f'[zenoh]\nenabled = false\n[compensator]\nenabled = true\nfactory = "{factory}"\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=rf"\[compensator\] factory '{factory}': .*{says}"):
+        BenchService(load_daemon_config(toml)).start()

@@ -121,3 +121,62 @@ def test_a_rig_that_fails_trips_the_amplifier_and_says_why_without_stopping_the_
         assert not [r for r in caplog.records if r.levelno >= logging.ERROR]
     finally:
         emu.close()
+
+
+def _bench_file(tmp_path, old: str, new: str):
+    from pathlib import Path
+
+    from hystbench.drivers.protocols.bench_config import load_bench_config
+
+    text = (Path(__file__).parents[2] / "hystbench" / "config" / "bench.toml").read_text()
+    assert old in text
+    (tmp_path / "bench.toml").write_text(text.replace(old, new, 1))
+    return load_bench_config(tmp_path / "bench.toml")
+
+
+def test_a_can_interface_python_can_does_not_know_is_refused_naming_the_file_and_key(tmp_path):
+    """``interface = "socketcann"`` was a CanInterfaceNotImplementedError traceback from record, emulate
+    and the daemon (and, on a reload, ended the daemon); the emulators made before it are closed."""
+    import threading
+
+    from hystbench.errors import ConfigError
+    from hystbench.sim_backend.emulators.bench import EmulatedBench
+
+    before = {t.ident for t in threading.enumerate()}
+    cfg = _bench_file(tmp_path, 'interface = "virtual"', 'interface = "socketcann"')
+    with pytest.raises(ConfigError, match=r"bench\.toml: emulated flux_integrator: interface 'socketcann'.*"
+                                          r"check \[flux_integrator\] interface and channel"):
+        EmulatedBench(cfg)
+    left = [t for t in threading.enumerate() if t.ident not in before and t.name.startswith("emu-")]
+    for t in left:  # the servers' threads notice the closed sockets within their poll
+        t.join(timeout=5.0)
+    assert not [t.name for t in left if t.is_alive()]
+
+
+def test_an_integrator_on_hardware_is_never_emulated_on_its_bus(tmp_path):
+    """With ``backend = "hardware"`` the emulated bench joined the configured CAN bus as node 16, beside
+    the real integrator: its emulator now stays on a private virtual channel."""
+    from hystbench.sim_backend.emulators.bench import EmulatedBench
+
+    cfg = _bench_file(tmp_path, '[flux_integrator]\nbackend = "sim"\ninterface = "virtual"    # python-can interface; '
+                      '"socketcan" with channel = "can0" on hardware\nchannel = ""',
+                      '[flux_integrator]\nbackend = "hardware"\ninterface = "socketcan"\nchannel = "can0"')
+    emu = EmulatedBench(cfg)
+    try:
+        assert emu.integrator.addresses["can_interface"] == "virtual"
+        assert emu.integrator.addresses["can_channel"].startswith("hystbench-emu-")
+    finally:
+        emu.close()
+
+
+def test_the_drivers_say_which_can_interface_they_cannot_open():
+    """On hardware the driver's own bus: an unknown interface is the bench file's error (it was called
+    "unexpected answer to 'open'"), a device that is not there names the interface and channel."""
+    from hystbench.drivers.base import Backoff
+    from hystbench.drivers.flux_integrator import CanFluxIntegrator
+    from hystbench.errors import ConfigError, ConnectionLost
+
+    with pytest.raises(ConfigError, match=r"^flux_integrator: interface 'socketcann', channel 'x': python-can cannot"):
+        CanFluxIntegrator(interface="socketcann", channel="x", node=16, backoff=Backoff(0.001, 2, 0.002, 1)).open()
+    with pytest.raises(ConnectionLost, match=r"flux_integrator: CAN interface 'socketcan', channel 'nosuchcan0'"):
+        CanFluxIntegrator(interface="socketcan", channel="nosuchcan0", node=16, backoff=Backoff(0.001, 2, 0.002, 1)).open()

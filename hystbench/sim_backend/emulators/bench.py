@@ -38,6 +38,7 @@ from typing import Any
 
 from ...blocks import SampleBlock
 from ...drivers.protocols.bench_config import BenchConfig, load_bench_config
+from ...errors import ConfigError
 from ..rig import SimulatedRig
 from .charge_amplifier import ChargeAmplifierEmulator
 from .common import PtyStreamSink, log
@@ -89,7 +90,9 @@ class EmulatedBench:
         self._rig_lock = threading.RLock()
         amp_settings = self.config.instruments["current_amplifier"].settings
         amp_opts = self.config.instruments["current_amplifier"].options
-        integ = self.config.instruments["flux_integrator"].options
+        integ = dict(self.config.instruments["flux_integrator"].options)
+        if not self.config.instruments["flux_integrator"].is_sim:  # a real integrator's bus is not ours to join
+            integ.update(interface="virtual", channel="", stream_channel="")
         channel = integ["channel"] or f"hystbench-emu-{os.getpid()}-{next(_channels)}"
         spf = int(sim["samples_per_frame"])
         self.generator = SignalGeneratorEmulator(on_change=self._update, samples_per_frame=spf)
@@ -101,8 +104,14 @@ class EmulatedBench:
                                                   load_cell_pc_per_n=float(sim["load_cell_pc_per_n"]))
         # the stream on a channel of its own (virtual bus): see the emulator's docstring
         stream_channel = integ.get("stream_channel") or (f"{channel}-stream" if integ["interface"] == "virtual" else "")
-        self.integrator = FluxIntegratorEmulator(interface=integ["interface"], channel=channel, node=int(integ["node"]),
-                                                 true_turns=self.rig.sense_turns, stream_channel=stream_channel)
+        try:
+            self.integrator = FluxIntegratorEmulator(interface=integ["interface"], channel=channel,
+                                                     node=int(integ["node"]), true_turns=self.rig.sense_turns,
+                                                     stream_channel=stream_channel)
+        except ConfigError as err:  # the three made before it listen on ports: closed, then said by file
+            for emu in (self.generator, self.amplifier, self.charge_amp):
+                emu.close()
+            raise ConfigError(f"{self.config.source}: {err}") from err
         self.emulators = {"signal_generator": self.generator, "current_amplifier": self.amplifier,
                           "charge_amplifier": self.charge_amp, "flux_integrator": self.integrator}
         dig = self.config.digitiser

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...blocks import SampleBlock
+from ...errors import ConfigError
 from ...drivers.protocols import can_integrator as ci
 from ...drivers.protocols import can_stream
 from ...drivers.protocols.framing import warm_crc_rows
@@ -121,7 +122,11 @@ def emulator_bus(interface: str, channel: str) -> can.BusABC:
         return _shared_message_virtual_bus()(channel=channel, receive_own_messages=False, fd=True)
     import can
 
-    return can.Bus(interface=interface, channel=channel, receive_own_messages=False, fd=True)
+    try:
+        return can.Bus(interface=interface, channel=channel, receive_own_messages=False, fd=True)
+    except (can.CanError, ImportError, ValueError, OSError) as err:
+        raise ConfigError(f"emulated flux_integrator: interface {interface!r}, channel {channel!r}: python-can cannot "
+                          f"open it ({type(err).__name__}: {err}); check [flux_integrator] interface and channel") from err
 
 
 class FluxIntegratorEmulator:
