@@ -113,11 +113,11 @@ def cmd_model_predict(args: argparse.Namespace) -> int:
     from ..compensator import ModelSet
     from ..compensator.sweeps import predict_recording
     from ..formats.outputs import output_file
-    from ..formats.recording import read_recording
+    from ..formats.recording import read_recording, recording_paths
 
     out = Path(args.out)
     rec_path = Path(args.recording)
-    inputs = [args.model, rec_path, rec_path.with_suffix(".csv"), rec_path.with_suffix(".json")]
+    inputs = [args.model, *recording_paths(rec_path)]
     with output_file(out, overwrite=args.overwrite, inputs=inputs) as tmp:
         models = ModelSet.load(args.model)
         rec = read_recording(args.recording)

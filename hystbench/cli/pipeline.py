@@ -281,9 +281,34 @@ def _register_ctl(subparsers) -> None:
     p.set_defaults(func=cmd_ctl)
 
 
+#: The rig of --source sim and synthetic when --rig is not given.
+DEFAULT_RIG = "ecore_pm"
+
+#: The record options each source takes beyond --seconds, --freq and --ipp (the rest would be
+#: ignored without a word: `--source bench --fs 50000` recorded at the bench file's 100 kHz)
+_RECORD_OPTIONS = {"bench": {"bench_file", "rig"}, "sim": {"rig", "fs", "block", "pace", "seed", "effect"},
+                   "synthetic": {"rig", "fs", "block", "pace", "seed"}, "zenoh": {"bench", "connect", "zenoh_config"}}
+_RECORD_DEFAULTS = {"bench_file": None, "rig": None, "fs": 100_000.0, "block": 1000, "pace": "realtime", "seed": 0,
+                    "effect": [], "bench": "bench1", "connect": None, "zenoh_config": None}
+
+
+def _check_record_options(args) -> None:
+    """Refuse, by option, what the chosen source would ignore."""
+    from ..errors import ConfigError
+
+    ignored = [k for k, default in _RECORD_DEFAULTS.items()
+               if k not in _RECORD_OPTIONS[args.source] and getattr(args, k) != default]
+    if ignored:
+        opts = ", ".join("--" + k.replace("_", "-") for k in ignored)
+        where = {"bench": "the bench file sets them ([bench] fs_hz, [sim] block_samples, pace, seed and effects)",
+                 "zenoh": "the daemon's configuration sets them"}.get(args.source, "it has no such setting")
+        raise ConfigError(f"{opts}: not taken by --source {args.source}; {where}")
+
+
 def _source_from_args(args):
     from ..acquisition.sources import RigSource, SyntheticSource
 
+    _check_record_options(args)
     if args.source == "zenoh":
         from ..acquisition.zenoh_source import ZenohSource
         from ..service.control import client_config
@@ -292,18 +317,26 @@ def _source_from_args(args):
 
     if args.source == "synthetic":
         return SyntheticSource(fs_hz=args.fs, frequency_hz=args.freq, block_samples=args.block, pace=args.pace,
-                               duration_s=args.seconds, rig=args.rig, current_pp_a=args.ipp, seed=args.seed)
+                               duration_s=args.seconds, rig=args.rig or DEFAULT_RIG, current_pp_a=args.ipp,
+                               seed=args.seed)
     if args.source == "bench":
         from ..acquisition.sources import bench_source
 
-        src = bench_source(args.bench_file, rig=args.rig, duration_s=args.seconds)
+        # --rig: the emulated rig behind the instruments (a bench file with hardware refuses it, naming it)
+        if args.rig:
+            from ..errors import ConfigError
+            from ..sim_backend.emulators.bench import missing_channels
+
+            if missing := missing_channels(args.rig):
+                raise ConfigError(f"--rig: {missing}; record it with --source sim")
+        src = bench_source(args.bench_file, duration_s=args.seconds, sim={"rig": args.rig} if args.rig else None)
         src.set_excitation(frequency_hz=args.freq, current_pp_a=args.ipp)
         src.set_output(True)
         return src
     from ..config.effects import parse_effect_args
     from ..sim_backend.rig import SimulatedRig
 
-    rig = SimulatedRig(args.rig, fs_hz=args.fs, seed=args.seed, effects=parse_effect_args(args.effect),
+    rig = SimulatedRig(args.rig or DEFAULT_RIG, fs_hz=args.fs, seed=args.seed, effects=parse_effect_args(args.effect),
                        frequency_hz=args.freq, current_pp_a=args.ipp)
     return RigSource(rig, block_samples=args.block, pace=args.pace, duration_s=args.seconds)
 
@@ -434,7 +467,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     """`hystbench export`: an MCAP log's segments as interchange-format recordings (CSV + JSON), for
     the offline commands and other programs."""
     from ..analysis.log_recordings import read_mcap_segments
-    from ..formats.recording import sweep_stem, write_sweep
+    from ..formats.recording import recording_paths, sweep_stem, write_sweep
 
     recs = read_mcap_segments(args.log, include_idle=args.include_idle)
     stems: list[str] = []
@@ -448,7 +481,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     for rec, stem in zip(recs, write_sweep(recs, args.out, overwrite=args.overwrite, names=stems)):
         state = "output off" if rec.metadata.get("output_on") is False else f"{rec.current_pp_a:g} A-pp"
         state += ", settling" if rec.metadata.get("settling") else ""
-        print(f"wrote {stem.with_suffix('.csv')} ({rec.n} samples at {rec.fs_hz:g} Hz, {rec.frequency_hz:g} Hz, "
+        print(f"wrote {recording_paths(stem)[1]} ({rec.n} samples at {rec.fs_hz:g} Hz, {rec.frequency_hz:g} Hz, "
               f"{state})")
     return 0
 
@@ -520,7 +553,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--connect", action="append", metavar="ENDPOINT",
                    help="--source zenoh: where to reach it (repeatable; default tcp/127.0.0.1:7447)")
     p.add_argument("--zenoh-config", metavar="FILE", type=path_arg, help="--source zenoh: a zenoh json5 file instead")
-    p.add_argument("--rig", default="ecore_pm")
+    p.add_argument("--rig", default=None, help=f"the rig (default {DEFAULT_RIG}; --source bench: the emulated rig, in place "
+                                              "of the bench file's [sim] rig)")
     p.add_argument("--freq", type=positive_float, default=320.0, help="excitation frequency, Hz (default 320)")
     p.add_argument("--ipp", type=float_in(0.0, SIM_MAX_IPP_A), default=1.4,
                    help=f"peak-to-peak current, A (default 1.4, at most {SIM_MAX_IPP_A:g})")

@@ -38,7 +38,7 @@ from .small_files import MAX_SIDECAR_BYTES, excerpt, read_json
 from .text_chunks import count_line_ends, text_chunks
 
 __all__ = ["REQUIRED_KEYS", "TIME_TOL_PERIODS", "MAX_COLUMN_NAME_CHARS", "MAX_SIDECAR_BYTES", "Recording", "read_recording", "write_recording",
-           "read_sweep", "write_sweep", "sweep_stem", "sidecar_point", "with_point"]
+           "read_sweep", "write_sweep", "sweep_stem", "sidecar_point", "with_point", "recording_paths"]
 
 #: Sidecar keys every recording must have.
 REQUIRED_KEYS = ("rig", "frequency_Hz", "sample_rate_Hz", "current_pp_A")
@@ -181,7 +181,7 @@ class Recording:
                    t0_s=block.first_index / block.fs_hz)
 
 
-def _paths(path: str | Path) -> tuple[Path, Path, Path]:
+def recording_paths(path: str | Path) -> tuple[Path, Path, Path]:
     """(stem, csv, json).  Only a .csv/.json suffix is removed: '..._1.4App' keeps its '.4App'."""
     p = Path(path)
     stem = p.with_suffix("") if p.suffix in _SUFFIXES else p
@@ -381,7 +381,7 @@ def _check_time(t: np.ndarray, fs_hz: float, where: str, sidecar: str) -> None:
 
 def read_recording(path: str | Path) -> Recording:
     """Read ``NAME.csv`` + ``NAME.json``; ``path`` is the stem or either file."""
-    stem, csv_path, json_path = _paths(path)
+    stem, csv_path, json_path = recording_paths(path)
     if not json_path.is_file():
         if not csv_path.is_file():
             raise RecordingError(f"{stem}: no recording (neither {csv_path.name} nor {json_path.name})")
@@ -439,7 +439,7 @@ def write_recording(rec: Recording, stem: str | Path, *, overwrite: bool = False
     the old file whole; both temporaries are complete before either rename.  An existing
     recording is replaced only with ``overwrite=True``.
     """
-    stem, csv_path, json_path = _paths(stem)
+    stem, csv_path, json_path = recording_paths(stem)
     rec._validate()
     if not overwrite:
         _refuse_existing([csv_path, json_path])
@@ -477,6 +477,12 @@ def with_point(metadata: Mapping[str, Any], point: OperatingPoint) -> dict[str, 
     value): output off says ``output_on: false`` and 0 A-pp (the generator's setting is kept as
     ``generator_current_pp_A``), settling ``settling: true``."""
     meta = dict(metadata)
+    f0, gen = meta.get("frequency_Hz"), meta.get("generator_frequency_Hz")
+    if isinstance(f0, (int, float)) and isinstance(gen, (int, float)) and f0 > 0 \
+            and not math.isnan(point.frequency_hz) and point.frequency_hz != f0:
+        # the generator's clock error is its own, at any frequency: a log that started at 320 Hz and
+        # recorded at 1000 Hz said generator_frequency_Hz 320.008 beside frequency_Hz 1000
+        meta["generator_frequency_Hz"] = float(point.frequency_hz) * gen / f0
     for value, key in ((point.frequency_hz, "frequency_Hz"), (point.current_pp_a, "current_pp_A"),
                        (point.offset_a, "offset_A")):
         if not math.isnan(value):
@@ -540,7 +546,7 @@ def write_sweep(recordings: Iterable[Recording], folder: str | Path, *, overwrit
         if s in stems[:k]:
             raise RecordingError(f"{s}: recordings {stems.index(s)} and {k} would both be written here")
     if not overwrite:
-        _refuse_existing(p for s in stems for p in _paths(s)[1:])
+        _refuse_existing(p for s in stems for p in recording_paths(s)[1:])
     with output_folder(folder, overwrite=True) as stage:  # what exists was refused above, unless overwrite
         for r, s in zip(recs, stems):
             write_recording(r, stage.path / s.name, overwrite=True)

@@ -247,17 +247,12 @@ def _validate_effects(effects: dict, where: str, fs_hz: float) -> None:
 
 
 def _check_emulated_channels(rig: str, refuse: Any) -> None:
-    """The emulated bench streams the force through its charge amplifier and the flux through its
-    integrator: a rig without one of them (the toroid has no force, a voice coil no flux) gave no
-    sample ever, while the daemon said it was running and answered every command ok."""
-    from ..config import load_rig
-    from ..sim_backend.actuators import ACTUATORS
+    """A rig the emulated bench cannot stream (``emulators.bench.missing_channels``), refused by key:
+    the daemon said it was running and answered every command ok, with no sample ever."""
+    from ..sim_backend.emulators.bench import missing_channels
 
-    actuator = ACTUATORS[load_rig(rig)["actuator"]]
-    missing = [f"no {what} channel for the emulated bench's {instrument}" for what, instrument, has in (
-        ("force", "charge amplifier", actuator.has_force), ("flux", "flux integrator", actuator.has_flux)) if not has]
-    if missing:
-        refuse("rig", f"{rig!r} has {' and '.join(missing)}; run it as kind = \"sim\"")
+    if missing := missing_channels(rig):
+        refuse("rig", f"{missing}; run it as kind = \"sim\"")
 
 
 def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]], where: str) -> Limits:

@@ -369,8 +369,10 @@ def test_record_replay_export_recover_commands(tmp_path: Path, capsys) -> None:
     assert "already exists" in capsys.readouterr().err
     assert pipeline_main(["replay", str(log)]) == 0
     assert "hysteresis" in capsys.readouterr().out
+    capsys.readouterr()
     assert pipeline_main(["export", str(log), "--out", str(tmp_path / "x")]) == 0
-    assert (tmp_path / "x" / "ecore_pm_160Hz_1.4App.csv").exists()
+    written = tmp_path / "x" / "ecore_pm_160Hz_1.4App.csv"
+    assert written.exists() and f"wrote {written} " in capsys.readouterr().out  # it said '..._1.csv'
     assert pipeline_main(["recover", str(log), "--json"]) == 0
     assert '"complete": true' in capsys.readouterr().out
     syn = tmp_path / "s.mcap"

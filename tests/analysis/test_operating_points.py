@@ -22,3 +22,16 @@ def test_each_row_is_its_presets_excitation_in_the_sidecar_spelling() -> None:
         p = sidecar_point(row)
         assert (p.frequency_hz, p.current_pp_a) == (exc["frequency_hz"], exc["current_pp_a"])
         assert p == OperatingPoint(exc["frequency_hz"], exc["current_pp_a"])  # offset 0, output on
+
+
+def test_a_segment_at_another_frequency_carries_the_generators_clock_error_to_it() -> None:
+    """``record --freq 1000`` on the bench source: the log's recording metadata is the start's (320 Hz,
+    the emulated generator at 320.008 Hz); the exported 1000 Hz segment said generator_frequency_Hz
+    320.008 beside frequency_Hz 1000.  The generator's clock error (25 ppm here) is its own at any
+    frequency: 1000.025 Hz."""
+    from hystbench.formats.recording import with_point
+
+    base = {"frequency_Hz": 320.0, "generator_frequency_Hz": 320.008, "current_pp_A": 1.4}
+    meta = with_point(base, OperatingPoint(1000.0, 1.4, 0.0))
+    assert meta["frequency_Hz"] == 1000.0 and abs(meta["generator_frequency_Hz"] - 1000.025) < 1e-9
+    assert with_point(base, OperatingPoint(320.0, 1.4, 0.0))["generator_frequency_Hz"] == 320.008  # untouched

@@ -427,3 +427,28 @@ def test_no_progress_bar_when_stderr_is_not_a_terminal(tmp_path, capsys):
          "--out", sweep], capsys)
     code, out, err = run(["identify", sweep], capsys)
     assert code == 0 and err == ""
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--fs", "50000"], "--fs: not taken by --source bench; the bench file sets them"),
+    (["--seed", "3", "--pace", "max"], "--pace, --seed: not taken by --source bench"),
+    (["--source", "synthetic", "--effect", "sensor_noise=off"], "--effect: not taken by --source synthetic"),
+    (["--source", "sim", "--bench-file", "bench.toml"], "--bench-file: not taken by --source sim"),
+    (["--rig", "toroid"], "--rig: 'toroid' has no force channel for the emulated bench's charge amplifier"),
+])
+def test_a_record_option_its_source_would_ignore_is_refused(tmp_path, capsys, args, says):
+    """``record --fs 50000`` on the bench source recorded at the bench file's 100 kHz, ``--rig toroid``
+    said ecore_pm in the log (or, as the emulated rig, streamed no force for 20 s): refused by option,
+    nothing written."""
+    log = tmp_path / "r.mcap"
+    code, out, err = run(["record", "--seconds", "0.1", "--out", log, *args], capsys)
+    assert code == 2 and says in error_line(err) and out == "" and not log.exists()
+
+
+def test_record_rig_is_the_emulated_benchs_rig(tmp_path, capsys):
+    """``--rig`` with the bench source sets the emulated rig (it was ignored: the log said ecore_pm)."""
+    from hystbench.formats.mcaplog import log_metadata
+
+    log = tmp_path / "r.mcap"
+    code, out, err = run(["record", "--seconds", "0.2", "--out", log, "--rig", "ecore"], capsys)
+    assert code == 0 and log_metadata(log)["recording"]["rig"] == "ecore"

@@ -180,3 +180,15 @@ def test_the_drivers_say_which_can_interface_they_cannot_open():
         CanFluxIntegrator(interface="socketcann", channel="x", node=16, backoff=Backoff(0.001, 2, 0.002, 1)).open()
     with pytest.raises(ConnectionLost, match=r"flux_integrator: CAN interface 'socketcan', channel 'nosuchcan0'"):
         CanFluxIntegrator(interface="socketcan", channel="nosuchcan0", node=16, backoff=Backoff(0.001, 2, 0.002, 1)).open()
+
+
+@pytest.mark.parametrize("rig, missing", [("toroid", "no force channel"), ("voicecoil_ferrite", "no flux channel")])
+def test_a_rig_the_emulated_bench_cannot_stream_is_refused_naming_the_key(tmp_path, rig, missing):
+    """record and emulate with [sim] rig = "toroid" streamed no force, per-block errors for 20 s, then
+    "sample stream lost"; only the daemon checked it.  Now the emulated bench itself refuses it."""
+    from hystbench.errors import ConfigError
+    from hystbench.sim_backend.emulators.bench import EmulatedBench
+
+    cfg = _bench_file(tmp_path, 'rig = "ecore_pm"', f'rig = "{rig}"')
+    with pytest.raises(ConfigError, match=rf"bench\.toml \[sim\] rig: '{rig}' has {missing}"):
+        EmulatedBench(cfg)

@@ -20,6 +20,7 @@ from ...config.schema import NUM, OPTIONAL, Key, check_table
 from ...errors import ConfigError
 from ..safety import DEFAULT_MARGIN, command_limit
 from . import can_integrator, charge_amp, modbus_map, scpi, scpi_digitiser
+from .framing import MAX_FRAME_SIZE, OVERHEAD
 
 __all__ = ["InstrumentConfig", "BenchConfig", "DigitiserConfig", "load_bench_config", "INSTRUMENTS", "DEFAULT_BENCH",
            "SCHEMA", "SETTINGS"]
@@ -68,6 +69,9 @@ _COMMON = {
     "timeout_s": Key(NUM, 0.0, "reply deadline of this instrument (0: [bench] timeout_s)", "s", ge=0),
 }
 
+#: The most float32 samples of one channel a stream frame holds (``framing.MAX_FRAME_SIZE``).
+MAX_FRAME_SAMPLES = (MAX_FRAME_SIZE - OVERHEAD) // 4
+
 _BENCH = {
     "max_current_a": Key(NUM, None, "the driver layer refuses any command that could drive more than this",
                          "A", gt=0),
@@ -93,12 +97,13 @@ _SIM = {
     "rig": Key(str, "ecore_pm", "the simulated rig preset behind the emulated instruments"),
     "seed": Key(int, 0, "random seed of the simulated noise", ge=0),
     "block_samples": Key(int, 20_000, "samples per clock tick (200 ms at 100 kS/s), made at once and sent as a "
-                         "burst", "samples", gt=0),
+                         "burst (at most 1e6: a tick is computed and held whole)", "samples", gt=0, le=1_000_000),
     "pace": Key(str, "realtime", "realtime: at the sample clock; max: as fast as computed",
                 choices=("realtime", "max")),
     "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false }"),
     "load_cell_pc_per_n": Key(NUM, 3.5, "the emulated load cell's true sensitivity", "pC/N", gt=0),
-    "samples_per_frame": Key(int, 500, "TCP/serial stream frames (CAN FD frames hold 17)", "samples", gt=0),
+    "samples_per_frame": Key(int, 500, "TCP/serial stream frames (CAN FD frames hold 17); a frame is at most "
+                             "64 KiB", "samples", gt=0, le=MAX_FRAME_SAMPLES),
 }
 
 

@@ -46,7 +46,7 @@ from .current_amplifier import CurrentAmplifierEmulator
 from .flux_integrator import FluxIntegratorEmulator
 from .signal_generator import SignalGeneratorEmulator
 
-__all__ = ["EmulatedBench", "Pacer"]
+__all__ = ["EmulatedBench", "Pacer", "missing_channels"]
 
 _channels = itertools.count()
 
@@ -74,12 +74,28 @@ class Pacer:
         return max(0.0, -lag)
 
 
+def missing_channels(rig: str) -> str:
+    """What the emulated bench cannot stream of ``rig`` ('' if nothing): the force goes through its
+    charge amplifier and the flux through its integrator, and a rig without one of them (the toroid
+    has no force, a voice coil no flux) gave no sample ever, its stream "lost" 20 s later."""
+    from ...config import load_rig
+    from ..actuators import ACTUATORS
+
+    actuator = ACTUATORS[load_rig(rig)["actuator"]]
+    missing = [f"no {what} channel for the emulated bench's {instrument}" for what, instrument, has in (
+        ("force", "charge amplifier", actuator.has_force), ("flux", "flux integrator", actuator.has_flux)) if not has]
+    return f"{rig!r} has {' and '.join(missing)}" if missing else ""
+
+
 class EmulatedBench:
     """``with EmulatedBench(config) as emu: emu.addresses`` -> where each instrument listens."""
 
     def __init__(self, config: BenchConfig | None = None) -> None:
         self.config = config or load_bench_config()
         sim = self.config.sim
+        if missing := missing_channels(sim["rig"]):
+            raise ConfigError(f"{self.config.source} [sim] rig: {missing}; simulate it directly (record --source sim, "
+                              "a daemon's kind = \"sim\")")
         self.fs_hz = self.config.fs_hz
         self.block_samples = int(sim["block_samples"])
         self.pace = sim["pace"]
