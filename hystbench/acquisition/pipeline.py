@@ -182,6 +182,7 @@ class Pipeline:
         self._queue: queue.Queue = queue.Queue(queue_size)
         self._stop = threading.Event()
         self._source_done = threading.Event()
+        self._stop_by = Deadline(None)  # how long the log waits for the estimator once stopped
         self._threads: list[threading.Thread] = []
         self._readers: dict[str, RingReader] = {}
         self.error: BaseException | None = None
@@ -218,14 +219,17 @@ class Pipeline:
         return self
 
     def stop(self, timeout_s: float = 10.0) -> None:
-        """Stop the source, let the readers drain the ring, stop every thread (bounded wait)."""
+        """Stop the source, let the readers drain the ring, stop every thread (bounded wait; the
+        log waits for the estimator's last estimates for 80 % of it at most)."""
+        self._stop_by = Deadline(0.8 * timeout_s)
         self._stop.set()
         self.join(timeout_s)
 
     def join(self, timeout_s: float | None = None) -> bool:
-        """Wait until the source ended and every reader drained; True if all threads finished."""
+        """Wait until the source ended and every reader drained; True if all threads finished.
+        The estimator is waited for last: what the log needs (the source, the record stage) first."""
         deadline = Deadline(timeout_s)  # one bound for all the threads, not timeout_s each
-        for t in self._threads:
+        for t in sorted(self._threads, key=lambda t: t.name == "pipeline-estimate"):
             t.join(deadline.left())
         done = not any(t.is_alive() for t in self._threads)
         if done:
@@ -536,7 +540,14 @@ class Pipeline:
             if reads:
                 self._latency(st, reads[-1].end)
             elif self.ring.closed and r.lag <= 0:
-                if not any(t.is_alive() for t in estimating):  # its last estimates are queued
+                # its last estimates are queued once it ended; stopped, the log waits for them only
+                # until the stop's deadline (an estimator far behind held a daemon's SIGTERM past its
+                # bound, and the log was left without its footer)
+                if not any(t.is_alive() for t in estimating) or self._stop_by.expired:
+                    if any(t.is_alive() for t in estimating):
+                        log.warning("stopping: the log is finished without the estimates still being made "
+                                    "(the estimator is %d samples behind)", self._readers["estimate"].lag
+                                    if "estimate" in self._readers else 0)
                     self._drain_messages(rec)
                     rec.add_message(STATS, self.stats_dict())
                     return

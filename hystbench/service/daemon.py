@@ -113,8 +113,8 @@ def run_daemon(config_path: str | Path | None) -> int:
                 notifier.ready(f"bench {cfg['daemon']['bench']}: {svc.state}")
     finally:  # whatever ended the loop: output off, log finished, the bench's lock and port freed
         notifier.stopping("output off, finishing the log")
-        try:
-            paths = svc.stop()
+        try:  # the pipeline's threads get half the bound: the log's footer and the rest need the other
+            paths = svc.stop(timeout_s=0.5 * float(cfg["daemon"]["stop_timeout_s"]))
         finally:
             claim.release()
     log.info("stopped; log %s", ", ".join(map(str, paths)) or "(none)")

@@ -563,3 +563,27 @@ def test_a_pipeline_nobody_joins_still_gives_back_the_switch_interval() -> None:
     for t in list(pipe._threads):  # wait for the threads themselves, not through the pipeline
         t.join(10.0)
     assert sys.getswitchinterval() == before
+
+
+def test_a_stop_finishes_the_log_without_waiting_for_an_estimator_far_behind(tmp_path: Path) -> None:
+    """``[estimation] hop_periods = 0.1, min_hop_s = 0`` put a daemon's estimator far behind; on SIGTERM
+    the record stage waited for its last estimates, the stop bound passed and the log was left
+    without its footer.  Stopped, the record stage waits for the estimator only until 80 % of the
+    stop's timeout: here it is stuck (gated) for good, and the record stage still ends, its log whole."""
+    src = _Finished(fs_hz=100_000.0, block_samples=2000, pace="max", duration_s=0.2)
+    gate = threading.Event()
+    est = gated(WindowEstimator(src.fs_hz, src.metadata(), periods=4, settle_periods=0, settle_s=0, min_hop_s=0),
+                gate)
+    log = tmp_path / "stopped.mcap"
+    try:
+        with McapRecorder(log, metadata={"recording": src.metadata()}) as rec:
+            pipe = Pipeline(src, estimator=est, recorder=rec, ring_seconds=0.5, lossless=False)
+            pipe.start()
+            assert src.done.wait(60)
+            pipe.stop(timeout_s=0.5)
+            (record,) = [t for t in pipe._threads if t.name == "pipeline-record"]
+            record.join(60)  # an event, not a time: it ends, or (before) it waited for the gate for good
+            assert not record.is_alive()
+        assert concatenate(list(iter_blocks(log))).n == 20_000  # every sample, in a log the reader takes
+    finally:
+        gate.set()
