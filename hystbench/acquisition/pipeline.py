@@ -131,6 +131,10 @@ class StageStats:
                 "latency_ms_max": float(lat.max())}
 
 
+#: The most memory a pipeline's ring may take (2 s of 4 channels of float32 at 16 MS/s each: 0.5 GiB).
+MAX_RING_BYTES = 2 * 2**30
+
+
 class Pipeline:
     """Runs a source through the ring to the estimator, the recorder and the bus.
 
@@ -163,6 +167,11 @@ class Pipeline:
         self.background_nice = background_nice
         self.stats_interval_s = stats_interval_s
         cap = max(int(ring_seconds * source.fs_hz), 1024)
+        ring_bytes = cap * len(source.channels) * np.dtype(dtype).itemsize
+        if ring_bytes > MAX_RING_BYTES:  # asked of numpy, it was a 29.8 GiB MemoryError and a stray log
+            raise ConfigError(f"{source.name}: a ring of {ring_seconds:g} s at {source.fs_hz:g} S/s x "
+                              f"{len(source.channels)} channels is {ring_bytes / 2**30:.1f} GiB, more than the "
+                              f"{MAX_RING_BYTES / 2**30:g} GiB a pipeline holds; lower the sample rate (or ring_seconds)")
         self.ring = RingBuffer(source.channels, cap, fs_hz=source.fs_hz, dtype=dtype)
         self.listeners: list[Callable[[str, Mapping[str, Any]], None]] = []
         #: called with each source block in the source thread, after the ring has it: each must only

@@ -587,3 +587,14 @@ def test_a_stop_finishes_the_log_without_waiting_for_an_estimator_far_behind(tmp
         assert concatenate(list(iter_blocks(log))).n == 20_000  # every sample, in a log the reader takes
     finally:
         gate.set()
+
+
+def test_a_ring_beyond_the_pipelines_memory_is_refused_naming_the_rate() -> None:
+    """``record --source synthetic --fs 1e9`` asked numpy for a 29.8 GiB ring: a MemoryError traceback
+    and a stray log.  Refused before anything is allocated, saying the size and what to lower."""
+    from hystbench.acquisition.pipeline import MAX_RING_BYTES
+
+    src = SyntheticSource(fs_hz=1e9, block_samples=1000, pace="max", duration_s=1e-6)
+    with pytest.raises(ConfigError, match=r"a ring of 2 s at 1e\+09 S/s x \d channels is \d+\.\d GiB, more than the 2 GiB"):
+        Pipeline(src)
+    assert 2 * 16e6 * 4 * 4 < MAX_RING_BYTES  # the pipeline benchmark's 4 channels, even at 16 MS/s each, fit
