@@ -72,7 +72,7 @@ def parse_rig_effects(args: list[str], rigs: tuple[str, ...]) -> dict[str, dict[
     rig the effect acts on (:func:`~..sim_backend.bench_day.bench_effects`); each value parsed as
     ``simulate``'s ``--effect``."""
     from ..config.effects import parse_effect_args
-    from ..sim_backend.bench_day import bench_effects
+    from ..sim_backend.bench_day import bench_effects, refuse_effects_not_acting
 
     wide: list[str] = []
     own: dict[str, list[str]] = {}
@@ -85,7 +85,10 @@ def parse_rig_effects(args: list[str], rigs: tuple[str, ...]) -> dict[str, dict[
         else:
             own.setdefault(rig, []).append(rest)
     spread = bench_effects(parse_effect_args(wide), rigs)
-    return {r: _merge(spread[r], parse_effect_args(own.get(r, []))) for r in rigs}
+    mine = {r: parse_effect_args(own.get(r, [])) for r in rigs}
+    for r in rigs:  # named for one rig, an effect must act on it (bench-wide ones go where they act)
+        refuse_effects_not_acting(r, mine[r], f"--effect {r}")
+    return {r: _merge(spread[r], mine[r]) for r in rigs}
 
 
 def cmd_simulate_bench_day(args: argparse.Namespace) -> int:

@@ -170,9 +170,11 @@ def cmd_compensate(args: argparse.Namespace) -> int:
     from ..drivers.protocols.bench_config import load_bench_config
     from ..reports.console import progress
     from ..config.effects import parse_effect_args
+    from ..sim_backend.bench_day import refuse_effects_not_acting
 
     ref = _reference(args)
     effects = parse_effect_args(args.effect)
+    refuse_effects_not_acting(args.rig, effects)
     limit = args.max_current if args.max_current is not None else load_bench_config().current_limit_a
     _precheck(args.rig, ref, limit)
     con = _console() if not args.json else None

@@ -58,11 +58,14 @@ def _simulate_one(args, frequency_hz: float, ipp_a: float, seed: int):
     """One recording of the simulated rig; a clipped one is refused before anything is written (a
     channel beyond its ADC full scale is not a measurement), naming the option to change."""
     from ..config.effects import parse_effect_args
+    from ..sim_backend.bench_day import refuse_effects_not_acting
     from ..sim_backend.recordings import simulate_recording
     from .bench_day import refuse_clipped
 
+    effects = parse_effect_args(args.effect)
+    refuse_effects_not_acting(args.rig, effects)
     rec = simulate_recording(args.rig, frequency_hz, ipp_a, args.duration, fs_hz=args.fs, seed=seed,
-                             effects=parse_effect_args(args.effect))
+                             effects=effects)
     refuse_clipped(rec)
     return rec
 
@@ -94,14 +97,16 @@ def _sweep(args, out: Path) -> list:
     from ..config.effects import parse_effect_args
     from ..reports.console import progress as make_progress
     from ..formats.recording import write_sweep
-    from ..sim_backend.bench_day import RigBlock, run_rig_block
+    from ..sim_backend.bench_day import RigBlock, refuse_effects_not_acting, run_rig_block
     from .bench_day import refuse_clipped
 
+    effects = parse_effect_args(args.effect)
+    refuse_effects_not_acting(args.rig, effects)
     block = RigBlock.grid(args.rig, args.freqs, args.ipp, periods=0.0, min_duration_s=args.duration, fs_hz=args.fs)
     _check_size(args, len(block.points))
     with make_progress() as progress:
         task = progress.add_task(f"simulating {args.rig}", total=len(block.points))
-        recs, _ = run_rig_block(args.rig, block, seed=args.seed, effects=parse_effect_args(args.effect),
+        recs, _ = run_rig_block(args.rig, block, seed=args.seed, effects=effects,
                                 tick=lambda: progress.advance(task))
     for rec in recs:
         refuse_clipped(rec)

@@ -334,9 +334,12 @@ def _source_from_args(args):
         src.set_output(True)
         return src
     from ..config.effects import parse_effect_args
+    from ..sim_backend.bench_day import refuse_effects_not_acting
     from ..sim_backend.rig import SimulatedRig
 
-    rig = SimulatedRig(args.rig or DEFAULT_RIG, fs_hz=args.fs, seed=args.seed, effects=parse_effect_args(args.effect),
+    effects = parse_effect_args(args.effect)
+    refuse_effects_not_acting(args.rig or DEFAULT_RIG, effects)
+    rig = SimulatedRig(args.rig or DEFAULT_RIG, fs_hz=args.fs, seed=args.seed, effects=effects,
                        frequency_hz=args.freq, current_pp_a=args.ipp)
     return RigSource(rig, block_samples=args.block, pace=args.pace, duration_s=args.seconds)
 

@@ -188,7 +188,9 @@ def _rig_channels(preset: Mapping[str, Any]) -> set[str]:
         {"flux_Wb", "sense_V"} if kind.has_flux else set())
 
 
-def _acts_on(name: str, value: Any, preset: Mapping[str, Any]) -> bool:
+def acts_on(name: str, value: Any, preset: Mapping[str, Any]) -> bool:
+    """Whether effect ``name`` (its table ``value``) acts on the rig ``preset``: the iron's on a rig
+    with iron, the magnet's on one with a magnet, an instrument's where its channel is."""
     channels = _rig_channels(preset)
     if name in _IRON_EFFECTS:
         return "iron" in preset
@@ -199,6 +201,18 @@ def _acts_on(name: str, value: Any, preset: Mapping[str, Any]) -> bool:
     if name == "channel_skew":
         return not isinstance(value, Mapping) or bool(channels & set(value))
     return bool(channels & _CHANNEL_EFFECTS[name])
+
+
+def refuse_effects_not_acting(rig: str, effects: Mapping[str, Any], option: str = "--effect") -> None:
+    """A ConfigError naming ``option`` for an effect switched on that does not act on ``rig``: its
+    sidecar listed the effect and the samples were those without it (``simulate --rig
+    voicecoil_ferrite --effect iron_saturation=on``)."""
+    preset = load_rig(rig)
+    idle = [n for n, v in effects.items() if v is not False and not acts_on(n, v, preset)]
+    if idle:
+        raise ConfigError(f"{option}: {', '.join(idle)} does not act on {rig} (the iron's effects need iron, the "
+                          "magnet's a magnet, an instrument's its channel); the recording would list it and hold "
+                          "none of it")
 
 
 def bench_effects(effects: Mapping[str, Any], rigs: Iterable[str] = BENCH_DAY_RIGS) -> dict[str, dict[str, Any]]:
@@ -214,7 +228,7 @@ def bench_effects(effects: Mapping[str, Any], rigs: Iterable[str] = BENCH_DAY_RI
         if name not in CATALOGUE:
             raise ConfigError(f"bench effects: unknown effect {name!r}; known: {', '.join(CATALOGUE)}")
         for r in rigs:
-            if _acts_on(name, value, presets[r]):
+            if acts_on(name, value, presets[r]):
                 out[r][name] = value
     return out
 

@@ -452,3 +452,19 @@ def test_record_rig_is_the_emulated_benchs_rig(tmp_path, capsys):
     log = tmp_path / "r.mcap"
     code, out, err = run(["record", "--seconds", "0.2", "--out", log, "--rig", "ecore"], capsys)
     assert code == 0 and log_metadata(log)["recording"]["rig"] == "ecore"
+
+
+@pytest.mark.parametrize("args", [
+    ["simulate", "--rig", "voicecoil_ferrite", "--freq", "320", "--ipp", "1", "--duration", "0.01",
+     "--effect", "iron_saturation=on", "--out", "OUT/run"],
+    ["simulate-sweep", "--rig", "voicecoil_ferrite", "--freqs", "40,320", "--duration", "0.01",
+     "--effect", "magnet_thermal_drift=1", "--out", "OUT/s"],
+    ["record", "--source", "sim", "--rig", "ecore", "--seconds", "0.1", "--effect", "magnet_eddy_currents=on",
+     "--out", "OUT/r.mcap"],
+])
+def test_an_effect_switched_on_where_it_does_not_act_is_refused(tmp_path, capsys, args):
+    """The sidecar listed the effect and the samples were byte for byte those without it."""
+    args = [str(a).replace("OUT", str(tmp_path / "out")) for a in args]
+    code, out, err = run(args, capsys)
+    assert code == 2 and "--effect: " in error_line(err) and "does not act on" in error_line(err)
+    assert not (tmp_path / "out").exists()
