@@ -183,6 +183,10 @@ def _check_endpoints(role: str, endpoints) -> None:
             why = re.sub(r"^line \d+, column \d+: ", "", _plain(str(err)))  # the place in a one-item list
             why = "not a zenoh endpoint" if why.startswith("Endpoints must be of the form") else why
             raise ConfigError(f"{role} endpoint {show(ep, 80)}: {why} ({_ENDPOINT_FORM})") from None
+        port = re.fullmatch(r"(?:tcp|udp|tls|quic)/.*:(\d+)(?:[?#].*)?", str(ep))
+        if port and not 0 <= int(port.group(1)) <= 65535:  # zenoh takes it; no connection could ever be made
+            raise ConfigError(f"{role} endpoint {show(ep, 80)}: port {port.group(1)} is not a TCP/UDP port (0-65535) "
+                              f"({_ENDPOINT_FORM})")
 
 
 def _mode(cfg: zenoh.Config) -> str:

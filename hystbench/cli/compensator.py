@@ -136,6 +136,8 @@ def cmd_model_predict(args: argparse.Namespace) -> int:
 def _reference(args):
     from ..compensator import ForceReference
 
+    if args.force_file and args.force:  # the file was taken without a word, then failed as a shape
+        raise ConfigError("--force and --force-file: give one force reference, not both")
     if args.force_file:
         if args.freq is None:
             raise ConfigError("--force-file needs --freq (the frequency at which one table is one period)")

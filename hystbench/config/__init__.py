@@ -43,7 +43,10 @@ def read_toml(path: str | Path, what: str = "file") -> dict[str, Any]:
         raise ConfigError(f"{path}: not a regular file (a folder, pipe or device); cannot read the {what}")
     try:
         with path.open("rb") as fh:
-            return tomllib.load(fh)
+            raw = fh.read()
+        # a byte-order mark (an editor's UTF-8 "with BOM") is no TOML: tomllib said "Invalid statement
+        # (at line 1, column 1)"; the text after it is what the file says
+        return tomllib.loads(raw.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except FileNotFoundError as err:
         raise ConfigError(f"{path}: no such {what}") from err
     except tomllib.TOMLDecodeError as err:

@@ -63,6 +63,14 @@ def test_a_bad_connect_endpoint_is_one_line_naming_it(capsys, command, endpoint)
     assert f"connect endpoint {endpoint!r}: not a zenoh endpoint (<protocol>/<address>" in line, line
 
 
+@pytest.mark.parametrize("endpoint", ["tcp/127.0.0.1:99999", "udp/127.0.0.1:70000?iface=lo"])
+def test_a_port_no_socket_can_have_is_named_not_waited_on(capsys, endpoint):
+    """zenoh takes ``tcp/127.0.0.1:99999``; the client then waited and said "no daemon answered"."""
+    code, _, err = run(["ctl", "--connect", endpoint, "status"], capsys)
+    line = _one_clean_line(err)
+    assert code == 2 and f"connect endpoint {endpoint!r}: port " in line and "is not a TCP/UDP port (0-65535)" in line
+
+
 @pytest.mark.parametrize("text, says", [
     ('{ mode: "peer", bogus: 3 }', "line 1, column 17: unknown field `bogus`, expected one of"),
     ('{ mode: "peer" ', "line 1, column 9: expected"),

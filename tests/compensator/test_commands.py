@@ -98,6 +98,8 @@ def test_compensate_learns_and_reports_each_iteration(model_file, capsys):
     (["--rig", "ecore_pm", "--force", "offset=170,amp=40"], "missing freq="),
     (["--rig", "ecore_pm"], "give --force"),
     (["--rig", "ecore_pm", "--force-file", "x.csv"], "--force-file needs --freq"),
+    (["--rig", "ecore_pm", "--force", "offset=170,amp=40,freq=320", "--force-file", "x.csv", "--freq", "320"],
+     "--force and --force-file: give one force reference, not both"),  # the file was taken without a word
     (["--rig", "ecore", "--force", "offset=2,amp=1,freq=320"], "models of 'ecore_pm', but --rig is 'ecore'"),
     (["--rig", "ecore_pm", "--force", "offset=170,amp=40,freq=320", "--iterations", "100000"], "--iterations"),
 ])

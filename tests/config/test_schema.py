@@ -100,3 +100,13 @@ def test_every_number_has_a_size_bound_beside_its_own_range():
     assert key.problem(MAX_MAGNITUDE) is None and key.problem(1.5) is None
     assert key.problem(1e300) == "must be > 0 and at most 1e+15 in size"
     assert Key(NUM, None, "an offset").problem(-1e300) == "must be at most 1e+15 in size"
+
+
+def test_a_file_saved_with_a_byte_order_mark_reads_as_its_text(tmp_path):
+    """An editor's "UTF-8 with BOM" made every config file "not valid TOML: Invalid statement (at line 1,
+    column 1)"; the mark is not part of what the file says."""
+    (tmp_path / "bom.toml").write_bytes(b"\xef\xbb\xbf" + b'[daemon]\nbench = "b"\n')
+    assert read_toml(tmp_path / "bom.toml") == {"daemon": {"bench": "b"}}
+    (tmp_path / "latin.toml").write_bytes(b'name = "\xe9"\n')  # not UTF-8: still refused, naming the file
+    with pytest.raises(ConfigError, match=r"latin\.toml: cannot read the file"):
+        read_toml(tmp_path / "latin.toml")
