@@ -24,6 +24,16 @@ def config_text(port: int, logs: Path, bench: str = "rl") -> str:
             '[sweep]\nfrequencies_hz = [320.0]\ndwell_s = 3600.0\nautostart = true\n')
 
 
+def reload_verdict(status: Subscription, case: str) -> dict:
+    """The status events until this reload's verdict (``reload_*``), that one."""
+    while True:
+        got = status.get(HANG_S)
+        assert got is not None, f"{case}: no reload verdict"
+        msg = json.loads(got[1])
+        if msg["event"].startswith("reload"):
+            return msg
+
+
 def test_a_reload_that_cannot_take_effect_is_refused_and_the_sweep_goes_on(tmp_path: Path) -> None:
     port, logs, cfg = free_port(), tmp_path / "logs", tmp_path / "daemon.toml"
     cfg.write_text(config_text(port, logs), encoding="utf-8")
@@ -45,12 +55,7 @@ def test_a_reload_that_cannot_take_effect_is_refused_and_the_sweep_goes_on(tmp_p
         for case, (text, why) in bad.items():
             cfg.write_text(text, encoding="utf-8")
             d.proc.send_signal(signal.SIGHUP)
-            while True:  # the statuses until this reload's verdict
-                got = status.get(HANG_S)
-                assert got is not None, f"{case}: no reload verdict"
-                msg = json.loads(got[1])
-                if msg["event"].startswith("reload"):
-                    break
+            msg = reload_verdict(status, case)
             assert msg["event"] == "reload_refused" and why in msg["message"], (case, msg)
             now = health_when(session, "rl", lambda h: True)
             assert now["state"] == "sweeping" and now["log"] == before["log"], (case, now)
@@ -110,12 +115,7 @@ def test_a_reload_that_fails_as_it_starts_brings_the_running_configuration_back(
         for case, (text, why) in bad.items():
             cfg.write_text(text, encoding="utf-8")
             d.proc.send_signal(signal.SIGHUP)
-            while True:  # the statuses until this reload's verdict
-                got = status.get(HANG_S)
-                assert got is not None, f"{case}: no reload verdict"
-                msg = json.loads(got[1])
-                if msg["event"].startswith("reload"):
-                    break
+            msg = reload_verdict(status, case)
             assert msg["event"] == "reload_failed" and why in msg["message"], (case, msg)
             now = health_when(session, "rf", lambda h: h["state"] == "running")
             assert now["pid"] == before["pid"] and d.proc.poll() is None, case

@@ -83,32 +83,28 @@ def test_missing_sidecar_key_is_named(table: Path, key: str):
         read_material_table(table)
 
 
+def _set_sidecar_key(table: Path, key: str, value) -> None:
+    side = table.with_suffix(".json")
+    side.write_text(json.dumps({**json.loads(side.read_text()), key: value}))
+
+
 @pytest.mark.parametrize("kind", [["core_loss"], {"a": 1}, None])
 def test_a_kind_that_is_no_name_is_refused_naming_the_key(table: Path, kind):
-    side = table.with_suffix(".json")
-    meta = json.loads(side.read_text())
-    meta["kind"] = kind
-    side.write_text(json.dumps(meta))
+    _set_sidecar_key(table, "kind", kind)
     with pytest.raises(RecordingError, match=r"t\.json: key 'kind' must be one of core_loss, complex_permeability"):
         read_material_table(table)
 
 
 @pytest.mark.parametrize("temperature", ["hot", None, [25, 50], True, -300.0])
 def test_a_temperature_that_is_no_temperature_is_refused_naming_the_key(table: Path, temperature):
-    side = table.with_suffix(".json")
-    meta = json.loads(side.read_text())
-    meta["temperature_C"] = temperature
-    side.write_text(json.dumps(meta))
+    _set_sidecar_key(table, "temperature_C", temperature)
     with pytest.raises(RecordingError, match=r"t\.json: key 'temperature_C' must be the measurement's temperature"):
         read_material_table(table)
 
 
 def test_a_material_name_with_spaces_around_it_is_refused(table: Path):
     """'N87 ' kept a shapes table apart from the N87 sine table: each was diagnosed alone, silently."""
-    side = table.with_suffix(".json")
-    meta = json.loads(side.read_text())
-    meta["material"] = "N87 "
-    side.write_text(json.dumps(meta))
+    _set_sidecar_key(table, "material", "N87 ")
     with pytest.raises(RecordingError, match=r"t\.json: key 'material' 'N87 ' has spaces around it"):
         read_material_table(table)
 
