@@ -288,16 +288,16 @@ DEFAULT_RIG = "ecore_pm"
 #: ignored without a word: `--source bench --fs 50000` recorded at the bench file's 100 kHz)
 _RECORD_OPTIONS = {"bench": {"bench_file", "rig"}, "sim": {"rig", "fs", "block", "pace", "seed", "effect"},
                    "synthetic": {"rig", "fs", "block", "pace", "seed"}, "zenoh": {"bench", "connect", "zenoh_config"}}
-_RECORD_DEFAULTS = {"bench_file": None, "rig": None, "fs": 100_000.0, "block": 1000, "pace": "realtime", "seed": 0,
-                    "effect": [], "bench": "bench1", "connect": None, "zenoh_config": None}
+
+_RECORD_KEYS = sorted(set().union(*_RECORD_OPTIONS.values()))
 
 
 def _check_record_options(args) -> None:
     """Refuse, by option, what the chosen source would ignore."""
     from ..errors import ConfigError
 
-    ignored = [k for k, default in _RECORD_DEFAULTS.items()
-               if k not in _RECORD_OPTIONS[args.source] and getattr(args, k) != default]
+    ignored = [k for k in _RECORD_KEYS  # each against the parser's own default (given or not)
+               if k not in _RECORD_OPTIONS[args.source] and getattr(args, k) != args.record_defaults[k]]
     if ignored:
         opts = ", ".join("--" + k.replace("_", "-") for k in ignored)
         where = {"bench": "the bench file sets them ([bench] fs_hz, [sim] block_samples, pace, seed and effects)",
@@ -570,7 +570,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--verbose", "-v", action="store_true", help="print each estimate")
-    p.set_defaults(func=cmd_record)
+    p.set_defaults(func=cmd_record, record_defaults={k: p.get_default(k) for k in _RECORD_KEYS})
 
     p = subparsers.add_parser("replay", help="feed an MCAP log through the pipeline again")
     p.add_argument("log", type=path_arg)
