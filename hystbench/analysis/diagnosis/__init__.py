@@ -161,8 +161,8 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
         extended = fit.with_effects(named)
         return calibrate(extended, sim, data, base_effects, extended.model(), say, jacobian=calibration.jacobian)
 
-    def judged(fit: Problem, m: np.ndarray, cols, where: np.ndarray) -> float:
-        return held_out(fit, folds(fit, data), m, cols, fit.sigma, where)[0]
+    def judged(fit: Problem, m: np.ndarray, cols, where: np.ndarray, per_fold=None) -> float:
+        return held_out(fit, folds(fit, data), m, cols, fit.sigma, where, per_fold)[0]
 
     selection = forward_selection(problem, effects, calibration, recalibrate, judged, say)
     say("cross-validating over operating points")

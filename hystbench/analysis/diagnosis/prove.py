@@ -11,7 +11,7 @@ of measured and predicted signals for the report's loops.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -46,11 +46,13 @@ def folds(problem: Problem, data: Sequence[RecordFeatures]) -> list[tuple[np.nda
 
 def held_out(problem: Problem, fold_rows: Sequence[tuple[np.ndarray, np.ndarray]], m: np.ndarray,
              columns: Sequence[Column], unit: np.ndarray | None = None,
-             where: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+             where: np.ndarray | None = None,
+             per_fold: Callable[[np.ndarray], list[Column]] | None = None) -> tuple[float, np.ndarray]:
     """The held-out residual of the model ``m`` + ``columns`` (fitted on each fold's training rows): the
     rms over the held-out numbers of each one's error in units of its standard error (or of ``unit``,
     with the model-error floor: what forward selection judges by; only at ``where``, a mask, when
-    given), and the held-out predictions (NaN elsewhere)."""
+    given), and the held-out predictions (NaN elsewhere).  ``per_fold``: columns chosen on each fold's
+    training rows alone (a mode searched again without the held-out points), added to ``columns``."""
     unit = problem.noise if unit is None else unit
     pred = np.full(problem.d.size, np.nan)
     num = den = 0.0
@@ -59,7 +61,8 @@ def held_out(problem: Problem, fold_rows: Sequence[tuple[np.ndarray, np.ndarray]
             test = test[where[test]]
             if not test.size:
                 continue
-        pred[test] = m[test] + problem.solve(m, columns, train).fitted[test]
+        cols = list(columns) + (per_fold(train) if per_fold is not None else [])
+        pred[test] = m[test] + problem.solve(m, cols, train).fitted[test]
         num += float(np.sum(((problem.d[test] - pred[test]) / unit[test]) ** 2))
         den += test.size
     return (math.sqrt(num / den) if den > 0 else math.nan), pred

@@ -16,9 +16,9 @@ import numpy as np
 
 from .columns import FRAME_BAND_HZ
 from .fit import Column, Problem
-from .vector import CHANNELS
+from .vector import CHANNELS, Layout
 
-__all__ = ["frame_mode_search", "FRAME_SEARCH_HZ", "FRAME_SEARCH_ZETA"]
+__all__ = ["frame_mode_search", "frame_mode_columns", "mode_shapes", "FRAME_SEARCH_HZ", "FRAME_SEARCH_ZETA"]
 
 #: Frame mode frequencies searched (Hz): 2 % apart, from the E-cores' low harmonics to beyond the
 #: voice coil's highest point.
@@ -36,34 +36,12 @@ def frame_mode_search(problem: Problem, m0: np.ndarray, calibration_columns: lis
     record's fundamental.  Only modes up to the highest excitation frequency are searched, and none within LOAD_CELL_BAND of ``load_cell_hz`` (the calibrated load cell's
     resonance) are not searched: a mode there reshapes the load cell's own resonance, which is the
     instrument's calibration (and its misfit), not a frame."""
-    layout, rows = problem.layout, problem.rows
-    force = rows[(rows < layout.size)]
-    force = force[(layout.channel[force] == CHANNELS.index("force_N")) & (layout.harmonic[force] > 0)]
-    if not force.size:
+    labels = [(float(f), zeta) for zeta in FRAME_SEARCH_ZETA for f in FRAME_SEARCH_HZ]
+    shapes = mode_shapes(problem.layout, m0, frequency_hz, labels)
+    if shapes is None:
         return {"frequency_hz": float(FRAME_SEARCH_HZ[0]), "zeta": FRAME_SEARCH_ZETA[0], "depth": 0.0, "split": 0.0}
-    # the model's complex force harmonic at each force row, and the row's part
-    rec, k, part = layout.record[force], layout.harmonic[force], layout.part[force]
-    key = rec * 1000 + k
-    complex_of: dict[int, complex] = {}
-    for i, kk, p in zip(force, key, part):
-        complex_of[kk] = complex_of.get(kk, 0j) + (m0[i] if p == 0 else 1j * m0[i])
-    F = np.array([complex_of[kk] for kk in key])[:, None]
-    s = 2j * np.pi * k * frequency_hz[rec]
-    s = s[:, None]
-    at = np.searchsorted(rows, force)
-    depth_shapes, split_shapes, labels = [], [], []
-    for zeta in FRAME_SEARCH_ZETA:
-        w = 2 * np.pi * FRAME_SEARCH_HZ[None, :]
-        den = s * s + 2 * zeta * w * s + w * w
-        for shapes, g in ((depth_shapes, 2 * zeta * w * s / den),  # dH/d depth at depth = split = 0
-                          (split_shapes, -(2 * s * s + 2 * zeta * w * s) / den)):  # dH/d split
-            z = F * g
-            col = np.zeros((rows.size, FRAME_SEARCH_HZ.size))
-            col[at] = np.where(part[:, None] == 0, z.real, z.imag)
-            shapes.append(col)
-        labels += [(float(f), zeta) for f in FRAME_SEARCH_HZ]
-    reduction, amplitudes = _explained_by_pairs(problem, m0, calibration_columns, np.concatenate(depth_shapes, axis=1),
-                                                np.concatenate(split_shapes, axis=1))
+    depth_shapes, split_shapes = (s[problem.rows] for s in shapes)
+    reduction, amplitudes = _explained_by_pairs(problem, m0, calibration_columns, depth_shapes, split_shapes)
     modes = np.array([f for f, _ in labels])
     # above the highest excitation frequency a mode's skirt is a smooth lead or lag across the sweep (a
     # channel's delay, the load cell's own skirt): no point of the day sees both its sides
@@ -74,6 +52,44 @@ def frame_mode_search(problem: Problem, m0: np.ndarray, calibration_columns: lis
     best = int(np.argmax(reduction))
     f, zeta = labels[best]
     return {"frequency_hz": f, "zeta": zeta, "depth": float(amplitudes[0, best]), "split": float(amplitudes[1, best])}
+
+
+def frame_mode_columns(layout: Layout, m0: np.ndarray, frequency_hz: np.ndarray, mode: dict[str, float],
+                       name: str = "frame_mode") -> list[Column]:
+    """A mode's depth and split as columns of the fit (its closed-form shapes around ``m0``), on every
+    number of the vector: what a mode found by the search predicts where it was not searched."""
+    shapes = mode_shapes(layout, m0, frequency_hz, [(mode["frequency_hz"], mode["zeta"])])
+    if shapes is None:
+        return []
+    return [Column(f"{name}.{what}", s[:, 0]) for what, s in zip(("depth", "split"), shapes)]
+
+
+def mode_shapes(layout: Layout, m0: np.ndarray, frequency_hz: np.ndarray,
+                modes: list[tuple[float, float]]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Each (frequency, damping) mode's change of the force harmonics per unit depth and per unit split
+    (at depth = split = 0), as two arrays (numbers of ``m0``, modes); None when the day has no force."""
+    force = np.flatnonzero((layout.channel == CHANNELS.index("force_N")) & (layout.harmonic > 0))
+    if not force.size:
+        return None
+    # the model's complex force harmonic at each force row, and the row's part
+    rec, k, part = layout.record[force], layout.harmonic[force], layout.part[force]
+    key = rec * 1000 + k
+    complex_of: dict[int, complex] = {}
+    for i, kk, p in zip(force, key, part):
+        complex_of[kk] = complex_of.get(kk, 0j) + (m0[i] if p == 0 else 1j * m0[i])
+    F = np.array([complex_of[kk] for kk in key])[:, None]
+    s = (2j * np.pi * k * np.asarray(frequency_hz, float)[rec])[:, None]
+    w = 2 * np.pi * np.array([f for f, _ in modes])[None, :]
+    zeta = np.array([z for _, z in modes])[None, :]
+    den = s * s + 2 * zeta * w * s + w * w
+    out = []
+    for g in (2 * zeta * w * s / den,  # dH/d depth at depth = split = 0
+              -(2 * s * s + 2 * zeta * w * s) / den):  # dH/d split
+        z = F * g
+        col = np.zeros((m0.size, len(modes)))
+        col[force] = np.where(part[:, None] == 0, z.real, z.imag)
+        out.append(col)
+    return out[0], out[1]
 
 
 def _explained_by_pairs(problem: Problem, m0: np.ndarray, columns: list[Column], C1: np.ndarray,
