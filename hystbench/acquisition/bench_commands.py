@@ -21,14 +21,14 @@ block; the current limit holds whether the output is on or not, as it may be swi
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from ..config.schema import NUM, OPTIONAL, Key
 from ..errors import ConfigError
 from ..messages import OperatingPoint
 
 __all__ = ["Limits", "show", "check_command", "check_frequency", "check_current", "ARGUMENTS", "COMMANDS",
-           "MIN_FREQUENCY_HZ", "MIN_SAMPLES_PER_PERIOD", "MAX_SWEEP_POINTS", "MAX_DWELL_S"]
+           "MIN_FREQUENCY_HZ", "MIN_SAMPLES_PER_PERIOD", "MAX_SWEEP_POINTS", "MAX_DWELL_S", "check_dwell"]
 
 #: Below this the estimator's window of whole periods (10 by default) grows past what a ring and
 #: a live display are for; quasi-static loops are measured from 1 Hz.
@@ -115,10 +115,24 @@ def check_current(what: str, point: OperatingPoint, limits: Limits) -> None:
                           f"limit of {limits.max_current_a:g} A (I_pp <= {2 * limits.max_current_a:g} A at offset 0)")
 
 
+def check_dwell(what: str, dwell_s: float, frequencies_hz: Sequence[float], periods: float, why: str) -> None:
+    """Refuse a sweep whose dwell gives some point fewer than ``periods`` whole periods of its
+    frequency (``why``: what needs them, the estimator's settle and window): such a point is played,
+    and nothing is measured at it.  ``what`` leads the message ("start_sweep: dwell_s = ")."""
+    f = min(frequencies_hz)
+    if dwell_s * f < periods * (1 - 1e-9):
+        plural = "" if periods == 1 else "s"
+        raise ConfigError(f"{what}{dwell_s:g} s is too short at {f:g} Hz, where a point needs {periods:g} "
+                          f"period{plural} ({why}), {periods / f:.4g} s: give dwell_s >= {periods / f:.4g} s, or leave "
+                          "that frequency out")
+
+
 def check_command(verb: Any, args: Any, limits: Limits, point: OperatingPoint,
-                  sweep_defaults: Mapping[str, Any] | None = None) -> tuple[dict[str, Any], OperatingPoint]:
+                  sweep_defaults: Mapping[str, Any] | None = None,
+                  point_periods: tuple[float, str] = (0.0, "")) -> tuple[dict[str, Any], OperatingPoint]:
     """``(arguments, point)``: the checked arguments (floats, bools, defaults filled in for a sweep)
-    and the operating point after the command; a ConfigError names what is refused and why."""
+    and the operating point after the command; a ConfigError names what is refused and why.
+    ``point_periods``: the whole periods each sweep point needs, and what needs them (check_dwell)."""
     if not isinstance(verb, str) or verb not in COMMANDS:
         raise ConfigError(f"unknown command {show(verb)}; known: {', '.join(COMMANDS)}")
     if not isinstance(args, Mapping):
@@ -151,6 +165,7 @@ def check_command(verb: Any, args: Any, limits: Limits, point: OperatingPoint,
     fs = [check_frequency(f"start_sweep: frequencies_hz[{k}]", f, limits) for k, f in enumerate(freqs)]
     ipp = _number("start_sweep: current_pp_a", given["current_pp_a"], keys["current_pp_a"])
     dwell = _number("start_sweep: dwell_s", given["dwell_s"], keys["dwell_s"])
+    check_dwell("start_sweep: dwell_s = ", dwell, fs, *point_periods)
     new = replace(point, frequency_hz=fs[-1], current_pp_a=ipp)
     check_current("start_sweep", new, limits)
     return {"frequencies_hz": fs, "current_pp_a": ipp, "dwell_s": dwell}, new

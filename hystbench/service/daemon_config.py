@@ -28,9 +28,9 @@ from __future__ import annotations
 import copy
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Mapping
 
-from ..acquisition.bench_commands import MAX_DWELL_S, Limits, check_current, check_frequency
+from ..acquisition.bench_commands import MAX_DWELL_S, Limits, check_current, check_dwell, check_frequency
 from ..config import read_toml
 from ..config.schema import NUM, Key, check_table
 from ..drivers.protocols.bench_config import load_bench_config
@@ -42,7 +42,7 @@ if TYPE_CHECKING:
     import zenoh
 
 __all__ = ["DEFAULTS", "SCHEMA", "DaemonConfig", "load_daemon_config", "zenoh_config", "check_source",
-           "bench_file_limits"]
+           "bench_file_limits", "sweep_point_periods"]
 
 _NUM = NUM
 _ENDPOINT = Key(str, None, "endpoints like 'tcp/127.0.0.1:7447'")
@@ -255,6 +255,16 @@ def _check_emulated_channels(rig: str, refuse: Any) -> None:
         refuse("rig", f"{missing}; run it as kind = \"sim\"")
 
 
+
+def sweep_point_periods(values: Mapping[str, Any]) -> tuple[float, str]:
+    """The whole periods each point of a sweep needs, and what needs them: the estimator's settle and
+    window when it estimates live, else one period (a point played for less is never seen whole)."""
+    e = values["estimation"]
+    if e["enabled"]:
+        return (e["settle_periods"] + e["periods"],
+                f"[estimation] settle_periods {e['settle_periods']:g} + periods {e['periods']:g}")
+    return 1.0, "to be seen whole"
+
 def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]], where: str) -> Limits:
     """Check ``values["source"]`` (and the excitations of ``[sweep]``) for its kind; returns the
     bench's limits.  With an emulated bench and no ``rig`` given, ``rig`` is set to the bench
@@ -300,6 +310,9 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
         for k, f in enumerate(sw["frequencies_hz"]):
             check_frequency(f"{where} [sweep] frequencies_hz[{k}]", f, limits)
         check_current(f"{where} [sweep]", OperatingPoint(sw["frequencies_hz"][0], sw["current_pp_a"]), limits)
+        if sw["autostart"] or any(section == "sweep" for section, _ in given):  # a sweep this file asks for
+            # (the defaults alone are checked when a start_sweep uses them: a long estimator window is no error)
+            check_dwell(f"{where} [sweep] dwell_s: ", sw["dwell_s"], sw["frequencies_hz"], *sweep_point_periods(values))
     elif values["sweep"]["autostart"]:
         raise ConfigError(f'{where} [sweep] autostart: kind = "synthetic" takes no commands, so it runs no sweep')
     c = values["compensator"]

@@ -31,7 +31,7 @@ from ..drivers.base import FaultLatched
 from ..drivers.safety import SafetyLimitError
 from ..errors import BenchError, CommandRefused, ConfigError
 from ..messages import OperatingPoint
-from .daemon_config import DaemonConfig, zenoh_config
+from .daemon_config import DaemonConfig, sweep_point_periods, zenoh_config
 from .foxglove_live import FoxgloveLive
 from .service_log import ServiceLog, check_log_dir
 from .source_config import build_source
@@ -370,7 +370,8 @@ class BenchService:
             raise CommandRefused(f"bench is {self.state}; try again when it is running")
         src = self._controllable()
         with self._lock:
-            ok, point = check_command(verb, args, self.limits, self.point, self.cfg["sweep"])
+            ok, point = check_command(verb, args, self.limits, self.point, self.cfg["sweep"],
+                                      sweep_point_periods(self.cfg))
             if (verb == "start_sweep" or verb == "output" and ok["on"]) and (why := self.why_output_off()):
                 raise CommandRefused(f"{verb}: refused, {why}")
             if verb == "clear_fault":

@@ -107,6 +107,23 @@ def test_the_sweep_fills_in_its_defaults_and_checks_them() -> None:
     assert ok == {"frequencies_hz": [40.0, 80.0], "current_pp_a": 1.0, "dwell_s": 2.0} and p.frequency_hz == 80.0
 
 
+def test_a_sweep_whose_dwell_measures_nothing_at_some_point_is_refused() -> None:
+    """A point is played for dwell_s: fewer whole periods there than the estimator skips and fits, and
+    the sweep drives the coil for nothing at that point (1 ns at 40 Hz was accepted)."""
+    need = (12.0, "[estimation] settle_periods 2 + periods 10")
+    sweep = {"frequencies_hz": [40.0, 320.0], "current_pp_a": 1.0, "dwell_s": 1.0}
+    with pytest.raises(ConfigError, match=r"^start_sweep: dwell_s = 1e-09 s is too short at 40 Hz, where a point "
+                                          r"needs 12 periods \(\[estimation\] settle_periods 2 \+ periods 10\), 0\.3 s: "
+                                          r"give dwell_s >= 0\.3 s, or leave that frequency out$"):
+        check_command("start_sweep", {"dwell_s": 1e-9}, LIMITS, HERE, sweep, need)
+    with pytest.raises(ConfigError, match="too short at 40 Hz"):  # the lowest frequency needs the longest
+        check_command("start_sweep", {"dwell_s": 0.29}, LIMITS, HERE, sweep, need)
+    ok, _ = check_command("start_sweep", {"dwell_s": 0.3}, LIMITS, HERE, sweep, need)  # 12 periods exactly
+    assert ok["dwell_s"] == 0.3
+    ok, _ = check_command("start_sweep", {"frequencies_hz": [320.0], "dwell_s": 0.0375}, LIMITS, HERE, sweep, need)
+    assert ok["frequencies_hz"] == [320.0]
+
+
 # --- random commands at a running service --------------------------------------------------------
 _KEYS = st.sampled_from(["frequency_hz", "current_pp_a", "offset_a", "on", "frequencies_hz", "dwell_s"]) | st.text(max_size=8)
 _PLAUSIBLE = st.one_of(st.floats(1.0, 2000.0), st.floats(0.0, 5.0), st.floats(0.01, 0.5), st.booleans(),
@@ -127,7 +144,7 @@ def _service(tmp_path: Path, port: int | None = None) -> BenchService:
     toml.write_text(f'[daemon]\nbench = "fuzz"\nlog_dir = "{tmp_path.as_posix()}"\n'
                     f'[source]\nkind = "sim"\nrig = "voicecoil_ferrite"\n'
                     f'[recording]\nidle_raw = "full"\n[zenoh]\n{zenoh}\n'
-                    f'[sweep]\nfrequencies_hz = [160.0, 320.0]\ndwell_s = 0.05\n', encoding="utf-8")
+                    f'[sweep]\nfrequencies_hz = [160.0, 320.0]\ndwell_s = 0.08\n', encoding="utf-8")  # 12.8 periods at 160 Hz
     return BenchService(load_daemon_config(toml)).start()
 
 

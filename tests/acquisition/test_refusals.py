@@ -37,6 +37,9 @@ def test_commands_before_start_and_during_a_sweep_are_refused_not_misconfigured(
         # what the command asks for is still the configuration's kind of error, refused before anything runs
         with pytest.raises(ConfigError, match="dwell_s"):
             svc.command("start_sweep", {"frequencies_hz": [160.0], "dwell_s": -1.0})
+        # estimation off, a point still needs one whole period of its frequency
+        with pytest.raises(ConfigError, match=r"dwell_s = 0\.001 s is too short at 160 Hz, where a point needs 1 period \(to be seen whole\)"):
+            svc.command("start_sweep", {"frequencies_hz": [320.0, 160.0], "dwell_s": 0.001})
         assert svc.command("stop_sweep", {}) == {"stopped": True}
     finally:
         svc.stop()

@@ -118,6 +118,8 @@ DAEMON_VALUES = [
     ("estimation", "min_hop_s = 1e308", "must be in [0, 3600]"),
     ("estimation", "max_fs_hz = 1e-300", "must be >= 1000"),
     ("sweep", "dwell_s = 1e308", "must be in (0, 86400]"),
+    # its default frequencies from 40 Hz: 0.1 s there is 4 periods, the estimator skips 2 and fits 10
+    ("sweep", "dwell_s = 0.1", "0.1 s is too short at 40 Hz, where a point needs 12 periods"),
 ]
 
 
