@@ -30,7 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
 
-from ..acquisition.bench_commands import MAX_DWELL_S, Limits, check_current, check_dwell, check_frequency
+from ..acquisition.bench_commands import (MAX_DWELL_S, MIN_FREQUENCY_HZ, MIN_SAMPLES_PER_PERIOD, Limits, check_current,
+                                          check_dwell, check_frequency)
 from ..config import read_toml
 from ..config.schema import NUM, Key, check_table
 from ..drivers.protocols.bench_config import load_bench_config
@@ -256,6 +257,16 @@ def _check_emulated_channels(rig: str, refuse: Any) -> None:
 
 
 
+def _playable(limits: Limits, what: str) -> Limits:
+    """``limits``, refused when their sample rate leaves no frequency to play (1e-300 S/s was refused
+    as "frequency_hz = 320 Hz is outside [1, 1e-301] Hz", blaming the frequency)."""
+    if limits.max_frequency_hz < MIN_FREQUENCY_HZ:
+        raise ConfigError(f"{what}: {limits.fs_hz:g} Hz is too slow to play any frequency: {MIN_SAMPLES_PER_PERIOD} "
+                          f"samples per period of the lowest, {MIN_FREQUENCY_HZ:g} Hz, need at least "
+                          f"{MIN_SAMPLES_PER_PERIOD * MIN_FREQUENCY_HZ:g} Hz")
+    return limits
+
+
 def sweep_point_periods(values: Mapping[str, Any]) -> tuple[float, str]:
     """The whole periods each point of a sweep needs, and what needs them: the estimator's settle and
     window when it estimates live, else one period (a point played for less is never seen whole)."""
@@ -289,7 +300,7 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
             for k in ("seed", "effects"):
                 if ("source", k) in given and (k == "seed" or s[k]):
                     refuse(k, f"applies to the emulated rig, and {bench.source} has hardware instruments only")
-        limits = Limits(bench.fs_hz, bench.current_limit_a)
+        limits = _playable(Limits(bench.fs_hz, bench.current_limit_a), f"{bench.source} [bench] fs_hz")
     else:
         if s["bench_file"]:
             refuse("bench_file", f'only kind = "bench" reads a bench file (kind is "{kind}")')
@@ -302,7 +313,7 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
         if s["block_samples"] > MAX_BLOCK_SAMPLES:
             refuse("block_samples", f"must be at most {MAX_BLOCK_SAMPLES:.0e} (a block is computed and held whole), "
                                     f"got {s['block_samples']}")
-        limits = Limits(s["fs_hz"], bench_file_limits().max_current_a)
+        limits = _playable(Limits(s["fs_hz"], bench_file_limits().max_current_a), f"{where} [source] fs_hz")
     check_frequency(f"{where} [source] frequency_hz", s["frequency_hz"], limits)
     check_current(f"{where} [source]", OperatingPoint(s["frequency_hz"], s["current_pp_a"]), limits)
     if kind != "synthetic":  # a synthetic source takes no commands, so it runs no sweep

@@ -7,6 +7,7 @@ emulated instruments' real protocols."""
 
 from __future__ import annotations
 
+import re
 import threading
 from pathlib import Path
 
@@ -70,6 +71,17 @@ def test_hardware_bench_refuses_the_emulated_rigs_keys(tmp_path: Path) -> None:
             load_daemon_config(_cfg(tmp_path, f'[source]\nkind = "bench"\nbench_file = "{bench.as_posix()}"\n{extra}'))
     cfg = load_daemon_config(_cfg(tmp_path, f'[source]\nbench_file = "{bench.as_posix()}"\nrig = "ecore"\n'))
     assert cfg["source"]["rig"] == "ecore"  # with hardware the rig only names the recordings
+
+
+def test_a_bench_file_too_slow_to_play_any_frequency_is_blamed_not_the_frequency(tmp_path: Path) -> None:
+    """A bench file's fs_hz = 1e-300 was refused as "[source] frequency_hz = 320 Hz is outside [1, 1e-301]
+    Hz"; it is the bench file's rate that no frequency fits (10 samples per period of 1 Hz)."""
+    bench = tmp_path / "slow.toml"
+    bench.write_text((CONFIG_DIR / "bench.toml").read_text(encoding="utf-8").replace("fs_hz = 100000.0", "fs_hz = 1e-300"),
+                     encoding="utf-8")
+    with pytest.raises(ConfigError, match=rf"^{re.escape(str(bench))} \[bench\] fs_hz: 1e-300 Hz is too slow to play any frequency: 10 "
+                                          r"samples per period of the lowest, 1 Hz, need at least 10 Hz$"):
+        load_daemon_config(_cfg(tmp_path, f'[source]\nkind = "bench"\nbench_file = "{bench.as_posix()}"\n'))
 
 
 def test_an_emulated_bench_refuses_a_rig_without_the_channels_it_streams(tmp_path: Path) -> None:

@@ -111,6 +111,8 @@ DAEMON_VALUES = [
     ("source", "ring_seconds = 1e308", "must be in (0, 60]"),
     ("source", "ring_seconds = 1e6", "must be in (0, 60]"),
     ("source", "block_samples = 1000000000", "must be at most 1e+06"),
+    # blamed on the rate, not on a frequency outside "[1, 0.5] Hz"
+    ("source", "fs_hz = 5", "5 Hz is too slow to play any frequency: 10 samples per period of the lowest"),
     ("daemon", "stats_interval_s = 1e308", "must be in (0, 3600]"),
     ("estimation", "periods = 1e308", "must be in [2, 1000]"),
     ("estimation", "hop_periods = 1e308", "must be in (0, 1000]"),
