@@ -43,6 +43,11 @@ def test_shipped_bench_file_loads_all_sim():
     # (a reload to such a file stopped the running service first, then failed)
     (("max_current_a = 2.0", "max_current_a = 1.0"),
      "[current_amplifier.settings] current_limit_a = 1.8 A exceeds [bench] max_current_a = 1 A"),
+    # a watchdog the amplifier refuses (exception 3 when the bench opened), or one the heartbeat cannot feed
+    (("watchdog_s = 0.5", "watchdog_s = 0.001"),
+     "[current_amplifier.settings] watchdog_s = 0.001 s: the amplifier takes 0 (off) or at least 0.05 s"),
+    (("watchdog_s = 0.5", "watchdog_s = 0.15"),
+     "[current_amplifier.settings] watchdog_s = 0.15 s is shorter than two of [bench] heartbeat_s = 0.1 s"),
 ])
 def test_bad_keys_name_file_and_key(tmp_path, edit, expected):
     text = shipped().replace(*edit, 1)
@@ -51,6 +56,12 @@ def test_bad_keys_name_file_and_key(tmp_path, edit, expected):
     with pytest.raises(ConfigError) as info:
         load_bench_config(path)
     assert str(info.value).startswith(f"{path} ") and expected in str(info.value), str(info.value)
+
+
+def test_a_watchdog_switched_off_or_two_heartbeats_long_is_taken(tmp_path):
+    for watchdog in ("0", "0.2"):
+        cfg = load_bench_config(write(tmp_path, shipped().replace("watchdog_s = 0.5", f"watchdog_s = {watchdog}", 1)))
+        assert cfg.instruments["current_amplifier"].settings["watchdog_s"] == float(watchdog)
 
 
 def test_hardware_needs_an_address(tmp_path):

@@ -79,7 +79,8 @@ _BENCH = {
     "timeout_s": Key(NUM, 1.0, "reply deadline of every command", "s", gt=0),
     "stall_timeout_s": Key(NUM, 0.5, "a stream silent this long (beyond in_flight_s) is reconnected", "s",
                            gt=0),
-    "heartbeat_s": Key(NUM, 0.1, "status poll period (feeds the amplifier's watchdog, detects faults)", "s", gt=0),
+    "heartbeat_s": Key(NUM, 0.1, "status poll period (feeds the amplifier's watchdog, which must be two of these "
+                        "or longer; detects faults)", "s", gt=0),
     "in_flight_s": Key(NUM, 0.02, "the longest a sample may still be on its way to the drivers once their readers have "
                        "caught up (the instruments' transmit buffers and frames); with emulated instruments at "
                        "least one tick of [sim] block_samples", "s", ge=0),
@@ -401,6 +402,21 @@ def _instrument(name: str, table: dict[str, Any], raw: Mapping[str, Any], src: s
     return InstrumentConfig(name, backend, opts, settings, skew, timeout or None)
 
 
+def _check_watchdog(watchdog_s: float | None, heartbeat_s: float, src: str) -> None:
+    """The amplifier's watchdog against what it takes and how often the bench feeds it: shorter than
+    two heartbeats, one late poll switches the output off mid-run (the bench feeds it once a heartbeat)."""
+    if not watchdog_s:  # left out, or 0: off
+        return
+    where = f"{src} [current_amplifier.settings] watchdog_s = {watchdog_s:g} s"
+    shortest = modbus_map.WATCHDOG_MIN_MS * modbus_map.REGISTERS["watchdog"].scale
+    if watchdog_s < shortest:
+        raise ConfigError(f"{where}: the amplifier takes 0 (off) or at least {shortest:g} s")
+    if watchdog_s < 2 * heartbeat_s:
+        raise ConfigError(f"{where} is shorter than two of [bench] heartbeat_s = {heartbeat_s:g} s: the bench feeds "
+                          "the watchdog once a heartbeat, and one late poll would switch the output off; raise it, "
+                          "or lower heartbeat_s")
+
+
 def load_bench_config(path: str | Path | None = None) -> BenchConfig:
     """Read and check a bench file (default: the shipped ``config/bench.toml``)."""
     path = Path(path) if path is not None else DEFAULT_BENCH
@@ -415,6 +431,7 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
         raise ConfigError(f"{src} [current_amplifier.settings] current_limit_a = {float(trip):g} A exceeds [bench] "
                           f"max_current_a = {bench['max_current_a']:g} A: the amplifier may not be set to trip above "
                           "the bench's limit; lower it, or raise max_current_a")
+    _check_watchdog(instruments["current_amplifier"].settings.get("watchdog_s"), bench["heartbeat_s"], src)
     return BenchConfig(src, bench["max_current_a"], bench["fs_hz"], bench["timeout_s"], bench["stall_timeout_s"],
                        bench["heartbeat_s"], backoff, cfg["sim"], instruments,
                        _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None, bench["in_flight_s"],

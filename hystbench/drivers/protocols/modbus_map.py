@@ -14,7 +14,7 @@ from typing import Callable, Mapping
 
 from ...errors import InstrumentError
 
-__all__ = ["Register", "REGISTERS", "CONTROL", "STATUS", "FAULTS", "MODEL_ID", "EXCEPTIONS",
+__all__ = ["Register", "REGISTERS", "CONTROL", "STATUS", "FAULTS", "MODEL_ID", "EXCEPTIONS", "WATCHDOG_MIN_MS",
            "ModbusException", "crc16", "rtu_request_length", "server_response", "mbap", "MBAP"]
 
 MODEL_ID = 0x4841  #: register 0 of this amplifier model ('HA')
@@ -62,13 +62,16 @@ REGISTERS: Mapping[str, Register] = MappingProxyType({r.name: r for r in [
     _r(5, "gain", "RW", "mA/V", 1e-3, minimum=10, maximum=10_000, doc="transconductance"),
     _r(6, "current_limit", "RW", "mA", 1e-3, minimum=0, maximum=20_000, doc="trip level of |i|"),
     _r(7, "watchdog", "RW", "ms", 1e-3, minimum=0, maximum=60_000,
-       doc="0 = off; with no request for this long the output is disabled (WATCHDOG fault)"),
+       doc="0 = off, else at least 50 ms; with no request for this long the output is disabled (WATCHDOG fault)"),
     _r(8, "current", "R", "mA", 1e-3, signed=True, minimum=-32768, maximum=32767, doc="output current now"),
     _r(9, "current_rms", "R", "mA", 1e-3, doc="rms over the newest monitor block"),
     _r(10, "temperature", "R", "0.01 degC", 0.01, signed=True, minimum=-32768, maximum=32767,
        doc="output stage"),
 ]})
 N_REGISTERS = 11
+#: The shortest watchdog the amplifier takes, in its register's unit (0 switches it off; 1-49 ms are
+#: refused with exception 3, ILLEGAL DATA VALUE: docs/protocols.md).
+WATCHDOG_MIN_MS = 50
 
 CONTROL = MappingProxyType({"ENABLE": 0x0001, "CLEAR_FAULTS": 0x0002})
 STATUS = MappingProxyType({"ENABLED": 0x0001, "FAULT": 0x0002, "WATCHDOG_ARMED": 0x0004})

@@ -125,7 +125,7 @@ class CurrentAmplifierEmulator:
         for r, v in zip(regs, values):
             if not r.minimum <= (v - 0x10000 if r.signed and v >= 0x8000 else v) <= r.maximum:
                 raise mb.ModbusException(3)
-            if r.name == "watchdog" and 0 < v < 50:
+            if r.name == "watchdog" and 0 < v < mb.WATCHDOG_MIN_MS:
                 raise mb.ModbusException(3)
         for r, v in zip(regs, values):
             if r.name == "control":
