@@ -36,7 +36,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 from types import ModuleType
 from typing import Any, Callable
@@ -65,11 +65,11 @@ def suite_cases(suite: str) -> list[Any]:
 
 
 def run_named(name: str, plan: BenchDayPlan | None = None, out: Path | None = None,
-              suite: str = "ours") -> dict[str, Any]:
+              suite: str = "ours", shuffle: int | None = None) -> dict[str, Any]:
     """:func:`run_case` (or :func:`run_independent_case`) of the case called ``name`` in ``suite`` (what
     a worker process is sent: our cases' tables are read-only mappings, which do not pickle)."""
     if suite == "independent":
-        return run_independent_case({c.name: c for c in suite_cases(suite)}[name], out)
+        return run_independent_case({c.name: c for c in suite_cases(suite)}[name], out, shuffle=shuffle)
     return run_case({c.name: c for c in CASES}[name], plan, out)
 
 
@@ -92,12 +92,17 @@ def run_case(case: Case, plan: BenchDayPlan | None = None, out: Path | None = No
 
 
 def run_independent_case(case: Any, out: Path | None = None,
-                         say: Callable[[str], None] | None = None) -> dict[str, Any]:
+                         say: Callable[[str], None] | None = None, shuffle: int | None = None) -> dict[str, Any]:
     """One case of the independent suite: its day written to a temporary folder (one folder, every
     rig), read back as the recording format's sweep (``read_sweep``: rigs told apart by the sidecar), diagnosed with the
     case's baseline (every candidate), and the answer judged against the truth; the row has
-    :func:`run_case`'s keys (``seconds_simulate``: writing the day and reading it back)."""
+    :func:`run_case`'s keys (``seconds_simulate``: writing the day and reading it back).  ``shuffle``:
+    each block's frequencies played in the order this seed draws (what the diagnosis advises when a
+    slow change along the day may pass for a frequency dependence)."""
     from hystbench.formats.recording import read_sweep
+
+    if shuffle is not None:
+        case = replace(case, plan=tuple(independent_bench("bench").shuffled_blocks(case.points, shuffle)))
 
     t0 = time.process_time()
     with tempfile.TemporaryDirectory(prefix="hystbench-independent-") as tmp:
@@ -357,9 +362,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true",
                     help="a short bench day (BenchDayPlan.quick) for our suite: a first look only")
     ap.add_argument("--jobs", type=int, default=0, help="cases diagnosed at once, one core each (default: one per core)")
+    ap.add_argument("--shuffle", type=int, metavar="SEED",
+                    help="the independent suite's days with each block's frequencies in a random order (this seed's)")
     args = ap.parse_args(argv)
     suites = list(SUITES) if args.suite == "all" else [args.suite]
     cases = _select(ap, args.cases, suites)
+    if args.shuffle is not None and any(s != "independent" for s, _ in cases):
+        ap.error("--shuffle: only the independent suite's days can be played shuffled (our suite's BenchDayPlan plays "
+                 "each block in order); add --suite independent")
     plan = BenchDayPlan.quick() if args.quick else None
     out = Path(args.out) if args.out else None
     from hystbench.reports.console import progress
@@ -373,15 +383,17 @@ def main(argv: list[str] | None = None) -> int:
             for s, c in cases:
                 def say(msg: str, c: Any = c, s: str = s) -> None:
                     bar.update(task, description=f"{s}:{c.name}: {msg}")
-                rows.append(run_case(c, plan, out, say=say) if s == "ours" else run_independent_case(c, out, say=say))
+                rows.append(run_case(c, plan, out, say=say) if s == "ours"
+                            else run_independent_case(c, out, say=say, shuffle=args.shuffle))
                 bar.advance(task)
         else:  # one case per process, each diagnosis on one core (its seconds are that core's)
             with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("forkserver")) as pool:
-                futures = [pool.submit(run_named, c.name, plan, out, s) for s, c in cases]
+                futures = [pool.submit(run_named, c.name, plan, out, s, args.shuffle) for s, c in cases]
                 for fut in as_completed(futures):
                     bar.advance(task)
                 rows = [f.result() for f in futures]
-    res = {"cases": rows, "suites": judge(rows), "quick": bool(args.quick), "seconds": time.monotonic() - t0}
+    res = {"cases": rows, "suites": judge(rows), "quick": bool(args.quick), "shuffle": args.shuffle,
+           "seconds": time.monotonic() - t0}
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / "results.json").write_text(json.dumps(res, indent=2, default=float))

@@ -18,7 +18,7 @@ check this), and every block uses a different model family than ``hystbench.sim_
 """
 
 from .bench import (BASELINE, EFFECT_NAMES, RIGS, BenchConstants, bench_day_plan, effect_params,
-                    simulate_recording, write_bench_day)
+                    shuffled_blocks, simulate_recording, write_bench_day)
 
 __all__ = ["BASELINE", "EFFECT_NAMES", "RIGS", "BenchConstants", "bench_day_plan", "effect_params",
-           "simulate_recording", "write_bench_day"]
+           "shuffled_blocks", "simulate_recording", "write_bench_day"]

@@ -351,6 +351,21 @@ def bench_day_plan() -> list[tuple[str, float, float]]:
     return plan
 
 
+def shuffled_blocks(plan: list[tuple[str, float, float]], seed: int) -> list[tuple[str, float, float]]:
+    """``plan`` with the frequencies of each block (consecutive points of one rig and current) in a
+    random order: the day's clock then no longer runs with the frequency, so a slow change along the
+    day cannot pass for a smooth frequency dependence."""
+    rng = np.random.default_rng(seed)
+    out, start = [], 0
+    while start < len(plan):
+        end = start
+        while end < len(plan) and plan[end][::2] == plan[start][::2]:
+            end += 1
+        out += [plan[start + k] for k in rng.permutation(end - start)]
+        start = end
+    return out
+
+
 def _write_csv(path: Path, cols: Mapping[str, np.ndarray]) -> None:
     names = list(cols)
     data = np.column_stack([cols[k] for k in names])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hystbench.formats.recording import read_recording, read_sweep
-from independent_bench import BASELINE, bench_day_plan, write_bench_day
+from independent_bench import BASELINE, bench_day_plan, shuffled_blocks, write_bench_day
 
 
 @pytest.fixture(scope="module")
@@ -18,6 +18,19 @@ def day(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[Path]]:
     folder = tmp_path_factory.mktemp("bench_day")
     effects = {**BASELINE, "force_offset_drift": True, "mains_pickup": True}
     return folder, write_bench_day(folder, effects=effects, seed=11, periods=12)
+
+
+def test_a_shuffled_day_plays_each_block_whole_in_another_order():
+    plan = bench_day_plan()
+    blocks = lambda p: [(r, i) for k, (r, _, i) in enumerate(p) if k == 0 or p[k - 1][::2] != (r, i)]  # noqa: E731
+    for seed in (1, 2):
+        day = shuffled_blocks(plan, seed)
+        assert blocks(day) == blocks(plan)  # the rigs and currents in the day's order
+        for r, i in blocks(plan):
+            played = [f for rr, f, ii in day if (rr, ii) == (r, i)]
+            assert sorted(played) == sorted(f for rr, f, ii in plan if (rr, ii) == (r, i))
+            assert played != sorted(played)  # 5 or 9 frequencies: another order than the ascending one
+    assert shuffled_blocks(plan, 1) == shuffled_blocks(plan, 1) != shuffled_blocks(plan, 2)
 
 
 def test_plan_is_the_issues_day():
