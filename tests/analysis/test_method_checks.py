@@ -62,6 +62,24 @@ def test_a_clipped_channel_is_judged_without_its_gross_outlier():
     _refused(chans, "'force_N'", "looks clipped", "sit at 130")
 
 
+@pytest.mark.parametrize("per_period, phase", [(20, 0.0), (20, math.pi / 20), (10, 0.3), (16, 0.0)])
+def test_a_sine_sampled_in_step_with_its_period_is_not_clipped(per_period, phase):
+    """A clock locked to the generator: every period meets the extreme at the same one sample (or two
+    straddling the peak), 5-10 % of the record at its minimum; it was refused as clipped.  Cut at 90 %
+    of its swing, the same record is."""
+    n = 40 * per_period
+    w = 2 * np.pi * np.arange(n) / per_period + phase
+    chans = {"current_A": 2.0 * np.sin(w), "flux_Wb": 1e-3 * np.sin(w - 0.1), "force_N": 100 + 40 * np.sin(w - 0.2)}
+    fs = F * per_period
+    assert np.count_nonzero(chans["flux_Wb"] <= chans["flux_Wb"].min() + 1e-15) / n >= 1 / per_period
+    d = measure_window(chans, fs, F, magnet=True, where="win_7")
+    assert d.frequency_hz == pytest.approx(F, rel=1e-6)  # measured, not refused
+    f = chans["force_N"]
+    chans["force_N"] = np.minimum(f, f.min() + 0.9 * np.ptp(f))
+    with pytest.raises(EstimationError, match="'force_N' looks clipped"):
+        measure_window(chans, fs, F, magnet=True, where="win_7")
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.integers(-5, 5), min_size=1, max_size=400), st.floats(1e-6, 1e6))
 def test_pinned_share_is_the_mean_of_the_samples_at_an_extreme(codes, step):
