@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RecordingError
-from .small_files import MAX_TABLE_BYTES, excerpt, read_json, read_text
+from .small_files import MAX_TABLE_BYTES, excerpt, finite, read_json, read_text
 
 __all__ = ["COLUMN_UNITS", "DUTY_COLUMNS", "LossTable", "LAYOUTS", "REQUIRED_SIDECAR_KEYS", "REQUIRED_WAVEFORM_KEYS",
            "WAVEFORM_COLUMNS", "WaveformTable", "read_material_table", "read_waveform_table"]
@@ -143,9 +143,9 @@ def _read_sidecar(path: Path) -> dict:
         raise RecordingError(f"{path}: key 'material' {meta['material']!r} has spaces around it; tables of one "
                              "material are diagnosed together by its name")
     t = meta["temperature_C"]
-    if isinstance(t, bool) or not isinstance(t, (int, float)) or not (math.isfinite(t) and t > -273.15):
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or not (finite(t) and t > -273.15):
         raise RecordingError(f"{path}: key 'temperature_C' must be the measurement's temperature in degC (a number "
-                             f"above -273.15), got {t!r}")
+                             f"above -273.15), got {excerpt(repr(t))}")
     return meta
 
 

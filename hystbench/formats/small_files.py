@@ -11,13 +11,14 @@ about a 500 kB field is still one line.
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
 
 from ..errors import RecordingError
 
-__all__ = ["MAX_SIDECAR_BYTES", "MAX_TABLE_BYTES", "excerpt", "read_json", "read_text"]
+__all__ = ["MAX_SIDECAR_BYTES", "MAX_TABLE_BYTES", "excerpt", "finite", "read_json", "read_text"]
 
 #: The largest JSON sidecar read (4 MiB).  A sidecar holds a few keys and some notes: a few kB.
 MAX_SIDECAR_BYTES = 4 << 20
@@ -29,6 +30,15 @@ _EXCERPT_CHARS = 40
 def excerpt(text: str, limit: int = _EXCERPT_CHARS) -> str:
     """``repr(text)``, or of its first ``limit`` characters followed by how long it is."""
     return repr(text) if len(text) <= limit else f"{text[:limit]!r}... ({len(text)} characters)"
+
+
+def finite(v: float) -> bool:
+    """Whether the number ``v`` is finite as a float: a JSON integer of 400 digits is not (math.isfinite
+    raised OverflowError on it, a traceback instead of the key's error)."""
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
 
 
 def read_text(path: Path, max_bytes: int, what: str, limit_name: str) -> str:

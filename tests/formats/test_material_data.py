@@ -95,7 +95,7 @@ def test_a_kind_that_is_no_name_is_refused_naming_the_key(table: Path, kind):
         read_material_table(table)
 
 
-@pytest.mark.parametrize("temperature", ["hot", None, [25, 50], True, -300.0])
+@pytest.mark.parametrize("temperature", ["hot", None, [25, 50], True, -300.0, 10**400])  # 10^400: OverflowError
 def test_a_temperature_that_is_no_temperature_is_refused_naming_the_key(table: Path, temperature):
     _set_sidecar_key(table, "temperature_C", temperature)
     with pytest.raises(RecordingError, match=r"t\.json: key 'temperature_C' must be the measurement's temperature"):
