@@ -34,7 +34,7 @@ import numpy as np
 from .errors import RecordingError
 
 __all__ = ["OperatingPoint", "UNKNOWN_POINT", "Estimate", "CompensatorUpdate", "OPERATING_KEYS", "json_schema",
-           "json_bytes"]
+           "json_bytes", "json_text"]
 
 #: Block meta keys that name the operating point (the fields of :class:`OperatingPoint`, in order):
 #: a change of any of them starts a new run of the estimator and a new segment of a log.
@@ -107,6 +107,12 @@ def json_bytes(obj: Any) -> bytes:
     """A small message (``to_json()``, a status, a reply) as compact JSON bytes: NaN and inf, which
     JSON has no numbers for, become ``null``; numpy scalars become Python numbers."""
     return json.dumps(_finite(obj), separators=(",", ":"), allow_nan=False).encode()
+
+
+def json_text(obj: Any, indent: int | None = 2) -> str:
+    """``obj`` as JSON text for a person or a script (``--json``): NaN and inf as ``null``, as in
+    :func:`json_bytes` (a bare NaN is no JSON; strict parsers refused a replay's output)."""
+    return json.dumps(_finite(obj), indent=indent, allow_nan=False)
 
 
 def _finite(obj: Any) -> Any:

@@ -19,16 +19,9 @@ from .stages import WindowEstimator
 if TYPE_CHECKING:
     from .sources import Source
 
-__all__ = ["record_log", "replay_log", "has_measurement", "estimation_settings"]
+__all__ = ["record_log", "replay_log", "has_measurement"]
 
 Listener = Callable[[str, dict], None]
-
-
-def estimation_settings(cfg: Mapping[str, Any] | None) -> dict[str, float]:
-    """The estimation stage's settings a log was recorded with (its ``config`` metadata)."""
-    e = dict((cfg or {}).get("estimation") or {})
-    keys = ("periods", "hop_periods", "min_hop_s", "settle_periods", "settle_s", "max_fs_hz")
-    return {k: float(e[k]) for k in keys if k in e}
 
 
 def record_log(source: Source, out: str | Path, *, estimation: Mapping[str, float] | None = None,
@@ -70,10 +63,10 @@ def replay_log(path: str | Path, *, speed: str = "max", out: str | Path | None =
         # replay that fails leaves no part of a log, and a log it replaces stays until it succeeds
         with output_file(out, overwrite=overwrite, inputs=[path]) as tmp:
             src = McapSource(path, pace="realtime" if speed == "realtime" else "max")
-            return record_log(src, tmp, estimation=estimation_settings(src.config), overwrite=True,
+            return record_log(src, tmp, estimation=src.estimation, overwrite=True,
                               on_message=on_message)["estimates"]
     src = McapSource(path, pace="realtime" if speed == "realtime" else "max")
-    est = WindowEstimator(src.fs_hz, src.metadata(), **estimation_settings(src.config))
+    est = WindowEstimator(src.fs_hz, src.metadata(), **src.estimation)
     pipe = Pipeline(src, estimator=est, dtype=src.dtype)
     if prepare is not None:
         prepare(pipe)

@@ -9,6 +9,7 @@ E-core, has it a magnet) is read once, when the estimator is made.
 
 from __future__ import annotations
 
+import math
 from typing import Any, Mapping
 
 import numpy as np
@@ -133,6 +134,9 @@ class WindowEstimator:
         if block.n == 0:
             return
         point = block.point if block.point is not None else self.nominal
+        if not 0 < point.frequency_hz < math.inf:  # no period to window by (a damaged log's block: a
+            self._point, self._end = point, block.end_index  # division by its 0 Hz ended a replay)
+            return
         if point != self._point or block.first_index != self._end:
             self._begin(block, point)
         self._end = block.end_index

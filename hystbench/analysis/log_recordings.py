@@ -15,22 +15,17 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import RecordingError
-from ..formats.mcaplog.reader import Segment, iter_blocks, log_metadata, segments
+from ..formats.mcaplog.reader import Segment, estimation_settings, iter_blocks, log_metadata, segments
 from ..formats.recording import Recording, sidecar_point
 from .settling import settle_samples, settling_time_s
 
 __all__ = ["read_mcap_segments", "read_mcap_recording"]
 
 
-def _settle(meta: dict[str, dict], base: dict) -> tuple[float, float]:
+def _settle(meta: dict[str, dict], base: dict, path: Path) -> tuple[float, float]:
     """(settle_s, settle_periods) of the log: what its live estimator skipped after a change."""
-    est = (meta.get("config") or {}).get("estimation") or {}
-    try:
-        settle_s = float(est["settle_s"]) if "settle_s" in est else settling_time_s(base)
-        periods = float(est.get("settle_periods", 2.0))
-    except (TypeError, ValueError):
-        settle_s, periods = settling_time_s(base), 2.0
-    return settle_s, periods
+    est = estimation_settings(meta, path)
+    return est.get("settle_s", settling_time_s(base)), est.get("settle_periods", 2.0)
 
 
 def _split_settling(segs: list[Segment], base: dict, settle_s: float, settle_periods: float) -> list[Segment]:
@@ -64,7 +59,7 @@ def read_mcap_segments(path: str | Path, *, include_idle: bool = False) -> list[
     if base is None:
         raise RecordingError(f"{path}: no 'recording' metadata record (rig, frequency_Hz, ...); "
                              "not a hystbench log?")
-    segs = _split_settling(segments(iter_blocks(path)), base, *_settle(meta, base))
+    segs = _split_settling(segments(iter_blocks(path)), base, *_settle(meta, base, path))
     segs = [s for s in segs if include_idle or not s.idle]
     if not segs:
         raise RecordingError(f"{path}: no raw samples{'' if include_idle else ' with the output on and settled'}")

@@ -413,10 +413,20 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return _replay_to_foxglove(args)
     ests = replay_log(args.log, speed=args.speed or "max", out=args.out, overwrite=args.overwrite,
                       on_message=None if args.json else _quiet_on_broken_pipe(_print_estimate))
-    if args.json:
-        print(json.dumps(ests, indent=2))
-    else:
-        print(f"{len(ests)} estimates from {args.log}")
+    return _replayed(args, ests)
+
+
+def _replayed(args: argparse.Namespace, ests: list[dict]) -> int:
+    """A replay's summary (or its estimates as JSON, NaN as null), and its exit: 1 when every window
+    was refused (nothing measured; the live run may have refused them too), else 0."""
+    from ..messages import json_text
+
+    refused = sum(1 for e in ests if e.get("error"))
+    print(json_text(ests) if args.json else f"{len(ests)} estimates ({refused} refused) from {args.log}", flush=True)
+    if ests and refused == len(ests):
+        print(f"hystbench replay: every one of the {len(ests)} windows of {args.log} was refused (the first: "
+              f"{ests[0]['error']})", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -462,8 +472,7 @@ def _replay_to_foxglove(args: argparse.Namespace) -> int:
     finally:
         if view is not None:
             view.close()
-    print(json.dumps(ests, indent=2) if args.json else f"{len(ests)} estimates from {args.log}", flush=True)
-    return 0
+    return _replayed(args, ests)
 
 
 def cmd_export(args: argparse.Namespace) -> int:

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RecordingError
-from .small_files import MAX_TABLE_BYTES, excerpt, finite, read_json, read_text
+from .small_files import MAX_TABLE_BYTES, excerpt, finite, read_json, read_text, shown
 
 __all__ = ["COLUMN_UNITS", "DUTY_COLUMNS", "LossTable", "LAYOUTS", "REQUIRED_SIDECAR_KEYS", "REQUIRED_WAVEFORM_KEYS",
            "WAVEFORM_COLUMNS", "WaveformTable", "read_material_table", "read_waveform_table"]
@@ -145,7 +145,7 @@ def _read_sidecar(path: Path) -> dict:
     t = meta["temperature_C"]
     if isinstance(t, bool) or not isinstance(t, (int, float)) or not (finite(t) and t > -273.15):
         raise RecordingError(f"{path}: key 'temperature_C' must be the measurement's temperature in degC (a number "
-                             f"above -273.15), got {excerpt(repr(t))}")
+                             f"above -273.15), got {shown(t)}")
     return meta
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import base64
 import json
+import math
 import struct
 from typing import Any, Mapping
 
@@ -78,15 +79,32 @@ def encode_json(block: SampleBlock, units: Mapping[str, str] | None = None) -> b
     return b"".join(parts)
 
 
+#: The fastest sample clock a block may state: beyond any digitiser, small enough that a count of
+#: samples over seconds stays an integer (a block at 1e308 S/s overflowed a replay's).
+MAX_FS_HZ = 1e12
+
+
 def _block(head: Mapping[str, Any], channels: dict[str, np.ndarray]) -> SampleBlock:
     n = int(head["n"])
     if any(x.size != n for x in channels.values()):
         raise ValueError(f"channel lengths {[x.size for x in channels.values()]} differ from n={n}")
+    if not channels:  # a writer never makes one; a reader takes its channels from the first block
+        raise ValueError("no channels")
+    fs = float(head["fs_hz"])  # JSON's NaN and Infinity parse: they are no sample clock
+    if not (math.isfinite(fs) and 0 < fs <= MAX_FS_HZ):
+        raise ValueError(f"fs_hz must be a sample rate in (0, {MAX_FS_HZ:g}] Hz, got {fs!r}")
+    gap = int(head["gap_samples"])
+    if n < 0 or gap < 0:
+        raise ValueError(f"n and gap_samples must be >= 0, got {n} and {gap}")
     meta = head.get("meta") or {}
     if not isinstance(meta, dict):
         raise ValueError(f"meta must be an object, got {meta!r}")
-    return SampleBlock(int(head["first_index"]), float(head["fs_hz"]), channels, flags=BlockFlags(int(head["flags"])),
-                       gap_samples=int(head["gap_samples"]), meta={str(k): float(v) for k, v in meta.items()})
+    meta = {str(k): float(v) for k, v in meta.items()}
+    bad = [k for k, v in meta.items() if not math.isfinite(v)]
+    if bad:  # written with allow_nan=False: a NaN frequency there failed a replay ("cannot convert NaN")
+        raise ValueError(f"meta {bad[0]} = {meta[bad[0]]!r}: a finite number is written there")
+    return SampleBlock(int(head["first_index"]), fs, channels, flags=BlockFlags(int(head["flags"])), gap_samples=gap,
+                       meta=meta)
 
 
 def _decode_binary(buf: memoryview) -> SampleBlock:
@@ -119,6 +137,6 @@ def decode(data: bytes | bytearray | memoryview, where: str = "raw block") -> Sa
         if len(buf) > 4 and buf[4] == 0x7B:  # "{" after the u32 length: binary
             return _decode_binary(buf)
         return _decode_json(data)
-    except (ValueError, KeyError, TypeError, struct.error, RecursionError) as err:  # JSONDecodeError is a
+    except (ValueError, KeyError, TypeError, OverflowError, struct.error, RecursionError) as err:  # JSONDecodeError: a
         # ValueError; RecursionError: JSON nested deeper than the parser's stack (damaged or hostile bytes)
         raise RecordingError(f"{where}: not a hystbench.RawBlock: {type(err).__name__}: {str(err)[:200]}") from err

@@ -34,7 +34,7 @@ from ..config import rig_names
 from ..errors import RecordingError
 from ..messages import OperatingPoint
 from .outputs import output_folder
-from .small_files import MAX_SIDECAR_BYTES, excerpt, finite, read_json
+from .small_files import MAX_SIDECAR_BYTES, excerpt, finite, read_json, shown
 from .text_chunks import count_line_ends, text_chunks
 
 __all__ = ["REQUIRED_KEYS", "TIME_TOL_PERIODS", "MAX_COLUMN_NAME_CHARS", "MAX_SIDECAR_BYTES", "Recording", "read_recording", "write_recording",
@@ -213,14 +213,14 @@ def _check_sidecar(meta: Any, where: str) -> None:
         if isinstance(v, bool) or not isinstance(v, numbers.Real):
             raise RecordingError(f"{where}: key {key!r} must be a number, got {v!r}")
         if not finite(v) or v < 0 or (v == 0 and low == "> 0"):
-            raise RecordingError(f"{where}: key {key!r} must be finite and {low}, got {excerpt(repr(v))}")
+            raise RecordingError(f"{where}: key {key!r} must be finite and {low}, got {shown(v)}")
     f, fs = meta["frequency_Hz"], meta["sample_rate_Hz"]
     if f >= fs / 2:
         raise RecordingError(f"{where}: frequency_Hz {f!r} is not below half of sample_rate_Hz {fs!r}")
     start = meta.get("start_time_s")  # optional: the recording's start on the sweep's clock
     if "start_time_s" in meta and (isinstance(start, bool) or not isinstance(start, numbers.Real)
                                    or not finite(start)):
-        raise RecordingError(f"{where}: key 'start_time_s' must be a finite number of seconds, got {excerpt(repr(start))}")
+        raise RecordingError(f"{where}: key 'start_time_s' must be a finite number of seconds, got {shown(start)}")
 
 
 def _read_sidecar(path: Path) -> dict:

@@ -18,7 +18,7 @@ from typing import Any
 
 from ..errors import RecordingError
 
-__all__ = ["MAX_SIDECAR_BYTES", "MAX_TABLE_BYTES", "excerpt", "finite", "read_json", "read_text"]
+__all__ = ["MAX_SIDECAR_BYTES", "MAX_TABLE_BYTES", "excerpt", "finite", "shown", "read_json", "read_text"]
 
 #: The largest JSON sidecar read (4 MiB).  A sidecar holds a few keys and some notes: a few kB.
 MAX_SIDECAR_BYTES = 4 << 20
@@ -30,6 +30,13 @@ _EXCERPT_CHARS = 40
 def excerpt(text: str, limit: int = _EXCERPT_CHARS) -> str:
     """``repr(text)``, or of its first ``limit`` characters followed by how long it is."""
     return repr(text) if len(text) <= limit else f"{text[:limit]!r}... ({len(text)} characters)"
+
+
+def shown(value: Any, limit: int = _EXCERPT_CHARS) -> str:
+    """``repr(value)``, cut to ``limit`` characters followed by how long it is (a 400-digit number
+    in a refusal is one line, not a screenful)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
 def finite(v: float) -> bool:

@@ -87,7 +87,7 @@ def test_a_replay_on_foxglove_gives_the_live_channels(tmp_path: Path) -> None:
     for t_ns, o in points:
         _check(o, PLOT_POINT_SCHEMA)
         assert t_ns == o["t_ns"] and o["n"] == BIN and o["min"] <= o["value"] <= o["max"]
-    assert out.strip().splitlines()[-1] == f"{finished['estimates']} estimates from {log}"
+    assert out.strip().splitlines()[-1] == f"{finished['estimates']} estimates (0 refused) from {log}"
     assert finished["estimates"] > 0 and len(estimates) == finished["estimates"]  # every one, none dropped
     for t_ns, e in estimates:
         _check(e, SCHEMAS["/estimate"][1])

@@ -4,6 +4,7 @@ compensator hook."""
 
 from __future__ import annotations
 
+import json
 import threading
 from pathlib import Path
 
@@ -119,6 +120,13 @@ def test_estimator_runs_reset_at_changes_gaps_and_output_off() -> None:
     bad = WindowEstimator(_STREAM.fs_hz, meta, periods=4, settle_periods=0, settle_s=0).push(
         SampleBlock(0, _STREAM.fs_hz, flat, meta=_STREAM.meta))
     assert bad and "flat" in bad[0].error
+    # a block that claims 0 Hz (a damaged log's) has no period to window by: no estimate, no end of the
+    # stage (a division by it ended a replay); the run after it is estimated as before
+    zero = dict(_STREAM.meta, frequency_hz=0.0)
+    we = WindowEstimator(_STREAM.fs_hz, meta, periods=4, settle_periods=0, min_hop_s=0)
+    assert we.push(SampleBlock(0, _STREAM.fs_hz, dict(_STREAM.channels), meta=zero)) == []
+    again = we.push(SampleBlock(n + 100, _STREAM.fs_hz, dict(_STREAM.channels), meta=_STREAM.meta))
+    assert again and not again[0].error
 
 
 class _Finished(SyntheticSource):
@@ -358,6 +366,27 @@ def test_stop_is_prompt_and_a_failing_source_is_reported() -> None:
 
     p = Pipeline(Broken()).start()
     assert p.join(5.0) and isinstance(p.error, OSError)
+
+
+def test_a_replay_whose_every_window_is_refused_says_so_and_fails(tmp_path: Path, capsys) -> None:
+    """A synthetic sine on the E-core without a magnet has no force at 2 f: every window refused.  The
+    replay said "7 estimates from ..." and exit 0, and its --json held bare NaN, which is no JSON."""
+    log = tmp_path / "s.mcap"
+    assert pipeline_main(["record", "--out", str(log), "--source", "synthetic", "--rig", "ecore", "--freq", "80",
+                          "--seconds", "1", "--pace", "max"]) == 0
+    said = capsys.readouterr().out
+    n = int(said.split(" estimates (")[0].rsplit(" ", 1)[1])
+    assert n > 0 and f"{n} estimates ({n} refused)" in said  # record's own count
+    assert pipeline_main(["replay", str(log)]) == 1
+    out, err = capsys.readouterr()
+    assert out.strip().splitlines()[-1] == f"{n} estimates ({n} refused) from {log}"
+    assert f"every one of the {n} windows of {log} was refused (the first: ecore window at 80 Hz" in err
+    assert pipeline_main(["replay", "--json", str(log)]) == 1
+
+    def no_constant(name: str):
+        raise AssertionError(f"{name} is no JSON")
+    ests = json.loads(capsys.readouterr().out, parse_constant=no_constant)
+    assert len(ests) == n and all(e["error"] for e in ests)
 
 
 def test_record_replay_export_recover_commands(tmp_path: Path, capsys) -> None:

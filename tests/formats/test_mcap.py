@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 from hystbench.cli.main import main as pipeline_main
 from hystbench.analysis.log_recordings import read_mcap_recording, read_mcap_segments
 from hystbench.formats.mcaplog import (ESTIMATE, RAW, STATUS, TOPICS, McapRecorder, iter_blocks, iter_log,
-                                       log_metadata, recover)
+                                       log_metadata, McapSource, recover)
 from hystbench.formats.raw_block import decode, encode_json
 from hystbench.formats.recording import read_recording
 from hystbench.acquisition.sources import operating_meta
@@ -77,6 +77,60 @@ def test_raw_block_codec_round_trip_is_exact(arr, first, flags, gap, meta) -> No
 def test_decode_refuses_garbage_naming_where() -> None:
     with pytest.raises(RecordingError, match="msg 7: not a hystbench.RawBlock"):
         decode(b'{"first_index": 0}', "msg 7")
+
+
+@pytest.mark.parametrize("edit, words", [
+    (("51200.0", "NaN"), "fs_hz must be a sample rate in (0, 1e+12] Hz, got nan"),  # JSON's NaN parses
+    (("51200.0", "Infinity"), "got inf"),
+    (("51200.0", "1e308"), "got 1e+308"),  # a replay's count of samples overflowed
+    (('"meta": {"frequency_hz": 320.0', '"meta": {"frequency_hz": NaN'), "meta frequency_hz = nan"),
+    (('"meta": {"frequency_hz": 320.0', '"meta": {"frequency_hz": 1' + "0" * 400), "OverflowError"),
+    (('"gap_samples": 0', '"gap_samples": -3'), "gap_samples must be >= 0"),
+])
+def test_a_block_header_no_writer_makes_is_refused_naming_the_message(edit, words) -> None:
+    """Each was a traceback in replay, export or estimate (ValueError, OverflowError, ZeroDivisionError)."""
+    text = encode_json(blocks(1, 100)[0]).decode().replace("10000.0", "51200.0", 1)
+    assert edit[0] in text
+    with pytest.raises(RecordingError, match="raw message 3: not a hystbench.RawBlock") as err:
+        decode(text.replace(*edit, 1).encode(), "raw message 3")
+    assert words in str(err.value), str(err.value)
+
+
+def test_a_block_without_channels_is_refused() -> None:
+    with pytest.raises(RecordingError, match="no channels"):  # a replay took its channels from it: StopIteration
+        decode(b'{"first_index": 0, "n": 0, "fs_hz": 1000.0, "flags": 0, "gap_samples": 0, "channels": []}', "m")
+
+
+@pytest.mark.parametrize("setting, words", [
+    ({"settle_s": "x"}, "estimation.settle_s must be a number in [0, 1e9], got 'x'"),
+    ({"settle_s": 1e308}, "estimation.settle_s must be a number in [0, 1e9]"),
+    ({"max_fs_hz": 0}, "estimation.max_fs_hz must be a number in (0, 1e9], got 0"),  # a division by zero
+    ({"periods": 1}, "estimation.periods must be a number in [2, 1e9], got 1"),
+])
+def test_a_logs_estimation_settings_are_checked_by_every_reader(tmp_path: Path, setting, words) -> None:
+    """replay estimates with them, export and estimate skip the settling by them: a bad one was a
+    traceback in one and a quiet default in another."""
+    log = tmp_path / "cfg.mcap"
+    with McapRecorder(log, metadata={"recording": META, "config": {"estimation": setting}}) as rec:
+        for b in blocks(4):
+            rec.add_block(b)
+    for read in (read_mcap_segments, McapSource):
+        with pytest.raises(RecordingError, match=r"cfg\.mcap: metadata record 'config': ") as err:
+            read(log)
+        assert words in str(err.value), str(err.value)
+
+
+def test_a_metadata_record_that_is_no_object_is_refused_naming_it(tmp_path: Path) -> None:
+    from mcap.writer import Writer
+
+    log = tmp_path / "list.mcap"
+    with open(log, "wb") as fh:
+        w = Writer(fh)
+        w.start()
+        w.add_metadata("recording", {"json": "[1, 2]"})
+        w.finish()
+    with pytest.raises(RecordingError, match=r"list\.mcap: metadata record 'recording' must be a JSON object, got list"):
+        log_metadata(log)
 
 
 def test_recorder_life_cycle_schemas_and_metadata(tmp_path: Path) -> None:

@@ -11,11 +11,13 @@
   JSON framing of :mod:`hystbench.formats.raw_block`.
 """
 
-from .reader import LogMessage, McapSource, Segment, iter_blocks, iter_log, log_metadata, segments
+from .reader import (LogMessage, McapSource, Segment, estimation_settings, iter_blocks, iter_log, log_metadata,
+                     segments)
 from .recorder import COMPRESSIONS, McapRecorder
 from .recover import RecoverReport, Skipped, recover
 from .schemas import COMPENSATOR, ESTIMATE, RAW, STATS, STATUS, TOPICS
 
 __all__ = ["McapRecorder", "COMPRESSIONS", "segments", "Segment", "iter_blocks", "iter_log", "log_metadata",
+           "estimation_settings",
            "LogMessage", "McapSource", "recover", "RecoverReport", "Skipped",
            "RAW", "ESTIMATE", "COMPENSATOR", "STATUS", "STATS", "TOPICS"]

@@ -30,10 +30,12 @@ from ...errors import RecordingError
 from ...messages import UNKNOWN_POINT, OperatingPoint
 from ..raw_block import decode
 from ..recording import Recording, with_point
+from ..small_files import finite, shown
 from .chunks import MAGIC, MAX_RECORD_BYTES, chunk_records
 from .schemas import RAW
 
-__all__ = ["LogMessage", "iter_log", "iter_blocks", "log_metadata", "segments", "McapSource", "Segment"]
+__all__ = ["LogMessage", "iter_log", "iter_blocks", "log_metadata", "estimation_settings", "segments", "McapSource",
+           "Segment", "ESTIMATION_BOUNDS"]
 
 
 @dataclass(frozen=True)
@@ -152,6 +154,40 @@ def log_metadata(path: str | Path) -> dict[str, dict]:
                 out[rec.name] = json.loads(text) if text is not None else dict(rec.metadata)
         except Exception as err:  # the mcap reader raises many kinds on a damaged file
             raise _damaged(path, err) from err
+    for name, value in out.items():  # what a reader of the log takes as a table: a list there was a traceback
+        if not isinstance(value, dict):
+            raise RecordingError(f"{path}: metadata record {name!r} must be a JSON object, got {type(value).__name__}")
+    config = out.get("config", {})
+    if "estimation" in config and not isinstance(config["estimation"], dict):
+        raise RecordingError(f"{path}: metadata record 'config': 'estimation' must be a JSON object, "
+                             f"got {type(config['estimation']).__name__}")
+    return out
+
+
+#: The estimation settings a log records (``config.estimation``), each a finite number in
+#: (lower, 1e9]: periods and seconds far beyond any session, small enough that a count of samples
+#: stays an integer (a settle_s of 1e308 overflowed one).  ``periods`` >= 2 as the estimator asks.
+ESTIMATION_BOUNDS: dict[str, tuple[float, bool]] = {  # key -> (lower bound, bound included)
+    "periods": (2.0, True), "hop_periods": (0.0, False), "min_hop_s": (0.0, True), "settle_periods": (0.0, True),
+    "settle_s": (0.0, True), "max_fs_hz": (0.0, False)}
+
+
+def estimation_settings(meta: dict[str, dict], path: str | Path) -> dict[str, float]:
+    """The estimation settings a log was recorded with (:func:`log_metadata`'s ``config.estimation``),
+    checked: what a replay estimates with, and what an offline reader skips as settling (a bad one
+    named, not a traceback in the replay or a quiet default in an export)."""
+    given = (meta.get("config") or {}).get("estimation") or {}
+    out = {}
+    for key, (low, included) in ESTIMATION_BOUNDS.items():
+        if key not in given:
+            continue
+        v = given[key]
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and finite(v) and v <= 1e9 and (
+            v >= low if included else v > low)
+        if not ok:
+            raise RecordingError(f"{path}: metadata record 'config': estimation.{key} must be a number in "
+                                 f"{'[' if included else '('}{low:g}, 1e9], got {shown(v)}")
+        out[key] = float(v)
     return out
 
 
@@ -260,6 +296,7 @@ class McapSource:
         meta = log_metadata(self.path)
         self._meta = meta.get("recording", {})
         self.config = meta.get("config", {})
+        self.estimation = estimation_settings(meta, self.path)
         first = next(iter_blocks(self.path), None)
         if first is None:
             raise RecordingError(f"{self.path}: no raw blocks to replay")
