@@ -268,9 +268,13 @@ def read_sweeps(folder: str | Path) -> dict[str, list[Recording]]:
     folder = Path(folder)
     if not folder.is_dir():
         raise RecordingError(f"{folder}: not a folder")
-    if any(p.suffix == ".csv" for p in folder.iterdir()):
-        return _by_rig(folder.name, read_sweep(folder), prefix=False)
     subs = sorted(p for p in folder.iterdir() if p.is_dir() and any(q.suffix == ".csv" for q in p.iterdir()))
+    if any(p.suffix == ".csv" for p in folder.iterdir()):
+        if subs:  # both: the sweeps under it were skipped without a word when it held one recording
+            raise RecordingError(f"{folder}: holds recordings and sweep folders ({', '.join(p.name for p in subs[:4])}"
+                                 f"{', ...' if len(subs) > 4 else ''}); give the sweep, or move its recordings into a "
+                                 "folder of their own beside the others")
+        return _by_rig(folder.name, read_sweep(folder), prefix=False)
     if not subs:
         raise RecordingError(f"{folder}: neither a sweep (NAME.csv + NAME.json) nor a folder of sweeps")
     return {name: recs for p in subs for name, recs in _by_rig(p.name, read_sweep(p), prefix=True).items()}

@@ -68,7 +68,9 @@ def _ecore_report(name: str, recs: list[Recording]) -> dict[str, Any]:
                        "frequency_true_Hz": d.frequency_hz, "current_pp_A": rec.current_pp_a,
                        "theta_hyst_deg": d.phase_deg("hysteresis"),
                        "theta_hyst_std_deg": d.phase_std_deg("hysteresis")})
-        by_amp.setdefault(f"{rec.current_pp_a:g}", {})[f"{rec.frequency_hz:g}"] = d.phase_deg("hysteresis")
+        # a list per point: an operating point played twice keeps both (the second replaced the first)
+        by_amp.setdefault(f"{rec.current_pp_a:.10g}", {}).setdefault(f"{rec.frequency_hz:.10g}", []).append(
+            d.phase_deg("hysteresis"))
     return {"kind": "hysteresis", "sweep": name, "rig": recs[0].rig, "points": points,
             "theta_hyst_deg_by_amplitude": by_amp}
 

@@ -99,3 +99,8 @@ def test_read_sweeps_splits_a_bench_day_folder_by_rig(tmp_path):
     assert [r.frequency_hz for r in day["ecore"]] == [80.0, 320.0]
     assert list(read_sweeps(tmp_path / "day")) == ["mon/ecore", "mon/voicecoil_ferrite", "pm"]
     assert [r.frequency_hz for r in read_sweeps(tmp_path / "day" / "pm")["pm"]] == [40.0, 80.0]
+    # a loose recording beside the sweep folders: those were skipped without a word, now it is refused
+    write_sweep([rec("ecore_pm", 320.0)], tmp_path / "day", names=["loose"])
+    from hystbench.errors import RecordingError
+    with pytest.raises(RecordingError, match=r"day: holds recordings and sweep folders \(mon, pm\); give the sweep"):
+        read_sweeps(tmp_path / "day")

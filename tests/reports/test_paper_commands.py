@@ -94,10 +94,15 @@ def test_identify_folder_of_sweeps_benchmarks_on_the_ferrite(coil_sweeps, capsys
 def test_identify_ecore_sweep(tmp_path, capsys):
     recs = simulate_ecore("ecore_pm", [(80.0, 1.4), (320.0, 1.4), (320.0, 0.5)], duration_s=0.05)
     write_sweep(recs, tmp_path / "pm")
+    again = simulate_ecore("ecore_pm", [(320.0, 1.4)], duration_s=0.05, seed=7)  # one point played twice
+    write_sweep(again, tmp_path / "pm", names=["repeat"])
     assert run(["identify", str(tmp_path / "pm"), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
-    assert rep["kind"] == "hysteresis" and len(rep["points"]) == 3
-    assert set(rep["theta_hyst_deg_by_amplitude"]) == {"1.4", "0.5"}
+    assert rep["kind"] == "hysteresis" and len(rep["points"]) == 4
+    by_amp = rep["theta_hyst_deg_by_amplitude"]
+    assert set(by_amp) == {"1.4", "0.5"} and len(by_amp["1.4"]["320"]) == 2  # the repeat kept, not replaced
+    assert sorted(by_amp["1.4"]["320"]) == sorted(p["theta_hyst_deg"] for p in rep["points"]
+                                                  if (p["frequency_Hz"], p["current_pp_A"]) == (320.0, 1.4))
     assert all(p["theta_hyst_deg"] > 0 for p in rep["points"])
     assert run(["identify", str(tmp_path / "pm")]) == 0
     assert "theta_hyst" in capsys.readouterr().out
