@@ -38,7 +38,7 @@ from .small_files import MAX_SIDECAR_BYTES, excerpt, finite, read_json, shown
 from .text_chunks import count_line_ends, text_chunks
 
 __all__ = ["REQUIRED_KEYS", "TIME_TOL_PERIODS", "MAX_COLUMN_NAME_CHARS", "MAX_SIDECAR_BYTES", "Recording", "read_recording", "write_recording",
-           "read_sweep", "write_sweep", "sweep_stem", "sidecar_point", "with_point", "recording_paths"]
+           "read_sweep", "write_sweep", "sweep_stem", "sidecar_point", "with_point", "recording_paths", "times_fit"]
 
 #: Sidecar keys every recording must have.
 REQUIRED_KEYS = ("rig", "frequency_Hz", "sample_rate_Hz", "current_pp_A")
@@ -107,7 +107,7 @@ class Recording:
         if len({x.size for x in self.channels.values()}) > 1:
             sizes = ", ".join(f"{k}={v.size}" for k, v in self.channels.items())
             raise RecordingError(f"{where}: channels differ in length: {sizes}")
-        if np.spacing(abs(t0) + self.n / fs) > TIME_TOL_PERIODS / fs / 8:  # float64 time resolution
+        if not times_fit(t0, self.n, fs):
             raise RecordingError(f"{where}: time_s starts at {t0!r} s (t0_s), too far from 0 for float64 to hold "
                                  f"the sample times at {fs:g} Hz within {TIME_TOL_PERIODS:g} of a period "
                                  "(TIME_TOL_PERIODS); start time_s near 0 and keep the clock's offset in the "
@@ -159,9 +159,11 @@ class Recording:
         return SampleBlock(first_index=int(first_index), fs_hz=self.fs_hz, channels=dict(self.channels))
 
     @classmethod
-    def from_blocks(cls, blocks: Iterable[SampleBlock], metadata: Mapping[str, Any]) -> Recording:
+    def from_blocks(cls, blocks: Iterable[SampleBlock], metadata: Mapping[str, Any], *,
+                    t0_s: float | None = None) -> Recording:
         """Join contiguous blocks; a lost sample cannot be written as uniform time, so it is refused.
-        A clipped block sets ``clipped: true`` in the metadata, since the flag has no column."""
+        A clipped block sets ``clipped: true`` in the metadata, since the flag has no column.
+        ``t0_s``: the first sample's time (None: its index over the rate, the source's clock)."""
         blocks = list(blocks)
         if not blocks:
             raise RecordingError("from_blocks: no blocks")
@@ -178,7 +180,13 @@ class Recording:
             raise RecordingError(f"from_blocks: {err}") from err
         meta = {**metadata, **({"clipped": True} if block.flags & BlockFlags.CLIP else {})}
         return cls(path=None, fs_hz=block.fs_hz, channels=dict(block.channels), metadata=meta,
-                   t0_s=block.first_index / block.fs_hz)
+                   t0_s=block.first_index / block.fs_hz if t0_s is None else t0_s)
+
+
+def times_fit(t0_s: float, n: int, fs_hz: float) -> bool:
+    """Whether float64 holds the times of ``n`` samples at ``fs_hz`` from ``t0_s`` within
+    TIME_TOL_PERIODS of a period (an eighth of it): a clock that ran for months does not."""
+    return bool(np.spacing(abs(t0_s) + n / fs_hz) <= TIME_TOL_PERIODS / fs_hz / 8)
 
 
 def recording_paths(path: str | Path) -> tuple[Path, Path, Path]:

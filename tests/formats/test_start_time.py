@@ -76,3 +76,23 @@ def test_an_mcap_log_gives_each_segment_its_own_start_and_export_keeps_it(tmp_pa
     back = sorted((read_recording(p.with_suffix("")) for p in out.glob("*.csv")), key=lambda r: r.frequency_hz)
     assert [r.start_time_s for r in back] == [s.start_time_s for s in segs]
     assert [r.rig for r in read_sweep(out)] == ["ecore", "ecore"]
+
+
+def test_a_log_whose_clock_ran_for_months_is_exported_from_zero_with_its_offset_in_the_start(tmp_path: Path) -> None:
+    """A source's sample index runs on: 2e12 samples is 231 days at 100 kS/s, past what float64 holds to
+    a thousandth of a period, and export and estimate refused the log ("time_s starts at 2e7 s, too
+    far from 0").  The segment now starts at 0, its offset in start_time_s, as the format asks."""
+    log = tmp_path / "long.mcap"
+    first = 2 * 10**12
+    with McapRecorder(log, metadata={"recording": META}) as rec:
+        for b in _blocks(first, 20_000, 80.0):
+            rec.add_block(b)
+    (seg,) = read_mcap_segments(log)
+    begun = seg.metadata["mcap_source"]["first_index"]
+    assert begun > first and seg.t0_s == 0.0
+    assert seg.start_time_s == begun / FS  # the log's sample 0 is the clock's origin (no start_time_s of its own)
+    out = tmp_path / "exported"
+    assert main(["export", str(log), "--out", str(out)]) == 0
+    (back,) = [read_recording(p.with_suffix("")) for p in out.glob("*.csv")]
+    assert back.t0_s == 0.0 and back.start_time_s == begun / FS
+    np.testing.assert_array_equal(back.channels["current_A"], seg.channels["current_A"])

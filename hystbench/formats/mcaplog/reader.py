@@ -29,7 +29,7 @@ from ...blocks import BlockFlags, SampleBlock
 from ...errors import RecordingError
 from ...messages import UNKNOWN_POINT, OperatingPoint
 from ..raw_block import decode
-from ..recording import Recording, with_point
+from ..recording import Recording, times_fit, with_point
 from ..small_files import finite, shown
 from .chunks import MAGIC, MAX_RECORD_BYTES, chunk_records
 from .schemas import RAW
@@ -256,15 +256,22 @@ class Segment:
     def recording(self, base: dict, path: Path) -> Recording:
         """The segment with the operating point its blocks carried (not the log's first one):
         an output-off segment says ``output_on: false`` and 0 A-pp (the generator's setting is
-        kept as ``generator_current_pp_A``), a settling one ``settling: true``."""
-        point = self.point
+        kept as ``generator_current_pp_A``), a settling one ``settling: true``.  Its time runs on the
+        log's sample clock; when that is too far from 0 for float64 (months of acquisition) the
+        segment starts at 0 and the offset goes to ``start_time_s``, as the format asks.  With the
+        log's own ``start_time_s`` (its sample 0 on the day's clock), the segment's start is added."""
+        point, fs = self.point, self.blocks[0].fs_hz
         meta = with_point(base, dataclasses.replace(point, settling=self.settling))
-        meta["sample_rate_Hz"] = self.blocks[0].fs_hz
+        meta["sample_rate_Hz"] = fs
         meta["mcap_source"] = {"log": str(path), "first_index": self.first_index, "samples": self.n}
         if "table" in self.blocks[0].meta:  # which waveform the generator played (a count of changes, see sources)
             meta["mcap_source"]["table"] = point.table
+        t0 = self.first_index / fs
+        fits = times_fit(t0, self.n, fs)
+        if "start_time_s" in base or not fits:
+            meta["start_time_s"] = float(base.get("start_time_s", 0.0)) + t0
         try:
-            rec = Recording.from_blocks(self.blocks, meta)
+            rec = Recording.from_blocks(self.blocks, meta, t0_s=None if fits else 0.0)
         except RecordingError as err:
             raise RecordingError(f"{path}: segment at sample {self.first_index}: {err}") from err
         return rec
