@@ -13,6 +13,7 @@ import json
 import sys
 from pathlib import Path
 
+from ..errors import ConfigError
 from .args import nonnegative_int, path_arg
 
 __all__ = ["register"]
@@ -40,6 +41,9 @@ def cmd_estimate(args: argparse.Namespace) -> int:
 
         rec = read_mcap_recording(args.path, segment=args.segment)
     else:
+        if args.segment is not None:  # it was ignored: the estimate was of the whole recording
+            raise ConfigError(f"--segment {args.segment}: {args.path} is a recording (one operating point); "
+                              "--segment picks one of an MCAP log's")
         rec = read_recording(args.path)
     result = estimate(rec)
     if result["outliers_excluded"]:

@@ -468,3 +468,17 @@ def test_an_effect_switched_on_where_it_does_not_act_is_refused(tmp_path, capsys
     code, out, err = run(args, capsys)
     assert code == 2 and "--effect: " in error_line(err) and "does not act on" in error_line(err)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_segment_asked_of_a_recording_is_refused_not_ignored(tmp_path, capsys):
+    """--segment picks an operating point of an MCAP log; given a CSV recording it was ignored and the
+    whole recording estimated, exit 0."""
+    stem = tmp_path / "r"
+    assert main(["simulate", "--rig", "ecore_pm", "--freq", "320", "--ipp", "1", "--duration", "0.02",
+                 "--out", str(stem)]) == 0
+    capsys.readouterr()
+    code, out, err = run(["estimate", str(stem), "--segment", "3"], capsys)
+    assert code == 2 and out == ""
+    assert f"--segment 3: {stem} is a recording (one operating point); --segment picks one of an MCAP log's" \
+        in error_line(err)
+    assert run(["estimate", str(stem)], capsys)[0] == 0
