@@ -96,3 +96,13 @@ def test_a_log_whose_clock_ran_for_months_is_exported_from_zero_with_its_offset_
     (back,) = [read_recording(p.with_suffix("")) for p in out.glob("*.csv")]
     assert back.t0_s == 0.0 and back.start_time_s == begun / FS
     np.testing.assert_array_equal(back.channels["current_A"], seg.channels["current_A"])
+
+
+def test_a_logs_start_time_that_is_no_number_is_named_by_the_readers(tmp_path: Path) -> None:
+    log = tmp_path / "bad.mcap"
+    with McapRecorder(log, metadata={"recording": {**META, "start_time_s": "noon"}}) as rec:
+        for b in _blocks(0, 20_000, 80.0):
+            rec.add_block(b)
+    with pytest.raises(RecordingError, match=r"bad\.mcap: segment at sample \d+: .*'start_time_s' must be a finite "
+                                             r"number of seconds, got 'noon'"):
+        read_mcap_segments(log)

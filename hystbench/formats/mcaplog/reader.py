@@ -268,8 +268,9 @@ class Segment:
             meta["mcap_source"]["table"] = point.table
         t0 = self.first_index / fs
         fits = times_fit(t0, self.n, fs)
-        if "start_time_s" in base or not fits:
-            meta["start_time_s"] = float(base.get("start_time_s", 0.0)) + t0
+        start = base.get("start_time_s", 0.0)
+        if ("start_time_s" in base or not fits) and isinstance(start, (int, float)) and not isinstance(start, bool):
+            meta["start_time_s"] = start + t0  # (one that is no number is named by the sidecar's check)
         try:
             rec = Recording.from_blocks(self.blocks, meta, t0_s=None if fits else 0.0)
         except RecordingError as err:
