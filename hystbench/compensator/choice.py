@@ -81,6 +81,10 @@ def choose_best(points: Sequence[PeriodData], cal: SweepCalibration, scaling: Ir
     fits = _fitters(cal, scaling, instrument, magnet)
     data = iron_data(points, cal)
     folds = held_out_folds(points)
+    if not folds:  # nothing to judge on: every figure of the choice was NaN, in a file its readers refuse
+        raise CompensatorError(f"choosing a description holds an operating point out and fits on at least three "
+                               f"others; these {len(points)} recordings ({', '.join(p.name for p in points)}) leave "
+                               "none to hold out: record more frequencies or amplitudes")
     held: dict[str, dict[str, float]] = {}
     failed: dict[str, str] = {}
     for name, fit in fits.items():

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Iterable
 
 import numpy as np
 
+from ..config.presets import PREISACH_KINDS
 from ..errors import ConfigError
 from ..physics.hysteresis import PreisachHysteresis, PreisachParams
 from ..physics.hysteresis_kernel import field_along
@@ -161,12 +162,30 @@ class HysteresisEddyModel(SeenCurrentModel):
 
     @classmethod
     def from_dict(cls, d: dict) -> "HysteresisEddyModel":
+        """The model a file describes, each value checked where the physics needs it (a file's tau of
+        -1 s predicted 34 N of error without a word, an h_scale of 0 divided by zero)."""
         m = d["material"]
         material = {"j_irr_T": float(m["j_irr_T"]), "h_scale_A_per_m": float(m["h_scale_A_per_m"]),
-                    "components": [list(c) for c in m["components"]], "reversible": [list(r) for r in m["reversible"]]}
-        return cls(StaticLaw.from_dict(d["law"]), IronScaling.from_dict(d["scaling"]), material,
-                   float(d["tau_s"]), dict(d.get("report", {})), float(d.get("linear", 0.0)),
-                   float(d.get("offset_A", 0.0)))
+                    "components": [[str(k), float(w), float(c), float(s)] for k, w, c, s in m["components"]],
+                    "reversible": [[float(j), float(h)] for j, h in m["reversible"]]}
+        model = cls(StaticLaw.from_dict(d["law"]), IronScaling.from_dict(d["scaling"]), material,
+                    float(d["tau_s"]), dict(d.get("report", {})), float(d.get("linear", 0.0)),
+                    float(d.get("offset_A", 0.0)))
+        for key, v, low in (("material.j_irr_T", material["j_irr_T"], 0.0), ("material.h_scale_A_per_m",
+                                                                              material["h_scale_A_per_m"], 0.0),
+                            ("tau_s", model.tau_s, None), ("scaling.b_per_A", model.scaling.b_per_a, 0.0),
+                            ("scaling.d_per_H", model.scaling.d_per_h, 0.0)):
+            if not (v >= 0 if low is None else v > low):
+                raise ValueError(f"{key} must be {'>= 0' if low is None else '> 0'}, got {v!r}")
+        if not material["components"]:
+            raise ValueError("material.components: none")
+        for k, (kind, w, _, width) in enumerate(material["components"]):
+            if kind not in PREISACH_KINDS or not (w > 0 and width > 0):
+                raise ValueError(f"material.components[{k}]: a {'/'.join(PREISACH_KINDS)} of weight > 0 and width > 0, "
+                                 f"got {[kind, w, width]}")
+        if not all(h > 0 for _, h in material["reversible"]):
+            raise ValueError("material.reversible: every field scale must be > 0")
+        return model
 
 
 def iron_drop(iron: PreisachHysteresis, scaling: IronScaling, j_a: np.ndarray) -> np.ndarray:

@@ -67,8 +67,11 @@ def model_from_dict(d: Mapping[str, Any]) -> ForceModel:
     if paper_kind == "nonhysteretic":
         return NonHysteretic(StaticLaw.from_dict(d["law"]), kind=str(kind))
     if paper_kind == "paper":
-        return PaperModel(StaticLaw.from_dict(d["law"]), tuple(map(float, d["frequency_Hz"])),
-                          tuple(map(float, d["theta_hyst_rad"])), kind=str(kind))
+        f, theta = tuple(map(float, d["frequency_Hz"])), tuple(map(float, d["theta_hyst_rad"]))
+        if not f or len(f) != len(theta) or min(f) <= 0:  # else a traceback when it first predicted
+            raise ValueError(f"frequency_Hz and theta_hyst_rad must be lists of one length (>= 1), the frequencies > 0; "
+                             f"got {len(f)} and {len(theta)}")
+        return PaperModel(StaticLaw.from_dict(d["law"]), f, theta, kind=str(kind))
     if kind == "best":
         name = d.get("name", HysteresisEddyModel.name)
         if name not in BEST_DESCRIPTIONS:
@@ -136,9 +139,18 @@ class ModelSet:
             raise ConfigError(f"{path}: key {bad}: not a finite number")
         try:
             ins = {k: float(d["instrument"][k]) for k in ("fn_Hz", "zeta_n", "f0_Hz", "zeta_0")}
-            models = {k: model_from_dict(m) for k, m in d["models"].items()}
-        except (KeyError, TypeError, ValueError, AttributeError, CompensatorError) as err:  # a list for a dict
+            entries = d["models"].items()
+        except (KeyError, TypeError, ValueError, AttributeError) as err:  # a list for a dict
             raise ConfigError(f"{path}: malformed model file: {err!r}") from err
+        models = {}
+        for k, m in entries:
+            try:
+                models[k] = model_from_dict(m)
+            except (KeyError, TypeError, ValueError, AttributeError, CompensatorError) as err:
+                what = f"no key {err}" if isinstance(err, KeyError) else str(err)
+                raise ConfigError(f"{path}: key models.{k}: {what}") from err
+        if not models:
+            raise ConfigError(f"{path}: key models: no model in the file")
         for key, v in ins.items():  # a resonance at -1 Hz predicts nonsense, not an error
             if not v > 0:
                 raise ConfigError(f"{path}: key instrument.{key}: must be > 0, got {v!r}")

@@ -42,6 +42,17 @@ def test_model_fit_writes_all_three_models_and_names_the_chosen_description(fitt
     assert said["best_description"] == d["report"]["choice"]["chosen"] in SIMPLICITY and said["why"]
 
 
+def test_a_sweep_with_no_point_to_hold_out_is_refused_before_a_file_is_written(tmp_path, capsys):
+    """Two recordings leave none to hold out: the choice's every figure was NaN, written bare into a
+    model file (exit 0) that predict and compensate then refused."""
+    write_sweep(simulated_sweep("ecore_pm", (80.0, 320.0), (1.4,), seed=301, duration_s=0.05), tmp_path / "two")
+    out = tmp_path / "m.json"
+    assert run(["model", "fit", str(tmp_path / "two"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "these 2 recordings" in err and "leave none to hold out: record more frequencies or amplitudes" in err
+    assert not out.exists()
+
+
 def test_model_predict_writes_time_and_force(model_file, tmp_path, capsys):
     rec = simulated_sweep("ecore_pm", [320.0], [1.0], seed=77, duration_s=0.2)[0]
     write_recording(rec, tmp_path / "r320")

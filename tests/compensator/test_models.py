@@ -66,7 +66,20 @@ def test_a_model_file_edited_into_nonsense_is_refused_by_key(models_pm, tmp_path
 
     d = models_pm.to_dict()
     path = tmp_path / "m.json"
-    for edit, match in ((lambda m: m["models"].update(best=[]), "malformed model file: AttributeError"),
+    for edit, match in ((lambda m: m["models"].update(best=[]), r"key models\.best: 'list' object has no attribute"),
+                        # a division by zero, a traceback where it first predicted
+                        (lambda m: m["models"]["best"]["material"].update(h_scale_A_per_m=0),
+                         r"key models\.best: material\.h_scale_A_per_m must be > 0, got 0\.0"),
+                        # a time constant of -1 s, an unknown component, no B per ampere: predicted 1-34 N of
+                        # error without a word
+                        (lambda m: m["models"]["best"].update(tau_s=-1.0), r"key models\.best: tau_s must be >= 0"),
+                        (lambda m: m["models"]["best"]["material"].update(components=[["zzz", 1, 2, 3]]),
+                         r"key models\.best: material\.components\[0\]: a gauss/lorentz of weight > 0"),
+                        (lambda m: m["models"]["best"]["scaling"].update(b_per_A=0), r"scaling\.b_per_A must be > 0"),
+                        (lambda m: m["models"]["paper"].update(frequency_Hz=[]),
+                         r"key models\.paper: frequency_Hz and theta_hyst_rad must be lists of one length"),
+                        (lambda m: m["models"]["best"].update(kind="paper"), r"key models\.best: no key 'frequency_Hz'"),
+                        (lambda m: m.update(models={}), r"key models: no model in the file"),
                         (lambda m: m["models"]["nonhysteretic"]["law"].update(k0_N=float("nan")),
                          r"key models\.nonhysteretic\.law\.k0_N: not a finite number"),
                         (lambda m: m["instrument"].update(fn_Hz=-1.0), r"key instrument\.fn_Hz: must be > 0, got -1\.0")):
