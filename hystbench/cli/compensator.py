@@ -138,6 +138,8 @@ def _reference(args):
 
     if args.force_file and args.force:  # the file was taken without a word, then failed as a shape
         raise ConfigError("--force and --force-file: give one force reference, not both")
+    if args.force and args.freq is not None:  # it was ignored: --force names its own freq=
+        raise ConfigError("--freq goes with --force-file; --force gives its frequency as freq=")
     if args.force_file:
         if args.freq is None:
             raise ConfigError("--force-file needs --freq (the frequency at which one table is one period)")
@@ -152,11 +154,16 @@ def _precheck(rig: str, ref, limit_a: float) -> None:
     negative force without a magnet, a force beyond what the current limit gives."""
     from ..compensator import StaticLaw
     from ..config import load_rig
+    from ..drivers.protocols.bench_config import load_bench_config
     from ..physics import presets
 
     preset = load_rig(rig)
     if preset.get("actuator") != "ecore":
         raise ConfigError(f"--rig {rig!r} is a {preset.get('actuator')}, not an E-core")
+    fs = load_bench_config().fs_hz
+    if ref.highest_hz() >= fs / 2:  # it cannot be sampled, let alone measured (49.9 kHz was "tracked")
+        raise ConfigError(f"force reference: it holds {ref.highest_hz():g} Hz, at or above half the bench's "
+                          f"{fs:g} S/s; a compensator can neither play nor measure it")
     mec = presets.ecore_mec(preset, linear_iron=True)
     law = StaticLaw.from_coefficients(mec.force_coefficients(mec.geometry.airgap_m), "magnet" in preset)
     law.invert(ref.force_n, current_limit_a=limit_a)

@@ -52,6 +52,13 @@ class ForceReference:
     def range_n(self) -> tuple[float, float]:
         return float(self.force_n.min()), float(self.force_n.max())
 
+    def highest_hz(self, share: float = 1e-6) -> float:
+        """The highest frequency the reference holds: its highest harmonic above ``share`` of its
+        largest AC one (a table's rounding below it)."""
+        mag = np.abs(np.fft.rfft(self.force_n)[1:])
+        k = np.flatnonzero(mag > share * mag.max())
+        return float((k[-1] + 1) * self.frequency_hz) if k.size else 0.0
+
     @classmethod
     def multisine(cls, offset_n: float, frequency_hz: float, components: Sequence[tuple[float, float, float]], *,
                   n_points: int = DEFAULT_POINTS, description: str | None = None) -> "ForceReference":
@@ -61,6 +68,9 @@ class ForceReference:
         for k, amp, phase_deg in components:
             if int(k) != k or k < 1:
                 raise ConfigError(f"force reference: harmonic numbers are integers >= 1, got {k!r}")
+            if k >= n_points // 2:  # the table would alias it (h99999999999 was taken as 1 N "tracked")
+                raise ConfigError(f"force reference: harmonic {int(k)} is beyond what a period of {n_points} points "
+                                  f"holds (below {n_points // 2})")
             f += float(amp) * np.sin(2 * np.pi * int(k) * ph + math.radians(float(phase_deg)))
         desc = description or f"offset {offset_n:g} N, " + ", ".join(
             f"{a:g} N at {int(k) * frequency_hz:g} Hz" + (f" ({p:g} deg)" if p else "") for k, a, p in components)

@@ -113,6 +113,13 @@ def test_compensate_learns_and_reports_each_iteration(model_file, capsys):
      "--force and --force-file: give one force reference, not both"),  # the file was taken without a word
     (["--rig", "ecore", "--force", "offset=2,amp=1,freq=320"], "models of 'ecore_pm', but --rig is 'ecore'"),
     (["--rig", "ecore_pm", "--force", "offset=170,amp=40,freq=320", "--iterations", "100000"], "--iterations"),
+    # ignored before: the run was at 320 Hz
+    (["--rig", "ecore_pm", "--force", "offset=170,amp=40,freq=320", "--freq", "100"], "--freq goes with --force-file"),
+    # a component the table aliases, one no 100 kS/s bench can sample: each was reported "tracked"
+    (["--rig", "ecore_pm", "--force", "offset=170,amp=40,freq=320,h99999999999=1"],
+     "harmonic 99999999999 is beyond what a period of 1000 points holds (below 500)"),
+    (["--rig", "ecore_pm", "--force", "offset=170,amp=40,freq=20000,h3=1"],
+     "it holds 60000 Hz, at or above half the bench's 100000 S/s"),
 ])
 def test_compensate_refuses_what_the_actuator_cannot_do(model_file, capsys, argv, message):
     assert run(["compensate", *argv, "--model", str(model_file)]) == 2
