@@ -43,6 +43,9 @@ def test_shipped_bench_file_loads_all_sim():
     # (a reload to such a file stopped the running service first, then failed)
     (("max_current_a = 2.0", "max_current_a = 1.0"),
      "[current_amplifier.settings] current_limit_a = 1.8 A exceeds [bench] max_current_a = 1 A"),
+    # the emulated rig's switches: named "--effect" (an option nobody gave) when the rig was built
+    (("effects = {}", "effects = { zzz = true }"), "[sim] effects: unknown effect 'zzz'"),
+    (("effects = {}", "effects = { sensor_noise = { std_force_n = -1.0 } }"), "[sim] effects"),
     # a watchdog the amplifier refuses (exception 3 when the bench opened), or one the heartbeat cannot feed
     (("watchdog_s = 0.5", "watchdog_s = 0.001"),
      "[current_amplifier.settings] watchdog_s = 0.001 s: the amplifier takes 0 (off) or at least 0.05 s"),

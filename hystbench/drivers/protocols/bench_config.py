@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from ...config import CONFIG_DIR, read_toml
+from ...config.effects import validate_effects
 from ...config.schema import NUM, OPTIONAL, Key, check_table
 from ...errors import ConfigError
 from ..safety import DEFAULT_MARGIN, command_limit
@@ -432,6 +433,8 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
                           f"max_current_a = {bench['max_current_a']:g} A: the amplifier may not be set to trip above "
                           "the bench's limit; lower it, or raise max_current_a")
     _check_watchdog(instruments["current_amplifier"].settings.get("watchdog_s"), bench["heartbeat_s"], src)
+    # the emulated rig's switches, named as this file's (they were named "--effect", an option nobody gave)
+    validate_effects(cfg["sim"].get("effects", {}), f"{src} [sim] effects", fs_hz=bench["fs_hz"])
     return BenchConfig(src, bench["max_current_a"], bench["fs_hz"], bench["timeout_s"], bench["stall_timeout_s"],
                        bench["heartbeat_s"], backoff, cfg["sim"], instruments,
                        _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None, bench["in_flight_s"],
