@@ -227,3 +227,21 @@ def test_the_scan_finds_a_chunk_behind_a_megabyte_of_noise_and_nothing_in_noise(
     with open(f, "rb") as fh:
         found = next_valid_record(Source(fh, len(noise)), 0)
     assert found.offset == len(noise) and found.record is None
+
+
+@pytest.mark.parametrize("tail", ["a second log", "zeros"])
+def test_bytes_after_the_footer_are_reported_not_called_complete(log, tmp_path: Path, tail: str) -> None:
+    """A log with another appended (two copied with `cat`), or padding after it: recover said "the log
+    was complete" and 0 bytes not salvaged while the second log's messages were dropped."""
+    path = log[0]
+    data = path.read_bytes()
+    extra = data if tail == "a second log" else bytes(65536)
+    bad = tmp_path / "joined.mcap"
+    bad.write_bytes(data + extra)
+    rep = recover(bad, tmp_path / "out.mcap")
+    assert rep.messages == len(reference_messages(path))  # the first log whole
+    assert [(s.start, s.end) for s in rep.skipped] == [(len(data), len(data) + len(extra))]
+    assert "after the log's footer and closing magic" in rep.skipped[0].why
+    assert rep.as_dict()["bytes_lost"] == len(extra)
+    whole = recover(path, tmp_path / "whole.mcap")
+    assert whole.complete and not whole.skipped and whole.as_dict()["bytes_lost"] == 0

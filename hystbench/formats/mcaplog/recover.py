@@ -151,6 +151,10 @@ def _walk(src: Source, report: RecoverReport) -> _Found:
             data_end = True
             report.complete = not report.skipped  # the data section was whole
         if rec.opcode == Opcode.FOOTER:
+            end = rec.end + len(MAGIC) if src.read(rec.end, len(MAGIC)) == MAGIC else rec.end
+            if end < src.size:  # said "the log was complete" over a second log appended after it
+                report.skipped.append(Skipped(end, src.size, "after the log's footer and closing magic (another log "
+                                                             "appended, or junk): a recovery salvages one log"))
             break
     else:
         report.stopped = "the file ends without a footer" if not data_end else "the file ends inside its summary"
