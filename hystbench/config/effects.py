@@ -15,6 +15,7 @@ when the preset is loaded; frequencies are checked against fs/2 once the sample 
 
 from __future__ import annotations
 
+import math
 import numbers
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -36,6 +37,9 @@ class Effect:
     params: Mapping[str, Key]  # one per parameter (a list parameter: its items' range)
     primary: str | None = None  # the parameter that ``NAME=<number>`` sets
     nyquist: tuple[str, ...] = field(default=())  # frequencies: also < fs/2 once fs is known
+    #: time constants of a filter on a sampled channel: its corner 1/(2 pi tau) also below fs/2 once fs is
+    #: known (a high-pass of 1e-300 s gave scipy's BadCoefficients and a force channel of noise, exit 0)
+    sampled_corners: tuple[str, ...] = field(default=())
 
     @property
     def defaults(self) -> Mapping[str, Any]:
@@ -58,8 +62,8 @@ def _interval(key: Key, below_nyquist: bool) -> str:
 
 
 def _e(name: str, description: str, primary: str | None = None, nyquist: tuple[str, ...] = (),
-       **params: Key) -> Effect:
-    return Effect(name, description, MappingProxyType(params), primary, nyquist)
+       sampled_corners: tuple[str, ...] = (), **params: Key) -> Effect:
+    return Effect(name, description, MappingProxyType(params), primary, nyquist, sampled_corners)
 
 
 def _num(default: float, doc: str, unit: str = "", **rng: float) -> Key:
@@ -125,13 +129,14 @@ CATALOGUE: Mapping[str, Effect] = MappingProxyType({e.name: e for e in [
                   "(a frame's two masses: the gain steps across the mode); 0: a pure peak", ge=-0.5, le=0.5)),
     _e("charge_amp_highpass",
        "piezo charge leaks through the charge amplifier's time constant: force high-passed",
-       "time_constant_s", time_constant_s=_num(1.0, "the charge amplifier's time constant (a long one: "
-                                                 "1e5 s; beyond 1e6 s no high-pass is left to simulate)", "s",
-                                                 gt=0.0, le=1e6)),
+       "time_constant_s", sampled_corners=("time_constant_s",),
+       time_constant_s=_num(1.0, "the charge amplifier's time constant (a long one: 1e5 s; beyond 1e6 s no "
+                                 "high-pass is left to simulate)", "s", gt=0.0, le=1e6)),
     _e("integrator_leak",
        "the flux integrator is lossy (1/(s + 1/tau)): flux high-passed, a phase lead at low f",
-       "time_constant_s", time_constant_s=_num(1.0, "the integrator's leak time constant (beyond 1e6 s: no "
-                                                 "leak left to simulate)", "s", gt=0.0, le=1e6)),
+       "time_constant_s", sampled_corners=("time_constant_s",),
+       time_constant_s=_num(1.0, "the integrator's leak time constant (beyond 1e6 s: no leak left to simulate)",
+                            "s", gt=0.0, le=1e6)),
     _e("channel_skew",
        "the ADC channels are not sampled at the same instant: per-channel delays in seconds",
        **{ch: _skew(d, ch) for (ch, _, _), d in zip(_CHANNELS, (0.0, 2e-6, 1e-6, 0.0, 0.0))}),
@@ -157,7 +162,9 @@ CATALOGUE: Mapping[str, Effect] = MappingProxyType({e.name: e for e in [
                        "K", gt=0.0, le=80.0)),
     _e("load_cell_compliance",
        "the load cell yields under force, so the airgap closes by F/k", "stiffness_n_per_m",
-       stiffness_n_per_m=_num(1.0e9, "the load cell's stiffness k", "N/m", gt=0.0)),
+       # from 1 N/m (a load cell a hundred million times softer than a real one): 1e-300 made the gap's
+       # change 1/k overflow, a NaN force instead of the refusal 1e-100 gets ("the gap closes")
+       stiffness_n_per_m=_num(1.0e9, "the load cell's stiffness k", "N/m", ge=1.0)),
     _e("mains_pickup",
        "50 Hz and its 3rd harmonic picked up by the sense leads and the charge amplifier", "sense_v",
        ("frequency_hz",),
@@ -194,6 +201,10 @@ def _check_nyquist(effect: Effect, params: Mapping[str, Any], place: str, prefix
         for item in (params[p] if isinstance(params[p], list) else [params[p]]):
             if not item < fs_hz / 2:
                 raise ConfigError(f"{place} {prefix}{p}: must be below fs/2 = {fs_hz / 2:g} Hz, got {item!r}")
+    for p in effect.sampled_corners:
+        if not params[p] > 1 / (math.pi * fs_hz):
+            raise ConfigError(f"{place} {prefix}{p}: must be above 1/(pi fs) = {1 / (math.pi * fs_hz):.3g} s (its corner "
+                              f"1/(2 pi tau) below fs/2 = {fs_hz / 2:g} Hz), got {params[p]!r}")
 
 
 def _check_params(name: str, params: Any, where: str, fs_hz: float | None) -> dict[str, Any]:

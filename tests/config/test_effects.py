@@ -102,6 +102,25 @@ def test_frequencies_must_be_below_half_the_sample_rate_once_it_is_known():
         validate_effects(table, "x", fs_hz=50_000.0)
 
 
+@pytest.mark.parametrize("name", ["charge_amp_highpass", "integrator_leak"])
+def test_a_filters_corner_must_be_below_half_the_sample_rate_once_it_is_known(name):
+    """1e-300 s was taken: scipy's BadCoefficients on the console and a channel of noise, exit 0.  The
+    bound is 1/(pi fs): the corner 1/(2 pi tau) at fs/2."""
+    fs = 100_000.0
+    assert validate_effects({name: 3.2e-6}, "x", fs_hz=fs)[name]["time_constant_s"] == 3.2e-6  # just above
+    for tau in (3.1e-6, 1e-300):
+        with pytest.raises(ConfigError, match=rf"{name}.time_constant_s: must be above 1/\(pi fs\) = 3.18e-06 s "
+                                              rf"\(its corner 1/\(2 pi tau\) below fs/2 = 50000 Hz\), got {tau!r}"):
+            validate_effects({name: tau}, "x", fs_hz=fs)
+    assert validate_effects({name: 1e-300}, "x")[name]["time_constant_s"] == 1e-300  # no fs: nothing to judge by
+
+
+def test_a_load_cell_softer_than_one_newton_per_metre_is_refused():
+    """1e-300 N/m overflowed 1/k: a NaN force instead of the refusal a soft load cell gets."""
+    with pytest.raises(ConfigError, match=r"load_cell_compliance.stiffness_n_per_m: must be >= 1, got 1e-300"):
+        validate_effects({"load_cell_compliance": 1e-300}, "x")
+
+
 def test_the_daemons_effects_table_takes_switches_numbers_and_tables():
     """daemon.toml documents { sensor_noise = false, frame_resonance = -0.2 }: a bare number is the
     primary parameter (the depth of the frame modes: -0.2 is a dip of 20 % at each mode)."""
