@@ -76,9 +76,11 @@ _AMPLIFIER_TOROID = {
                                 gt=0.0),
 }
 _INSTRUMENT = {  # load cell + frame and charge amplifier (paper Figs. 8-9)
-    "fn_hz": Key(NUM, None, "natural frequency of the load cell and frame", "Hz", gt=0.0),
+    # from 1 Hz: below every excitation, a low-pass there passes no force (1e-300 Hz gave scipy's
+    # BadCoefficients on the console and a force channel of noise, exit 0)
+    "fn_hz": Key(NUM, None, "natural frequency of the load cell and frame", "Hz", ge=1.0),
     "zeta_n": Key(NUM, None, "its damping ratio", gt=0.0),
-    "f0_hz": Key(NUM, None, "corner frequency of the charge amplifier's low-pass", "Hz", gt=0.0),
+    "f0_hz": Key(NUM, None, "corner frequency of the charge amplifier's low-pass", "Hz", ge=1.0),
     "zeta_0": Key(NUM, None, "its damping ratio", gt=0.0),
 }
 _EXCITATION = {

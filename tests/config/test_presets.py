@@ -45,6 +45,7 @@ def _edited(tmp_path: Path, rig: str, old: str, new: str) -> Path:
     ("ecore_pm", "force_n = 0.03", "force_n = -0.03", "[effects.sensor_noise] force_n: must be >= 0, got -0.03"),
     ("toroid", "height_m = 10e-3", "height_m = -10e-3", "[toroid] height_m: must be > 0"),
     ("ecore_pm", "airgap_m = 0.2e-3", "airgap_m = nan", "[geometry] airgap_m: must be > 0, got nan"),
+    ("ecore_pm", "fn_hz = 4450.0", "fn_hz = 1e-300", "[instrument] fn_hz: must be >= 1, got 1e-300"),
     # what the actuator needs, and nothing another actuator needs
     ("voicecoil_ndfeb", "[instrument]", "[instrument_]", "unknown section [instrument_]"),
     ("toroid", "flux_density_per_a_t = 1.0", "", "[amplifier]: missing key 'flux_density_per_a_t'"),
