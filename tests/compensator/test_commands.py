@@ -92,6 +92,17 @@ def test_model_predict_refuses_another_rigs_recording(model_file, tmp_path, caps
     assert "a 'ecore' recording, but the models are of 'ecore_pm'" in capsys.readouterr().err
 
 
+def test_model_predict_refuses_a_sidecar_frequency_the_current_is_not_at(model_file, tmp_path, capsys):
+    """A 320 Hz recording labelled 100 Hz was predicted at 100 Hz, exit 0, 33 N rms off."""
+    rec = simulated_sweep("ecore_pm", [320.0], [1.4], seed=2, duration_s=0.05)[0]
+    rec.metadata["frequency_Hz"] = 100.0
+    rec.metadata.pop("generator_frequency_Hz", None)
+    write_recording(rec, tmp_path / "wrong")
+    assert run(["model", "predict", str(model_file), str(tmp_path / "wrong.csv"), "--out", str(tmp_path / "p.csv")]) == 2
+    assert ("channel 'current_A' has no clear component at 100 Hz" in (err := capsys.readouterr().err)
+            and "spectrum peaks at 320 Hz" in err and not (tmp_path / "p.csv").exists())
+
+
 def test_compensate_learns_and_reports_each_iteration(model_file, capsys):
     argv = ["compensate", "--rig", "ecore_pm", "--force", "offset=170,amp=40,freq=320", "--learn", "--iterations", "3",
             "--model", str(model_file), "--json"]
