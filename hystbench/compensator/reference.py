@@ -115,7 +115,7 @@ class ForceReference:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("error", UserWarning)  # numpy only warns about an empty file
-                data = np.genfromtxt(path, delimiter=",", names=True)
+                data = np.genfromtxt(path, delimiter=",", names=True, encoding="utf-8-sig")  # Excel writes a BOM
         except (OSError, ValueError) as err:
             raise ConfigError(f"{path}: cannot read a force table: {err}") from err
         except UserWarning as err:

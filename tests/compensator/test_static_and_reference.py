@@ -77,6 +77,8 @@ def test_reference_from_csv(tmp_path):
     path.write_text("force_N,other\n" + "\n".join(f"{2 + np.sin(2 * np.pi * k / 64)},0" for k in range(64)) + "\n")
     ref = ForceReference.from_csv(path, 80.0)
     assert ref.n == 64 and ref.frequency_hz == 80.0
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())  # as Excel saves UTF-8: "no column 'force_N'" before
+    np.testing.assert_array_equal(ForceReference.from_csv(path, 80.0).force_n, ref.force_n)
     path.write_text("force_N\n1\nnan\n" + "2\n" * 20)
     with pytest.raises(ConfigError, match=r"ref.csv:3: column 'force_N' is not a finite number"):
         ForceReference.from_csv(path, 80.0)
