@@ -213,9 +213,38 @@ def cmd_fit_material(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result, indent=2, default=str))
     else:
-        for key, value in result.items():
-            print(f"{key}: {value}")
+        _print_material_fit(result)
     return 0
+
+
+def _print_material_fit(result: dict) -> None:
+    """The fit against the measured loops as a table a person reads (it was printed as dict reprs):
+    each loop's error beside the best single-valued curve's (no loop: what hysteresis adds), and where the
+    figures went."""
+    from rich.table import Table
+
+    from ..reports.console import console
+
+    table = Table(title="the hysteresis model against the measured B-H loops (rms and max error, % of B max)")
+    for col in ("loop", "B max (T)", "rms %", "max %", "area ratio", "no loop: rms %", "no loop: max %"):
+        table.add_column(col, justify="left" if col == "loop" else "right")
+    before = result.get("baseline_errors", {})
+    for loop, e in result.get("errors", {}).items():
+        b = before.get(loop, {})
+        table.add_row(loop, f"{e['b_max_t']:.3g}", f"{e['rms_pct']:.2f}", f"{e['max_pct']:.2f}",
+                      f"{e['area_ratio']:.3f}" if "area_ratio" in e else "-",
+                      f"{b['rms_pct']:.1f}" if b else "-", f"{b['max_pct']:.1f}" if b else "-")
+    con = console()
+    con.print(table)
+    for label, lag in result.get("phase_lag_deg", {}).items():
+        con.print(f"phase lag of B behind H at {label}: {lag:.1f} deg")
+    for key in ("material_files", "figures"):  # paths whole, one a line (not wrapped to the terminal)
+        for name, path in result.get(key, {}).items():
+            print(f"{'material file' if key == 'material_files' else 'figure'} {name}: {path}")
+    rest = {k: v for k, v in result.items()
+            if k not in ("errors", "baseline_errors", "phase_lag_deg", "material_files", "figures")}
+    for key, value in rest.items():  # anything else the fit reports (--json has it whole)
+        print(f"{key}: {value}")
 
 
 def _moved(obj, stage):
