@@ -194,7 +194,8 @@ _ON = {"on", "true", "yes"}
 _OFF = {"off", "false", "no"}  # not "0"/"1": NAME=0 and NAME=1 are numbers for the primary parameter
 
 
-def _check_nyquist(effect: Effect, params: Mapping[str, Any], place: str, prefix: str, fs_hz: float | None) -> None:
+def _check_against_fs(effect: Effect, params: Mapping[str, Any], place: str, prefix: str, fs_hz: float | None) -> None:
+    """Once fs is known: each frequency below fs/2, each sampled filter's corner too."""
     if fs_hz is None:
         return
     for p in effect.nyquist:
@@ -210,7 +211,7 @@ def _check_nyquist(effect: Effect, params: Mapping[str, Any], place: str, prefix
 def _check_params(name: str, params: Any, where: str, fs_hz: float | None) -> dict[str, Any]:
     """An override's full parameter set (the defaults, ``params`` over them), every value checked."""
     out = check_table(params, where, CATALOGUE[name].params, key_prefix=f"{name}.")
-    _check_nyquist(CATALOGUE[name], out, where, f"{name}.", fs_hz)
+    _check_against_fs(CATALOGUE[name], out, where, f"{name}.", fs_hz)
     return out
 
 
@@ -243,7 +244,7 @@ def resolve_effects(preset_effects: Mapping[str, Mapping[str, Any]],
     checked = check_table(preset_effects, where, EFFECTS_SCHEMA, "effects")
     active = {name: checked[name] for name in preset_effects}  # in the preset's order
     for name, params in active.items():
-        _check_nyquist(CATALOGUE[name], params, f"{where} [effects.{name}]", "", fs_hz)
+        _check_against_fs(CATALOGUE[name], params, f"{where} [effects.{name}]", "", fs_hz)
     for name, raw in (overrides or {}).items():
         if name not in CATALOGUE:
             raise ConfigError(f"{overrides_where}: unknown effect {name!r}; known: {', '.join(CATALOGUE)}")
