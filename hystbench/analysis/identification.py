@@ -31,6 +31,7 @@ from scipy.optimize import least_squares
 from ..config import load_rig
 from ..errors import EstimationError, RecordingError
 from ..physics import presets
+from .sense_coil import with_flux
 from ..physics.instrument import InstrumentModel
 from .estimation import estimation_errors, phase_delay
 from .method import check_channels, check_fit_quality, recording_name
@@ -283,6 +284,7 @@ def read_sweeps(folder: str | Path) -> dict[str, list[Recording]]:
 def _by_rig(name: str, recs: list[Recording], *, prefix: bool) -> dict[str, list[Recording]]:
     """``{name: recs}`` for one rig; else one entry per rig (``read_sweep`` keeps each rig's
     recordings together, in its order), keyed by the rig or, with ``prefix``, ``name/rig``."""
+    recs = [with_flux(r) for r in recs]  # a sweep that recorded its sense coil's voltage
     rigs = dict.fromkeys(r.rig for r in recs)
     if len(rigs) == 1:
         return {name: recs}

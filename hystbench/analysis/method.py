@@ -196,7 +196,8 @@ def check_channels(rec: Recording, names: tuple[str, ...]) -> dict[str, np.ndarr
     out = {}
     for name in names:
         if name not in rec.channels:
-            raise EstimationError(f"{where}: the method needs a {name!r} column; it has {sorted(rec.channels)}")
+            also = " (or sense_V, with the sidecar's sense_turns)" if name == "flux_Wb" else ""
+            raise EstimationError(f"{where}: the method needs a {name!r} column{also}; it has {sorted(rec.channels)}")
         x = np.asarray(rec.channels[name], dtype=float)
         if x.size == 0:
             raise EstimationError(f"{where}: channel {name!r} has no samples")

@@ -38,6 +38,7 @@ from ...config.effects import CATALOGUE
 from ...errors import BenchError, ConfigError
 from ...formats.recording import Recording
 from ..method import recording_name
+from ..sense_coil import FLUX_FROM
 from .calibrate import calibrate, recalibrated
 from .columns import Simulator, accepts, catalogue_params, check_known
 from .features import RecordFeatures, record_features
@@ -96,6 +97,11 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
                           f"the day's rigs: {', '.join(presets)}); a candidate is an effect the baseline leaves out "
                           "(see --baseline)")
     pool_names = [e for e in (candidates if candidates is not None else CATALOGUE) if e in lacking]
+    with_flux = [r for r in recs if "flux_Wb" in r.channels]
+    if with_flux and all(FLUX_FROM in r.metadata for r in with_flux):  # no integrator on this bench
+        pool_names = [e for e in pool_names if e != "integrator_leak"]
+        warnings.append("the flux was integrated by hystbench from sense_V (no flux integrator recorded): an "
+                        "integrator's leak is not a candidate")
     say(f"features of {len(recs)} recordings")
     data = [_features(r) for r in recs]
     layout = layout_of(data)

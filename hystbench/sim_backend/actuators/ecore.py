@@ -78,6 +78,22 @@ def _saturation_knee_t(hysteresis) -> float:
     return float(grid[np.argmax(past)]) if past.any() else np.inf
 
 
+def drop_rate_of(drop: np.ndarray, prev: np.ndarray | None, fs_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """The rate of the MMF drops ``drop`` (2, n), a causal second-order backward difference (3 r_k - 4
+    r_k-1 + r_k-2) / 2T, and the history the next block needs: ``prev`` holds the last block's last
+    two samples (r0, r1 of the last, then of the one before), NaN where there was none; the rig's first
+    sample has rate 0, its second a first-order difference.  A first-order difference alone lags by
+    half a sample: the sense coil's voltage then put 0.6 % on the hysteresis delay at 160 Hz."""
+    hist = np.full(4, np.nan) if prev is None else np.asarray(prev, dtype=float)
+    ext = np.concatenate([np.array([[hist[2]], [hist[3]]]), np.array([[hist[0]], [hist[1]]]), drop], axis=1)
+    r, r1, r2 = ext[:, 2:], ext[:, 1:-1], ext[:, :-2]
+    first = (r - r1) * fs_hz
+    rate = np.where(np.isnan(r2), first, (3.0 * r - 4.0 * r1 + r2) * (0.5 * fs_hz))
+    rate = np.where(np.isnan(r1), 0.0, rate)
+    last = ext[:, -2:]  # (2, 2): the one before, the last
+    return rate, np.array([last[0, 1], last[1, 1], last[0, 0], last[1, 0]])
+
+
 class ECoreActuator:
     """E-core with optional magnet: the MEC with ideal iron, plus the iron's own MMF drop (material
     model and lamination eddy currents) and the magnet's eddy MMF, solved by fixed-point iteration."""
@@ -438,11 +454,9 @@ class ECoreActuator:
             dz = -force * self._compliance  # the gap closes as the load cell yields
             force = force + quad(self._d2lam) * dz
             flux = flux + (self._douter_dz @ s) * dz
-        # d(flux)/dt: the coil's N1 di/dt is analytic; the small iron/eddy part numerical (causal).
+        # d(flux)/dt: the coil's N1 di/dt is analytic; the small iron/eddy part numerical (causal)
         drop = np.stack([fc, fm]) - s
-        drop_rate = np.diff(drop, axis=1, prepend=drop[:, :1] if self._prev_drop is None
-                            else self._prev_drop[:, None]) * self.fs_hz
-        self._prev_drop = drop[:, -1].copy()
+        drop_rate, self._prev_drop = drop_rate_of(drop, self._prev_drop, self.fs_hz)
         dflux = (self._outer[0] * (self.turns * dcurrent_dt - drop_rate[0])
                  + self._outer[1] * (dfm - drop_rate[1]))
         return ActuatorOutput(force, flux, dflux)
@@ -539,7 +553,7 @@ class ECoreActuator:
             self._remember(h_rest)
             self._h_state = h_state
         force, flux, dflux, iron_b = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-        prev = np.full(2, np.nan) if self._prev_drop is None else self._prev_drop.astype(f64)
+        prev = np.full(4, np.nan) if self._prev_drop is None else self._prev_drop.astype(f64)
         lag_end = np.empty(4)
         kern.final_run(fc, fm, h_rest, self.iron_length_m, coef, y_start, cold, nd, float(self.fs_hz),
                        self._dlam, self._d2lam, self._outer, self._douter_dz, float(self._compliance),

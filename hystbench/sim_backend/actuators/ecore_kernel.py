@@ -187,8 +187,9 @@ def final_run(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, length: float,
     """The linear run with the converged remainder, straight into force, flux and its rate
     (ECoreActuator.step after the passes).  nd = (N00, D00, D11): N = diag(nu0 L, 0) and D is
     diagonal (ECoreActuator._linear_part), so the zero terms of numpy's N x + D dx/dt, which add
-    exact zeros, are left out; prev_drop: the last block's MMF drops, NaN before the first block,
-    updated in place; lag_end = (y, x) at the block's end."""
+    exact zeros, are left out; prev_drop: the last block's last two MMF drops (r0, r1 of the last
+    sample, then of the one before), NaN where there was none, updated in place; lag_end = (y, x) at
+    the block's end."""
     n = fc.size
     lam0, lam1, q00, q01, q10, q11 = lag[0], lag[1], lag[2], lag[3], lag[4], lag[5]
     v00, v01, v10, v11 = lag[6], lag[7], lag[8], lag[9]
@@ -203,7 +204,7 @@ def final_run(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, length: float,
         ya, yb = y_start[0], y_start[1]
     xa = v00 * ya + v01 * yb  # x before the block: linear_mmf's backward difference starts there
     xb = v10 * ya + v11 * yb
-    pd0, pd1 = prev_drop[0], prev_drop[1]
+    pd0, pd1, pe0, pe1 = prev_drop[0], prev_drop[1], prev_drop[2], prev_drop[3]
     for k in range(n):
         u0 = fc[k] - h_rest[k] * length
         u1 = fm[k]
@@ -225,13 +226,18 @@ def final_run(fc: np.ndarray, fm: np.ndarray, h_rest: np.ndarray, length: float,
         force[k] = f
         flux[k] = phi
         iron_b[k] = x0
-        r0 = fc[k] - s0  # the MMF drops; their rate is a causal backward difference
+        r0 = fc[k] - s0  # the MMF drops; their rate a causal second-order backward difference
         r1 = u1 - s1
-        if k == 0 and pd0 != pd0:  # NaN: no block before
-            pd0, pd1 = r0, r1
-        dflux[k] = o0 * (turns * dcur[k] - (r0 - pd0) * fs_hz) + o1 * (dfm - (r1 - pd1) * fs_hz)
-        pd0, pd1 = r0, r1
-    prev_drop[0], prev_drop[1] = pd0, pd1
+        if pd0 != pd0:  # NaN: the rig's first sample
+            q0, q1 = 0.0, 0.0
+        elif pe0 != pe0:  # its second: a first-order difference
+            q0, q1 = (r0 - pd0) * fs_hz, (r1 - pd1) * fs_hz
+        else:
+            q0 = (3.0 * r0 - 4.0 * pd0 + pe0) * (0.5 * fs_hz)
+            q1 = (3.0 * r1 - 4.0 * pd1 + pe1) * (0.5 * fs_hz)
+        dflux[k] = o0 * (turns * dcur[k] - q0) + o1 * (dfm - q1)
+        pe0, pe1, pd0, pd1 = pd0, pd1, r0, r1
+    prev_drop[0], prev_drop[1], prev_drop[2], prev_drop[3] = pd0, pd1, pe0, pe1
     lag_end[0], lag_end[1], lag_end[2], lag_end[3] = ya, yb, xa, xb
 
 
