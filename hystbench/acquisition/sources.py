@@ -216,7 +216,8 @@ class SyntheticSource:
         amp = 0.5 * current_pp_a
         shapes = {"current_A": amp * np.sin(w * t), "flux_Wb": 5e-5 * np.sin(w * (t - flux_lag_s)),
                   "force_N": 175.0 + 45.0 * np.sin(w * (t - flux_lag_s - force_lag_s)),
-                  "command_V": 2 * amp * np.sin(w * t), "sense_V": 0.1 * np.cos(w * (t - flux_lag_s))}
+                  "command_V": 2 * amp * np.sin(w * t),
+                  "sense_V": -0.1 * np.cos(w * (t - flux_lag_s))}  # -turns dflux/dt, the presets' sign
         self._buf = {}
         for c in self.channels:
             x = shapes.get(c, np.sin(w * t))

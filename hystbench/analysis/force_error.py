@@ -38,6 +38,7 @@ from ..physics import presets
 from ..physics.phase_delay_model import PhaseDelayModel, delay_periodic
 from .method import MethodDelays, check_channels, measure_delays, recording_name
 from .periodic import PeriodAverage, synchronous_average
+from .sense_coil import with_flux
 from ..formats.recording import Recording
 
 __all__ = ["loop_eye", "ForceError", "force_error", "phase_delay_model", "analytical_model", "ERROR_KINDS"]
@@ -170,6 +171,7 @@ def force_error(rec: Recording, model: PhaseDelayModel, delays: MethodDelays | N
 
     ``delays`` (default: measured here) gives the true frequency and the instrument delay (force
     behind flux) by which the measured force is shifted back."""
+    rec = with_flux(rec)
     d = measure_delays(rec) if delays is None else delays
     check_channels(rec, ("current_A", "force_N"))
     avg = synchronous_average(rec, d.frequency_hz, n_points, ("current_A", "flux_Wb", "force_N"))

@@ -31,11 +31,11 @@ from scipy.optimize import least_squares
 from ..config import load_rig
 from ..errors import EstimationError, RecordingError
 from ..physics import presets
-from .sense_coil import with_flux
 from ..physics.instrument import InstrumentModel
 from .estimation import estimation_errors, phase_delay
 from .method import check_channels, check_fit_quality, recording_name
 from ..formats.recording import Recording, read_sweep
+from .sense_coil import with_flux
 
 __all__ = ["FrequencyResponse", "InstrumentFit", "EddyLag", "frequency_response", "fit_instrument",
            "eddy_lag", "is_benchmark", "read_sweeps", "preset_instrument", "EDDY_CHECK_HZ", "EDDY_MIN_DEG",

@@ -41,6 +41,7 @@ from .estimation import (OUTLIER_SIGMAS, PhaseDelay, covariance_delay, delay_bet
                          phase_delay, sine_fit)
 from .estimation import find_outliers as estimation_find_outliers
 from ..formats.recording import Recording
+from .sense_coil import OUTLIERS, with_flux
 
 __all__ = ["MethodDelays", "measure_delays", "measure_window", "has_magnet", "covariance_delays", "estimate",
            "recording_name", "check_channels", "check_fit_quality", "find_outliers", "outlier_summary",
@@ -357,7 +358,9 @@ def _check_outlier_share(rec: Recording, masks: dict[str, np.ndarray], sigmas: f
 def measure_delays(rec: Recording) -> MethodDelays:
     """Hysteresis, instrument and total delay of one recording (paper Secs. III, V, VI), with
     each channel's gross outliers left out (and named in the result): the current's and the
-    flux's found by their joint fit, the force's by its own fit at the frequency found."""
+    flux's found by their joint fit, the force's by its own fit at the frequency found.  A recording
+    of the sense coil's voltage is integrated first (:func:`~.sense_coil.with_flux`)."""
+    rec = with_flux(rec)
     return _measure(rec, _require_ecore(rec))
 
 
@@ -442,13 +445,19 @@ def estimate(rec: Recording) -> dict:
 
     Delays in s (positive: the later-named signal lags), phases in degrees at the excitation
     frequency; the covariance method's delays (paper Eq. 3) beside the sine-fit ones; and the rig
-    preset's instrument model (paper Figs. 8-9) at the force's frequency for comparison."""
+    preset's instrument model (paper Figs. 8-9) at the force's frequency for comparison.  The sense
+    voltage's samples bridged as outliers before it was integrated are among ``outliers``."""
+    rec = with_flux(rec)
     d = measure_delays(rec)
     masks = {c: _index_mask(rec.n, v) for c, v in d.outliers.items()}
     cov = covariance_delays(rec, d.frequency_hz, masks)
     f = d.frequency_hz
     model = presets.instrument(load_rig(rec.rig))
     model_delay = float(model.delay_s(d.harmonic * f))
+    found = d.as_dict()
+    if rec.metadata.get(OUTLIERS):  # bridged in the voltage before it was integrated
+        found["outliers"]["sense_V"] = list(rec.metadata[OUTLIERS])
+        found["outliers_excluded"] = True
     return {
         "recording": d.recording,
         "rig": rec.rig,
@@ -456,7 +465,7 @@ def estimate(rec: Recording) -> dict:
         "current_pp_A": rec.current_pp_a,
         "sample_rate_Hz": rec.fs_hz,
         "samples": rec.n,
-        **d.as_dict(),
+        **found,
         "theta_hyst_deg": d.phase_deg("hysteresis"),
         "explained_variance": d.explained,
         "covariance_method": {

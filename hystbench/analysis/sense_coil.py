@@ -2,20 +2,23 @@
 
 The recording format lets a bench record the sense coil's voltage before any integrator ("the
 project integrates it itself"): a bench without a flux integrator, or one whose integrator is
-distrusted.  Every analysis that needs the flux takes it from here, integrated the same way.
+distrusted.  Every analysis that needs the flux (the method's delays, identification, the force
+models, the diagnosis) takes it from :func:`with_flux`, integrated the same way.
 
 - Faraday, in the project's sign convention (the rig presets' ``sense.turns``): sense_V = -N dphi/dt,
-  so phi = -(1/N) integral of sense_V dt, with N the sidecar's ``sense_turns`` (required: a flux
-  off by the turns would be a wrong flux, not a missing one).
+  so phi = -(1/N) integral of sense_V dt, with N the sidecar's ``sense_turns``.  A coil wired the
+  other way gives a flux in antiphase with the current, which no iron does: refused, not guessed.
+- A glitch in the voltage would be a step in its integral, which no later outlier search can find:
+  the voltage's own outliers (off its fitted waveform, as the method finds a channel's) are bridged
+  by straight lines first, and named in the sidecar the analyses see (``sense_V_outliers``).
 - The integral is the trapezoidal rule, whose phase is exactly -90 deg at every frequency (a bilinear
   integrator: no delay between the flux and the current it is compared with), with its gain error
   1 - (w T)^2 / 12 undone by a symmetric three-tap correction (no phase of its own): what is left is
   11 (w T)^4 / 720, 3e-5 at 3.4 kHz sampled at 100 kHz.
-- The flux is AC only, like an integrator's: the voltage's DC is taken out first (an ADC offset would
-  otherwise ramp), the flux's after, each the mean over the whole periods of the nominal frequency
-  weighted by a Hann window (with two periods or more): a clock a few ppm off the nominal leaves
-  those periods a fraction of a sample from whole, and the window keeps that fraction out of the DC
-  (plain means left the flux a ramp that moved its fundamental by 5e-5 at 40 ppm).
+- AC only, as an integrator's output: the voltage's offset, and an offset that drifts linearly, are a
+  quadratic in the integral, fitted together with the harmonics of the nominal frequency and taken out
+  (a plain mean leaves a ramp where the record is not a whole number of periods: 1.3e-2 of the
+  amplitude at 333 Hz over two periods on 100 kHz).
 """
 
 from __future__ import annotations
@@ -24,66 +27,125 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from scipy import signal
 
 from ..errors import RecordingError
 from ..formats.recording import Recording
+from .estimation import estimation_errors, find_outliers
 
-__all__ = ["integrate_sense_voltage", "with_flux", "FLUX_FROM"]
+__all__ = ["integrate_sense_voltage", "with_flux", "FLUX_FROM", "OUTLIERS", "TREND_HARMONICS"]
 
 #: The sidecar key that says the flux was integrated here, and from what.
 FLUX_FROM = "flux_Wb_from"
+#: The sidecar key listing the voltage's samples bridged as outliers.
+OUTLIERS = "sense_V_outliers"
+#: Harmonics of the nominal frequency fitted beside the trend (a sense voltage carries a flux's odd
+#: harmonics times their order), and those the outlier search fits.
+TREND_HARMONICS = 15
+OUTLIER_HARMONICS = tuple(range(1, 10))
+#: At most this share of the voltage's samples may be bridged (the method's limit for a channel).
+MAX_BRIDGED = 0.01
+_CHUNK = 65536  # samples per block of the trend's normal equations: bounded memory on long records
 
 
 def integrate_sense_voltage(sense_v: np.ndarray, fs_hz: float, turns: float, frequency_hz: float) -> np.ndarray:
     """The flux (Wb, AC only) through a coil of ``turns`` whose voltage is ``sense_v``, sampled at
-    ``fs_hz``; the means are taken over the whole periods of ``frequency_hz`` (module docstring)."""
+    ``fs_hz``, excited at ``frequency_hz`` (module docstring)."""
     v = np.asarray(sense_v, dtype=float)
-    whole, periods = _whole_periods(v.size, fs_hz, frequency_hz)
-    v = v - _dc(v[:whole], periods)
-    dt = 1.0 / fs_hz
     phi = np.empty_like(v)
     phi[0] = 0.0
-    np.cumsum(0.5 * dt * (v[1:] + v[:-1]), out=phi[1:])
-    # the trapezoid's gain 1 - (wT)^2/12 + ..., undone by 1 - (second difference)/12 (at each end, the
-    # second difference extrapolated from its two neighbours)
-    corrected = phi.copy()
-    if v.size >= 4:
-        d2 = phi[2:] - 2.0 * phi[1:-1] + phi[:-2]
-        corrected -= np.concatenate(([2 * d2[0] - d2[1]], d2, [2 * d2[-1] - d2[-2]])) / 12.0
-    flux = -corrected / turns
-    return flux - _dc(flux[:whole], periods)
+    np.cumsum((0.5 / fs_hz) * (v[1:] + v[:-1]), out=phi[1:])
+    if v.size >= 4:  # the trapezoid's gain 1 - (wT)^2/12 + ..., undone by 1 - (second difference)/12
+        d2 = phi[2:] - 2.0 * phi[1:-1] + phi[:-2]  # at each end extrapolated from its two neighbours
+        phi -= np.concatenate(([2 * d2[0] - d2[1]], d2, [2 * d2[-1] - d2[-2]])) / 12.0
+    flux = -phi / turns
+    return flux - _trend(flux, fs_hz, frequency_hz)
 
 
-def _whole_periods(n: int, fs_hz: float, frequency_hz: float) -> tuple[int, int]:
-    """Samples in the whole periods of ``frequency_hz`` from the start, and how many periods (all the
-    samples, and 0, when under one)."""
-    per = fs_hz / frequency_hz
-    periods = math.floor(n / per)
-    return (n, 0) if periods < 1 else (max(2, min(n, round(periods * per))), periods)
+def _trend(x: np.ndarray, fs_hz: float, frequency_hz: float) -> np.ndarray:
+    """The quadratic in time of ``x``, fitted by least squares together with the harmonics of
+    ``frequency_hz`` below the Nyquist frequency (normal equations over blocks of samples)."""
+    n = x.size
+    k_max = max(1, min(TREND_HARMONICS, math.ceil(fs_hz / (2 * frequency_hz)) - 1))
+    w = 2 * np.pi * frequency_hz / fs_hz * np.arange(1, k_max + 1)
+
+    def basis(i0: int, i1: int) -> np.ndarray:
+        i = np.arange(i0, i1, dtype=float)
+        s = 2 * i / max(n - 1, 1) - 1  # [-1, 1]: Legendre polynomials stay well conditioned
+        c, d = np.cos(np.outer(i, w)), np.sin(np.outer(i, w))
+        # each harmonic also times s: its frequency a few ppm off the nominal (a clock's), which the
+        # quadratic would otherwise take a share of (1.3e-4 of the amplitude at 40 ppm over 48 periods)
+        return np.column_stack([np.ones_like(s), s, 1.5 * s * s - 0.5, c, d, s[:, None] * c, s[:, None] * d])
+
+    p = 3 + 4 * k_max
+    ata, aty = np.zeros((p, p)), np.zeros(p)
+    for i0 in range(0, n, _CHUNK):
+        A = basis(i0, min(n, i0 + _CHUNK))
+        ata += A.T @ A
+        aty += A.T @ x[i0:i0 + A.shape[0]]
+    coef = np.linalg.lstsq(ata, aty, rcond=None)[0]
+    s = 2 * np.arange(n) / max(n - 1, 1) - 1
+    return coef[0] + coef[1] * s + coef[2] * (1.5 * s * s - 0.5)
 
 
-def _dc(x: np.ndarray, periods: int) -> float:
-    """The mean of ``x`` (whole periods), Hann-weighted when two periods or more (a periodic Hann
-    window is zero at every harmonic from the second bin on; over one period the plain mean is)."""
-    if periods < 2:
-        return float(x.mean())
-    w = signal.windows.hann(x.size, sym=False)
-    return float(np.dot(w, x) / w.sum())
-
-
-def with_flux(rec: Recording) -> Recording:
+def with_flux(rec: Recording, *, required: bool = True) -> Recording:
     """``rec`` itself when it has ``flux_Wb`` or no ``sense_V``; else a copy with ``flux_Wb``
-    integrated from ``sense_V`` (its sidecar saying so in ``flux_Wb_from``)."""
+    integrated from ``sense_V`` (its sidecar saying so in ``flux_Wb_from``, and naming the voltage's
+    bridged outliers in ``sense_V_outliers``).  Without the sidecar's ``sense_turns`` it is refused,
+    or, not ``required``, ``rec`` is handed back as it is (the diagnosis goes on without a flux)."""
     if "flux_Wb" in rec.channels or "sense_V" not in rec.channels:
         return rec
-    where = f"{rec.path}.json" if rec.path is not None else "recording"
+    where = f"{rec.path}.json" if rec.path is not None else f"the {rec.rig} recording at {rec.frequency_hz:g} Hz"
     turns = rec.metadata.get("sense_turns")
     if turns is None:
+        if not required:
+            return rec
         raise RecordingError(f"{where}: the recording has sense_V and no flux_Wb; integrating the sense coil's "
                              "voltage into a flux needs its turns: add 'sense_turns' to the sidecar")
     if isinstance(turns, bool) or not isinstance(turns, (int, float)) or not (math.isfinite(turns) and turns > 0):
         raise RecordingError(f"{where}: 'sense_turns' must be a positive number of turns, got {turns!r}")
-    flux = integrate_sense_voltage(rec.channels["sense_V"], rec.fs_hz, float(turns), rec.frequency_hz)
+    periods = rec.n * rec.frequency_hz / rec.fs_hz
+    if periods < 2.0:
+        raise RecordingError(f"{where}: sense_V covers {periods:.2f} periods of {rec.frequency_hz:g} Hz; integrating "
+                             "it into a flux needs at least two (its offset is told from its signal over whole periods)")
+    v, bridged = _bridge_outliers(rec, where)
+    flux = integrate_sense_voltage(v, rec.fs_hz, float(turns), rec.frequency_hz)
+    _check_polarity(rec, flux, where)
     meta = {**rec.metadata, FLUX_FROM: f"sense_V integrated by hystbench (sense_V = -{turns:g} dphi/dt)"}
+    if bridged.size:
+        meta[OUTLIERS] = bridged.tolist()
     return replace(rec, channels={**rec.channels, "flux_Wb": flux}, metadata=meta)
+
+
+def _bridge_outliers(rec: Recording, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """The voltage with its outliers (far off its fitted waveform) replaced by straight lines between
+    their good neighbours, and their indices; more than MAX_BRIDGED of them is a broken channel."""
+    v = np.asarray(rec.channels["sense_V"], dtype=float)
+    with estimation_errors(where):
+        (mask,), _ = find_outliers([v], rec.fs_hz, rec.frequency_hz, harmonics=OUTLIER_HARMONICS,
+                                   names=["channel 'sense_V'"])
+    bad = np.flatnonzero(mask)
+    if bad.size > MAX_BRIDGED * v.size:
+        raise RecordingError(f"{where}: sense_V has {bad.size} samples far off its fitted waveform (first at "
+                             f"{', '.join(map(str, bad[:5]))}); more than {100 * MAX_BRIDGED:g} % are not glitches: "
+                             "is the channel broken?")
+    if bad.size:
+        good = np.flatnonzero(~mask)
+        v = v.copy()
+        v[bad] = np.interp(bad, good, v[good])
+    return v, bad
+
+
+def _check_polarity(rec: Recording, flux: np.ndarray, where: str) -> None:
+    """A flux more than 90 deg from the current at the fundamental is a coil wired the other way
+    round (an iron's lag is tens of degrees at most)."""
+    if "current_A" not in rec.channels:
+        return
+    t = np.arange(rec.n) * (2 * np.pi * rec.frequency_hz / rec.fs_hz)
+    e = np.exp(-1j * t)
+    i = complex(np.dot(np.asarray(rec.channels["current_A"], dtype=float), e))
+    p = complex(np.dot(flux, e))
+    if abs(i) > 0 and abs(p) > 0 and (p * i.conjugate()).real < 0:
+        lag = math.degrees(np.angle(p * i.conjugate()))
+        raise RecordingError(f"{where}: the flux integrated from sense_V is {lag:+.0f} deg from current_A at "
+                             f"{rec.frequency_hz:g} Hz: the sense coil is wired the other way round from sense_V = "
+                             "-turns dphi/dt (the project's convention); negate the sense_V column")

@@ -49,7 +49,6 @@ def cmd_model_fit(args: argparse.Namespace) -> int:
     from ..compensator.sweeps import sweep_data
     from ..config import load_rig
     from ..reports.console import progress
-    from ..analysis.sense_coil import with_flux
     from ..formats.outputs import output_file
     from ..formats.recording import read_sweep
 
@@ -64,8 +63,7 @@ def cmd_model_fit(args: argparse.Namespace) -> int:
             from ..analysis.identification import fit_instrument, frequency_response
 
             instrument = fit_instrument(frequency_response(read_sweep(args.instrument_sweep, one_rig=True))).model
-        # one actuator's models: a bench day's folder is refused
-        recs = [with_flux(r) for r in read_sweep(args.sweep, one_rig=True)]
+        recs = read_sweep(args.sweep, one_rig=True)  # one actuator's models: a bench day's folder is refused
         task = bar.add_task(f"period averages of {args.sweep}", total=len(recs))
         rig, points = sweep_data(recs, tick=lambda: bar.advance(task))
         bar.update(task, description=f"fitting {', '.join(args.kinds)}", total=None)

@@ -81,7 +81,6 @@ def read_inputs(paths: list[Path]) -> list[Any]:
     told apart by the sidecars' ``rig``, or one subfolder per rig; a folder or log with fewer than
     two recordings is refused."""
     from ..analysis.log_recordings import read_mcap_segments
-    from ..analysis.sense_coil import with_flux
     from ..formats.recording import read_sweep
 
     recs: list[Any] = []
@@ -106,7 +105,7 @@ def read_inputs(paths: list[Path]) -> list[Any]:
             r = part[0]
             raise RecordingError(f"{path}: only one recording ({r.rig} at {r.frequency_hz:g} Hz, {r.current_pp_a:g} "
                                  f"A-pp); a diagnosis needs several operating points per {what}")
-        recs += [with_flux(r) for r in part]
+        recs += part
     _refuse_copies(recs)
     return recs
 

@@ -34,7 +34,6 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     """`hystbench estimate`: the method's three delays (paper Sec. III) from one recording or one
     segment of an MCAP log."""
     from ..analysis.method import estimate
-    from ..analysis.sense_coil import with_flux
     from ..formats.recording import read_recording
 
     if Path(args.path).suffix.lower() == ".mcap":
@@ -46,7 +45,7 @@ def cmd_estimate(args: argparse.Namespace) -> int:
             raise ConfigError(f"--segment {args.segment}: {args.path} is a recording (one operating point); "
                               "--segment picks one of an MCAP log's")
         rec = read_recording(args.path)
-    result = estimate(with_flux(rec))
+    result = estimate(rec)
     if result["outliers_excluded"]:
         from ..analysis.method import outlier_summary
 

@@ -18,6 +18,7 @@ import numpy as np
 from ..analysis.estimation import estimation_errors, sine_fit
 from ..analysis.method import check_channels, check_fit_quality, measure_delays, recording_name
 from ..analysis.periodic import estimate_frequency, synchronous_average
+from ..analysis.sense_coil import with_flux
 from ..config import load_rig
 from ..errors import RecordingError
 from ..formats.recording import Recording
@@ -38,7 +39,8 @@ JUDGE_FREQS_HZ = (40.0, 80.0, 160.0, 320.0, 480.0)
 
 
 def period_data(rec: Recording, n_points: int = 1000) -> PeriodData:
-    """One recording as the compensator's :class:`~.data.PeriodData`."""
+    """One recording as the compensator's :class:`~.data.PeriodData` (a sense coil's voltage integrated)."""
+    rec = with_flux(rec)
     d = measure_delays(rec)
     avg = synchronous_average(rec, d.frequency_hz, n_points, ("current_A", "flux_Wb", "force_N"))
     se = 2 * np.pi * d.frequency_hz * d.delays_std_s["hysteresis"]

@@ -58,8 +58,8 @@ def test_nan_sample():
 
 def test_missing_channel():
     rec = simulate()
-    del rec.channels["flux_Wb"]
-    refused(rec, "'flux_Wb'", "needs")
+    del rec.channels["flux_Wb"], rec.channels["sense_V"]  # a sense voltage alone would be integrated
+    refused(rec, "'flux_Wb'", "needs", "or sense_V, with the sidecar's sense_turns")
 
 
 def test_frequency_not_in_the_data():

@@ -38,7 +38,7 @@ from ...config.effects import CATALOGUE
 from ...errors import BenchError, ConfigError
 from ...formats.recording import Recording
 from ..method import recording_name
-from ..sense_coil import FLUX_FROM
+from ..sense_coil import FLUX_FROM, with_flux
 from .calibrate import calibrate, recalibrated
 from .columns import Simulator, accepts, catalogue_params, check_known
 from .features import RecordFeatures, record_features
@@ -64,7 +64,7 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
     processes replaying at once (default: $HYSTBENCH_JOBS, else one per core)."""
     start = time.perf_counter()
     say = progress or (lambda message: None)
-    recs = list(recordings)
+    recs = [with_flux(r, required=False) for r in recordings]  # a sense coil's voltage, integrated
     if len(recs) < 2:
         where = recording_name(recs[0]) if recs else "the input"
         raise DiagnosisError(f"{where}: a diagnosis needs at least two recordings (operating points); got {len(recs)}")
@@ -85,6 +85,11 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
     if not any("flux_Wb" in r.channels for r in recs):
         warnings.append("no recording has flux_Wb: force vs flux and flux vs current cannot be located without it; "
                         "going on with force vs current")
+    unturned = [recording_name(r) for r in recs if "sense_V" in r.channels and "flux_Wb" not in r.channels]
+    if unturned:
+        warnings.append(f"{len(unturned)} recording(s) have sense_V but no sense_turns in their sidecar "
+                        f"({', '.join(unturned[:3])}{', ...' if len(unturned) > 3 else ''}): their sense voltage is "
+                        "not integrated into a flux")
 
     base_effects = _baseline_effects(presets, baseline)
     in_base = sorted({e for effs in base_effects.values() for e in effs})
@@ -97,8 +102,8 @@ def diagnose(recordings: Sequence[Recording], *, baseline: Sequence[str] | None 
                           f"the day's rigs: {', '.join(presets)}); a candidate is an effect the baseline leaves out "
                           "(see --baseline)")
     pool_names = [e for e in (candidates if candidates is not None else CATALOGUE) if e in lacking]
-    with_flux = [r for r in recs if "flux_Wb" in r.channels]
-    if with_flux and all(FLUX_FROM in r.metadata for r in with_flux):  # no integrator on this bench
+    fluxed = [r for r in recs if "flux_Wb" in r.channels]
+    if fluxed and all(FLUX_FROM in r.metadata for r in fluxed):  # no integrator on this bench
         pool_names = [e for e in pool_names if e != "integrator_leak"]
         warnings.append("the flux was integrated by hystbench from sense_V (no flux integrator recorded): an "
                         "integrator's leak is not a candidate")
