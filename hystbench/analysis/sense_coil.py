@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -94,7 +95,7 @@ def with_flux(rec: Recording, *, required: bool = True) -> Recording:
     or, not ``required``, ``rec`` is handed back as it is (the diagnosis goes on without a flux)."""
     if "flux_Wb" in rec.channels or "sense_V" not in rec.channels:
         return rec
-    where = f"{rec.path}.json" if rec.path is not None else f"the {rec.rig} recording at {rec.frequency_hz:g} Hz"
+    where = _where(rec)
     turns = rec.metadata.get("sense_turns")
     if turns is None:
         if not required:
@@ -107,6 +108,9 @@ def with_flux(rec: Recording, *, required: bool = True) -> Recording:
     if periods < 2.0:
         raise RecordingError(f"{where}: sense_V covers {periods:.2f} periods of {rec.frequency_hz:g} Hz; integrating "
                              "it into a flux needs at least two (its offset is told from its signal over whole periods)")
+    if np.ptp(rec.channels["sense_V"]) == 0.0:
+        raise RecordingError(f"{where}: sense_V is flat (every sample {float(rec.channels['sense_V'][0])!r}): no flux "
+                             "to integrate")
     v, bridged = _bridge_outliers(rec, where)
     flux = integrate_sense_voltage(v, rec.fs_hz, float(turns), rec.frequency_hz)
     _check_polarity(rec, flux, where)
@@ -114,6 +118,16 @@ def with_flux(rec: Recording, *, required: bool = True) -> Recording:
     if bridged.size:
         meta[OUTLIERS] = bridged.tolist()
     return replace(rec, channels={**rec.channels, "flux_Wb": flux}, metadata=meta)
+
+
+def _where(rec: Recording) -> str:
+    """What a refusal names: the sidecar of a recording's files, or the log segment."""
+    point = f"the {rec.rig} recording at {rec.frequency_hz:g} Hz"
+    if rec.path is None:
+        return point
+    if Path(rec.path).suffix.lower() == ".mcap":  # a log's segment: its sidecar is a record inside it
+        return f"{rec.path}: {point}"
+    return f"{rec.path}.json"
 
 
 def _bridge_outliers(rec: Recording, where: str) -> tuple[np.ndarray, np.ndarray]:

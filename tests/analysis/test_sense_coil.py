@@ -208,3 +208,17 @@ def test_a_diagnosis_without_the_turns_goes_on_without_a_flux_and_says_why():
     got = diagnose(recs, candidates=["force_offset_drift"], jobs=1)
     assert any("have sense_V but no sense_turns" in w for w in got.warnings)
     assert any("no recording has flux_Wb" in w for w in got.warnings)
+
+
+def test_a_flat_sense_voltage_and_a_log_segment_are_named_as_what_they_are(tmp_path):
+    """A flat voltage is refused as sense_V (not as the flat flux it would make), and a segment of an
+    MCAP log is named by the log and its operating point (its sidecar is a record inside the log)."""
+    rec = _sense_only(_simulated(seconds=0.05))
+    flat = dataclasses_replace(rec, channels={**rec.channels, "sense_V": np.full(rec.n, 0.25)})
+    with pytest.raises(RecordingError, match=r"sense_V is flat \(every sample 0\.25\)"):
+        with_flux(flat)
+    logged = dataclasses_replace(rec, path=tmp_path / "day3.mcap",
+                                 metadata={k: v for k, v in rec.metadata.items() if k != "sense_turns"})
+    with pytest.raises(RecordingError, match=rf"^{re.escape(str(tmp_path / 'day3.mcap'))}: the ecore_pm recording "
+                                             r"at 160 Hz: .*add 'sense_turns'"):
+        with_flux(logged)
