@@ -51,6 +51,10 @@ def test_shipped_bench_file_loads_all_sim():
      "[current_amplifier.settings] watchdog_s = 0.001 s: the amplifier takes 0 (off) or at least 0.05 s"),
     (("watchdog_s = 0.5", "watchdog_s = 0.15"),
      "[current_amplifier.settings] watchdog_s = 0.15 s is shorter than two of [bench] heartbeat_s = 0.1 s"),
+    # an emulated rig ticking once a sample: 15 times slower than the clock it emulates, a core busy
+    (("block_samples = 20000", "block_samples = 1"),
+     "[sim] block_samples = 1: a clock tick of 10 us at [bench] fs_hz = 100000; the emulated rig makes each tick "
+     "at once, and below 1 ms a tick's own cost outruns the clock: use at least 100"),
 ])
 def test_bad_keys_name_file_and_key(tmp_path, edit, expected):
     text = shipped().replace(*edit, 1)
@@ -114,3 +118,14 @@ def test_hardware_example_builds_drivers_without_touching_anything():
     assert drivers["current_amplifier"].serial_port == "/dev/ttyUSB0"
     assert drivers["signal_generator"].link.url == "socket://192.168.0.20:5025"
     assert not any(d.is_open for d in drivers.values())
+
+
+def test_a_tick_of_one_millisecond_is_taken_and_hardware_ignores_the_emulators_tick(tmp_path):
+    from hystbench.config import CONFIG_DIR
+
+    cfg = load_bench_config(write(tmp_path, shipped().replace("block_samples = 20000", "block_samples = 100", 1)))
+    assert cfg.sim["block_samples"] == 100
+    hardware = (CONFIG_DIR / "bench_hardware.toml").read_text()  # no instrument emulated: no rig to tick
+    text = hardware.replace("[sim]", "[sim]\nblock_samples = 1", 1) if "[sim]" in hardware else hardware + "\n[sim]\nblock_samples = 1\n"
+    got = load_bench_config(write(tmp_path, text))
+    assert not got.any_sim and got.sim["block_samples"] == 1

@@ -11,6 +11,7 @@ its emulator is) is one row of ``_KINDS``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -99,7 +100,8 @@ _SIM = {
     "rig": Key(str, "ecore_pm", "the simulated rig preset behind the emulated instruments"),
     "seed": Key(int, 0, "random seed of the simulated noise", ge=0),
     "block_samples": Key(int, 20_000, "samples per clock tick (200 ms at 100 kS/s), made at once and sent as a "
-                         "burst (at most 1e6: a tick is computed and held whole)", "samples", gt=0, le=1_000_000),
+                         "burst (at most 1e6: a tick is computed and held whole; with emulated instruments at "
+                         "least 1 ms of samples, MIN_TICK_S)", "samples", gt=0, le=1_000_000),
     "pace": Key(str, "realtime", "realtime: at the sample clock; max: as fast as computed",
                 choices=("realtime", "max")),
     "effects": Key(dict, {}, "switches on top of the rig preset's, e.g. { sensor_noise = false }"),
@@ -418,6 +420,21 @@ def _check_watchdog(watchdog_s: float | None, heartbeat_s: float, src: str) -> N
                           "or lower heartbeat_s")
 
 
+#: The shortest clock tick of the emulated rig: a tick costs it about 0.2 ms of CPU whatever its length
+#: (0.16 ms for one sample, 0.20 ms for 100, measured on 2026-11-30), before the instruments send it;
+#: ticks of one sample at 100 kS/s ran 15 times slower than the clock they emulate, on a busy core.
+MIN_TICK_S = 1e-3
+
+
+def _check_tick(block_samples: int, fs_hz: float, src: str) -> None:
+    """An emulated rig's tick long enough for it to keep up with its sample clock (MIN_TICK_S)."""
+    if block_samples / fs_hz < MIN_TICK_S:
+        least = math.ceil(MIN_TICK_S * fs_hz)
+        raise ConfigError(f"{src} [sim] block_samples = {block_samples}: a clock tick of {1e6 * block_samples / fs_hz:.3g} "
+                          f"us at [bench] fs_hz = {fs_hz:g}; the emulated rig makes each tick at once, and below "
+                          f"{1e3 * MIN_TICK_S:g} ms a tick's own cost outruns the clock: use at least {least}")
+
+
 def load_bench_config(path: str | Path | None = None) -> BenchConfig:
     """Read and check a bench file (default: the shipped ``config/bench.toml``)."""
     path = Path(path) if path is not None else DEFAULT_BENCH
@@ -433,9 +450,11 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
                           f"max_current_a = {bench['max_current_a']:g} A: the amplifier may not be set to trip above "
                           "the bench's limit; lower it, or raise max_current_a")
     _check_watchdog(instruments["current_amplifier"].settings.get("watchdog_s"), bench["heartbeat_s"], src)
+    digitiser = _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None
+    if any(i.is_sim for i in instruments.values()) or (digitiser is not None and digitiser.is_sim):
+        _check_tick(cfg["sim"]["block_samples"], bench["fs_hz"], src)
     # the emulated rig's switches, named as this file's (they were named "--effect", an option nobody gave)
     validate_effects(cfg["sim"].get("effects", {}), f"{src} [sim] effects", fs_hz=bench["fs_hz"])
     return BenchConfig(src, bench["max_current_a"], bench["fs_hz"], bench["timeout_s"], bench["stall_timeout_s"],
-                       bench["heartbeat_s"], backoff, cfg["sim"], instruments,
-                       _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None, bench["in_flight_s"],
+                       bench["heartbeat_s"], backoff, cfg["sim"], instruments, digitiser, bench["in_flight_s"],
                        bench["current_margin"])
