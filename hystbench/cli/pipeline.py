@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import signal
 import sys
 from pathlib import Path
@@ -335,15 +334,11 @@ def _source_from_args(args):
         src.set_output(True)
         return src
     from ..config.effects import parse_effect_args
-    from ..drivers.protocols.bench_config import MIN_TICK_S
-    from ..errors import ConfigError
+    from ..drivers.protocols.bench_config import check_tick
     from ..sim_backend.bench_day import refuse_effects_not_acting
     from ..sim_backend.rig import SimulatedRig
 
-    if args.block / args.fs < MIN_TICK_S:  # as a bench file's [sim] block_samples
-        raise ConfigError(f"--block {args.block}: {1e6 * args.block / args.fs:.3g} us at --fs {args.fs:g}; the simulated "
-                          f"rig's cost per block outruns its clock below {1e3 * MIN_TICK_S:g} ms: use at least "
-                          f"{math.ceil(MIN_TICK_S * args.fs)}")
+    check_tick(args.block, args.fs, f"--block {args.block} (--fs {args.fs:g})")  # as a bench file's [sim] block_samples
     effects = parse_effect_args(args.effect)
     refuse_effects_not_acting(args.rig or DEFAULT_RIG, effects)
     rig = SimulatedRig(args.rig or DEFAULT_RIG, fs_hz=args.fs, seed=args.seed, effects=effects,

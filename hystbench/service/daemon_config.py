@@ -26,7 +26,6 @@ refused in its file already.
 from __future__ import annotations
 
 import copy
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Mapping
@@ -309,13 +308,9 @@ def check_source(values: dict[str, dict[str, Any]], given: set[tuple[str, str]],
             refuse("effects", 'synthetic sines have no physical effects; use kind = "sim" or "bench"')
         if kind == "sim":
             _validate_effects(s["effects"], where, s["fs_hz"])
-            from ..drivers.protocols.bench_config import MIN_TICK_S
+            from ..drivers.protocols.bench_config import check_tick
 
-            if s["block_samples"] / s["fs_hz"] < MIN_TICK_S:  # the simulated rig's cost per block outruns the clock
-                refuse("block_samples", f"{s['block_samples']} samples are {1e6 * s['block_samples'] / s['fs_hz']:.3g} us "
-                                        f"at fs_hz = {s['fs_hz']:g}; the simulated rig's cost per block outruns its "
-                                        f"clock below {1e3 * MIN_TICK_S:g} ms: use at least "
-                                        f"{math.ceil(MIN_TICK_S * s['fs_hz'])}")
+            check_tick(s["block_samples"], s["fs_hz"], f"{where} [source] block_samples = {s['block_samples']}")
         from ..acquisition.sources import MAX_BLOCK_SAMPLES
 
         if s["block_samples"] > MAX_BLOCK_SAMPLES:

@@ -54,8 +54,8 @@ def hardware_bench_file(tmp_path: Path) -> Path:
     ('[source]\nkind = "sim"\nbench_file = "x.toml"\n', r'\[source\] bench_file: only kind = "bench" reads a bench file'),
     ('[source]\nkind = "synthetic"\neffects = { sensor_noise = false }\n', r"\[source\] effects: synthetic sines"),
     # a simulated rig read a sample at a time: its cost per block outruns the clock (15x at 100 kS/s)
-    ('[source]\nkind = "sim"\nblock_samples = 10\n', r"\[source\] block_samples: 10 samples are 100 us at fs_hz = "
-     r"100000; the simulated rig's cost per block outruns its clock below 1 ms: use at least 100"),
+    ('[source]\nkind = "sim"\nblock_samples = 10\n', r"\[source\] block_samples = 10: a tick of 100 us at 100000 S/s; "
+     r"the simulated rig makes each tick at once, and below 1 ms a tick's own cost outruns the clock: use at least 100"),
     ('[source]\ncurrent_pp_a = 50.0\n', r"\[source\].*25 A exceeds the bench's limit of 1\.71 A"),
     ('[source]\nfrequency_hz = 60000.0\n', r"\[source\] frequency_hz = 60000 Hz is outside \[1, 10000\] Hz"),
     ('[sweep]\nfrequencies_hz = [40.0, 90000.0]\n', r"\[sweep\] frequencies_hz\[1\]"),

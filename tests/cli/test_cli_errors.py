@@ -51,7 +51,7 @@ CASES = [
     ("record --block 1e9", ["record", "--source", "sim", "--block", "1000000000", "--out", "TMP/out/r.mcap"],
      ["argument --block", "'1000000000'"]),
     ("record --block 1 (a busy core)", ["record", "--source", "sim", "--block", "1", "--out", "TMP/out/r.mcap"],
-     ["--block 1: 10 us at --fs 100000", "below 1 ms", "use at least 100"]),
+     ["--block 1 (--fs 100000): a tick of 10 us", "below 1 ms", "use at least 100"]),
     ("record --seconds 1e308", ["record", "--source", "synthetic", "--pace", "max", "--seconds", "1e308", "--out",
                                 "TMP/out/r.mcap"], ["argument --seconds", "'1e308'"]),
     ("record synthetic --fs 1e308", ["record", "--source", "synthetic", "--fs", "1e308", "--out", "TMP/out/r.mcap"],

@@ -53,8 +53,8 @@ def test_shipped_bench_file_loads_all_sim():
      "[current_amplifier.settings] watchdog_s = 0.15 s is shorter than two of [bench] heartbeat_s = 0.1 s"),
     # an emulated rig ticking once a sample: 15 times slower than the clock it emulates, a core busy
     (("block_samples = 20000", "block_samples = 1"),
-     "[sim] block_samples = 1: a clock tick of 10 us at [bench] fs_hz = 100000; the emulated rig makes each tick "
-     "at once, and below 1 ms a tick's own cost outruns the clock: use at least 100"),
+     "[sim] block_samples = 1: a tick of 10 us at 100000 S/s; the simulated rig makes each tick at once, and below "
+     "1 ms a tick's own cost outruns the clock: use at least 100"),
 ])
 def test_bad_keys_name_file_and_key(tmp_path, edit, expected):
     text = shipped().replace(*edit, 1)

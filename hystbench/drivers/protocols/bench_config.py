@@ -426,13 +426,13 @@ def _check_watchdog(watchdog_s: float | None, heartbeat_s: float, src: str) -> N
 MIN_TICK_S = 1e-3
 
 
-def _check_tick(block_samples: int, fs_hz: float, src: str) -> None:
-    """An emulated rig's tick long enough for it to keep up with its sample clock (MIN_TICK_S)."""
+def check_tick(block_samples: int, fs_hz: float, where: str) -> None:
+    """A simulated rig's tick (a block it makes at once) long enough for it to keep up with its sample
+    clock (MIN_TICK_S); ``where`` names the setting (the file and key, or the option)."""
     if block_samples / fs_hz < MIN_TICK_S:
-        least = math.ceil(MIN_TICK_S * fs_hz)
-        raise ConfigError(f"{src} [sim] block_samples = {block_samples}: a clock tick of {1e6 * block_samples / fs_hz:.3g} "
-                          f"us at [bench] fs_hz = {fs_hz:g}; the emulated rig makes each tick at once, and below "
-                          f"{1e3 * MIN_TICK_S:g} ms a tick's own cost outruns the clock: use at least {least}")
+        raise ConfigError(f"{where}: a tick of {1e6 * block_samples / fs_hz:.3g} us at {fs_hz:g} S/s; the simulated "
+                          f"rig makes each tick at once, and below {1e3 * MIN_TICK_S:g} ms a tick's own cost outruns "
+                          f"the clock: use at least {math.ceil(MIN_TICK_S * fs_hz)}")
 
 
 def load_bench_config(path: str | Path | None = None) -> BenchConfig:
@@ -452,7 +452,7 @@ def load_bench_config(path: str | Path | None = None) -> BenchConfig:
     _check_watchdog(instruments["current_amplifier"].settings.get("watchdog_s"), bench["heartbeat_s"], src)
     digitiser = _digitiser(cfg["digitiser"], src) if "digitiser" in cfg else None
     if any(i.is_sim for i in instruments.values()) or (digitiser is not None and digitiser.is_sim):
-        _check_tick(cfg["sim"]["block_samples"], bench["fs_hz"], src)
+        check_tick(cfg["sim"]["block_samples"], bench["fs_hz"], f"{src} [sim] block_samples = {cfg['sim']['block_samples']}")
     # the emulated rig's switches, named as this file's (they were named "--effect", an option nobody gave)
     validate_effects(cfg["sim"].get("effects", {}), f"{src} [sim] effects", fs_hz=bench["fs_hz"])
     return BenchConfig(src, bench["max_current_a"], bench["fs_hz"], bench["timeout_s"], bench["stall_timeout_s"],
