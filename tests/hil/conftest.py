@@ -48,6 +48,11 @@ STALL_S = HANG_S
 #: the amplifier latched WATCHDOG in the middle of a digitiser test.  Twenty heartbeats leave a busy
 #: machine room; the watchdog test trips it as before, two seconds of samples after the host falls silent.
 WATCHDOG_S = 2.0
+#: The ``hil`` fixtures' ``[bench] timeout_s``, every command's reply deadline.  With the shipped 1 s, a
+#: run of ``make test`` in a slow hour of the host (four workers on two cores) once had the emulated
+#: digitiser answer its first ``SYST:ERR?`` later than that, and the bench faulted before a sample.  The
+#: tests of a silent instrument set that instrument's own ``timeout_s``.
+REPLY_S = 3.0
 
 
 def bench_file(tmp_path: Path, **edits: str) -> Path:
@@ -214,7 +219,7 @@ def hil_factory(tmp_path):
 
     def make(*, extra: str = "", **edits: str) -> Hil:
         """A bench on the shipped file with ``edits`` (dotted keys) and ``extra`` TOML appended."""
-        path = bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}",
+        path = bench_file(tmp_path, **{"bench.stall_timeout_s": f"{STALL_S:g}", "bench.timeout_s": f"{REPLY_S:g}",
                                        "current_amplifier.settings.watchdog_s": f"{WATCHDOG_S:g}", **edits})
         if extra:
             path.write_text(path.read_text() + extra)
