@@ -298,9 +298,9 @@ def render_loss_report(results: list[Mapping[str, Any]], folder: str | Path) -> 
         name = Path(str(r["path"])).stem
         png = f"loss_{n}_{name}.png"
         if "shapes" in r:  # a material's sine and triangle/trapezoid tables: loss against f per shape group
-            loss_shapes_figure(r.get("paths", [r["path"]]), folder / png, split=r.get("split", "low_third"))
+            loss_shapes_figure(r.get("paths", [r["path"]]), folder / png, split=r.get("split", "low_third"), result=r)
         else:
-            loss_separation_figure(r["path"], folder / png, split=r.get("split", "low_third"))
+            loss_separation_figure(r["path"], folder / png, split=r.get("split", "low_third"), result=r)
         imp = r.get("improvement")
         lines += [f"## {r.get('material') or name} ({name})", "", str(r["verdict"]) + ".", "",
                   f"Held-out rms error of log10(energy per cycle): {r['residual_before_log10']:.3f} before, "

@@ -5,6 +5,7 @@ mismatch as a frequency x flux-density heat map of z-scores."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -18,13 +19,15 @@ _BAND = 0.02  # points within +-5 % (log10 0.02) of a level's flux density are d
 
 
 def loss_separation_figure(table_path: str | Path, out: str | Path, split: str = "low_third",
-                           levels: int = 4) -> Path:
-    """One PNG for one material table; returns its path."""
+                           levels: int = 4, result: Mapping[str, Any] | None = None) -> Path:
+    """One PNG for one material table; returns its path.  ``result``: the table's diagnosis on
+    ``split`` where the caller has it (a report draws what it just computed)."""
     table = read_material_table(table_path)
     f, b = table.frequency_hz, table.flux_density_t
     w = energy_per_cycle(table)
     train, base, final, _, chosen = calibrate_split(f, b, w, split)
-    result = diagnose_energy(f, b, w, material=table.material, split=split)
+    if result is None:
+        result = diagnose_energy(f, b, w, material=table.material, split=split)
     fig, (ax, hm) = plt.subplots(1, 2, figsize=(12, 4.8), gridspec_kw={"width_ratios": [1.25, 1]})
     lb = np.log10(b)
     centres = np.quantile(lb[~train], np.linspace(0.1, 0.9, levels))
@@ -70,15 +73,18 @@ _SHAPES = {"sine": [(-1.0, -1.0, -1.0, -1.0)], "triangle": [(0.5, 0.0, 0.5, 0.0)
            "trapezoid": [(0.1, 0.4, 0.1, 0.4), (0.3, 0.2, 0.3, 0.2)]}
 
 
-def loss_shapes_figure(table_paths: list[str | Path], out: str | Path, split: str = "low_third") -> Path:
+def loss_shapes_figure(table_paths: list[str | Path], out: str | Path, split: str = "low_third",
+                       result: Mapping[str, Any] | None = None) -> Path:
     """One PNG for a material's sine and triangle/trapezoid tables: per shape group, energy per cycle
     against frequency at one flux density (the held-out rows' median), measured (hollow: calibrated on)
-    against the baseline (before, dashed) and the selected model (after, solid), for two duty shapes."""
+    against the baseline (before, dashed) and the selected model (after, solid), for two duty shapes.
+    ``result``: the tables' diagnosis on ``split`` where the caller has it."""
     from ..analysis.diagnosis.loss_separation import energy_table, loss_table_groups
 
     group = loss_table_groups(table_paths)[0]
     f, b, w, duty = energy_table(group)
-    result = diagnose_energy(f, b, w, material=group[0].material, split=split, duty=duty)
+    if result is None:
+        result = diagnose_energy(f, b, w, material=group[0].material, split=split, duty=duty)
     train, base, final, _, chosen = calibrate_split(f, b, w, split, duty)
     level = float(np.median(np.log10(b[~train])))
     fgrid = np.geomspace(f.min(), f.max(), 100)

@@ -49,6 +49,8 @@ they show as a residual growing with the share duty_2 + duty_4.
 
 from __future__ import annotations
 
+import copy
+import hashlib
 import math
 import sys
 import time
@@ -501,13 +503,41 @@ def calibrate_split(f: np.ndarray, b: np.ndarray, w: np.ndarray, split: str = "l
     return train, seq[0], seq[-1], candidates, chosen
 
 
+#: The last few selections, by what they were computed from: a report's figures draw the models the
+#: diagnosis selected a moment before, and a selection is seconds of fits (N87's report: 9 -> 5 s).
+_SELECTIONS: dict[bytes, tuple[Any, ...]] = {}
+_SELECTIONS_KEPT = 8
+
+
+def _selection_key(rows: Rows, w: np.ndarray, split: str, calibrate_on: str) -> bytes:
+    h = hashlib.blake2b(f"{split}|{calibrate_on}".encode(), digest_size=20)
+    for a in (rows.f, rows.b, rows.duty, rows.temperature_c, rows.waveform, w):
+        if a is None:
+            h.update(b"none")
+        else:
+            a = np.ascontiguousarray(a, dtype=np.float64)
+            h.update(repr(a.shape).encode())
+            h.update(a.tobytes())
+    return h.digest()
+
+
 def select_on_split(rows: Rows, w: np.ndarray, split: str, calibrate_on: str
                     ) -> tuple[np.ndarray, list[TermFit], list[dict[str, Any]], list[str], list[dict[str, Any]],
                                dict[str, str]]:
     """The term selection on the split's calibration rows (``calibrate_on``: sine_triangle keeps only
     sines and symmetric triangles of those frequencies): (the calibration mask, the selected sequence,
     the candidates, the chosen terms, the suspects, the terms skipped), one place for every table
-    kind (loss tables, the measured waveforms)."""
+    kind (loss tables, the measured waveforms).  The same rows give the same selection, computed once
+    (each caller gets its own copy)."""
+    key = _selection_key(rows, w, split, calibrate_on)
+    if key not in _SELECTIONS:
+        if len(_SELECTIONS) >= _SELECTIONS_KEPT:
+            del _SELECTIONS[next(iter(_SELECTIONS))]
+        _SELECTIONS[key] = _select_on_split(rows, w, split, calibrate_on)
+    return copy.deepcopy(_SELECTIONS[key])
+
+
+def _select_on_split(rows: Rows, w: np.ndarray, split: str, calibrate_on: str) -> tuple[Any, ...]:
     if calibrate_on not in CALIBRATE_ON:
         raise EstimationError(f"calibrate_on {calibrate_on!r}: choose {' or '.join(CALIBRATE_ON)}")
     train = split_mask(rows.f, split)

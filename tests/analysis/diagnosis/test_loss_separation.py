@@ -296,6 +296,26 @@ def test_shape_factor_against_numerical_integration_and_the_triangle_closed_form
     assert np.all(shape_factor(np.full((3, 4), -1.0), p) == 1.0)  # exactly: a sine's figures are unchanged
 
 
+def test_a_selection_is_computed_once_and_each_caller_gets_its_own_copy():
+    """A report's figures draw the selection the diagnosis made a moment before: the same rows give the
+    selection a fresh computation gives, and what one caller changes in its copy no other sees."""
+    from hystbench.analysis.diagnosis.loss_separation import _select_on_split, select_on_split
+    from hystbench.analysis.diagnosis.loss_terms import Rows
+
+    f, b, w = synthetic(k_c=1e-4, seed=3)
+    keep = np.isin(f, f[::60])  # every third frequency: the same physics on a third of the rows
+    f, b, w = f[keep], b[keep], w[keep]
+    first = select_on_split(Rows(f, b), w, "low_third", "sine_triangle")
+    first[3].append("tampered")
+    first[1][-1].x[:] = 0.0
+    again = select_on_split(Rows(f.copy(), b.copy()), w.copy(), "low_third", "sine_triangle")
+    fresh = _select_on_split(Rows(f, b), w, "low_third", "sine_triangle")
+    assert again[3] == fresh[3] == ["lamination_eddy_currents"]
+    assert np.array_equal(again[1][-1].x, fresh[1][-1].x) and np.array_equal(again[0], fresh[0])
+    other = select_on_split(Rows(f, b), w, "interleaved", "sine_triangle")  # another split: its own selection
+    assert not np.array_equal(other[0], fresh[0])
+
+
 def test_the_sine_diagnosis_is_unchanged_by_the_shape_path():
     """A sine table through the duty path (S_p = 1 on every row, sines calibrated on) gives today's
     figures to the last bit; one table given as a list is the same diagnosis."""
