@@ -49,8 +49,15 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     if result["outliers_excluded"]:
         from ..analysis.method import outlier_summary
 
-        print(f"hystbench estimate: warning: {result['recording']}: left out as outliers (far off the fitted "
-              f"waveform): {outlier_summary(result['outliers'])}", file=sys.stderr)
+        left = {c: v for c, v in result["outliers"].items() if c != "sense_V"}
+        bridged = {c: v for c, v in result["outliers"].items() if c == "sense_V"}
+        if any(left.values()):
+            print(f"hystbench estimate: warning: {result['recording']}: left out as outliers (far off the fitted "
+                  f"waveform): {outlier_summary(left)}", file=sys.stderr)
+        if any(bridged.values()):  # the voltage is integrated, so a glitch is bridged, not dropped
+            print(f"hystbench estimate: warning: {result['recording']}: bridged by straight lines before the "
+                  f"sense voltage was integrated (far off its fitted waveform): {outlier_summary(bridged)}",
+                  file=sys.stderr)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0

@@ -146,20 +146,27 @@ def _simulated(f: float = 160.0, seconds: float = 0.2, seed: int = 5) -> Recordi
     return Recording(None, sim.fs_hz, dict(sim.record(seconds).channels), sim.metadata())
 
 
-def test_a_glitch_in_the_sense_voltage_is_bridged_and_named_not_integrated_into_a_step():
+def test_a_glitch_in_the_sense_voltage_is_bridged_and_named_not_integrated_into_a_step(tmp_path, capsys):
     """One sample of sense_V at three times the channel's range would be a step in the integral, which
     no later outlier search finds (the hysteresis delay went from 17.88 to 19.04 us, nothing reported):
-    it is bridged before the integral, and ``estimate`` names it among the outliers."""
+    it is bridged before the integral, ``estimate`` names it among the outliers, and the command says
+    it was bridged (not left out, as a glitch of a channel fitted directly is)."""
     from hystbench.analysis.method import estimate
 
     rec = _sense_only(_simulated())
     clean = estimate(rec)
     v = rec.channels["sense_V"].copy()
     v[7000] += 3 * np.ptp(v)
-    got = estimate(dataclasses_replace(rec, channels={**rec.channels, "sense_V": v}))
+    glitched = dataclasses_replace(rec, channels={**rec.channels, "sense_V": v})
+    got = estimate(glitched)
     assert got["outliers"]["sense_V"] == [7000] and got["outliers_excluded"]
     for k in ("hysteresis", "instrument"):
         assert abs(got["delays_s"][k] - clean["delays_s"][k]) < 2 * clean["delays_std_s"][k], k
+    write_recording(glitched, tmp_path / "glitch")
+    assert cli_main(["estimate", str(tmp_path / "glitch"), "--json"]) == 0
+    err = capsys.readouterr().err
+    assert "bridged by straight lines before the sense voltage was integrated" in err and "sense_V at 7000 (1)" in err
+    assert "left out as outliers" not in err
 
 
 def test_a_sense_coil_wired_the_other_way_is_refused_not_read_as_half_a_period_of_lag():
