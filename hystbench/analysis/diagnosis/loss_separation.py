@@ -78,7 +78,6 @@ RUNNER_UP_DELTA_BIC = 6.0  # and than the runner-up
 LN10 = math.log(10.0)
 MAX_TERMS = 3  # rate terms a model may take
 MAX_SCALE_REL_STD = 0.5  # a term is taken only when its scale is fitted beyond two standard errors
-LSMR_ROWS = 3000  # above this many rows the trust-region steps are solved iteratively (speed only)
 
 
 def bic(rss: float, n: int, k: int) -> float:
@@ -227,7 +226,6 @@ def fit_terms(f: np.ndarray, b: np.ndarray, w: np.ndarray, terms: Sequence[Term]
     energy = [t for t in terms if t.kind != "temperature"]
     second = [term_starts(t) for t in terms]
     n_starts = max((len(s) for s in second), default=1)
-    solver = "lsmr" if y.size > LSMR_ROWS else "exact"  # the exact step's SVD of a tall Jacobian dominates
     warm = start is not None and start.terms == tuple(terms[:-1])
     cold = [(s, False) for s in ((0.1,) if warm else (0.01, 0.1, 0.5) if energy else (1.0,))]
     # from the model so far, when there is one (where the new term most often belongs), and one cold start
@@ -247,7 +245,7 @@ def fit_terms(f: np.ndarray, b: np.ndarray, w: np.ndarray, terms: Sequence[Term]
                     x0[0] += math.log(1.0 - share)
             x0 = np.clip(np.array(x0), np.array(lo) + 1e-9, np.array(hi) - 1e-9)
             sol = least_squares(lambda x: log_energy(x, terms, rows) - y, x0, bounds=(lo, hi), x_scale="jac",
-                                tr_solver=solver, jac=lambda x: log_energy_jacobian(x, terms, rows))
+                                tr_solver="exact", jac=lambda x: log_energy_jacobian(x, terms, rows))
             if best is None or sol.cost < best.cost:
                 best = sol
     resid = best.fun
