@@ -612,8 +612,8 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
         "reported": reported, "steps": steps, "suspects": suspects, "not_identifiable": skipped,
         "candidates": candidates,
         "parameters": {k: _param_json(v) for k, v in params.items() if k in chosen},
-        "recalibrated": {f"static_hysteresis.{k}": {"value": v, "std": s, "prior": None}
-                         for k, (v, s) in params["static_hysteresis"].items()},
+        "recalibrated": {f"static_hysteresis.{k}": {**v, "prior": None}
+                         for k, v in _param_json(params["static_hysteresis"]).items()},
         "located": located,
         "residual_before": before / noise, "residual_after": after / noise,
         "residual_before_log10": before, "residual_after_log10": after,

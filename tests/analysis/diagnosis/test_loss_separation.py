@@ -79,6 +79,20 @@ def test_excess_term_is_found_and_given_its_catalogue_name():
     assert _within(p["coefficient_a_per_m_per_sqrt_t_per_s"], k_e / c)
 
 
+def test_a_datasheet_curve_at_one_flux_density_gives_json_with_its_undetermined_exponents_null():
+    """Loss against frequency at 0.1 T alone (a datasheet's curve): the B exponents are not determined
+    by the rows, so they have no standard error (null, not NaN that --json cannot write), and the
+    classical term is named across the band."""
+    rng = np.random.default_rng(4)
+    f = np.geomspace(50e3, 500e3, 20)
+    b = np.full(f.size, 0.1)
+    w = (K_H + 1e-4 * f * b**2) * np.exp(rng.normal(0.0, NOISE_LN, f.size))
+    r = diagnose_energy(f, b, w, split="interleaved")
+    json.dumps(r, allow_nan=False)
+    assert r["recalibrated"]["static_hysteresis.beta"]["std"] is None
+    assert r["effects"] == ["lamination_eddy_currents"]
+
+
 def test_too_small_a_table_is_refused():
     f, b, w = synthetic()
     with pytest.raises(EstimationError, match="need >= 12 rows"):
