@@ -706,15 +706,20 @@ def loss_table_groups(tables: Sequence[TableArg]) -> list[list[LossTable]]:
     material of which one holds triangular/trapezoidal rows go together (sine tables first), in the
     order the material first appears; every other table is its own group."""
     read = [_read(t) for t in tables]
-    shaped = {t.material for t in read if t.kind == "core_loss" and np.any(t.duty[:, 0] != -1)}
+    seen: dict[Path, Path] = {}
+    for t in read:  # one file twice would count its evidence twice
+        if t.path.resolve() in seen:
+            raise RecordingError(f"{t.path}: given twice (as {seen[t.path.resolve()]} too); give each table once")
+        seen[t.path.resolve()] = t.path
+    shaped = {_conditions(t) for t in read if t.kind == "core_loss" and np.any(t.duty[:, 0] != -1)}
     groups: list[list[LossTable]] = []
-    by_material: dict[str, list[LossTable]] = {}
+    by_material: dict[tuple[str, str, str], list[LossTable]] = {}
     for t in read:
-        if t.kind == "core_loss" and t.material in shaped:
-            if t.material not in by_material:
-                by_material[t.material] = []
-                groups.append(by_material[t.material])
-            by_material[t.material].append(t)
+        if t.kind == "core_loss" and _conditions(t) in shaped:
+            if _conditions(t) not in by_material:
+                by_material[_conditions(t)] = []
+                groups.append(by_material[_conditions(t)])
+            by_material[_conditions(t)].append(t)
         else:
             groups.append([t])
     for g in groups:
@@ -722,14 +727,32 @@ def loss_table_groups(tables: Sequence[TableArg]) -> list[list[LossTable]]:
     return groups
 
 
+def _conditions(t: LossTable) -> tuple[str, str, str]:
+    """What tables diagnosed together must share: the material, and the core and temperature it was
+    measured on (a ferrite's loss moves by a factor of two between 25 and 100 degC)."""
+    return t.material, _said(t, "temperature_C"), _said(t, "core_shape")
+
+
+def _said(t: LossTable, key: str) -> str:
+    """A sidecar's value as compared: 25 and 25.0 degC are one temperature."""
+    v = t.metadata.get(key)
+    return repr(float(v)) if isinstance(v, (int, float)) and not isinstance(v, bool) else repr(v)
+
+
 def energy_table(tables: list[LossTable]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """f, B, W and the duties (None when every row is a sine) of tables of one material."""
+    """f, B, W and the duties (None when every row is a sine) of tables of one material, measured on
+    one core at one temperature."""
     first = tables[0]
     for t in tables[1:]:
         if t.material != first.material or t.kind != "core_loss" or first.kind != "core_loss":
             raise RecordingError(f"{t.path}: {t.kind} table of {t.material!r} read with {first.path} ({first.kind} "
                                  f"of {first.material!r}); tables are diagnosed together only as core-loss tables "
                                  "of one material")
+        for key in ("temperature_C", "core_shape"):
+            if _said(t, key) != _said(first, key):
+                raise RecordingError(f"{t.path.with_suffix('.json')}: {key} {t.metadata.get(key)!r}, but "
+                                     f"{first.path.with_suffix('.json')} says {first.metadata.get(key)!r}; tables are "
+                                     f"diagnosed together only when measured alike")
     for t in tables:  # the reader takes a loss of 0; the diagnosis works on its logarithm
         zero = t.columns["loss_W_per_m3"] <= 0 if t.kind == "core_loss" else np.zeros(len(t), bool)
         if zero.any():

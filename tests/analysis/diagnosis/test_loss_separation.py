@@ -437,3 +437,27 @@ def test_tables_of_two_materials_are_not_diagnosed_together_and_groups_pair_a_ma
     groups = loss_table_groups([REAL / f"{n}.csv" for n in names])
     assert [[t.path.stem for t in g] for g in groups] == [["magnet_N87_sine", "magnet_N87_shapes"], ["N87_mu_large"],
                                                           ["magnet_3E6_sine"]]
+
+
+def test_tables_measured_at_another_temperature_are_their_own_group_and_one_file_is_given_once(tmp_path):
+    """A material's shapes table measured at 100 degC beside its sines at 25 degC: a ferrite's loss moves
+    by a factor of two between them, so they are diagnosed apart (grouped together, a classical eddy
+    current was named excess loss); 25 and 25.0 degC are one temperature; the same file twice is
+    refused (its evidence would count twice)."""
+    from hystbench.analysis.diagnosis.loss_separation import energy_table, loss_table_groups
+
+    def copy(stem: str, name: str, **meta) -> Path:
+        (tmp_path / f"{name}.csv").write_bytes((REAL / f"{stem}.csv").read_bytes())
+        sidecar = json.loads((REAL / f"{stem}.json").read_text())
+        (tmp_path / f"{name}.json").write_text(json.dumps({**sidecar, **meta}))
+        return tmp_path / f"{name}.csv"
+
+    sine = copy("magnet_N87_sine", "sine", temperature_C=25)
+    hot = copy("magnet_N87_shapes", "hot", temperature_C=100.0)
+    warm = copy("magnet_N87_shapes", "shapes", temperature_C=25.0)
+    assert [[t.path.stem for t in g] for g in loss_table_groups([sine, hot])] == [["sine"], ["hot"]]
+    assert [[t.path.stem for t in g] for g in loss_table_groups([sine, warm])] == [["sine", "shapes"]]
+    with pytest.raises(RecordingError, match=r"hot\.json: temperature_C 100\.0, but .*sine\.json says 25"):
+        energy_table([read_material_table(sine), read_material_table(hot)])
+    with pytest.raises(RecordingError, match=r"sine\.csv: given twice"):
+        loss_table_groups([sine, warm, tmp_path / "." / "sine.csv"])
