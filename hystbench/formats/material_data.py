@@ -317,6 +317,12 @@ def read_waveform_table(path: str | Path) -> WaveformTable:
         r, k = (int(x) for x in np.argwhere(~np.isfinite(values))[0])
         raise RecordingError(f"{csv_path}:{r + 2}: column {numeric[k] + 1} ({names[numeric[k]]}): "
                              f"{excerpt(lines[r + 1].split(',')[numeric[k]])} is not a finite number")
+    big = np.abs(values[:, :n]) > MAX_FLUX_DENSITY_T  # B in mT, or the H samples under the B columns
+    if big.any():
+        r, k = (int(x) for x in np.argwhere(big)[0])
+        raise RecordingError(f"{csv_path}:{r + 2}: column {numeric[k] + 1} ({names[numeric[k]]}): "
+                             f"{float(values[r, k])!r} T; |B| must be <= {MAX_FLUX_DENSITY_T:g} T (no iron saturates above "
+                             "2.5 T: mT, or H under the B columns?)")
     cols = {names[j]: values[:, k] for k, j in enumerate(numeric)}
     _check_waveform_scalars(csv_path, names, cols)
     scalar_fields = {field: cols[c].copy() if c in cols else None

@@ -461,6 +461,9 @@ def test_bad_waveform_header_is_named(tmp_path: Path, header: str, message: str)
     ("0.1,0.0,-0.1,5,0,-5,100000.0,-300,1000.5,N87", ":3: column 8 (temp): -300.0 must be above absolute zero"),
     ("0.1,0.0,-0.1,5,0,-5,100000.0,25,1000.5,N 87", ":3: column 10 (material): 'N 87' is not a material name"),
     ("0.1,0.0,-0.1,5,0,-5,100000.0,25,1000.5,", ":3: column 10 (material): '' is not a material name"),
+    # B in mT under a sidecar that says T (or the H samples under the B columns): 1000 times off, refused
+    ("100.0,0.0,-100.0,5,0,-5,100000.0,25,1000.5,N87", ":3: column 1 (B_t_0): 100.0 T; |B| must be <= 5 T"),
+    ("0.1,0.0,-5.5,5,0,-5,100000.0,25,1000.5,N87", ":3: column 3 (B_t_2): -5.5 T; |B| must be <= 5 T"),
 ])
 def test_bad_waveform_value_named_by_line_and_column(tmp_path: Path, row: str, message: str):
     path = _waveform(tmp_path, GOOD_HEADER, [GOOD_ROW, row])
