@@ -56,7 +56,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy.constants import mu_0
@@ -273,30 +273,78 @@ def noise_floor(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | 
     A table with no such frequency (every row at its own frequency, or a sparse grid) gets the scatter
     about a smooth surface in log f and log B per shape instead: an upper bound, as the surface's own
     misfit is in it.  Never below :data:`NOISE_FLOOR_MIN_LOG10` (a table computed, not measured)."""
+    return _about_neighbours(f, b, w, duty, np.ones(f.size, bool))[1]
+
+
+def _about_neighbours(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | None,
+                      keep: np.ndarray) -> tuple[np.ndarray, float]:
+    """Each row's log10 deviation from the smooth curve of its neighbours (:func:`noise_floor`'s fits,
+    through the ``keep`` rows only, each kept row's as if it were left out, so that a row at the end of
+    a curve cannot bend it onto itself; NaN where a row has too few), and the pooled rms of the kept rows."""
     y, lb = np.log10(w), np.log10(b)
+    r = np.full(f.size, np.nan)
+    deleted = np.full(f.size, np.nan)
     ss, dof = 0.0, 0
     keys = f[:, None] if duty is None else np.column_stack([f, duty])
     _, group = np.unique(keys, axis=0, return_inverse=True)
     group = group.ravel()
+
+    def fit(m: np.ndarray, basis: Callable[[np.ndarray], np.ndarray], least: int) -> tuple[float, int]:
+        mk = m & keep
+        if mk.sum() < least:
+            return 0.0, 0
+        a = basis(mk)
+        r[m] = y[m] - basis(m) @ np.linalg.lstsq(a, y[mk], rcond=None)[0]
+        deleted[m] = r[m]
+        u, sv, _ = np.linalg.svd(a, full_matrices=False)  # the hat matrix's diagonal, on the directions the
+        leverage = np.sum(u[:, sv > sv[0] * 1e-10] ** 2, axis=1)  # rows span (one B at every f: no B terms)
+        deleted[mk] = r[mk] / np.maximum(1.0 - leverage, 1e-9)
+        return float(r[mk] @ r[mk]), int(mk.sum()) - a.shape[1]
+
+    def quadratic(m: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.ones(m.sum()), lb[m], lb[m] ** 2])
+
     for k in range(int(group.max()) + 1):
-        m = group == k
-        if m.sum() >= 6:
-            a = np.column_stack([np.ones(m.sum()), lb[m], lb[m] ** 2])
-            r = y[m] - a @ np.linalg.lstsq(a, y[m], rcond=None)[0]
-            ss, dof = ss + float(r @ r), dof + int(m.sum()) - 3
+        s_k, d_k = fit(group == k, quadratic, 6)
+        ss, dof = ss + s_k, dof + d_k
     if dof == 0:  # a sparse or off-grid table: the scatter about a smooth surface per shape, an upper bound
         _, shape = np.unique(np.zeros((f.size, 1)) if duty is None else duty, axis=0, return_inverse=True)
         lf = np.log10(f)
+
+        def surface(m: np.ndarray) -> np.ndarray:
+            return np.column_stack([np.ones(m.sum()), lf[m], lf[m] ** 2, lb[m], lb[m] ** 2, lb[m] ** 3, lf[m] * lb[m]])
+
         for k in range(int(shape.max()) + 1):
-            m = shape.ravel() == k
-            a = np.column_stack([np.ones(m.sum()), lf[m], lf[m] ** 2, lb[m], lb[m] ** 2, lb[m] ** 3, lf[m] * lb[m]])
-            if m.sum() >= 2 * a.shape[1]:
-                r = y[m] - a @ np.linalg.lstsq(a, y[m], rcond=None)[0]
-                ss, dof = ss + float(r @ r), dof + int(m.sum()) - a.shape[1]
+            s_k, d_k = fit(shape.ravel() == k, surface, 14)
+            ss, dof = ss + s_k, dof + d_k
     if dof == 0:
         raise EstimationError("noise floor: neither 6 flux densities at one frequency nor 14 rows of one shape "
                               "to measure the scatter on")
-    return max(math.sqrt(ss / dof), NOISE_FLOOR_MIN_LOG10)
+    return deleted, max(math.sqrt(ss / dof), NOISE_FLOOR_MIN_LOG10)
+
+
+#: A row is a gross error (a mistyped value, a row in another unit), not a measurement, when it lies
+#: off its neighbours' smooth curve by more than a factor of two and by more than this many times the
+#: table's scatter (robust: 1.4826 median absolute deviations).  MagNet's vendored tables lie within a
+#: factor of 1.8.
+OUTLIER_FACTOR, OUTLIER_RMS = 2.0, 9.0
+#: More rows than this share so far off are the table's own shape (or a column in another unit), not glitches.
+MAX_OUTLIER_SHARE = 0.02
+
+
+def gross_outlier_rows(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | None = None) -> np.ndarray:
+    """The rows far off their neighbours (:data:`OUTLIER_FACTOR`, :data:`OUTLIER_RMS`), each judged
+    against the curve of the others (refitted until no row changes side); a boolean mask."""
+    out = np.zeros(f.size, bool)
+    for _ in range(8):
+        r, _ = _about_neighbours(f, b, w, duty, ~out)
+        seen = np.isfinite(r)
+        scatter = 1.4826 * float(np.median(np.abs(r[seen & ~out]))) if (seen & ~out).any() else 0.0
+        off = seen & (np.abs(r) > max(OUTLIER_RMS * scatter, math.log10(OUTLIER_FACTOR)))
+        if np.array_equal(off, out):
+            break
+        out = off
+    return out
 
 
 def rate_trend(f: np.ndarray, b: np.ndarray, resid_log10: np.ndarray) -> dict[str, Any]:
@@ -555,10 +603,12 @@ def _select_on_split(rows: Rows, w: np.ndarray, split: str, calibrate_on: str) -
 
 def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: str = "",
                     split: str = "low_third", duty: np.ndarray | None = None,
-                    temperature_c: np.ndarray | None = None, calibrate_on: str = "sine_triangle") -> dict[str, Any]:
+                    temperature_c: np.ndarray | None = None, calibrate_on: str = "sine_triangle",
+                    row_names: Sequence[str] | None = None) -> dict[str, Any]:
     """The whole diagnosis of one energy-per-cycle table (see the module docstring); JSON-ready.
     ``duty``: (rows, 4) MagNet duties (None: every row a sine); with it the result has ``shapes``.
-    ``temperature_c``: per-row temperature (a temperature term is a candidate where it varies)."""
+    ``temperature_c``: per-row temperature (a temperature term is a candidate where it varies).
+    ``row_names``: how the verdict names a row it leaves out (``file:line``; default its index)."""
     t0 = time.perf_counter()
     f, b, w = (np.asarray(a, dtype=np.float64) for a in (f, b, w))
     if not (f.size == b.size == w.size) or f.size < 12:
@@ -573,6 +623,19 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
         temperature_c = np.asarray(temperature_c, dtype=np.float64)
         if temperature_c.shape != f.shape or not np.all(np.isfinite(temperature_c)):
             raise EstimationError(f"{material or 'table'}: temperature must be finite, one per row")
+    # a gross error in a row (a value mistyped x100) had set the noise floor to 8x the scatter and hidden a
+    # classical eddy current: such rows are left out of everything and named
+    outliers = gross_outlier_rows(f, b, w, duty)
+    if outliers.mean() > MAX_OUTLIER_SHARE:
+        raise EstimationError(f"{material or 'table'}: {int(outliers.sum())} of {f.size} rows lie more than a factor "
+                              f"of {OUTLIER_FACTOR:g} off the smooth curve of their neighbours (first: "
+                              f"{f'row {int(np.argmax(outliers))}' if row_names is None else row_names[int(np.argmax(outliers))]}): "
+                              "not glitches but the table itself (a column in another unit?)")
+    if outliers.any():
+        keep = ~outliers
+        f, b, w = f[keep], b[keep], w[keep]
+        duty = None if duty is None else duty[keep]
+        temperature_c = None if temperature_c is None else temperature_c[keep]
     rows = Rows(f, b, duty, temperature_c)
     train, seq, candidates, chosen, suspects, skipped = select_on_split(rows, w, split, calibrate_on)
     base, final = seq[0], seq[-1]
@@ -602,6 +665,11 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
                     "beyond it; weigh them with that")
     keys = np.column_stack([f, b, w] + ([] if duty is None else [duty]))
     repeated = int(f.size - np.unique(keys, axis=0).shape[0])
+    if outliers.any():
+        first = ", ".join(str(i) if row_names is None else row_names[i] for i in np.flatnonzero(outliers)[:5])
+        verdict += (f"; {int(outliers.sum())} {'row' if outliers.sum() == 1 else 'rows'} left out, each more than a factor of {OUTLIER_FACTOR:g} off the "
+                    f"smooth curve of its neighbours (a mistyped value?): {'rows ' if row_names is None else ''}{first}"
+                    f"{', ...' if outliers.sum() > 5 else ''}")
     if repeated:  # a table appended twice counts its evidence twice (N87's sines doubled took a third term)
         verdict += (f"; {repeated} rows repeat another exactly (a table appended twice?): each is counted, which "
                     "overstates the evidence")
@@ -624,6 +692,7 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
                  "calibration_max_Hz": float(f[train].max())},
         **({} if shapes is None else {"shapes": shapes}),
         "repeated_rows": repeated,
+        "outlier_rows": np.flatnonzero(outliers).tolist(),  # indices into the rows given, left out of everything
         "seconds": time.perf_counter() - t0,
     }
 
@@ -778,7 +847,8 @@ def energy_table(tables: list[LossTable]) -> tuple[np.ndarray, np.ndarray, np.nd
 def _diagnose_group(tables: list[LossTable], split: str, calibrate_on: str = "sine_triangle") -> dict[str, Any]:
     f, b, w, duty = energy_table(tables)
     try:
-        out = diagnose_energy(f, b, w, material=tables[0].material, split=split, duty=duty, calibrate_on=calibrate_on)
+        out = diagnose_energy(f, b, w, material=tables[0].material, split=split, duty=duty, calibrate_on=calibrate_on,
+                              row_names=[f"{t.path}:{i + 2}" for t in tables for i in range(len(t))])
     except EstimationError as err:  # what the table cannot give, said with its name
         raise EstimationError(f"{tables[0].path}: {err}") from None
     out["path"], out["kind"] = str(tables[0].path), tables[0].kind

@@ -93,6 +93,40 @@ def test_a_datasheet_curve_at_one_flux_density_gives_json_with_its_undetermined_
     assert r["effects"] == ["lamination_eddy_currents"]
 
 
+def test_a_mistyped_row_is_left_out_and_named_and_the_classical_term_still_found():
+    """One loss typed x100 (a hostile probe's table): it had set the noise floor to 8x the scatter and
+    the diagnosis said "nothing significant".  Left out and named, the eddy current is found with its
+    size, and the noise floor is the scatter put in; a table whose rows are off by the dozen is refused."""
+    from hystbench.analysis.diagnosis.loss_separation import MAX_OUTLIER_SHARE
+
+    k_c = 1e-4
+    f, b, w = synthetic(k_c=k_c, seed=2)
+    w[[13, 400]] *= [100.0, 0.3]
+    names = [f"t.csv:{i + 2}" for i in range(f.size)]
+    r = diagnose_energy(f, b, w, row_names=names)
+    assert r["outlier_rows"] == [13, 400] and "2 rows left out" in r["verdict"] and "t.csv:15, t.csv:402" in r["verdict"]
+    assert r["effects"] == ["lamination_eddy_currents"]
+    assert _within(r["parameters"]["lamination_eddy_currents"]["k_c_J_s_per_m3_T2"], k_c)
+    assert r["noise_floor"]["log10_W"] == pytest.approx(NOISE_LN / math.log(10), rel=0.15)
+    assert diagnose_energy(*synthetic(k_c=k_c, seed=2))["outlier_rows"] == []
+    many = np.arange(0, f.size, int(0.8 / MAX_OUTLIER_SHARE))  # 2.5 % of the rows, x10 each
+    w = synthetic(k_c=k_c, seed=2)[2]
+    w[many] *= 10.0
+    with pytest.raises(EstimationError, match=r"rows lie more than a factor of 2 off .* \(first: t\.csv:2\): not glitches"):
+        diagnose_energy(f, b, w, row_names=names)
+
+
+def test_no_row_of_the_vendored_tables_is_a_gross_outlier():
+    """MagNet's tables as vendored (its own outlier flags dropped by the converter) lie within a factor
+    of 1.8 of their neighbours' curves: the screen leaves every measured row in."""
+    from hystbench.analysis.diagnosis.loss_separation import energy_table, gross_outlier_rows, loss_table_groups
+
+    for group in loss_table_groups(sorted(REAL.glob("magnet_*.csv")) + [REAL / "N87_mu_large.csv"]):
+        if group[0].kind == "core_loss":
+            f, b, w, duty = energy_table(group)
+            assert not gross_outlier_rows(f, b, w, duty).any(), group[0].path
+
+
 def test_too_small_a_table_is_refused():
     f, b, w = synthetic()
     with pytest.raises(EstimationError, match="need >= 12 rows"):
