@@ -75,6 +75,22 @@ def _rig_folders(path: Path) -> list[Path]:
     return sorted(sub for sub in path.iterdir() if sub.is_dir() and any(sub.glob("*.csv")))
 
 
+def _refuse_a_folder_of_tables(path: Path) -> None:
+    """A folder whose sidecars all say a material table's ``kind`` is no bench day: say so, and how to
+    give the tables (its recordings' reader would ask for a ``rig``)."""
+    from ..formats.material_data import LAYOUTS
+
+    kinds = []
+    for side in sorted(path.glob("*.json"))[:1000]:
+        try:
+            kinds.append(json.loads(side.read_bytes()[:1 << 20]).get("kind") if side.stat().st_size < 1 << 20 else None)
+        except (OSError, ValueError, AttributeError):
+            return  # the recordings' reader names what is wrong with it
+    if kinds and all(k in (*LAYOUTS, "waveform") for k in kinds):
+        raise RecordingError(f"{path}: a folder of material tables ({', '.join(sorted(set(kinds)))}), not a bench "
+                             f"day's recordings: give the tables themselves (hystbench diagnose {path}/*.csv)")
+
+
 def read_inputs(paths: list[Path]) -> list[Any]:
     """The recordings of every sweep folder and MCAP log, in the order given (each folder sorted by
     ``read_sweep``: by rig, then operating point).  A folder may hold a whole bench day, several rigs
@@ -93,6 +109,7 @@ def read_inputs(paths: list[Path]) -> list[Any]:
                               f"{twice}); give each recording once")
         seen[where] = path
         if path.is_dir():
+            _refuse_a_folder_of_tables(path)
             rigs = _rig_folders(path)  # a day written one folder per rig (simulate-bench-day)
             part, what = [r for sub in rigs for r in read_sweep(sub)] if rigs else read_sweep(path), "sweep"
         elif path.is_file() and path.suffix.lower() == ".mcap":

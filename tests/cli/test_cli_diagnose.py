@@ -256,3 +256,22 @@ def test_a_bad_shapes_table_is_refused_naming_the_file_and_a_report_of_shapes_is
                            str(rep)], capsys)
     assert code == 0 and sorted(p.name for p in rep.glob("*.png")) == ["loss_0_magnet_N87_sine.png"]
     assert "trapezoid" in next(rep.glob("*.md")).read_text() and _no_stage_left(tmp_path)
+
+
+def test_a_folder_of_tables_and_shapes_without_their_sines_say_what_to_give(tmp_path, capsys):
+    """A folder of material tables is not a bench day (its reader asked for a 'rig'); a shapes table
+    without symmetric triangles, given alone, has nothing to calibrate the baseline on: each says what
+    to give instead."""
+    folder = tmp_path / "tables"
+    folder.mkdir()
+    for suffix in (".csv", ".json"):
+        (folder / f"magnet_N87_sine{suffix}").write_bytes((REAL / f"magnet_N87_sine{suffix}").read_bytes())
+    code, out, err = _run([str(folder)], capsys)
+    assert code == 2 and f"{folder}: a folder of material tables (core_loss)" in err and f"{folder}/*.csv" in err
+    lines = (REAL / "magnet_N87_shapes.csv").read_text().splitlines()
+    kept = [lines[0]] + [x for x in lines[1:] if ",0.5,0.0,0.5,0.0," not in x][:3000]
+    shapes = tmp_path / "shapes.csv"
+    shapes.write_text("\n".join(kept) + "\n")
+    shapes.with_suffix(".json").write_text((REAL / "magnet_N87_shapes.json").read_text())
+    code, out, err = _run([str(shapes)], capsys)
+    assert code == 2 and "0 calibration rows" in err and "give the material's sine table beside its shapes" in err

@@ -592,7 +592,10 @@ def _select_on_split(rows: Rows, w: np.ndarray, split: str, calibrate_on: str) -
             train &= calibration_shapes(rows.duty)
         if train.sum() < 12:
             raise EstimationError(f"split {split!r}: {int(train.sum())} calibration rows at the calibration "
-                                  "frequencies; at least 12 are needed")
+                                  "frequencies; at least 12 are needed" + (
+                                      " (the baseline is calibrated on the sines and symmetric triangles, duty 0.5, 0, "
+                                      "0.5, 0, of those frequencies: give the material's sine table beside its shapes)"
+                                      if calibrate_on == "sine_triangle" else ""))
     # The fits' linear algebra is a few thousand SVDs of tall, thin Jacobians: a second BLAS thread
     # makes them no faster alone and, beside other work, spins for its share (a fit took 53 s instead
     # of 4 s in the parallel test run; docs/performance.md).
