@@ -229,8 +229,15 @@ def _loss_tables(groups: list[list[Any]], stage: Any) -> tuple[list[dict[str, An
     baseline calibrated at the lowest frequencies, the rest held out; then across the band), and the
     report's page when ``--report`` is staged."""
     from ..analysis.diagnosis.loss_separation import diagnose_loss_table
+    from ..reports.console import progress
 
-    results = [diagnose_loss_table(g) for g in groups]
+    results = []
+    with progress() as bar:  # a large table (250 000 rows) takes minutes
+        task = bar.add_task("loss tables", total=len(groups))
+        for g in groups:
+            bar.update(task, description=f"diagnosing {g[0].path.name} ({sum(len(t) for t in g)} rows, two splits)")
+            results.append(diagnose_loss_table(g))
+            bar.advance(task)
     if stage is None:
         return results, None
     from ..reports.diagnosis import render_loss_report
