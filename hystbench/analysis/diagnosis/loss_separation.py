@@ -78,6 +78,9 @@ NOISE_FLOOR_MIN_LOG10 = 1e-12  # the scatter of a table written to 12 digits
 RUNNER_UP_DELTA_BIC = 6.0  # and than the runner-up
 LN10 = math.log(10.0)
 MAX_TERMS = 3  # rate terms a model may take
+#: Calibration rows below which a split cannot decide a rate term (refused where triangles and
+#: trapezoids are calibrated; on a sine table the verdict says so).
+MIN_DECIDING_ROWS = 12
 MAX_SCALE_REL_STD = 0.5  # a term is taken only when its scale is fitted beyond two standard errors
 
 
@@ -621,9 +624,9 @@ def _select_on_split(rows: Rows, w: np.ndarray, split: str, calibrate_on: str) -
     if rows.duty is not None:
         if calibrate_on == "sine_triangle":
             train &= calibration_shapes(rows.duty)
-        if train.sum() < 12:
+        if train.sum() < MIN_DECIDING_ROWS:
             raise EstimationError(f"split {split!r}: {int(train.sum())} calibration rows at the calibration "
-                                  "frequencies; at least 12 are needed" + (
+                                  f"frequencies; at least {MIN_DECIDING_ROWS} are needed" + (
                                       " (the baseline is calibrated on the sines and symmetric triangles, duty 0.5, 0, "
                                       "0.5, 0, of those frequencies: give the material's sine table beside its shapes)"
                                       if calibrate_on == "sine_triangle" else ""))
@@ -697,6 +700,15 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
         verdict += (f"; the model with them predicts the held-out rows worse than the baseline ({before:.3f} -> "
                     f"{after:.3f} log10): what they describe holds where they were calibrated and does not carry "
                     "beyond it; weigh them with that")
+    if not chosen and train.sum() < MIN_DECIDING_ROWS:
+        verdict += (f"; only {int(train.sum())} calibration rows: too few to decide a rate term (at least "
+                    f"{MIN_DECIDING_ROWS}; the other split calibrates across the band)")
+    span = float(b.max() / b.min())
+    if span < 2.0:  # a datasheet's curve at one flux density, or a narrow band of them
+        verdict += ((f"; every row at one flux density ({1e3 * b.min():.3g} mT)" if span < 1.0001 else
+                     f"; the flux densities span a factor of {span:.2g} only ({1e3 * b.min():.3g}-{1e3 * b.max():.3g} mT)") + ": "
+                    "the loss's B dependence (beta, each term's delta) is not measured, and a size quoted at 0.1 T "
+                    "is extrapolated there")
     keys = np.column_stack([f, b, w] + ([] if duty is None else [duty]))
     repeated = int(f.size - np.unique(keys, axis=0).shape[0])
     if outliers.any():

@@ -91,6 +91,11 @@ def test_a_datasheet_curve_at_one_flux_density_gives_json_with_its_undetermined_
     json.dumps(r, allow_nan=False)
     assert r["recalibrated"]["static_hysteresis.beta"]["std"] is None
     assert r["effects"] == ["lamination_eddy_currents"]
+    assert "every row at one flux density (100 mT): the loss's B dependence (beta, each term's delta) is not" \
+        in r["verdict"]
+    low = diagnose_energy(f, b, w)  # calibrated on the lowest third: 6 rows, nothing decided, and it says why
+    assert low["effects"] == [] and "only 6 calibration rows: too few to decide a rate term" in low["verdict"]
+    assert "calibration rows" not in diagnose_energy(*synthetic(k_c=1e-4))["verdict"]
 
 
 def test_a_mistyped_row_is_left_out_and_named_and_the_classical_term_still_found():
