@@ -228,6 +228,8 @@ def _loss_tables(groups: list[list[Any]], stage: Any) -> tuple[list[dict[str, An
     """Measured loss tables: the loss-separation diagnosis per group of tables (rate-independent
     baseline calibrated at the lowest frequencies, the rest held out; then across the band), and the
     report's page when ``--report`` is staged."""
+    from rich.markup import escape
+
     from ..analysis.diagnosis.loss_separation import diagnose_loss_table
     from ..reports.console import progress
 
@@ -235,7 +237,7 @@ def _loss_tables(groups: list[list[Any]], stage: Any) -> tuple[list[dict[str, An
     with progress() as bar:  # a large table (250 000 rows) takes minutes
         task = bar.add_task("loss tables", total=len(groups))
         for g in groups:
-            bar.update(task, description=f"diagnosing {g[0].path.name} ({sum(len(t) for t in g)} rows, two splits)")
+            bar.update(task, description=f"diagnosing {escape(g[0].path.name)} ({sum(len(t) for t in g)} rows, two splits)")
             results.append(diagnose_loss_table(g))
             bar.advance(task)
     if stage is None:

@@ -281,13 +281,17 @@ def noise_floor(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | 
 
 
 def _about_neighbours(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | None,
-                      keep: np.ndarray) -> tuple[np.ndarray, float]:
+                      keep: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
     """Each row's log10 deviation from the smooth curve of its neighbours (:func:`noise_floor`'s fits,
     through the ``keep`` rows only, each kept row's as if it were left out, so that a row at the end of
-    a curve cannot bend it onto itself; NaN where a row has too few), and the pooled rms of the kept rows."""
+    a curve cannot bend it onto itself; NaN where a row has too few), the pooled rms of the kept rows,
+    which curve each row is on, and by how much each kept row's removal would lower its curve's sum of
+    squares (r^2 / (1 - h): which row of a curve is the bad one, where the leave-one-out deviations
+    of its neighbours at the curve's end are pulled as far)."""
     y, lb = np.log10(w), np.log10(b)
     r = np.full(f.size, np.nan)
     deleted = np.full(f.size, np.nan)
+    gain = np.full(f.size, np.nan)
     ss, dof = 0.0, 0
     keys = f[:, None] if duty is None else np.column_stack([f, duty])
     _, group = np.unique(keys, axis=0, return_inverse=True)
@@ -303,6 +307,7 @@ def _about_neighbours(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndar
         u, sv, _ = np.linalg.svd(a, full_matrices=False)  # the hat matrix's diagonal, on the directions the
         leverage = np.sum(u[:, sv > sv[0] * 1e-10] ** 2, axis=1)  # rows span (one B at every f: no B terms)
         deleted[mk] = r[mk] / np.maximum(1.0 - leverage, 1e-9)
+        gain[mk] = r[mk] ** 2 / np.maximum(1.0 - leverage, 1e-9)
         return float(r[mk] @ r[mk]), int(mk.sum()) - a.shape[1]
 
     def quadratic(m: np.ndarray) -> np.ndarray:
@@ -313,18 +318,19 @@ def _about_neighbours(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndar
         ss, dof = ss + s_k, dof + d_k
     if dof == 0:  # a sparse or off-grid table: the scatter about a smooth surface per shape, an upper bound
         _, shape = np.unique(np.zeros((f.size, 1)) if duty is None else duty, axis=0, return_inverse=True)
+        group = shape.ravel()
         lf = np.log10(f)
 
         def surface(m: np.ndarray) -> np.ndarray:
             return np.column_stack([np.ones(m.sum()), lf[m], lf[m] ** 2, lb[m], lb[m] ** 2, lb[m] ** 3, lf[m] * lb[m]])
 
-        for k in range(int(shape.max()) + 1):
-            s_k, d_k = fit(shape.ravel() == k, surface, 14)
+        for k in range(int(group.max()) + 1):
+            s_k, d_k = fit(group == k, surface, 14)
             ss, dof = ss + s_k, dof + d_k
     if dof == 0:
         raise EstimationError("noise floor: neither 6 flux densities at one frequency nor 14 rows of one shape "
                               "to measure the scatter on")
-    return deleted, max(math.sqrt(ss / dof), NOISE_FLOOR_MIN_LOG10)
+    return deleted, max(math.sqrt(ss / dof), NOISE_FLOOR_MIN_LOG10), group, gain
 
 
 #: A row is a gross error (a mistyped value, a row in another unit), not a measurement, when it lies
@@ -332,22 +338,40 @@ def _about_neighbours(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndar
 #: table's scatter (robust: 1.4826 median absolute deviations).  MagNet's vendored tables lie within a
 #: factor of 1.8.
 OUTLIER_FACTOR, OUTLIER_RMS = 2.0, 9.0
-#: More rows than this share so far off are the table's own shape (or a column in another unit), not glitches.
+#: More rows than this share (and more than two) so far off are the table's own shape (or a column in
+#: another unit), not glitches.
 MAX_OUTLIER_SHARE = 0.02
 
 
 def gross_outlier_rows(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | None = None) -> np.ndarray:
-    """The rows far off their neighbours (:data:`OUTLIER_FACTOR`, :data:`OUTLIER_RMS`), each judged
-    against the curve of the others (refitted until no row changes side); a boolean mask."""
+    """The rows far off their neighbours (:data:`OUTLIER_FACTOR`, :data:`OUTLIER_RMS`); a boolean mask.
+    Backward deletion: per pass, on each curve with a row beyond both, the row whose removal lowers the
+    curve's sum of squares most is left out, and the curves are refitted without it, until no row is
+    beyond: a bad row pulls its neighbours' curves towards it, so judged all at once they would go with
+    it (a short curve then had too few rows left to be judged at all)."""
     out = np.zeros(f.size, bool)
-    for _ in range(8):
-        r, _ = _about_neighbours(f, b, w, duty, ~out)
-        seen = np.isfinite(r)
-        scatter = 1.4826 * float(np.median(np.abs(r[seen & ~out]))) if (seen & ~out).any() else 0.0
-        off = seen & (np.abs(r) > max(OUTLIER_RMS * scatter, math.log10(OUTLIER_FACTOR)))
-        if np.array_equal(off, out):
+    limit = max(MAX_OUTLIER_SHARE * f.size, 2.0)
+    while out.sum() <= limit:  # beyond it the table is refused: no need to find every one
+        r, _, curve, gain = _about_neighbours(f, b, w, duty, ~out)
+        judged = np.isfinite(r) & ~out
+        if not judged.any():
             break
-        out = off
+        scatter = 1.4826 * float(np.median(np.abs(r[judged])))
+        off = judged & (np.abs(r) > max(OUTLIER_RMS * scatter, math.log10(OUTLIER_FACTOR)))
+        if not off.any():
+            break
+        worst = np.where(judged, gain, -1.0)
+        order = np.lexsort((-worst, curve))  # by curve, the one whose removal helps most first within each
+        first = order[np.r_[True, curve[order][1:] != curve[order][:-1]]]
+        hit = np.isin(curve[first], curve[off])
+        out[first[hit & judged[first]]] = True
+    # two bad rows side by side bend their curve onto a good neighbour, which may go first: each row left
+    # out is judged once more against the curve of the rows kept, and taken back where it lies on it
+    r, _, _, _ = _about_neighbours(f, b, w, duty, ~out)
+    judged = np.isfinite(r) & ~out
+    if judged.any():
+        scatter = 1.4826 * float(np.median(np.abs(r[judged])))
+        out &= ~(np.isfinite(r) & (np.abs(r) <= max(OUTLIER_RMS * scatter, math.log10(OUTLIER_FACTOR))))
     return out
 
 
@@ -499,7 +523,7 @@ def _round(rows: Rows, w: np.ndarray, seq: list[TermFit], pool: list[Term], inne
                 state["chosen"].remove(gone)
                 state["chosen"].append(top)
                 state["dropped"] = state.get("dropped", []) + [{"name": gone, "replaced_by": top,
-                                                                 "delta_bic": current.bic - fit.bic}]
+                                                                 "delta_bic": fit.bic - current.bic}]
                 seq.append(fit)
                 return top
             state["suspects"].append({"name": top, "round": rnd, "score": scores[top], "inner_held_out_rms_log10": proof})
@@ -519,6 +543,8 @@ def _in_place(rows: Rows, w: np.ndarray, current: TermFit, term: Term) -> tuple[
     exponent the data push to its bound does not describe them (N87's shapes: alpha 4.0, 0.39 log10 held
     out).  Not the inner extrapolation: between two look-alikes its window (50-90 kHz) ranks them by
     chance (the law 0.042, the series 0.036).  The earlier term's name and the swapped fit, or None."""
+    if term.kind == "temperature":  # a factor on the whole energy, no rate term's stand-in
+        return None
     lo, hi = term_bounds(term)
     for u in current.terms:
         if u.in_catalogue or u.kind == "temperature":
@@ -663,7 +689,7 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
     # a gross error in a row (a value mistyped x100) had set the noise floor to 8x the scatter and hidden a
     # classical eddy current: such rows are left out of everything and named
     outliers = gross_outlier_rows(f, b, w, duty)
-    if outliers.mean() > MAX_OUTLIER_SHARE:
+    if outliers.sum() > max(MAX_OUTLIER_SHARE * f.size, 2.0):
         raise EstimationError(f"{material or 'table'}: {int(outliers.sum())} of {f.size} rows lie more than a factor "
                               f"of {OUTLIER_FACTOR:g} off the smooth curve of their neighbours (first: "
                               f"{f'row {int(np.argmax(outliers))}' if row_names is None else row_names[int(np.argmax(outliers))]}): "
@@ -702,7 +728,7 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
                     "beyond it; weigh them with that")
     if not chosen and train.sum() < MIN_DECIDING_ROWS:
         verdict += (f"; only {int(train.sum())} calibration rows: too few to decide a rate term (at least "
-                    f"{MIN_DECIDING_ROWS}; the other split calibrates across the band)")
+                    f"{MIN_DECIDING_ROWS}{'; the interleaved split calibrates across the band' if split == 'low_third' else ''})")
     span = float(b.max() / b.min())
     if span < 2.0:  # a datasheet's curve at one flux density, or a narrow band of them
         verdict += ((f"; every row at one flux density ({1e3 * b.min():.3g} mT)" if span < 1.0001 else
@@ -739,6 +765,7 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
         **({} if shapes is None else {"shapes": shapes}),
         "repeated_rows": repeated,
         "outlier_rows": np.flatnonzero(outliers).tolist(),  # indices into the rows given, left out of everything
+        **({} if row_names is None else {"outlier_lines": [row_names[i] for i in np.flatnonzero(outliers)]}),
         "seconds": time.perf_counter() - t0,
     }
 
@@ -775,7 +802,7 @@ def _verdict(chosen: list[str], reported: list[str], located: dict[str, Any], be
     for s in suspects:
         if s.get("replaced_by"):
             out += (f"; {s['name']} replaced by {s['replaced_by']}: decisively better in its place (delta BIC "
-                    f"{s['delta_bic']:.0f})")
+                    f"{s['delta_bic']:.1f})")
             continue
         if s.get("dropped"):
             out += f"; {s['name']} dropped: redundant beside the generic term taken after it (delta BIC {s['delta_bic']:.1f})"
@@ -975,7 +1002,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             for sus in r["suspects"]:
                 if sus.get("replaced_by"):
                     print(f"{'':54s} replaced {sus['name']} by {sus['replaced_by']} (delta BIC {sus['delta_bic']:.1f})")
-                elif sus.get("dropped"):
+                    continue
+                if sus.get("dropped"):
                     print(f"{'':54s} dropped {sus['name']} (redundant, delta BIC {sus['delta_bic']:.1f})")
                     continue
                 if "scale_rel_std" in sus:

@@ -121,6 +121,24 @@ def test_a_mistyped_row_is_left_out_and_named_and_the_classical_term_still_found
         diagnose_energy(f, b, w, row_names=names)
 
 
+@pytest.mark.parametrize("per_curve, bad", [(n, bad) for n in (6, 8, 12) for bad in ((1,), (0,), (3, 4), (0, 1))
+                                             if n > 6 or len(bad) == 1])
+def test_on_short_curves_the_bad_rows_are_found_and_only_they(per_curve, bad):
+    """A review's cases: with 6-12 flux densities per frequency, a row x100 pulls its neighbours' curves
+    so far that, judged all at once, they went with it and the curve had too few rows left to be judged
+    (nothing was found); two side by side at the end took a good neighbour with them.  Two bad rows of
+    six are beyond it: the four good ones are fewer than a curve needs to be judged (six)."""
+    from hystbench.analysis.diagnosis.loss_separation import gross_outlier_rows
+
+    rng = np.random.default_rng(per_curve)
+    f = np.repeat(np.geomspace(5e4, 5e5, 20), per_curve)
+    b = np.tile(np.geomspace(0.02, 0.3, per_curve), 20)
+    w = (0.3 * (b / 0.1) ** 2.6 + 1e-4 * f * b**2) * np.exp(rng.normal(0.0, 0.01, f.size))
+    rows = [2 * per_curve + k for k in bad]  # on the third frequency's curve
+    w[rows] *= 100.0
+    assert np.flatnonzero(gross_outlier_rows(f, b, w)).tolist() == rows
+
+
 def test_no_row_of_the_vendored_tables_is_a_gross_outlier():
     """MagNet's tables as vendored (its own outlier flags dropped by the converter) lie within a factor
     of 1.8 of their neighbours' curves: the screen leaves every measured row in."""
@@ -349,11 +367,18 @@ def test_shape_factor_against_numerical_integration_and_the_triangle_closed_form
     assert np.all(shape_factor(np.full((3, 4), -1.0), p) == 1.0)  # exactly: a sine's figures are unchanged
 
 
-def test_a_selection_is_computed_once_and_each_caller_gets_its_own_copy():
+def test_a_selection_is_computed_once_and_each_caller_gets_its_own_copy(monkeypatch):
     """A report's figures draw the selection the diagnosis made a moment before: the same rows give the
-    selection a fresh computation gives, and what one caller changes in its copy no other sees."""
+    selection a fresh computation gives, computed once, and what one caller changes in its copy no
+    other sees."""
+    from hystbench.analysis.diagnosis import loss_separation
     from hystbench.analysis.diagnosis.loss_separation import _select_on_split, select_on_split
     from hystbench.analysis.diagnosis.loss_terms import Rows
+
+    computed = []
+    monkeypatch.setattr(loss_separation, "_SELECTIONS", {})  # what other tests left there is not this one's
+    monkeypatch.setattr(loss_separation, "_select_on_split",
+                        lambda *a: computed.append(a[2]) or _select_on_split(*a))
 
     f, b, w = synthetic(k_c=1e-4, seed=3)
     keep = np.isin(f, f[::60])  # every third frequency: the same physics on a third of the rows
@@ -367,6 +392,7 @@ def test_a_selection_is_computed_once_and_each_caller_gets_its_own_copy():
     assert np.array_equal(again[1][-1].x, fresh[1][-1].x) and np.array_equal(again[0], fresh[0])
     other = select_on_split(Rows(f, b), w, "interleaved", "sine_triangle")  # another split: its own selection
     assert not np.array_equal(other[0], fresh[0])
+    assert computed == ["low_third", "interleaved"]  # the copy of the same rows came from the memo
 
 
 def test_the_sine_diagnosis_is_unchanged_by_the_shape_path():

@@ -110,8 +110,9 @@ def test_relaxation_is_said_unidentifiable_from_sines_and_triangles_not_forced()
 @pytest.mark.parametrize("seed", [1, 2])
 def test_free_steinmetz_term_is_recovered_and_not_given_a_catalogue_name(seed: int):
     """Calibrated across the band (``interleaved``): there a single power law and the rate series differ,
-    and the free exponent, the truth, is named (on 50-170 kHz alone they are look-alikes, and such a
-    truth gets the classical term or the series: docs/diagnosis.md, "The rate series")."""
+    and the free exponent, the truth, is named (on 50-170 kHz alone they are near look-alikes: seeds 1
+    and 2 (these) get it there too, 11.6x and 19.3x held out, seed 3 the series, 2.2x;
+    docs/diagnosis.md, "The rate series")."""
     truth = (0.2, 0.6, 2.3)  # k_s J/m^3 at 100 kHz, 0.1 T (a sine); gamma (alpha = 1.6); delta
     f, b, w, duty = table(seed, steinmetz=truth)
     r = diagnose_energy(f, b, w, duty=duty, split="interleaved")
@@ -146,7 +147,7 @@ def test_a_large_off_grid_table_is_fitted_to_its_least_squares_optimum():
     assert fit.rss <= float(np.sum(np.log(w / truth) ** 2))
 
 
-def test_a_steinmetz_law_on_the_prescribed_split_replaces_the_series_taken_before_it():
+def test_a_steinmetz_law_on_the_prescribed_split_replaces_the_series_taken_before_it(tmp_path, capsys):
     """A sine table of a plain Steinmetz law (P = k f^1.5 B^2.7: 46 frequencies x 20 flux densities,
     2 % scatter), calibrated at 50-190 kHz: the tiers take the rate series first, and on top of it the
     free term fails the inner extrapolation (its window ranks look-alikes by chance).  In its place the
@@ -165,6 +166,17 @@ def test_a_steinmetz_law_on_the_prescribed_split_replaces_the_series_taken_befor
     p = r["parameters"]["steinmetz_rate_dependence"]
     assert _within(p["alpha"], 1.5) and _within(p["delta"], 2.7)
     assert r["improvement"] > 10 and r["residual_after"] < 1.5
+    # the module's own command line prints the replacement (it raised KeyError there)
+    from pathlib import Path
+
+    from hystbench.analysis.diagnosis.loss_separation import main
+
+    real = Path(__file__).resolve().parents[2] / "data" / "real" / "magnet_N87_sine.json"
+    (tmp_path / "law.json").write_text(json.dumps({**json.loads(real.read_text()), "material": "LAW"}))
+    (tmp_path / "law.csv").write_text("frequency_Hz,flux_density_peak_T,loss_W_per_m3\n" + "".join(
+        f"{float(fk)!r},{float(bk)!r},{float(wk * fk)!r}\n" for fk, bk, wk in zip(f, b, w)))
+    assert main([str(tmp_path / "law.csv")]) == 0
+    assert "replaced rate_series by steinmetz_rate_dependence" in capsys.readouterr().out
 
 
 SERIES_TRUTH = (0.05, 2.6, 0.05, 2.9)  # k_1, delta_1, k_2 (J/m^3 at 100 kHz, 0.1 T, a sine), delta_2
