@@ -350,14 +350,12 @@ def gross_outlier_rows(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.nda
     beyond: a bad row pulls its neighbours' curves towards it, so judged all at once they would go with
     it (a short curve then had too few rows left to be judged at all)."""
     out = np.zeros(f.size, bool)
-    limit = max(MAX_OUTLIER_SHARE * f.size, 2.0)
-    while out.sum() <= limit:  # beyond it the table is refused: no need to find every one
+    while out.sum() <= _most_outliers(f.size):  # beyond it the table is refused: no need to find every one
         r, _, curve, gain = _about_neighbours(f, b, w, duty, ~out)
         judged = np.isfinite(r) & ~out
         if not judged.any():
             break
-        scatter = 1.4826 * float(np.median(np.abs(r[judged])))
-        off = judged & (np.abs(r) > max(OUTLIER_RMS * scatter, math.log10(OUTLIER_FACTOR)))
+        off = judged & (np.abs(r) > _too_far(r[judged]))
         if not off.any():
             break
         worst = np.where(judged, gain, -1.0)
@@ -370,9 +368,18 @@ def gross_outlier_rows(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.nda
     r, _, _, _ = _about_neighbours(f, b, w, duty, ~out)
     judged = np.isfinite(r) & ~out
     if judged.any():
-        scatter = 1.4826 * float(np.median(np.abs(r[judged])))
-        out &= ~(np.isfinite(r) & (np.abs(r) <= max(OUTLIER_RMS * scatter, math.log10(OUTLIER_FACTOR))))
+        out &= ~(np.isfinite(r) & (np.abs(r) <= _too_far(r[judged])))
     return out
+
+
+def _too_far(deviations: np.ndarray) -> float:
+    """How far off (log10) a row is a gross error, given the deviations of the rows judged."""
+    return max(OUTLIER_RMS * 1.4826 * float(np.median(np.abs(deviations))), math.log10(OUTLIER_FACTOR))
+
+
+def _most_outliers(rows: int) -> float:
+    """More rows so far off are the table itself (:data:`MAX_OUTLIER_SHARE`, and more than two)."""
+    return max(MAX_OUTLIER_SHARE * rows, 2.0)
 
 
 def rate_trend(f: np.ndarray, b: np.ndarray, resid_log10: np.ndarray) -> dict[str, Any]:
@@ -689,7 +696,7 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
     # a gross error in a row (a value mistyped x100) had set the noise floor to 8x the scatter and hidden a
     # classical eddy current: such rows are left out of everything and named
     outliers = gross_outlier_rows(f, b, w, duty)
-    if outliers.sum() > max(MAX_OUTLIER_SHARE * f.size, 2.0):
+    if outliers.sum() > _most_outliers(f.size):
         raise EstimationError(f"{material or 'table'}: {int(outliers.sum())} of {f.size} rows lie more than a factor "
                               f"of {OUTLIER_FACTOR:g} off the smooth curve of their neighbours (first: "
                               f"{f'row {int(np.argmax(outliers))}' if row_names is None else row_names[int(np.argmax(outliers))]}): "
@@ -861,11 +868,12 @@ def loss_table_groups(tables: Sequence[TableArg]) -> list[list[LossTable]]:
     groups: list[list[LossTable]] = []
     by_material: dict[tuple[str, str, str], list[LossTable]] = {}
     for t in read:
-        if t.kind == "core_loss" and _conditions(t) in shaped:
-            if _conditions(t) not in by_material:
-                by_material[_conditions(t)] = []
-                groups.append(by_material[_conditions(t)])
-            by_material[_conditions(t)].append(t)
+        key = _conditions(t)
+        if t.kind == "core_loss" and key in shaped:
+            if key not in by_material:
+                by_material[key] = []
+                groups.append(by_material[key])
+            by_material[key].append(t)
         else:
             groups.append([t])
     for g in groups:
