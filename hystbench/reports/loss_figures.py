@@ -9,7 +9,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..analysis.diagnosis.loss_separation import calibrate_split, diagnose_energy, energy_per_cycle, gross_outlier_rows
+from ..analysis.diagnosis.loss_separation import calibrate_split, diagnose_energy, energy_per_cycle, screened
 from ..formats.material_data import read_material_table
 from .figures import plt, save_figure
 
@@ -25,8 +25,7 @@ def loss_separation_figure(table_path: str | Path, out: str | Path, split: str =
     table = read_material_table(table_path)
     f, b = table.frequency_hz, table.flux_density_t
     w = energy_per_cycle(table)
-    keep = ~gross_outlier_rows(f, b, w)  # as the diagnosis leaves them out (named in its verdict)
-    f, b, w = f[keep], b[keep], w[keep]
+    _, (f, b, w, _, _) = screened(f, b, w)  # as the diagnosis leaves them out (named in its verdict)
     train, base, final, _, chosen = calibrate_split(f, b, w, split)
     if result is None:
         result = diagnose_energy(f, b, w, material=table.material, split=split)
@@ -85,9 +84,7 @@ def loss_shapes_figure(table_paths: list[str | Path], out: str | Path, split: st
 
     group = loss_table_groups(table_paths)[0]
     f, b, w, duty = energy_table(group)
-    keep = ~gross_outlier_rows(f, b, w, duty)  # as the diagnosis leaves them out (named in its verdict)
-    f, b, w = f[keep], b[keep], w[keep]
-    duty = None if duty is None else duty[keep]
+    _, (f, b, w, duty, _) = screened(f, b, w, duty)  # as the diagnosis leaves them out (named in its verdict)
     if result is None:
         result = diagnose_energy(f, b, w, material=group[0].material, split=split, duty=duty)
     train, base, final, _, chosen = calibrate_split(f, b, w, split, duty)

@@ -372,6 +372,15 @@ def gross_outlier_rows(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.nda
     return out
 
 
+def screened(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndarray | None = None,
+             temperature_c: np.ndarray | None = None) -> tuple[np.ndarray, tuple[Any, ...]]:
+    """The gross outliers' mask, and (f, b, w, duty, temperature_c) without them: what the diagnosis
+    and its figures are computed on."""
+    out = gross_outlier_rows(f, b, w, duty)
+    keep = ~out
+    return out, tuple(None if a is None else a[keep] for a in (f, b, w, duty, temperature_c))
+
+
 def _too_far(deviations: np.ndarray) -> float:
     """How far off (log10) a row is a gross error, given the deviations of the rows judged."""
     return max(OUTLIER_RMS * 1.4826 * float(np.median(np.abs(deviations))), math.log10(OUTLIER_FACTOR))
@@ -695,17 +704,12 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
             raise EstimationError(f"{material or 'table'}: temperature must be finite, one per row")
     # a gross error in a row (a value mistyped x100) had set the noise floor to 8x the scatter and hidden a
     # classical eddy current: such rows are left out of everything and named
-    outliers = gross_outlier_rows(f, b, w, duty)
-    if outliers.sum() > _most_outliers(f.size):
-        raise EstimationError(f"{material or 'table'}: {int(outliers.sum())} of {f.size} rows lie more than a factor "
+    outliers, (f, b, w, duty, temperature_c) = screened(f, b, w, duty, temperature_c)
+    if outliers.sum() > _most_outliers(outliers.size):
+        raise EstimationError(f"{material or 'table'}: {int(outliers.sum())} of {outliers.size} rows lie more than a factor "
                               f"of {OUTLIER_FACTOR:g} off the smooth curve of their neighbours (first: "
                               f"{f'row {int(np.argmax(outliers))}' if row_names is None else row_names[int(np.argmax(outliers))]}): "
                               "not glitches but the table itself (a column in another unit?)")
-    if outliers.any():
-        keep = ~outliers
-        f, b, w = f[keep], b[keep], w[keep]
-        duty = None if duty is None else duty[keep]
-        temperature_c = None if temperature_c is None else temperature_c[keep]
     rows = Rows(f, b, duty, temperature_c)
     train, seq, candidates, chosen, suspects, skipped = select_on_split(rows, w, split, calibrate_on)
     base, final = seq[0], seq[-1]
