@@ -289,33 +289,10 @@ def _about_neighbours(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndar
     squares (r^2 / (1 - h): which row of a curve is the bad one, where the leave-one-out deviations
     of its neighbours at the curve's end are pulled as far)."""
     y, lb = np.log10(w), np.log10(b)
-    r = np.full(f.size, np.nan)
-    deleted = np.full(f.size, np.nan)
-    gain = np.full(f.size, np.nan)
-    ss, dof = 0.0, 0
     keys = f[:, None] if duty is None else np.column_stack([f, duty])
     _, group = np.unique(keys, axis=0, return_inverse=True)
     group = group.ravel()
-
-    def fit(m: np.ndarray, basis: Callable[[np.ndarray], np.ndarray], least: int) -> tuple[float, int]:
-        mk = m & keep
-        if mk.sum() < least:
-            return 0.0, 0
-        a = basis(mk)
-        r[m] = y[m] - basis(m) @ np.linalg.lstsq(a, y[mk], rcond=None)[0]
-        deleted[m] = r[m]
-        u, sv, _ = np.linalg.svd(a, full_matrices=False)  # the hat matrix's diagonal, on the directions the
-        leverage = np.sum(u[:, sv > sv[0] * 1e-10] ** 2, axis=1)  # rows span (one B at every f: no B terms)
-        deleted[mk] = r[mk] / np.maximum(1.0 - leverage, 1e-9)
-        gain[mk] = r[mk] ** 2 / np.maximum(1.0 - leverage, 1e-9)
-        return float(r[mk] @ r[mk]), int(mk.sum()) - a.shape[1]
-
-    def quadratic(m: np.ndarray) -> np.ndarray:
-        return np.column_stack([np.ones(m.sum()), lb[m], lb[m] ** 2])
-
-    for k in range(int(group.max()) + 1):
-        s_k, d_k = fit(group == k, quadratic, 6)
-        ss, dof = ss + s_k, dof + d_k
+    r, deleted, gain, ss, dof = _quadratic_per_curve(y, lb, group, keep)
     if dof == 0:  # a sparse or off-grid table: the scatter about a smooth surface per shape, an upper bound
         _, shape = np.unique(np.zeros((f.size, 1)) if duty is None else duty, axis=0, return_inverse=True)
         group = shape.ravel()
@@ -324,13 +301,60 @@ def _about_neighbours(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndar
         def surface(m: np.ndarray) -> np.ndarray:
             return np.column_stack([np.ones(m.sum()), lf[m], lf[m] ** 2, lb[m], lb[m] ** 2, lb[m] ** 3, lf[m] * lb[m]])
 
+        def fit(m: np.ndarray, least: int) -> tuple[float, int]:
+            mk = m & keep
+            if mk.sum() < least:
+                return 0.0, 0
+            a = surface(mk)
+            r[m] = y[m] - surface(m) @ np.linalg.lstsq(a, y[mk], rcond=None)[0]
+            deleted[m] = r[m]
+            u, sv, _ = np.linalg.svd(a, full_matrices=False)  # the hat matrix's diagonal
+            leverage = np.sum(u[:, sv > sv[0] * 1e-10] ** 2, axis=1)
+            deleted[mk] = r[mk] / np.maximum(1.0 - leverage, 1e-9)
+            gain[mk] = r[mk] ** 2 / np.maximum(1.0 - leverage, 1e-9)
+            return float(r[mk] @ r[mk]), int(mk.sum()) - a.shape[1]
+
         for k in range(int(group.max()) + 1):
-            s_k, d_k = fit(group == k, surface, 14)
+            s_k, d_k = fit(group == k, 14)
             ss, dof = ss + s_k, dof + d_k
     if dof == 0:
         raise EstimationError("noise floor: neither 6 flux densities at one frequency nor 14 rows of one shape "
                               "to measure the scatter on")
     return deleted, max(math.sqrt(ss / dof), NOISE_FLOOR_MIN_LOG10), group, gain
+
+
+def _quadratic_per_curve(y: np.ndarray, lb: np.ndarray, group: np.ndarray, keep: np.ndarray,
+                         least: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int]:
+    """:func:`_about_neighbours`'s curves: per ``group`` with ``least`` kept rows or more, a quadratic in
+    log B through its kept rows; each row's residual, a kept row's as if left out (r / (1 - h)) and the
+    fall of its curve's sum of squares without it (r^2 / (1 - h)), NaN on a curve with too few rows;
+    the kept rows' sum of squares and degrees of freedom (rows - 3 per curve).  All curves at once: the
+    3 x 3 normal equations of each curve, its log B centred and scaled so that they are well conditioned,
+    solved by a pseudo-inverse that drops what the rows do not span (one B on a curve: a constant)."""
+    n_curves = int(group.max()) + 1
+    kept = keep.astype(float)
+
+    def per_curve(values: np.ndarray) -> np.ndarray:
+        return np.bincount(group, weights=kept * values, minlength=n_curves)
+
+    count = per_curve(np.ones_like(y))
+    centre = per_curve(lb) / np.maximum(count, 1.0)
+    scale = np.sqrt(per_curve((lb - centre[group]) ** 2) / np.maximum(count, 1.0))
+    u = (lb - centre[group]) / np.where(scale > 0, scale, 1.0)[group]
+    x = np.column_stack([np.ones_like(u), u, u**2])
+    gram = np.empty((n_curves, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            gram[:, i, j] = gram[:, j, i] = per_curve(x[:, i] * x[:, j])
+    inverse = np.linalg.pinv(gram, rcond=1e-10, hermitian=True)
+    coef = np.einsum("kij,kj->ki", inverse, np.column_stack([per_curve(x[:, i] * y) for i in range(3)]))
+    fitted = (count >= least)[group]
+    r = np.where(fitted, y - np.einsum("ni,ni->n", x, coef[group]), np.nan)
+    leverage = np.einsum("ni,nij,nj->n", x, inverse[group], x)
+    inside = fitted & keep
+    deleted = np.where(inside, r / np.maximum(1.0 - leverage, 1e-9), r)
+    gain = np.where(inside, r**2 / np.maximum(1.0 - leverage, 1e-9), np.nan)
+    return r, deleted, gain, float(np.sum(r[inside] ** 2)), int(np.sum(count[count >= least] - 3))
 
 
 #: A row is a gross error (a mistyped value, a row in another unit), not a measurement, when it lies

@@ -139,6 +139,40 @@ def test_on_short_curves_the_bad_rows_are_found_and_only_they(per_curve, bad):
     assert np.flatnonzero(gross_outlier_rows(f, b, w)).tolist() == rows
 
 
+def test_every_curve_fitted_at_once_is_each_curve_refitted_without_its_row():
+    """The screen's deviations, all curves in one solve, against the definition computed here curve by
+    curve: a kept row's deviation from the quadratic refitted without it (numpy's polyfit), a dropped
+    row's from the quadratic of the kept rows; NaN on a curve with fewer than six kept rows, a constant
+    where a curve has one flux density."""
+    from hystbench.analysis.diagnosis.loss_separation import _quadratic_per_curve
+
+    rng = np.random.default_rng(7)
+    sizes = (6, 9, 14, 5, 8)  # the fourth has too few rows; in the fifth every row has one B
+    group = np.repeat(np.arange(len(sizes)), sizes)
+    lb = np.concatenate([np.sort(rng.uniform(-1.7, -0.5, n)) if k != 4 else np.full(n, -1.0)
+                         for k, n in enumerate(sizes)])
+    y = 2.5 * lb + 0.4 * lb**2 + 0.3 * group + rng.normal(0.0, 0.01, lb.size)
+    keep = np.ones(lb.size, bool)
+    keep[[7, 20]] = False  # the second and third curves each lose a row
+    _, deleted, gain, ss, dof = _quadratic_per_curve(y, lb, group, keep)
+    expected, total, rows_left = np.full(lb.size, np.nan), 0.0, 0
+    for k, n in enumerate(sizes):
+        rows = np.flatnonzero((group == k) & keep)
+        if rows.size < 6:
+            continue
+        degree = 0 if k == 4 else 2
+        fit = np.polyfit(lb[rows], y[rows], degree)
+        total += float(np.sum((y[rows] - np.polyval(fit, lb[rows])) ** 2))
+        rows_left += rows.size - 3
+        for i in np.flatnonzero(group == k):
+            others = rows[rows != i]
+            expected[i] = y[i] - np.polyval(np.polyfit(lb[others], y[others], degree), lb[i])
+    assert np.array_equal(np.isnan(deleted), np.isnan(expected))
+    assert deleted[~np.isnan(expected)] == pytest.approx(expected[~np.isnan(expected)], abs=1e-9)
+    assert ss == pytest.approx(total, rel=1e-9) and dof == rows_left
+    assert np.isnan(gain[[7, 20]]).all() and np.isnan(gain[group == 3]).all() and (gain[keep & (group != 3)] >= 0).all()
+
+
 def test_no_row_of_the_vendored_tables_is_a_gross_outlier():
     """MagNet's tables as vendored (its own outlier flags dropped by the converter) lie within a factor
     of 1.8 of their neighbours' curves: the screen leaves every measured row in."""
