@@ -598,6 +598,20 @@ def _in_place(rows: Rows, w: np.ndarray, current: TermFit, term: Term) -> tuple[
     return None
 
 
+def _reach_note(f_train: np.ndarray, f_held: np.ndarray, split: str) -> str:
+    """A verdict's caveat where the held-out rows lie further above the calibration band than the band
+    spans (a datasheet's 20 frequencies calibrated on 50-92 kHz, held out to 500 kHz: a Steinmetz law's
+    growth then took the rate series, 1.40x, and either extrapolation is a guess); '' otherwise (the
+    MagNet tables: 50-190 kHz, a factor 3.8, held out 2.6x above it)."""
+    top, bottom = float(f_train.max()), float(f_train.min())
+    reach = float(f_held.max()) / top if f_held.size else 0.0
+    if reach <= top / bottom:
+        return ""
+    return (f"; the calibration rows span {bottom / 1e3:.3g}-{top / 1e3:.3g} kHz (a factor of {top / bottom:.2g}) and "
+            f"the held-out rows reach {reach:.2g}x above them: how a rate term grows that far is not determined by "
+            "the band" + ("; the interleaved split calibrates across it" if split == "low_third" else ""))
+
+
 def _determined_without_redundant(rows: Rows, w: np.ndarray, fit: TermFit) -> bool:
     """Whether the last term's size is determined once an earlier term it makes redundant is gone (the
     model without that term within NAME_DELTA_BIC, as :func:`_drop_redundant` drops it).  Why: beside a
@@ -764,6 +778,7 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
     if not chosen and train.sum() < MIN_DECIDING_ROWS:
         verdict += (f"; only {int(train.sum())} calibration rows: too few to decide a rate term (at least "
                     f"{MIN_DECIDING_ROWS}{'; the interleaved split calibrates across the band' if split == 'low_third' else ''})")
+    verdict += _reach_note(f[train], f[held], split)
     span = float(b.max() / b.min())
     if span < 2.0:  # a datasheet's curve at one flux density, or a narrow band of them
         verdict += ((f"; every row at one flux density ({1e3 * b.min():.3g} mT)" if span < 1.0001 else

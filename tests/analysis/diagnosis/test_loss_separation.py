@@ -236,6 +236,22 @@ def test_a_table_with_too_few_frequencies_is_refused_and_a_falling_loss_is_said_
     assert r["located"]["trend"]["slope_log_f"] < 0 and "energy per cycle falls with frequency" in r["verdict"]
 
 
+def test_a_held_out_band_far_above_a_narrow_calibration_band_is_said_to_be_beyond_it():
+    """A datasheet-like table (20 frequencies 50-500 kHz, six flux densities, a Steinmetz law P = k f^1.5
+    B^2.7): the lowest third is 50-92 kHz, a factor of 1.8, and the held-out rows reach 5.5x above it.
+    What a rate term does that far is not in the band, and the verdict says so; calibrated across the
+    band it is not said, nor on MagNet's grid (50-190 kHz held out to 500 kHz)."""
+    rng = np.random.default_rng(3)
+    f, b = (a.ravel() for a in np.meshgrid(np.round(np.geomspace(5e4, 5e5, 20), -2), np.geomspace(0.025, 0.2, 6),
+                                           indexing="ij"))
+    w = 1e5 * (f / 1e5) ** 0.5 * (b / 0.1) ** 2.7 / 1e5 * np.exp(rng.normal(0.0, NOISE_LN, f.size))
+    narrow = diagnose_energy(f, b, w)
+    reach = 5e5 / f[f <= np.unique(f)[5]].max()
+    assert f"the held-out rows reach {reach:.2g}x above them" in narrow["verdict"] and "factor of 1.8" in narrow["verdict"]
+    assert "held-out rows reach" not in diagnose_energy(f, b, w, split="interleaved")["verdict"]
+    assert "held-out rows reach" not in diagnose_energy(*synthetic(k_c=1e-4))["verdict"]
+
+
 def test_rows_repeated_exactly_are_said_to_overstate_the_evidence():
     """A table appended to itself: each of its rows twice (no vendored table repeats a row)."""
     f, b, w = (np.tile(a, 2) for a in synthetic(k_c=1e-4))
