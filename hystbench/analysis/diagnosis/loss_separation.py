@@ -284,77 +284,92 @@ def _about_neighbours(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.ndar
                       keep: np.ndarray) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
     """Each row's log10 deviation from the smooth curve of its neighbours (:func:`noise_floor`'s fits,
     through the ``keep`` rows only, each kept row's as if it were left out, so that a row at the end of
-    a curve cannot bend it onto itself; NaN where a row has too few), the pooled rms of the kept rows,
-    which curve each row is on, and by how much each kept row's removal would lower its curve's sum of
-    squares (r^2 / (1 - h): which row of a curve is the bad one, where the leave-one-out deviations
-    of its neighbours at the curve's end are pulled as far)."""
+    a curve cannot bend it onto itself; NaN where a row has too few, or where it alone sets a direction
+    of its curve), the pooled rms of the kept rows, which curve each row is on, and by how much each
+    kept row's removal would lower its curve's sum of squares (r^2 / (1 - h): which row of a curve is
+    the bad one, where the leave-one-out deviations of its neighbours at the curve's end are pulled as
+    far)."""
     y, lb = np.log10(w), np.log10(b)
-    keys = f[:, None] if duty is None else np.column_stack([f, duty])
-    _, group = np.unique(keys, axis=0, return_inverse=True)
-    group = group.ravel()
-    r, deleted, gain, ss, dof = _quadratic_per_curve(y, lb, group, keep)
+    group = _groups(f[:, None] if duty is None else np.column_stack([f, duty]))
+    u = _standardised(lb, group, keep)
+    deleted, gain, ss, dof = _fit_per_group(np.column_stack([np.ones_like(u), u, u**2]), y, group, keep, 6)
     if dof == 0:  # a sparse or off-grid table: the scatter about a smooth surface per shape, an upper bound
-        _, shape = np.unique(np.zeros((f.size, 1)) if duty is None else duty, axis=0, return_inverse=True)
-        group = shape.ravel()
-        lf = np.log10(f)
-
-        def surface(m: np.ndarray) -> np.ndarray:
-            return np.column_stack([np.ones(m.sum()), lf[m], lf[m] ** 2, lb[m], lb[m] ** 2, lb[m] ** 3, lf[m] * lb[m]])
-
-        def fit(m: np.ndarray, least: int) -> tuple[float, int]:
-            mk = m & keep
-            if mk.sum() < least:
-                return 0.0, 0
-            a = surface(mk)
-            r[m] = y[m] - surface(m) @ np.linalg.lstsq(a, y[mk], rcond=None)[0]
-            deleted[m] = r[m]
-            u, sv, _ = np.linalg.svd(a, full_matrices=False)  # the hat matrix's diagonal
-            leverage = np.sum(u[:, sv > sv[0] * 1e-10] ** 2, axis=1)
-            deleted[mk] = r[mk] / np.maximum(1.0 - leverage, 1e-9)
-            gain[mk] = r[mk] ** 2 / np.maximum(1.0 - leverage, 1e-9)
-            return float(r[mk] @ r[mk]), int(mk.sum()) - a.shape[1]
-
-        for k in range(int(group.max()) + 1):
-            s_k, d_k = fit(group == k, 14)
-            ss, dof = ss + s_k, dof + d_k
+        group = _groups(np.zeros((f.size, 1)) if duty is None else duty)
+        u, v = _standardised(lb, group, keep), _standardised(np.log10(f), group, keep)
+        surface = np.column_stack([np.ones_like(u), v, v**2, u, u**2, u**3, u * v])
+        deleted, gain, ss, dof = _fit_per_group(surface, y, group, keep, 14)
     if dof == 0:
         raise EstimationError("noise floor: neither 6 flux densities at one frequency nor 14 rows of one shape "
                               "to measure the scatter on")
     return deleted, max(math.sqrt(ss / dof), NOISE_FLOOR_MIN_LOG10), group, gain
 
 
-def _quadratic_per_curve(y: np.ndarray, lb: np.ndarray, group: np.ndarray, keep: np.ndarray,
-                         least: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int]:
-    """:func:`_about_neighbours`'s curves: per ``group`` with ``least`` kept rows or more, a quadratic in
-    log B through its kept rows; each row's residual, a kept row's as if left out (r / (1 - h)) and the
-    fall of its curve's sum of squares without it (r^2 / (1 - h)), NaN on a curve with too few rows;
-    the kept rows' sum of squares and degrees of freedom (rows - 3 per curve).  All curves at once: the
-    3 x 3 normal equations of each curve, its log B centred and scaled so that they are well conditioned,
-    solved by a pseudo-inverse that drops what the rows do not span (one B on a curve: a constant)."""
-    n_curves = int(group.max()) + 1
+def _groups(keys: np.ndarray) -> np.ndarray:
+    """Each row's group: an index per distinct row of ``keys``."""
+    return np.unique(keys, axis=0, return_inverse=True)[1].ravel()
+
+
+#: Below this spread (log10 units) a group's values are one value: 0.3 and 0.1 * 3 are one flux density.
+SAME_VALUE_LOG10 = 1e-9
+
+
+def _standardised(values: np.ndarray, group: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``values`` centred and scaled per group on its kept rows (centred only where they are one value,
+    :data:`SAME_VALUE_LOG10`): polynomials in them span what polynomials in ``values`` do, better
+    conditioned."""
+    n = int(group.max()) + 1
+    count = np.maximum(np.bincount(group, weights=keep.astype(float), minlength=n), 1.0)
+    centred = values - (np.bincount(group, weights=keep * values, minlength=n) / count)[group]
+    scale = np.sqrt(np.bincount(group, weights=keep * centred**2, minlength=n) / count)
+    return centred / np.where(scale > SAME_VALUE_LOG10, scale, 1.0)[group]
+
+
+#: A direction of a group's columns is lost (the rows do not span it) below this share of the column's
+#: norm, as numpy's least squares would drop it (one flux density on a curve: a constant).
+LOST_DIRECTION = 1e-10
+#: A row that alone sets a direction of its group's fit (1 - h below this) is predicted by nothing else:
+#: it is not judged (r / (1 - h) is 0 / 0, and rounding made good rows gross errors).
+ALONE = 1e-6
+
+
+def _fit_per_group(x: np.ndarray, y: np.ndarray, group: np.ndarray, keep: np.ndarray,
+                   least: int) -> tuple[np.ndarray, np.ndarray, float, int]:
+    """:func:`_about_neighbours`'s fits: per group with ``least`` kept rows or more, ``y`` by least squares
+    on the columns ``x`` (rows, k) through its kept rows.  Each row's deviation, a kept row's as if it were
+    left out (r / (1 - h)), NaN in a group with too few and where the row is :data:`ALONE`; the fall of its
+    group's sum of squares without it (r^2 / (1 - h), judged rows only); the kept rows' sum of squares and
+    degrees of freedom (rows - k per group).  Every group at once: the columns orthogonalised per group
+    on its kept rows (Gram-Schmidt, twice, the inner products by ``bincount``), so that the fit and the
+    hat matrix's diagonal are sums over orthogonal directions."""
+    n = int(group.max()) + 1
     kept = keep.astype(float)
 
-    def per_curve(values: np.ndarray) -> np.ndarray:
-        return np.bincount(group, weights=kept * values, minlength=n_curves)
+    def dot(a: np.ndarray, c: np.ndarray) -> np.ndarray:  # per group, over its kept rows
+        return np.bincount(group, weights=kept * a * c, minlength=n)
 
-    count = per_curve(np.ones_like(y))
-    centre = per_curve(lb) / np.maximum(count, 1.0)
-    scale = np.sqrt(per_curve((lb - centre[group]) ** 2) / np.maximum(count, 1.0))
-    u = (lb - centre[group]) / np.where(scale > 0, scale, 1.0)[group]
-    x = np.column_stack([np.ones_like(u), u, u**2])
-    gram = np.empty((n_curves, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            gram[:, i, j] = gram[:, j, i] = per_curve(x[:, i] * x[:, j])
-    inverse = np.linalg.pinv(gram, rcond=1e-10, hermitian=True)
-    coef = np.einsum("kij,kj->ki", inverse, np.column_stack([per_curve(x[:, i] * y) for i in range(3)]))
+    count = dot(np.ones_like(y), np.ones_like(y))
+    basis: list[tuple[np.ndarray, np.ndarray]] = []  # (column orthogonal to the ones before, its squared norm)
+    for j in range(x.shape[1]):
+        q = x[:, j].astype(float)
+        size = np.maximum(dot(q, q), count)  # standardised columns: about the rows' count, or ~0 for one value
+        for _ in range(2):
+            for p, norm in basis:
+                q = q - (dot(p, q) / np.where(norm > 0, norm, 1.0))[group] * p
+        norm = dot(q, q)
+        lost = norm <= size * LOST_DIRECTION**2
+        basis.append((np.where(lost[group], 0.0, q), np.where(lost, 0.0, norm)))
+    fit, leverage = np.zeros_like(y), np.zeros_like(y)
+    for p, norm in basis:
+        safe = np.where(norm > 0, norm, 1.0)
+        fit += (dot(p, y) / safe)[group] * p
+        leverage += p**2 / safe[group]
     fitted = (count >= least)[group]
-    r = np.where(fitted, y - np.einsum("ni,ni->n", x, coef[group]), np.nan)
-    leverage = np.einsum("ni,nij,nj->n", x, inverse[group], x)
+    r = np.where(fitted, y - fit, np.nan)
     inside = fitted & keep
-    deleted = np.where(inside, r / np.maximum(1.0 - leverage, 1e-9), r)
-    gain = np.where(inside, r**2 / np.maximum(1.0 - leverage, 1e-9), np.nan)
-    return r, deleted, gain, float(np.sum(r[inside] ** 2)), int(np.sum(count[count >= least] - 3))
+    judged = inside & (1.0 - leverage > ALONE)
+    deleted = np.where(judged, r / np.where(judged, 1.0 - leverage, 1.0), np.where(inside, np.nan, r))
+    gain = np.where(judged, r**2 / np.where(judged, 1.0 - leverage, 1.0), np.nan)
+    return deleted, gain, float(np.sum(r[inside] ** 2)), int(np.sum(count[count >= least] - x.shape[1]))
 
 
 #: A row is a gross error (a mistyped value, a row in another unit), not a measurement, when it lies
@@ -362,6 +377,8 @@ def _quadratic_per_curve(y: np.ndarray, lb: np.ndarray, group: np.ndarray, keep:
 #: table's scatter (robust: 1.4826 median absolute deviations).  MagNet's vendored tables lie within a
 #: factor of 1.8.
 OUTLIER_FACTOR, OUTLIER_RMS = 2.0, 9.0
+#: Removals that lower a curve's sum of squares alike to this share are a tie (rounding decides them).
+TIED_GAIN = 1e-9
 #: More rows than this share (and more than two) so far off are the table's own shape (or a column in
 #: another unit), not glitches.
 MAX_OUTLIER_SHARE = 0.02
@@ -382,8 +399,13 @@ def gross_outlier_rows(f: np.ndarray, b: np.ndarray, w: np.ndarray, duty: np.nda
         off = judged & (np.abs(r) > _too_far(r[judged]))
         if not off.any():
             break
+        # per curve, the row whose removal helps most; among rows that help as much (to rounding: two single
+        # rows at their own flux densities, either of which leaves a quadratic), the one furthest off
         worst = np.where(judged, gain, -1.0)
-        order = np.lexsort((-worst, curve))  # by curve, the one whose removal helps most first within each
+        most = np.full(int(curve.max()) + 1, -1.0)
+        np.maximum.at(most, curve, worst)
+        rank = np.where(judged & (worst >= most[curve] * (1.0 - TIED_GAIN)), np.abs(r), -1.0)
+        order = np.lexsort((-rank, curve))
         first = order[np.r_[True, curve[order][1:] != curve[order][:-1]]]
         hit = np.isin(curve[first], curve[off])
         out[first[hit & judged[first]]] = True
@@ -602,14 +624,28 @@ def _reach_note(f_train: np.ndarray, f_held: np.ndarray, split: str) -> str:
     """A verdict's caveat where the held-out rows lie further above the calibration band than the band
     spans (a datasheet's 20 frequencies calibrated on 50-92 kHz, held out to 500 kHz: a Steinmetz law's
     growth then took the rate series, 1.40x, and either extrapolation is a guess); '' otherwise (the
-    MagNet tables: 50-190 kHz, a factor 3.8, held out 2.6x above it)."""
+    MagNet tables: 50-190 kHz, a factor of 3.8, held out 2.6x above it)."""
     top, bottom = float(f_train.max()), float(f_train.min())
     reach = float(f_held.max()) / top if f_held.size else 0.0
     if reach <= top / bottom:
         return ""
-    return (f"; the calibration rows span {bottom / 1e3:.3g}-{top / 1e3:.3g} kHz (a factor of {top / bottom:.2g}) and "
-            f"the held-out rows reach {reach:.2g}x above them: how a rate term grows that far is not determined by "
-            "the band" + ("; the interleaved split calibrates across it" if split == "low_third" else ""))
+    return (f"; the calibration rows span {_hz(bottom)} to {_hz(top)} (a factor of {top / bottom:.3g}) and the "
+            f"held-out rows reach {reach:.3g}x above them: how a rate term grows that far is not determined by "
+            f"the band{_interleaved_hint(np.concatenate([f_train, f_held]), split)}")
+
+
+def _interleaved_hint(f: np.ndarray, split: str) -> str:
+    """Where the prescribed split is too narrow: the other split, when the table allows it."""
+    if split != "low_third" or np.unique(f).size < 7:
+        return ""
+    return "; the interleaved split calibrates across the band"
+
+
+def _hz(value: float) -> str:
+    for scale, unit in ((1e9, "GHz"), (1e6, "MHz"), (1e3, "kHz")):
+        if value >= scale:
+            return f"{value / scale:.3g} {unit}"
+    return f"{value:.3g} Hz"
 
 
 def _determined_without_redundant(rows: Rows, w: np.ndarray, fit: TermFit) -> bool:
@@ -777,7 +813,7 @@ def diagnose_energy(f: np.ndarray, b: np.ndarray, w: np.ndarray, *, material: st
                     "beyond it; weigh them with that")
     if not chosen and train.sum() < MIN_DECIDING_ROWS:
         verdict += (f"; only {int(train.sum())} calibration rows: too few to decide a rate term (at least "
-                    f"{MIN_DECIDING_ROWS}{'; the interleaved split calibrates across the band' if split == 'low_third' else ''})")
+                    f"{MIN_DECIDING_ROWS}{_interleaved_hint(f, split)})")
     verdict += _reach_note(f[train], f[held], split)
     span = float(b.max() / b.min())
     if span < 2.0:  # a datasheet's curve at one flux density, or a narrow band of them

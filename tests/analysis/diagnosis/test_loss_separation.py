@@ -143,18 +143,19 @@ def test_every_curve_fitted_at_once_is_each_curve_refitted_without_its_row():
     """The screen's deviations, all curves in one solve, against the definition computed here curve by
     curve: a kept row's deviation from the quadratic refitted without it (numpy's polyfit), a dropped
     row's from the quadratic of the kept rows; NaN on a curve with fewer than six kept rows, a constant
-    where a curve has one flux density."""
-    from hystbench.analysis.diagnosis.loss_separation import _quadratic_per_curve
+    where a curve has one flux density (also written two ways, 0.3 and 0.1 * 3)."""
+    from hystbench.analysis.diagnosis.loss_separation import _about_neighbours
 
     rng = np.random.default_rng(7)
     sizes = (6, 9, 14, 5, 8)  # the fourth has too few rows; in the fifth every row has one B
     group = np.repeat(np.arange(len(sizes)), sizes)
-    lb = np.concatenate([np.sort(rng.uniform(-1.7, -0.5, n)) if k != 4 else np.full(n, -1.0)
-                         for k, n in enumerate(sizes)])
+    b = np.concatenate([np.sort(rng.uniform(0.02, 0.3, n)) if k != 4 else np.where(np.arange(n) % 2, 0.3, 0.1 * 3)
+                        for k, n in enumerate(sizes)])
+    lb = np.log10(b)
     y = 2.5 * lb + 0.4 * lb**2 + 0.3 * group + rng.normal(0.0, 0.01, lb.size)
     keep = np.ones(lb.size, bool)
     keep[[7, 20]] = False  # the second and third curves each lose a row
-    _, deleted, gain, ss, dof = _quadratic_per_curve(y, lb, group, keep)
+    deleted, floor, _, gain = _about_neighbours(1e5 * (1 + group), b, 10.0**y, None, keep)
     expected, total, rows_left = np.full(lb.size, np.nan), 0.0, 0
     for k, n in enumerate(sizes):
         rows = np.flatnonzero((group == k) & keep)
@@ -169,8 +170,32 @@ def test_every_curve_fitted_at_once_is_each_curve_refitted_without_its_row():
             expected[i] = y[i] - np.polyval(np.polyfit(lb[others], y[others], degree), lb[i])
     assert np.array_equal(np.isnan(deleted), np.isnan(expected))
     assert deleted[~np.isnan(expected)] == pytest.approx(expected[~np.isnan(expected)], abs=1e-9)
-    assert ss == pytest.approx(total, rel=1e-9) and dof == rows_left
+    assert floor == pytest.approx(math.sqrt(total / rows_left), rel=1e-9)
     assert np.isnan(gain[[7, 20]]).all() and np.isnan(gain[group == 3]).all() and (gain[keep & (group != 3)] >= 0).all()
+
+
+def test_a_row_that_alone_sets_its_curve_is_not_judged_and_a_tie_goes_to_the_row_furthest_off():
+    """A review's cases.  A row alone near its own flux density (0.3003 T beside three rows at 0.3 T)
+    fixes its curve's quadratic by itself: its deviation from the others is 0 / 0, and rounding had made
+    good rows gross errors.  Two single rows whose removals lower the curve's misfit alike (either leaves
+    a quadratic through three B): the one far off goes, whatever the last bit of any row."""
+    from hystbench.analysis.diagnosis.loss_separation import gross_outlier_rows
+
+    b_b = np.geomspace(0.02, 0.3, 8)
+    for scale in (1e-12, 1.0, 1e12):
+        for seed in range(5):
+            rng = np.random.default_rng(seed)
+            b = np.r_[[0.03] * 3 + [0.3] * 3 + [0.3003], b_b]
+            w = scale * (b / 0.1) ** 2.5 * np.exp(rng.normal(0.0, 0.01, b.size))
+            assert not gross_outlier_rows(np.r_[np.full(7, 1e5), np.full(8, 2e5)], b, w).any(), (scale, seed)
+    f = np.full(8, 5e4)
+    b = np.array([0.0137404, 0.1037528, 0.0137404, 0.0137404, 0.0109648, 0.1037528, 0.0137404, 0.6180164])
+    w = 40.0 * (b / 0.0137404) ** 1.62 * np.exp(np.random.default_rng(3).normal(0.0, 0.03, 8))
+    w[7] *= 15.0  # about 1.2 log10 off the curve of the others
+    for k in range(8):
+        nudged = w.copy()
+        nudged[k] = np.nextafter(nudged[k], np.inf)
+        assert np.flatnonzero(gross_outlier_rows(f, b, nudged)).tolist() == [7], k
 
 
 def test_no_row_of_the_vendored_tables_is_a_gross_outlier():
@@ -246,8 +271,12 @@ def test_a_held_out_band_far_above_a_narrow_calibration_band_is_said_to_be_beyon
                                            indexing="ij"))
     w = 1e5 * (f / 1e5) ** 0.5 * (b / 0.1) ** 2.7 / 1e5 * np.exp(rng.normal(0.0, NOISE_LN, f.size))
     narrow = diagnose_energy(f, b, w)
-    reach = 5e5 / f[f <= np.unique(f)[5]].max()
-    assert f"the held-out rows reach {reach:.2g}x above them" in narrow["verdict"] and "factor of 1.8" in narrow["verdict"]
+    top = np.unique(f)[5]  # the lowest third of 20 frequencies: six
+    assert (f"span 50 kHz to {top / 1e3:.3g} kHz (a factor of {top / 5e4:.3g}) and the held-out rows reach "
+            f"{5e5 / top:.3g}x above them") in narrow["verdict"]
+    assert "the interleaved split calibrates across the band" in narrow["verdict"]
+    few = np.isin(f, np.unique(f)[[0, 1, 2, 19]])  # four frequencies: no interleaved split to point to
+    assert "held-out rows reach" in (v := diagnose_energy(f[few], b[few], w[few])["verdict"]) and "interleaved" not in v
     assert "held-out rows reach" not in diagnose_energy(f, b, w, split="interleaved")["verdict"]
     assert "held-out rows reach" not in diagnose_energy(*synthetic(k_c=1e-4))["verdict"]
 
