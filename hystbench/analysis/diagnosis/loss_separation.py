@@ -57,7 +57,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.constants import mu_0
@@ -367,8 +367,10 @@ def _fit_per_group(x: np.ndarray, y: np.ndarray, group: np.ndarray, keep: np.nda
     r = np.where(fitted, y - fit, np.nan)
     inside = fitted & keep
     judged = inside & (1.0 - leverage > ALONE)
-    deleted = np.where(judged, r / np.where(judged, 1.0 - leverage, 1.0), np.where(inside, np.nan, r))
-    gain = np.where(judged, r**2 / np.where(judged, 1.0 - leverage, 1.0), np.nan)
+    deleted = np.where(inside, np.nan, r)  # a dropped row: its deviation from the kept rows' curve
+    deleted[judged] = r[judged] / (1.0 - leverage[judged])
+    gain = np.full_like(r, np.nan)
+    gain[judged] = r[judged] ** 2 / (1.0 - leverage[judged])
     return deleted, gain, float(np.sum(r[inside] ** 2)), int(np.sum(count[count >= least] - x.shape[1]))
 
 
