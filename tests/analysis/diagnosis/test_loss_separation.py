@@ -178,7 +178,7 @@ def test_a_row_that_alone_sets_its_curve_is_not_judged_and_a_tie_goes_to_the_row
     """A review's cases.  A row alone near its own flux density (0.3003 T beside three rows at 0.3 T)
     fixes its curve's quadratic by itself: its deviation from the others is 0 / 0, and rounding had made
     good rows gross errors.  Two single rows whose removals lower the curve's misfit alike (either leaves
-    a quadratic through three B): the one far off goes, whatever the last bit of any row."""
+    a quadratic through three B): the one far off goes, whichever rounding favours."""
     from hystbench.analysis.diagnosis.loss_separation import gross_outlier_rows
 
     b_b = np.geomspace(0.02, 0.3, 8)
@@ -190,12 +190,10 @@ def test_a_row_that_alone_sets_its_curve_is_not_judged_and_a_tie_goes_to_the_row
             assert not gross_outlier_rows(np.r_[np.full(7, 1e5), np.full(8, 2e5)], b, w).any(), (scale, seed)
     f = np.full(8, 5e4)
     b = np.array([0.0137404, 0.1037528, 0.0137404, 0.0137404, 0.0109648, 0.1037528, 0.0137404, 0.6180164])
-    w = 40.0 * (b / 0.0137404) ** 1.62 * np.exp(np.random.default_rng(3).normal(0.0, 0.03, 8))
-    w[7] *= 15.0  # about 1.2 log10 off the curve of the others
-    for k in range(8):
-        nudged = w.copy()
-        nudged[k] = np.nextafter(nudged[k], np.inf)
-        assert np.flatnonzero(gross_outlier_rows(f, b, nudged)).tolist() == [7], k
+    for seed in range(20):  # rounding gave the good row at 0.011 T the larger gain on 8 of these 20
+        w = 40.0 * (b / 0.0137404) ** 1.62 * np.exp(np.random.default_rng(seed).normal(0.0, 0.03, 8))
+        w[7] *= 15.0  # about 1.2 log10 off the curve of the others
+        assert np.flatnonzero(gross_outlier_rows(f, b, w)).tolist() == [7], seed
 
 
 def test_no_row_of_the_vendored_tables_is_a_gross_outlier():
