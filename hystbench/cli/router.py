@@ -1,8 +1,9 @@
 """``hystbench router``: a zenoh router for a fleet of benches (zenoh's routing, not ours).
 
 Prints on its first line of stdout where it listens (and, with ``--foxglove``, on its second where
-the Foxglove view of every bench is served), then routes until SIGINT or SIGTERM (exit 0).  A taken
-port is one line on stderr naming ``--listen`` or ``--foxglove`` (exit 2).
+the Foxglove view of every bench is served), then routes until SIGINT or SIGTERM (exit 0; 1, saying
+so, if its shutdown outlasts :data:`STOP_S`).  A taken port is one line on stderr naming ``--listen``
+or ``--foxglove`` (exit 2).
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from .args import path_arg
 
 __all__ = ["register", "cmd_router", "foxglove_address"]
 
+#: SIGINT or SIGTERM ends the router within this long (s), whatever closing its session or view hangs on
+STOP_S = 5.0
 #: where ``--foxglove PORT`` serves when no host is given: this PC only (the server has no access control)
 FOXGLOVE_HOST = "127.0.0.1"
 
@@ -51,6 +54,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     from ..acquisition.zenoh_bus import ListenError
     from ..errors import ConfigError
     from ..service.router import Router
+    from ..service.shutdown import end_after
 
     router = Router(args.listen, config_file=args.config)
     try:
@@ -67,7 +71,13 @@ def cmd_router(args: argparse.Namespace) -> int:
             router.close()
             raise
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def on_signal(signum: int, _frame: object) -> None:
+        if not stop.is_set():  # closing the view and the session may block: bounded
+            end_after(STOP_S, signal.Signals(signum).name, "the router")
+        stop.set()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         print(f"hystbench router: listening on {', '.join(router.endpoints) or '(nothing)'} (zid {router.zid}); "
               "daemons: [zenoh] connect = [that endpoint], listen = []; SIGINT or SIGTERM stops it", flush=True)

@@ -23,7 +23,6 @@ router it connects to) that cannot be reached at start.
 from __future__ import annotations
 
 import logging
-import os
 import signal
 import socket
 import sys
@@ -36,6 +35,7 @@ from .daemon_config import DaemonConfig, load_daemon_config, zenoh_config
 from .sd_notify import Notifier
 from .service import BenchService
 from .service_log import check_log_dir
+from .shutdown import end_after
 from .source_config import build_source
 
 __all__ = ["run_daemon", "STALL_S", "STOP_S"]
@@ -62,9 +62,8 @@ def run_daemon(config_path: str | Path | None) -> int:
     def on_signal(signum, _frame) -> None:
         if signum != signal.SIGHUP and not flags["stop"]:  # whatever the main loop is busy with
             bound = float(cfg["daemon"]["stop_timeout_s"])  # the running configuration's (a reload may change it)
-            timer = threading.Timer(bound, _stop_now, args=(signal.Signals(signum).name, bound))
-            timer.daemon = True  # also ends an interpreter whose shutdown waits on another library's threads
-            timer.start()
+            # also ends an interpreter whose shutdown waits on another library's threads
+            end_after(bound, signal.Signals(signum).name, "the service", "[daemon] stop_timeout_s")
         flags["reload" if signum == signal.SIGHUP else "stop"] = True
         wake.set()
 
@@ -119,15 +118,6 @@ def run_daemon(config_path: str | Path | None) -> int:
             claim.release()
     log.info("stopped; log %s", ", ".join(map(str, paths)) or "(none)")
     return status
-
-
-def _stop_now(signame: str, bound_s: float) -> None:
-    """SIGTERM came ``bound_s`` ago and the service has not stopped: end the process now.  The
-    kernel frees the bench's lock and ports; with the heartbeat gone, the amplifier's watchdog
-    switches the output off (the drivers tried first, in the stop that is hanging)."""
-    log.error("%s: the service did not stop within %g s ([daemon] stop_timeout_s); exiting now", signame, bound_s)
-    logging.shutdown()
-    os._exit(1)
 
 
 def _started(cfg: DaemonConfig, svc: BenchService) -> None:

@@ -130,6 +130,34 @@ def test_the_router_runs_until_sigterm_and_says_where_it_listens() -> None:
             proc.wait()
 
 
+#: ``hystbench router`` whose session never finishes closing (a make test run once saw a router's
+#: shutdown hang past 60 s after a Foxglove client had come and gone)
+HUNG_CLOSE = """
+import sys, threading
+import hystbench.service.router as router
+router.Router.close = lambda self: threading.Event().wait()
+from hystbench.cli.main import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_router_whose_shutdown_hangs_ends_within_its_bound_saying_so() -> None:
+    from hystbench.cli.router import STOP_S
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([sys.executable, "-c", HUNG_CLOSE, "router", "--listen", endpoint], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert f"listening on {endpoint}" in proc.stdout.readline()
+        proc.terminate()
+        assert proc.wait(timeout=HANG_S) == 1
+        assert f"SIGTERM: the router did not stop within {STOP_S:g} s; exiting now" in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
 def test_a_bench_pattern_is_one_key_chunk() -> None:
     assert bench_pattern("*") == "*"
     assert bench_pattern("lab-*") == "lab-$*"
