@@ -18,11 +18,13 @@ every null case "none", held-out improvement >= 5x in the named effect's own sig
 moves, at held-out operating points; the total beside it), a median under 30 s per bench day (the
 diagnosis's own CPU time, one process: one core; cases run side by side, one per core).
 
-Run: ``python -m benchmarks diagnose [--suite ours|independent|all] [--json] [--cases NAME,...] [--out DIR] [--quick]``
+Run: ``python -m benchmarks diagnose [--suite ours|independent|all] [--json] [--cases NAME,...] [--out DIR] [--quick]
+[--another-copy]``
 (``--cases``: a bare name selects it in every chosen suite that has it, ``SUITE:NAME`` in that suite only;
 ``--out``: each case's report page and figures, the independent suite's under ``DIR/independent``, and
 results.json; ``--quick``: a short day of our suite, for a first look only; the independent days are
-played as written).
+played as written; ``--another-copy``: the independent suite's days on another copy of its bench, every
+parameter moved 10-50 % and other seeds: a bench the diagnosis's settings were not made on).
 """
 
 from __future__ import annotations
@@ -65,11 +67,12 @@ def suite_cases(suite: str) -> list[Any]:
 
 
 def run_named(name: str, plan: BenchDayPlan | None = None, out: Path | None = None,
-              suite: str = "ours", shuffle: int | None = None) -> dict[str, Any]:
+              suite: str = "ours", shuffle: int | None = None, another_copy: bool = False) -> dict[str, Any]:
     """:func:`run_case` (or :func:`run_independent_case`) of the case called ``name`` in ``suite`` (what
     a worker process is sent: our cases' tables are read-only mappings, which do not pickle)."""
     if suite == "independent":
-        return run_independent_case({c.name: c for c in suite_cases(suite)}[name], out, shuffle=shuffle)
+        return run_independent_case({c.name: c for c in suite_cases(suite)}[name], out, shuffle=shuffle,
+                                    another_copy=another_copy)
     return run_case({c.name: c for c in CASES}[name], plan, out)
 
 
@@ -92,15 +95,19 @@ def run_case(case: Case, plan: BenchDayPlan | None = None, out: Path | None = No
 
 
 def run_independent_case(case: Any, out: Path | None = None,
-                         say: Callable[[str], None] | None = None, shuffle: int | None = None) -> dict[str, Any]:
+                         say: Callable[[str], None] | None = None, shuffle: int | None = None,
+                         another_copy: bool = False) -> dict[str, Any]:
     """One case of the independent suite: its day written to a temporary folder (one folder, every
     rig), read back as the recording format's sweep (``read_sweep``: rigs told apart by the sidecar), diagnosed with the
     case's baseline (every candidate), and the answer judged against the truth; the row has
     :func:`run_case`'s keys (``seconds_simulate``: writing the day and reading it back).  ``shuffle``:
     each block's frequencies played in the order this seed draws (what the diagnosis advises when a
-    slow change along the day may pass for a frequency dependence)."""
+    slow change along the day may pass for a frequency dependence).  ``another_copy``: played on
+    another copy of the bench (``on_another_copy``)."""
     from hystbench.formats.recording import read_sweep
 
+    if another_copy:
+        case = independent_suite().on_another_copy(case)
     if shuffle is not None:
         case = replace(case, plan=tuple(independent_bench("bench").shuffled_blocks(case.points, shuffle)))
 
@@ -364,12 +371,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=0, help="cases diagnosed at once, one core each (default: one per core)")
     ap.add_argument("--shuffle", type=int, metavar="SEED",
                     help="the independent suite's days with each block's frequencies in a random order (this seed's)")
+    ap.add_argument("--another-copy", action="store_true",
+                    help="the independent suite's days on another copy of its bench (every parameter moved 10-50 %%, "
+                         "other seeds)")
     args = ap.parse_args(argv)
     suites = list(SUITES) if args.suite == "all" else [args.suite]
     cases = _select(ap, args.cases, suites)
     if args.shuffle is not None and any(s != "independent" for s, _ in cases):
         ap.error("--shuffle: only the independent suite's days can be played shuffled (our suite's BenchDayPlan plays "
                  "each block in order); add --suite independent")
+    if args.another_copy and any(s != "independent" for s, _ in cases):
+        ap.error("--another-copy: only the independent suite has another copy of its bench; add --suite independent")
     plan = BenchDayPlan.quick() if args.quick else None
     out = Path(args.out) if args.out else None
     from hystbench.reports.console import progress
@@ -384,15 +396,18 @@ def main(argv: list[str] | None = None) -> int:
                 def say(msg: str, c: Any = c, s: str = s) -> None:
                     bar.update(task, description=f"{s}:{c.name}: {msg}")
                 rows.append(run_case(c, plan, out, say=say) if s == "ours"
-                            else run_independent_case(c, out, say=say, shuffle=args.shuffle))
+                            else run_independent_case(c, out, say=say, shuffle=args.shuffle,
+                                                      another_copy=args.another_copy))
                 bar.advance(task)
         else:  # one case per process, each diagnosis on one core (its seconds are that core's)
             with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("forkserver")) as pool:
-                futures = [pool.submit(run_named, c.name, plan, out, s, args.shuffle) for s, c in cases]
+                futures = [pool.submit(run_named, c.name, plan, out, s, args.shuffle, args.another_copy)
+                           for s, c in cases]
                 for fut in as_completed(futures):
                     bar.advance(task)
                 rows = [f.result() for f in futures]
     res = {"cases": rows, "suites": judge(rows), "quick": bool(args.quick), "shuffle": args.shuffle,
+           "another_copy": args.another_copy,
            "seconds": time.monotonic() - t0}
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)

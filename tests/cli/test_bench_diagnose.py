@@ -54,6 +54,14 @@ def test_an_unknown_case_is_refused_naming_it(capsys):
     assert "--cases" in err and "no_such_case" in err and "null_seed1" in err
 
 
+def test_another_copy_is_refused_for_our_suite_saying_which_has_one(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["diagnose", "--suite", "all", "--another-copy"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert "--another-copy" in err and "--suite independent" in err
+
+
 def _answer(named, candidates, suspects=(), signature=None):
     """A diagnosis's answer as why_wrong reads it: the names, every candidate's (name, score) and the
     suspects' (name, score, held-out gain)."""

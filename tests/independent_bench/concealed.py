@@ -20,14 +20,16 @@ Like the rest of the package, this module imports nothing from ``hystbench``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
-from .bench import BASELINE, EFFECT_NAMES, BenchConstants, bench_day_plan, effect_params, write_bench_day
+from .bench import (BASELINE, EFFECT_NAMES, VARIANTS, BenchConstants, bench_day_plan, effect_params,
+                    write_bench_day)
 from .magnetics import ECoreGeometry
 
-__all__ = ["Case", "CASES", "DIAGNOSIS_BASELINE", "day_points", "without_hidden", "write_case"]
+__all__ = ["Case", "CASES", "DIAGNOSIS_BASELINE", "ANOTHER_COPY", "ANOTHER_BENCH", "on_another_copy", "day_points", "without_hidden",
+           "write_case"]
 
 #: What the diagnosis is told the bench has (the issue's ``--baseline``), in catalogue names.
 DIAGNOSIS_BASELINE: tuple[str, ...] = tuple(BASELINE)
@@ -210,6 +212,68 @@ def day_points(case: Case) -> Iterator[tuple[str, float, float, float]]:
         yield rig, f, ipp, clock
         clock += int(round(48 * 100e3 / f)) / 100e3
         last = rig
+
+
+#: Another copy of this bench, for a diagnosis's settings to meet a bench they were not made on: every
+#: effect's parameters (those of the baseline too) and the bench's constants moved 10-50 % from
+#: DEFAULTS, as another lab's bench of the same design would be: a softer, narrower Bouc-Wen loop,
+#: thinner laminations, a load cell resonance at 3.9 kHz, a frame mode at 900 Hz, 60 Hz mains, more
+#: noise, its clocks and amplifier its own.  A case's own overrides still win over these.
+ANOTHER_COPY: dict[str, dict[str, Any]] = {
+    "static_hysteresis": {"a_A_per_m_per_T": 1000.0, "beta_per_T": 11.0, "gamma_per_T": 12.0},
+    "lamination_eddy_currents": {"sigma_S_per_m": 2.5e6, "thickness_m": 0.30e-3},
+    "magnet_eddy_currents": {"sigma_S_per_m": 8.0e5},
+    "iron_saturation": {"knee_T": 0.95, "power": 6.0},
+    "instrument_filter": {"fn_Hz": 3900.0, "zeta": 0.02},
+    "frame_resonance": {"frequency_Hz": 900.0, "zeta": 0.02},
+    "charge_amp_highpass": {"tau_s": 6.0},
+    "integrator_leak": {"dc_gain": 5.0e4, "r_feedback_ohm": 10e6},
+    "channel_skew": {"current_A": 0.8e-6},
+    "force_offset_drift": {"rate_N_per_s": 6e-4},
+    "magnet_thermal_drift": {"delta_T_K": 9.0},
+    "load_cell_compliance": {"compliance_m_per_N": 3e-8},
+    "mains_pickup": {"frequency_Hz": 59.98},
+    "amplifier_distortion": {"c2": 0.006, "c3": 0.008},
+    "sensor_noise": {"current_A": 1.5e-4, "force_N": 6e-3, "flux_Wb": 6e-9, "command_V": 3e-4},
+    "excess_loss": {"field_A_per_m_at_100_T_per_s": 4.0, "exponent": 0.7},
+    "magnetic_relaxation": {"share_of_reluctivity": 0.04, "tau_s": 0.8e-3},
+    "iron_thermal_drift": {"delta_T_K": 20.0, "loop_per_K": -8e-3},
+}
+ANOTHER_BENCH = BenchConstants(adc_clock_ppm=-2.3, generator_clock_ppm=6.2, amp_bandwidth_hz=18e3,
+                               voice_coil_bl_n_per_a=2.6,
+                               ecore=ECoreGeometry(gap_m=0.55e-3, fringe_extent_m=1.2e-3, iron_mu_r=800.0,
+                                                   magnet_hc_a_per_m=8.5e5))
+#: Its days' seeds: the nominal case's plus this.
+ANOTHER_SEED = 1000
+
+
+def _own_fields(obj: Any, nominal: Any) -> dict[str, Any]:
+    """The fields of a dataclass ``obj`` that differ from ``nominal``'s (a case's own choices)."""
+    return {f.name: getattr(obj, f.name) for f in fields(obj) if getattr(obj, f.name) != getattr(nominal, f.name)}
+
+
+def on_another_copy(case: Case) -> Case:
+    """``case`` played on :data:`ANOTHER_COPY` of the bench: each effect it switches on at the copy's
+    parameters under the case's own overrides, the copy's constants under the case's own (a null on
+    another copy keeps its clocks or geometry), another seed.  The truth is unchanged."""
+    nominal = BenchConstants()
+    bench = ANOTHER_BENCH
+    if case.bench is not None:
+        own = _own_fields(case.bench, nominal)
+        if "ecore" in own:
+            own["ecore"] = replace(ANOTHER_BENCH.ecore, **_own_fields(case.bench.ecore, nominal.ecore))
+        bench = replace(ANOTHER_BENCH, **own)
+    effects = {}
+    for name, value in case.effects.items():
+        if value is True:
+            effects[name] = dict(ANOTHER_COPY.get(name, {}))
+        elif isinstance(value, Mapping) and not set(value) & set(VARIANTS.get(name, {})):
+            effects[name] = {**ANOTHER_COPY.get(name, {}), **value}
+        else:
+            effects[name] = value
+    params = effect_params(effects)
+    return replace(case, effects=effects, seed=case.seed + ANOTHER_SEED, bench=bench,
+                   expected={e: dict(params[e]) for e in case.truth})
 
 
 def without_hidden(case: Case) -> Case:

@@ -22,7 +22,9 @@ import pytest
 from hystbench.config.effects import CATALOGUE
 from hystbench.formats.recording import read_recording
 from independent_bench import BASELINE, simulate_recording
-from independent_bench.concealed import CASES, DIAGNOSIS_BASELINE, Case, day_points, without_hidden, write_case
+from independent_bench.bench import DEFAULTS, BenchConstants, effect_params
+from independent_bench.concealed import (ANOTHER_BENCH, ANOTHER_COPY, CASES, DIAGNOSIS_BASELINE, Case, day_points,
+                                        on_another_copy, without_hidden, write_case)
 
 pytestmark = pytest.mark.slow(35)  # ~35 s: handed to a worker before lighter files (tests/conftest.py)
 
@@ -157,3 +159,30 @@ def test_write_case_writes_a_day_hystbench_reads_back(tmp_path: Path):
         assert r.n == round(PERIODS * FS_HZ / r.frequency_hz)
         assert ("flux_Wb" in r.channels) == (r.rig != "voicecoil_ferrite")
         assert not {"effects", "seed", "truth"} & set(r.metadata)
+
+
+def test_another_copy_moves_every_parameter_and_keeps_what_each_case_chose():
+    """The copy a diagnosis's settings are checked on (``python -m benchmarks diagnose --another-copy``):
+    the same truth on other seeds, each effect at the copy's parameters where the case left the
+    bench's default, the case's own choices kept (a mode at 2400 Hz, a null's clocks or geometry)."""
+    copies = {c.name: on_another_copy(c) for c in CASES}
+    assert len({c.seed for c in copies.values()} | {c.seed for c in CASES}) == 2 * len(CASES)
+    for case in CASES:
+        copy = copies[case.name]
+        assert (copy.truth, copy.plan, copy.baseline) == (case.truth, case.plan, case.baseline)
+        assert copy.hidden.keys() == case.hidden.keys() and copy.expected.keys() == case.expected.keys()
+        params = effect_params(copy.effects)
+        for name, p in params.items():
+            own = case.effects[name] if isinstance(case.effects[name], dict) else {}
+            for key, value in ANOTHER_COPY.get(name, {}).items():
+                assert p[key] == own.get(key, value), (case.name, name, key)
+                assert key in own or value != DEFAULTS[name][key], (name, key)  # moved from the default
+        nominal = BenchConstants()
+        assert copy.bench.ecore.iron_mu_r != nominal.ecore.iron_mu_r
+    assert copies["frame_resonance_2400"].effects["frame_resonance"]["frequency_Hz"] == 2400.0
+    clocks, geometry = copies["null_bench_clocks"].bench, copies["null_bench_geometry"].bench
+    assert (clocks.adc_clock_ppm, clocks.amp_gain_a_per_v) == (-9.0, 0.52)
+    assert clocks.ecore.gap_m == ANOTHER_BENCH.ecore.gap_m != BenchConstants().ecore.gap_m
+    assert (geometry.ecore.gap_m, geometry.ecore.depth_m) == (0.52e-3, 24.4e-3)
+    assert geometry.ecore.iron_mu_r == ANOTHER_BENCH.ecore.iron_mu_r
+    assert geometry.adc_clock_ppm == ANOTHER_BENCH.adc_clock_ppm
