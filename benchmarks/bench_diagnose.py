@@ -23,8 +23,9 @@ Run: ``python -m benchmarks diagnose [--suite ours|independent|all] [--json] [--
 (``--cases``: a bare name selects it in every chosen suite that has it, ``SUITE:NAME`` in that suite only;
 ``--out``: each case's report page and figures, the independent suite's under ``DIR/independent``, and
 results.json; ``--quick``: a short day of our suite, for a first look only; the independent days are
-played as written; ``--another-copy``: the independent suite's days on another copy of its bench, every
-parameter moved 10-50 % and other seeds: a bench the diagnosis's settings were not made on).
+played as written; ``--another-copy``: the independent suite's days on another copy of its bench, its
+physics moved by 7 % to 2.5x and other seeds: a bench the diagnosis's settings were not made on; the
+reports under ``DIR/independent-another-copy``).
 """
 
 from __future__ import annotations
@@ -70,6 +71,8 @@ def run_named(name: str, plan: BenchDayPlan | None = None, out: Path | None = No
               suite: str = "ours", shuffle: int | None = None, another_copy: bool = False) -> dict[str, Any]:
     """:func:`run_case` (or :func:`run_independent_case`) of the case called ``name`` in ``suite`` (what
     a worker process is sent: our cases' tables are read-only mappings, which do not pickle)."""
+    if another_copy and suite != "independent":
+        raise ValueError(f"another_copy: only the independent suite has another copy of its bench, not {suite!r}")
     if suite == "independent":
         return run_independent_case({c.name: c for c in suite_cases(suite)}[name], out, shuffle=shuffle,
                                     another_copy=another_copy)
@@ -122,7 +125,8 @@ def run_independent_case(case: Any, out: Path | None = None,
     if out is not None:
         from hystbench.reports.diagnosis import write_report
 
-        row["report"] = str(write_report(d, out / "independent" / case.name, overwrite=True))
+        folder = "independent-another-copy" if another_copy else "independent"
+        row["report"] = str(write_report(d, out / folder / case.name, overwrite=True))
     return row
 
 
@@ -372,8 +376,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--shuffle", type=int, metavar="SEED",
                     help="the independent suite's days with each block's frequencies in a random order (this seed's)")
     ap.add_argument("--another-copy", action="store_true",
-                    help="the independent suite's days on another copy of its bench (every parameter moved 10-50 %%, "
-                         "other seeds)")
+                    help="the independent suite's days on another copy of its bench (its physics moved by 7 %% to "
+                         "2.5x, other seeds)")
     args = ap.parse_args(argv)
     suites = list(SUITES) if args.suite == "all" else [args.suite]
     cases = _select(ap, args.cases, suites)

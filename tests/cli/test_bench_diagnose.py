@@ -62,6 +62,20 @@ def test_another_copy_is_refused_for_our_suite_saying_which_has_one(capsys):
     assert "--another-copy" in err and "--suite independent" in err
 
 
+def test_a_worker_plays_the_day_on_the_copy_it_is_asked_for(monkeypatch):
+    import benchmarks.bench_diagnose as bench
+
+    played = []
+    monkeypatch.setattr(bench, "run_independent_case",
+                        lambda case, out=None, say=None, shuffle=None, another_copy=False: played.append(
+                            (case.name, another_copy)) or {})
+    bench.run_named("null_seed1", suite="independent", another_copy=True)
+    bench.run_named("null_seed1", suite="independent")
+    assert played == [("null_seed1", True), ("null_seed1", False)]
+    with pytest.raises(ValueError, match="another_copy"):
+        bench.run_named("null_seed1", suite="ours", another_copy=True)
+
+
 def _answer(named, candidates, suspects=(), signature=None):
     """A diagnosis's answer as why_wrong reads it: the names, every candidate's (name, score) and the
     suspects' (name, score, held-out gain)."""

@@ -14,6 +14,7 @@ with the local noise floor of the effect-free record's spectrum.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -22,9 +23,9 @@ import pytest
 from hystbench.config.effects import CATALOGUE
 from hystbench.formats.recording import read_recording
 from independent_bench import BASELINE, simulate_recording
-from independent_bench.bench import DEFAULTS, BenchConstants, effect_params
-from independent_bench.concealed import (ANOTHER_BENCH, ANOTHER_COPY, CASES, DIAGNOSIS_BASELINE, Case, day_points,
-                                        on_another_copy, without_hidden, write_case)
+from independent_bench.bench import DEFAULTS, VARIANTS, effect_params
+from independent_bench.concealed import (ANOTHER_BENCH, ANOTHER_COPY, CASES, DIAGNOSIS_BASELINE, KEPT_ON_THE_COPY, Case,
+                                        day_points, on_another_copy, without_hidden, write_case)
 
 pytestmark = pytest.mark.slow(35)  # ~35 s: handed to a worker before lighter files (tests/conftest.py)
 
@@ -161,28 +162,44 @@ def test_write_case_writes_a_day_hystbench_reads_back(tmp_path: Path):
         assert not {"effects", "seed", "truth"} & set(r.metadata)
 
 
-def test_another_copy_moves_every_parameter_and_keeps_what_each_case_chose():
+def test_another_copy_moves_its_physics_and_keeps_what_each_case_chose():
     """The copy a diagnosis's settings are checked on (``python -m benchmarks diagnose --another-copy``):
-    the same truth on other seeds, each effect at the copy's parameters where the case left the
-    bench's default, the case's own choices kept (a mode at 2400 Hz, a null's clocks or geometry)."""
+    the same truth on other seeds; every parameter of every effect moved from the bench's default or
+    declared kept (KEPT_ON_THE_COPY); each effect at the copy's parameters where the case left the
+    default, the case's own choices kept (a mode at 2400 Hz, a null's clocks or geometry); ``expected``
+    what is played."""
+    for name, defaults in DEFAULTS.items():
+        moved, kept = set(ANOTHER_COPY.get(name, {})), KEPT_ON_THE_COPY.get(name, frozenset())
+        assert moved | kept == set(defaults) and not moved & kept, name
+        for key in moved:
+            ratio = abs(ANOTHER_COPY[name][key] / defaults[key])
+            assert ratio != 1.0 and 1.0 / 2.5 <= ratio <= 2.5, (name, key, ratio)
     copies = {c.name: on_another_copy(c) for c in CASES}
     assert len({c.seed for c in copies.values()} | {c.seed for c in CASES}) == 2 * len(CASES)
     for case in CASES:
         copy = copies[case.name]
         assert (copy.truth, copy.plan, copy.baseline) == (case.truth, case.plan, case.baseline)
-        assert copy.hidden.keys() == case.hidden.keys() and copy.expected.keys() == case.expected.keys()
+        assert copy.hidden.keys() == case.hidden.keys()
         params = effect_params(copy.effects)
+        assert copy.expected == {e: params[e] for e in copy.truth}
         for name, p in params.items():
             own = case.effects[name] if isinstance(case.effects[name], dict) else {}
             for key, value in ANOTHER_COPY.get(name, {}).items():
                 assert p[key] == own.get(key, value), (case.name, name, key)
-                assert key in own or value != DEFAULTS[name][key], (name, key)  # moved from the default
-        nominal = BenchConstants()
-        assert copy.bench.ecore.iron_mu_r != nominal.ecore.iron_mu_r
+        if case.bench is None:
+            assert copy.bench == ANOTHER_BENCH
     assert copies["frame_resonance_2400"].effects["frame_resonance"]["frequency_Hz"] == 2400.0
-    clocks, geometry = copies["null_bench_clocks"].bench, copies["null_bench_geometry"].bench
-    assert (clocks.adc_clock_ppm, clocks.amp_gain_a_per_v) == (-9.0, 0.52)
-    assert clocks.ecore.gap_m == ANOTHER_BENCH.ecore.gap_m != BenchConstants().ecore.gap_m
-    assert (geometry.ecore.gap_m, geometry.ecore.depth_m) == (0.52e-3, 24.4e-3)
-    assert geometry.ecore.iron_mu_r == ANOTHER_BENCH.ecore.iron_mu_r
-    assert geometry.adc_clock_ppm == ANOTHER_BENCH.adc_clock_ppm
+    clocks, geometry = (next(c for c in CASES if c.name == n) for n in ("null_bench_clocks", "null_bench_geometry"))
+    assert copies["null_bench_clocks"].bench == replace(
+        ANOTHER_BENCH, adc_clock_ppm=clocks.bench.adc_clock_ppm, generator_clock_ppm=clocks.bench.generator_clock_ppm,
+        amp_bandwidth_hz=clocks.bench.amp_bandwidth_hz, amp_gain_a_per_v=clocks.bench.amp_gain_a_per_v)
+    assert copies["null_bench_geometry"].bench == replace(
+        ANOTHER_BENCH, voice_coil_bl_n_per_a=geometry.bench.voice_coil_bl_n_per_a,
+        ecore=replace(ANOTHER_BENCH.ecore, gap_m=geometry.bench.ecore.gap_m, depth_m=geometry.bench.ecore.depth_m))
+
+
+def test_an_effect_of_another_family_has_no_copy_and_says_so():
+    elliptic = replace(CASES[0], name="elliptic_day", effects={**CASES[0].effects,
+                                                               "static_hysteresis": dict(VARIANTS["static_hysteresis"])})
+    with pytest.raises(ValueError, match="elliptic_day.*static_hysteresis"):
+        on_another_copy(elliptic)
