@@ -255,6 +255,11 @@ def confusion(rows: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
     return out
 
 
+def _label(res: dict[str, Any], suite: str) -> str:
+    """A suite's name as printed: the independent one played on another copy of its bench says so."""
+    return f"{suite} (another copy of its bench)" if res.get("another_copy") and suite == "independent" else suite
+
+
 def _print(res: dict[str, Any]) -> None:
     from rich.table import Table
 
@@ -262,16 +267,17 @@ def _print(res: dict[str, Any]) -> None:
 
     con = console()
     for suite, judged in res["suites"].items():
+        label = _label(res, suite)
         conf = judged["confusion"]
         named = sorted({n for row in conf.values() for n in row}, key=lambda n: (n == "none", n))
-        t = Table(title=f"{suite} suite: confusion, truth (rows) x named (columns), cases")
+        t = Table(title=f"{label} suite: confusion, truth (rows) x named (columns), cases")
         t.add_column("truth \\ named")
         for n in named:
             t.add_column(n, justify="right")
         for truth in sorted(conf, key=lambda n: (n == "none", n)):
             t.add_row(truth, *(str(conf[truth].get(n, "")) for n in named))
         con.print(t)
-        t = Table(title=f"{suite} suite, per case: named, held-out residual (noise floors), time")
+        t = Table(title=f"{label} suite, per case: named, held-out residual (noise floors), time")
         for col in ("case", "truth", "named", "right", "before", "after", "improvement", "signature", "diagnose (s)"):
             numeric = col in ("before", "after", "improvement", "signature", "diagnose (s)")
             t.add_column(col, justify="right" if numeric else "left", no_wrap=not numeric)
@@ -284,14 +290,14 @@ def _print(res: dict[str, Any]) -> None:
                       "yes" if r["right"] else "NO", f"{r['residual_before']:.3g}", f"{r['residual_after']:.3g}",
                       "n/a" if imp is None else f"{imp:.1f}x", sig, f"{r['seconds_diagnose']:.1f}")
         con.print(t)
-        t = Table(title=f"{suite} suite: what differs from the truth, and why (the diagnosis's own numbers)")
+        t = Table(title=f"{label} suite: what differs from the truth, and why (the diagnosis's own numbers)")
         for col in ("case", "why"):
             t.add_column(col)
         for r in res["cases"]:
             if r["suite"] == suite and r.get("why"):
                 t.add_row(r["case"], "; ".join(r["why"]))
         con.print(t)
-        t = Table(title=f"{suite} suite: targets")
+        t = Table(title=f"{label} suite: targets")
         for col in ("target", "measured", "pass"):
             t.add_column(col)
         for row in judged["targets"]:
@@ -310,7 +316,7 @@ def markdown(res: dict[str, Any]) -> str:
     out = []
     for suite, judged in res["suites"].items():
         rows = [r for r in res["cases"] if r["suite"] == suite]
-        out += [f"#### {suite} ({len(rows)} days)", "", "| target | measured | |", "|---|---|---|"]
+        out += [f"#### {_label(res, suite)} ({len(rows)} days)", "", "| target | measured | |", "|---|---|---|"]
         out += [f"| {t['target']} | {t['measured']} | {'PASS' if t['pass'] else 'FAIL'} |" for t in judged["targets"]]
         out += ["", "| truth | named | cases |", "|---|---|---|"]
         for truth in sorted(judged["confusion"], key=lambda n: (n == "none", n)):

@@ -125,3 +125,14 @@ def test_markdown_marks_a_wrong_name_and_says_why():
     assert "| charge_amp_highpass | charge_amp_highpass | 1 |" in text
     assert "| b | a reason |" in text and "| a | a reason |" not in text
     assert "50 % (2/4) | FAIL |" in text
+
+
+def test_the_tables_of_the_copy_say_which_bench_they_are_of():
+    rows = [dict(r, suite="independent", suspects=[], residual_before=2.0, residual_after=1.0,
+                 why=[] if r["right"] else ["a reason"]) for r in ROWS]
+    from benchmarks.bench_diagnose import judge, markdown
+
+    first = markdown({"cases": rows, "suites": judge(rows)})
+    copy = markdown({"cases": rows, "suites": judge(rows), "another_copy": True})
+    assert "#### independent (7 days)" in first and "another copy" not in first
+    assert "#### independent (another copy of its bench) (7 days)" in copy
