@@ -14,6 +14,9 @@ recordings' sidecars never carry them.  The diagnosis is handed ``baseline``: th
 Every hidden effect is at this bench's default strength (``DEFAULTS``) unless its concealment line
 says otherwise; each changes the recordings well beyond the noise of a 48-period record
 (tests/independent_bench/test_concealed.py measures it).  :func:`write_case` writes a case's day.
+:func:`on_another_copy` plays a case on a second copy of the whole bench (every effect's physics and
+the constants moved, other seeds: a bench the diagnosis's settings were not chosen on), beyond the
+few constants a null's own ``bench`` changes.
 
 Like the rest of the package, this module imports nothing from ``hystbench``.
 """
