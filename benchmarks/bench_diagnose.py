@@ -141,6 +141,7 @@ def _row(suite: str, case: Any, bench: str | None, d: Any, recordings: int, t_si
         "improvement": d.improvement if math.isfinite(d.improvement) else None,
         # the proof in each named effect's own signature (held-out, before / after), and the suspects
         "signature": {e: sig.get("improvement") for e, sig in d.signature.items()},
+        "fold_gain": {e: sig.get("fold_gain") for e, sig in d.signature.items()},
         "suspects": [{"name": c.name, "score": c.score, "held_out_gain": c.held_out_gain, "own": c.mimicry.get("own")}
                      for c in d.suspects],
         "residual_before": d.residual_before, "residual_after": d.residual_after,
@@ -325,13 +326,15 @@ def markdown(res: dict[str, Any]) -> str:
                 out.append(f"| {truth} | {'**' + named + '**' if wrong else named} | {k} |")
         out += ["", "| case | what differs from the truth, and why |", "|---|---|"]
         out += [f"| {r['case']} | {'; '.join(r['why'])} |" for r in rows if r.get("why")]
-        out += ["", "| case | truth | named (top first) | suspects (held-out gain, own share) | signature improvement | "
+        out += ["", "| case | truth | named (top first) | suspects (held-out gain, own share) | signature improvement "
+                    "(median fold) | "
                     "held-out residual before -> after | s |", "|---|---|---|---|---|---|---|"]
         for r in rows:
             sus = ", ".join((f"{x['name']} ({x['held_out_gain']:.2f}x" if x["held_out_gain"] is not None
                              else f"{x['name']} (nanx") + (f", own {x['own']:.1g})" if x.get("own") is not None else ")")
                             for x in r["suspects"]) or "-"
-            sig = ", ".join(f"{e} {v:.1f}x" for e, v in r["signature"].items() if v is not None) or "-"
+            sig = ", ".join(f"{e} {v:.1f}x ({r.get('fold_gain', {}).get(e) or math.nan:.1f}x)"
+                            for e, v in r["signature"].items() if v is not None) or "-"
             out.append(f"| {r['case']} | {'+'.join(r['truth']) or 'none'} | {', '.join(r['named']) or 'none'} | {sus} | "
                        f"{sig} | {_g(r['residual_before'])} -> {_g(r['residual_after'])} | {r['seconds_diagnose']:.0f} |")
         out.append("")

@@ -341,11 +341,12 @@ def print_summary(diagnosis: Diagnosis, console: Any) -> None:
     t.add_row("held-out residual", f"{_num(d.residual_before)} -> {_num(d.residual_after)} noise floors "
                                    f"({_num(d.improvement)}x)")
     for effect, sig in d.signature.items():
+        median = f"median fold {_num(sig['fold_gain'])}x; " if sig.get("fold_gain") is not None else ""
         t.add_row("in its signature", f"{escape(effect)}: {_num(sig['before'])} -> {_num(sig['after'])} "
-                                      f"({_num(sig['improvement'])}x, {sig['numbers']:.0f} held-out numbers)")
+                                      f"({_num(sig['improvement'])}x; {median}{sig['numbers']:.0f} held-out numbers)")
     for c in d.suspects:
         gain = c.held_out_gain
-        held = "not checked held out" if gain is None or math.isnan(gain) else f"held out {_num(gain)}x"
+        held = "not checked held out" if gain is None or math.isnan(gain) else f"held out {_num(gain)}x, median fold"
         t.add_row("suspect", f"{escape(c.name)} (score {_num(c.score)}, {held})")
     first = [c for c in d.candidates if c.round == 1 and (not d.effects or c.name != d.effects[0])]
     if first:

@@ -45,9 +45,9 @@ from .features import RecordFeatures, record_features
 from .fit import Problem, floor_scales, variance
 from .forward import MEASURED_DIRECTLY, clock_follows_frequency, points_of
 from .locate import locate_residual
-from .prove import cross_validate, folds, held_out
+from .prove import FoldErrors, cross_validate, fold_errors, folds
 from .result import Candidate, Diagnosis
-from .select import DC_BLIND, MIN_HELD_OUT_GAIN, PREDICTIVE_GAIN, candidate_effects, dc_blind, family, forward_selection, named_parameters
+from .select import DC_BLIND, MIN_HELD_OUT_GAIN, candidate_effects, dc_blind, family, forward_selection, named_parameters
 from .vector import CHANNELS, layout_of, line_values, values_of
 
 __all__ = ["diagnose", "DiagnosisError", "worse_in_total"]
@@ -172,8 +172,8 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
         extended = fit.with_effects(named)
         return calibrate(extended, sim, data, base_effects, extended.model(), say, jacobian=calibration.jacobian)
 
-    def judged(fit: Problem, m: np.ndarray, cols, where: np.ndarray, per_fold=None) -> float:
-        return held_out(fit, folds(fit, data), m, cols, fit.sigma, where, per_fold)[0]
+    def judged(fit: Problem, m: np.ndarray, cols, where: np.ndarray, per_fold=None) -> FoldErrors:
+        return fold_errors(fit, folds(fit, data), m, cols, fit.sigma, where, per_fold)[0]
 
     selection = forward_selection(problem, effects, calibration, recalibrate, judged, say)
     say("cross-validating over operating points")
@@ -181,10 +181,11 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
 
     recal = recalibrated(sim, selection.calibration, selection.solution)
     findings = [v["finding"] for v in recal.values() if v.get("finding")]
-    findings += [_suspect_finding(c) for c in selection.suspects]
-    signature = {family(e.name): {"before": e.signature[0], "after": e.signature[1],
-                                  "improvement": e.signature[0] / e.signature[1] if e.signature[1] > 0 else math.inf,
-                                  "numbers": e.signature[2]}
+    proven = {c.name for c in selection.columns}
+    findings += [_suspect_finding(c, f"generic.{c.name}" in proven) for c in selection.suspects]
+    signature = {family(e.name): {"before": e.signature.before, "after": e.signature.after,
+                                  "improvement": e.signature.before / e.signature.after if e.signature.after > 0 else math.inf,
+                                  "numbers": e.signature.numbers, "fold_gain": e.signature.fold_gain}
                  for e in selection.named if e.signature is not None}
     findings += _direct(data, pool_names)
     names = [family(e.name) for e in selection.named]
@@ -198,19 +199,20 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
         loops=proof["loops"], grid=grid, signature=signature, suspects=list(selection.suspects))
 
 
-def _suspect_finding(c: Candidate) -> str:
-    """Why a decisive effect is a suspect: its held-out gain, or that none could be measured."""
+def _suspect_finding(c: Candidate, proven: bool) -> str:
+    """Why a decisive effect is a suspect: its held-out gain, or that none could be measured; ``proven``:
+    what it fitted stayed in the model that is proven (it predicted no worse than without it)."""
     if c.held_out_gain is None or math.isnan(c.held_out_gain):  # no operating point where it acts was held out
         why = (f"suspect: {c.name} scores {c.score:.0f} but its signature could not be checked at held-out operating "
                f"points (none of them shows it: the day holds too few points of its rig); it is left out of the "
                "model that is proven")
     else:
         why = (f"suspect: {c.name} scores {c.score:.0f} but, modelled, predicts its signature at the held-out "
-               f"operating points only {c.held_out_gain:.2f}x better (at least {MIN_HELD_OUT_GAIN:g}x names it); "
-               + ("what it fitted stays in the model as a generic term, not in the catalogue"
-                  if c.held_out_gain >= PREDICTIVE_GAIN else
-                  "it predicts them worse, so what it fitted is left out of the model that is proven (the later "
-                  "rounds were scored beside it)"))
+               f"operating points only {c.held_out_gain:.2f}x better at the median held-out fold (at least "
+               f"{MIN_HELD_OUT_GAIN:g}x names it); "
+               + ("what it fitted stays in the model as a generic term, not in the catalogue" if proven else
+                  "it predicts them worse (at the median fold or in total), so what it fitted is left out of the "
+                  "model that is proven (the later rounds were scored beside it)"))
     return why + (f" (of what it does, {c.own_text()})" if c.own_text() else "")
 
 

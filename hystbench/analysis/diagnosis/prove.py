@@ -11,7 +11,8 @@ of measured and predicted signals for the report's loops.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -19,10 +20,12 @@ from .calibrate import Calibration
 from .features import RecordFeatures
 from .fit import Column, Problem
 from .result import Loops
-from .select import Selection
 from .vector import record_harmonics
 
-__all__ = ["cross_validate", "folds", "held_out"]
+if TYPE_CHECKING:  # select judges its candidates by this module's folds
+    from .select import Selection
+
+__all__ = ["FoldErrors", "cross_validate", "fold_errors", "fold_gain", "folds", "held_out"]
 
 
 def folds(problem: Problem, data: Sequence[RecordFeatures]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -44,28 +47,72 @@ def folds(problem: Problem, data: Sequence[RecordFeatures]) -> list[tuple[np.nda
     return out
 
 
-def held_out(problem: Problem, fold_rows: Sequence[tuple[np.ndarray, np.ndarray]], m: np.ndarray,
-             columns: Sequence[Column], unit: np.ndarray | None = None,
-             where: np.ndarray | None = None,
-             per_fold: Callable[[np.ndarray], list[Column]] | None = None) -> tuple[float, np.ndarray]:
-    """The held-out residual of the model ``m`` + ``columns`` (fitted on each fold's training rows): the
-    rms over the held-out numbers of each one's error in units of its standard error (or of ``unit``,
-    with the model-error floor: what forward selection judges by; only at ``where``, a mask, when
-    given), and the held-out predictions (NaN elsewhere).  ``per_fold``: columns chosen on each fold's
+@dataclass(frozen=True)
+class FoldErrors:
+    """Each fold's held-out numbers: how many, and the sum of their squared errors in units."""
+
+    count: np.ndarray
+    chi2: np.ndarray
+
+    @property
+    def rms(self) -> float:
+        n = float(self.count.sum())
+        return math.sqrt(float(self.chi2.sum()) / n) if n > 0 else math.nan
+
+
+def fold_errors(problem: Problem, fold_rows: Sequence[tuple[np.ndarray, np.ndarray]], m: np.ndarray,
+                columns: Sequence[Column], unit: np.ndarray | None = None,
+                where: np.ndarray | None = None,
+                per_fold: Callable[[np.ndarray], list[Column]] | None = None) -> tuple[FoldErrors, np.ndarray]:
+    """The held-out errors of the model ``m`` + ``columns`` (fitted on each fold's training rows), fold by
+    fold, in units of each number's standard error (or of ``unit``, with the model-error floor: what
+    forward selection judges by; only at ``where``, a mask, when given: a fold with none there counts
+    0), and the held-out predictions (NaN elsewhere).  ``per_fold``: columns chosen on each fold's
     training rows alone (a mode searched again without the held-out points), added to ``columns``."""
     unit = problem.noise if unit is None else unit
     pred = np.full(problem.d.size, np.nan)
-    num = den = 0.0
-    for train, test in fold_rows:
+    count, chi2 = np.zeros(len(fold_rows)), np.zeros(len(fold_rows))
+    for k, (train, test) in enumerate(fold_rows):
         if where is not None:  # only the numbers a candidate moves
             test = test[where[test]]
             if not test.size:
                 continue
         cols = list(columns) + (per_fold(train) if per_fold is not None else [])
         pred[test] = m[test] + problem.solve(m, cols, train).fitted[test]
-        num += float(np.sum(((problem.d[test] - pred[test]) / unit[test]) ** 2))
-        den += test.size
-    return (math.sqrt(num / den) if den > 0 else math.nan), pred
+        count[k], chi2[k] = test.size, float(np.sum(((problem.d[test] - pred[test]) / unit[test]) ** 2))
+    return FoldErrors(count, chi2), pred
+
+
+def held_out(problem: Problem, fold_rows: Sequence[tuple[np.ndarray, np.ndarray]], m: np.ndarray,
+             columns: Sequence[Column], unit: np.ndarray | None = None,
+             where: np.ndarray | None = None,
+             per_fold: Callable[[np.ndarray], list[Column]] | None = None) -> tuple[float, np.ndarray]:
+    """The rms over every held-out number of :func:`fold_errors`, and the held-out predictions."""
+    errors, pred = fold_errors(problem, fold_rows, m, columns, unit, where, per_fold)
+    return errors.rms, pred
+
+
+def fold_gain(before: FoldErrors, after: FoldErrors) -> float:
+    """How much better ``after`` predicts the held-out operating points than ``before``: the median over
+    folds of each fold's rms ratio, each fold weighted by its count of numbers (the lower median: of two
+    folds, the worse; a fold with no numbers is no vote, and NaN with none at all).
+
+    Not the ratio of the pooled sums, which one fold can decide: a fold the training rows cannot pin (the
+    load cell's resonance extrapolated when the voice coil's top kHz point is held out) carries more
+    squared error than all the others together, and a candidate that moves it a little passed or failed
+    on that fold alone, whatever it did at every other frequency (docs/diagnosis.md, "A proof that one
+    fold cannot decide").  A fold that holds half the numbers or more still decides."""
+    if not np.array_equal(before.count, after.count):
+        raise ValueError(f"fold_gain: the two sides hold out different numbers ({before.count} and {after.count})")
+    seen = before.count > 0
+    if not np.any(seen):
+        return math.nan
+    b, a = before.chi2[seen], after.chi2[seen]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where((a == 0) & (b == 0), 1.0, np.sqrt(b / a))  # both exact: no change
+    order = np.argsort(ratio)
+    share = np.cumsum(before.count[seen][order]) / before.count[seen].sum()
+    return float(ratio[order][np.searchsorted(share, 0.5)])
 
 
 def cross_validate(problem: Problem, data: Sequence[RecordFeatures], before: Calibration,

@@ -31,7 +31,7 @@ class Candidate:
     score: float  # BIC(baseline) - BIC(baseline + this effect): > 0 means the effect explains more than it costs
     parameters: Mapping[str, tuple[float, float]]  # catalogue parameter -> (value, standard error)
     round: int = 1
-    held_out_gain: float | None = None  # for a decisive score: how much better, modelled, it predicts its signature held out
+    held_out_gain: float | None = None  # for a decisive score: how much better, modelled, it predicts its signature held out (median fold)
     #: the share of what it does that is its own ("own": what no column it was scored against can make,
     #: in its most distinctive combination), then the share of that each group of those columns alone
     #: can make, largest first (select.mimicry)
@@ -90,7 +90,7 @@ class Diagnosis:
     loops: Loops | None = None
     grid: Any = None  # the locate heat map's data (reports draw it)
     #: per named effect, the proof in its own signature: the held-out residual (model-error sigmas) on
-    #: the numbers it moves, before and after it was modelled
+    #: the numbers it moves, before and after it was modelled, and the median fold's improvement (what decides)
     signature: dict[str, dict[str, float]] = field(default_factory=dict)
     #: decisive effects the held-out proof refused, with their numbers
     suspects: list[Candidate] = field(default_factory=list)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -24,6 +24,7 @@ from ...config.effects import CATALOGUE
 from .calibrate import Calibration
 from .columns import CATALOGUE_FRAME, PROBES, Probe, accepts, clamp
 from .fit import Column, Problem, Solution
+from .prove import FoldErrors, fold_gain
 from .search import frame_mode_columns, frame_mode_search
 from .vector import CHANNELS
 from .result import Candidate
@@ -41,7 +42,7 @@ REFINE_STEPS = 3
 #: A named effect must predict the held-out operating points at least this much better.
 MIN_HELD_OUT_GAIN = 1.5
 #: A refused suspect's fit joins the model that is proven only when it predicted them at least this well
-#: (no worse than the model without it).
+#: (no worse than the model without it), at the median fold and in the pooled total both.
 PREDICTIVE_GAIN = 1.0
 #: Effects that make a channel's DC unknowable, and the channel: a leaky charge amplifier's output DC
 #: is the force since its last reset, and when that was (each recording? the day's start?) is a bench's
@@ -56,6 +57,17 @@ DC_BLIND = {"charge_amp_highpass": "force_N"}
 LINE_FREQUENCIES = {50.0: (50.0, 150.0), 60.0: (60.0, 180.0)}
 
 
+class Signature(NamedTuple):
+    """The proof of a named effect in its own signature: the held-out residual (rms, in sigmas) on the
+    numbers it moves before and after it was modelled, how many numbers those are, and the median over
+    folds of each fold's improvement (:func:`.prove.fold_gain`, what decides)."""
+
+    before: float
+    after: float
+    numbers: int
+    fold_gain: float
+
+
 @dataclass
 class CandidateEffect:
     """A candidate's columns on the full vector (harmonic rows, then line rows)."""
@@ -68,9 +80,8 @@ class CandidateEffect:
     offset: np.ndarray | None = None
     #: where the columns were measured (u per parameter; 0 when absent): a coefficient adds to it
     at: dict[str, float] = field(default_factory=dict)
-    #: the proof in its own signature: held-out residual (in sigmas) on the numbers it moves, before and
-    #: after it was modelled, and how many numbers those are
-    signature: tuple[float, float, int] | None = None
+    #: the proof in its own signature, once it was modelled
+    signature: Signature | None = None
     #: once named: each parameter's standard error where it was fitted (its value is ``at``, simulated)
     std: dict[str, float] = field(default_factory=dict)
     #: when a search on the day's data placed it (a frame mode's frequency and damping): the columns the
@@ -212,7 +223,7 @@ def dc_blind(problem: Problem, name: str) -> Problem:
 
 def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], calibration: Calibration,
                       recalibrate: Callable[[Problem, Mapping[str, Mapping[str, Any]]], Calibration],
-                      held_out: Callable[..., float],
+                      held_out: Callable[..., FoldErrors],
                       say: Callable[[str], None]) -> Selection:
     """Score every candidate, name the decisive one, re-simulate it, repeat (module docstring).
 
@@ -222,8 +233,9 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
     next round must not inherit that.
 
     A decisive score is not enough: once modelled and recalibrated, the effect must also predict the
-    held-out operating points better where it acts (``held_out``: the cross-validated residual of a
-    model and its columns on the numbers the effect moves) by MIN_HELD_OUT_GAIN, or it is taken back.
+    held-out operating points better where it acts (``held_out``: the cross-validated errors, fold by
+    fold, of a model and its columns on the numbers the effect moves) by MIN_HELD_OUT_GAIN at the median
+    fold (:func:`.prove.fold_gain`), or it is taken back.
     A bench that is not its simulation leaves structured residue that some candidate always fits
     better than noise (a lamination's eddy lag on another iron looks in part like a flux channel's
     delay); what it does not do is predict the frequencies it was not fitted on.  Mains pick-up is
@@ -302,12 +314,14 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
         sol = problem.solve(m_named, calibration.columns + generic + [c for e in named for c in e.columns])
         after_held_out = held_out(problem, m_named, calibration.columns + predictive
                                   + [c for e in named for c in e.columns], where)
-        if searched_again is not None and searched_again > after_held_out:
+        gain = fold_gain(before_held_out, after_held_out)
+        if searched_again is not None and fold_gain(before_held_out, searched_again) < gain:
             say(f"round {rnd}: {family(top[1])} searched again without each fold's held-out points predicts them "
-                f"{before_held_out / searched_again:.2f}x better (placed with them, {before_held_out / after_held_out:.2f}x)")
+                f"{fold_gain(before_held_out, searched_again):.2f}x better (placed with them, {gain:.2f}x)")
             after_held_out = searched_again  # the proof is the search's, not the placement's
-        gain = before_held_out / after_held_out
-        eff.signature = (before_held_out, after_held_out, int(np.count_nonzero(where[problem.rows])))
+            gain = fold_gain(before_held_out, after_held_out)
+        eff.signature = Signature(before_held_out.rms, after_held_out.rms, int(np.count_nonzero(where[problem.rows])), gain)
+        no_worse = gain >= PREDICTIVE_GAIN and after_held_out.rms <= before_held_out.rms / PREDICTIVE_GAIN
         ranked[-len(scores)] = dataclasses.replace(ranked[-len(scores)], held_out_gain=gain)
         if eff.line_hz is None and not gain >= MIN_HELD_OUT_GAIN:
             say(f"round {rnd}: {family(top[1])} predicts the held-out points only {gain:.2f}x better: a suspect")
@@ -321,7 +335,7 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
                                                                                   lower=-math.inf, upper=math.inf)
                                                                   for c in eff.columns]
             generic += term
-            if gain >= PREDICTIVE_GAIN:
+            if no_worse:  # at the median fold and in total: one fold it wrecks would wreck the later proofs
                 predictive += term
     return Selection(named, ranked, m_named, sol, calibration, suspects, problem, predictive)
 

@@ -53,6 +53,13 @@ def test_a_significant_parameter_is_claimed_and_with_none_significant_all_are():
     assert claim[60] == sol.value("eff.b")[0] and claim[0] == sol.value("eff.a")[0]
 
 
+def _one_fold(rms: float):
+    """A held-out proof's stand-in: one fold of one number, missed by ``rms``."""
+    from hystbench.analysis.diagnosis.prove import FoldErrors
+
+    return FoldErrors(np.array([1.0]), np.array([rms ** 2]))
+
+
 def _selection_with_suspects():
     """Three linear candidates, each decisive in its round (the data hold them at 50, 30 and 20
     sigmas a number): the first predicts the held-out points 2x worse (0.5x), the second 1.2x better,
@@ -76,10 +83,45 @@ def _selection_with_suspects():
     def held_out(problem, m, columns, where):
         names = {c.name for c in columns}
         calls.append(names)
-        return float(np.prod([f for name, f in factor.items() if any(name in c for c in names)]))
+        return _one_fold(float(np.prod([f for name, f in factor.items() if any(name in c for c in names)])))
 
     sel = forward_selection(problem, effects, calibration, lambda p, fitted: calibration, held_out, lambda s: None)
     return sel, calls
+
+
+def test_the_median_fold_decides_a_name_not_the_pooled_residual():
+    """Two candidates, each decisive in its round, proven over five folds (one number each).
+    ``one_fold`` takes the one badly extrapolated fold from 1000 to 1 and leaves the other four as they
+    were (pooled 447x, median 1x): refused.  ``confirmed`` predicts four folds 10x better and the
+    extrapolated one 2x worse (pooled 0.50x, median 10x): named.  Judged by the pooled ratio the answers
+    would be the other way round."""
+    from hystbench.analysis.diagnosis.calibrate import Calibration
+    from hystbench.analysis.diagnosis.fit import Problem
+    from hystbench.analysis.diagnosis.prove import FoldErrors
+    from hystbench.analysis.diagnosis.select import forward_selection
+
+    n = 20
+    block = _blocks(n, (10, 10))
+    d = SIGMA * (50 * block[0] + 30 * block[1])
+    sigma = np.full(n, SIGMA)
+    problem = Problem(d, sigma, np.arange(n), lambda requests: [np.zeros(n) for _ in requests], None, sigma,
+                      np.zeros(0, int))
+    calibration = Calibration([], [], np.zeros(n), {}, problem.solve(np.zeros(n), []), np.zeros((n, 0)))
+    effects = {name: CandidateEffect(name, [Column(f"{name}.strength", col)])
+               for name, col in zip(("one_fold", "confirmed"), block)}
+    baseline = np.array([1.0, 1.0, 1.0, 1.0, 1e6])  # the fifth fold: an extrapolation no training row pins
+    with_term = {"one_fold": np.array([1.0, 1.0, 1.0, 1.0, 1.0]), "confirmed": np.array([0.01, 0.01, 0.01, 0.01, 4e6])}
+
+    def held_out(problem, m, columns, where):
+        names = {c.name.split(".")[0] for c in columns if not c.name.startswith("generic.")}
+        chi2 = baseline if not names else with_term[names.pop()]
+        return FoldErrors(np.ones(5), chi2)
+
+    sel = forward_selection(problem, effects, calibration, lambda p, fitted: calibration, held_out, lambda s: None)
+    assert [e.name for e in sel.named] == ["confirmed"]
+    assert [(c.name, c.held_out_gain) for c in sel.suspects] == [("one_fold", 1.0)]
+    sig = sel.named[0].signature
+    assert sig.fold_gain == 10.0 and sig.before / sig.after < 0.51  # the pooled figure, reported beside it
 
 
 def test_a_refused_suspect_that_predicts_worse_is_left_out_of_the_proven_model():
@@ -131,7 +173,7 @@ def test_a_dc_blind_effect_claims_the_dc_misfit_it_explains_against_a_look_alike
                "load_cell_compliance": CandidateEffect("load_cell_compliance",
                                                        [Column("load_cell_compliance.strength", look_alike)])}
     sel = forward_selection(problem, effects, calibration, lambda p, fitted: calibration,
-                            lambda p, m, columns, where: 1.0 / (1 + len(columns)), lambda s: None)
+                            lambda p, m, columns, where: _one_fold(1.0 / (1 + len(columns))), lambda s: None)
     first = [c for c in sel.ranked if c.round == 1]
     assert first[0].name == "charge_amp_highpass" and first[0].score > first[1].score + 6
     assert [e.name for e in sel.named][0] == "charge_amp_highpass"
@@ -190,7 +232,8 @@ def _select(d: np.ndarray, effects: dict, held_out_gain: float = 3.0):
                       np.zeros(0, int))
     calibration = Calibration([], [], np.zeros(n), {}, problem.solve(np.zeros(n), []), np.zeros((n, 0)))
     return forward_selection(problem, effects, calibration, lambda p, fitted: calibration,
-                             lambda p, m, columns, where: held_out_gain ** -sum(not c.name.startswith("generic.") for c in columns),
+                             lambda p, m, columns, where: _one_fold(
+                                 held_out_gain ** -sum(not c.name.startswith("generic.") for c in columns)),
                              lambda s: None)
 
 
@@ -316,17 +359,20 @@ def test_every_replay_the_simulator_asks_for_is_a_preset_the_rig_accepts():
         assert -1.0 < checked["effects"]["frame_resonance"]["depth"] <= 100.0
 
 
-@pytest.mark.parametrize("gain, says", [
-    (math.nan, "could not be checked at held-out operating points"),
-    (None, "could not be checked at held-out operating points"),
-    (0.8, "only 0.80x better (at least 1.5x names it); it predicts them worse"),
-    (1.2, "only 1.20x better (at least 1.5x names it); what it fitted stays in the model as a generic term"),
+@pytest.mark.parametrize("gain, proven, says", [
+    (math.nan, False, "could not be checked at held-out operating points"),
+    (None, False, "could not be checked at held-out operating points"),
+    (0.8, False, "only 0.80x better at the median held-out fold (at least 1.5x names it); it predicts them worse"),
+    (1.2, False, "only 1.20x better at the median held-out fold (at least 1.5x names it); it predicts them worse "
+                 "(at the median fold or in total)"),
+    (1.2, True, "only 1.20x better at the median held-out fold (at least 1.5x names it); what it fitted stays in "
+                "the model as a generic term"),
 ])
-def test_a_suspect_says_why_in_numbers_or_that_none_could_be_measured(gain, says):
+def test_a_suspect_says_why_in_numbers_or_that_none_could_be_measured(gain, proven, says):
     """A day holding too few points of a rig had no held-out point of a suspect's signature: its
     gain was NaN, printed as "nanx better ... it predicts them worse"."""
     from hystbench.analysis.diagnosis import _suspect_finding
     from hystbench.analysis.diagnosis.result import Candidate
 
-    text = _suspect_finding(Candidate("charge_amp_highpass", 329.0, {}, held_out_gain=gain))
+    text = _suspect_finding(Candidate("charge_amp_highpass", 329.0, {}, held_out_gain=gain), proven)
     assert text.startswith("suspect: charge_amp_highpass scores 329 ") and says in text and "nan" not in text
