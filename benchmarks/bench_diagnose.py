@@ -333,7 +333,8 @@ def markdown(res: dict[str, Any]) -> str:
             sus = ", ".join((f"{x['name']} ({x['held_out_gain']:.2f}x" if x["held_out_gain"] is not None
                              else f"{x['name']} (nanx") + (f", own {x['own']:.1g})" if x.get("own") is not None else ")")
                             for x in r["suspects"]) or "-"
-            sig = ", ".join(f"{e} {v:.1f}x ({r.get('fold_gain', {}).get(e) or math.nan:.1f}x)"
+            median = r.get("fold_gain", {})
+            sig = ", ".join(f"{e} {v:.1f}x" + (f" ({median[e]:.1f}x)" if median.get(e) is not None else "")
                             for e, v in r["signature"].items() if v is not None) or "-"
             out.append(f"| {r['case']} | {'+'.join(r['truth']) or 'none'} | {', '.join(r['named']) or 'none'} | {sus} | "
                        f"{sig} | {_g(r['residual_before'])} -> {_g(r['residual_after'])} | {r['seconds_diagnose']:.0f} |")

@@ -5,7 +5,7 @@ measured as columns of the linearised fit (:mod:`.columns`: one replay per param
 replays, then a local column, for a time constant, whose effect is far from linear).  Scored by BIC
 against the recalibrated baseline, an effect is named only when decisively better than the baseline
 (NAME_MARGIN) and than the runner-up (RUNNER_UP_MARGIN), and when, modelled, it predicts the held-out
-frequencies MIN_HELD_OUT_GAIN better where it acts; otherwise nothing significant is left.  The named
+frequencies MIN_HELD_OUT_GAIN better where it acts, at the median fold; otherwise nothing significant is left.  The named
 effect joins the baseline, re-simulated at its fitted values (Gauss-Newton), and the rest are scored
 again (forward selection, at most MAX_ROUNDS effects).  Mains pick-up is scored on the lines
 that are not harmonics; noise and the ADC's grid are measured, not named.
