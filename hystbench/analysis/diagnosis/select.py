@@ -315,11 +315,11 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
         after_held_out = held_out(problem, m_named, calibration.columns + predictive
                                   + [c for e in named for c in e.columns], where)
         gain = fold_gain(before_held_out, after_held_out)
-        if searched_again is not None and fold_gain(before_held_out, searched_again) < gain:
+        again = math.inf if searched_again is None else fold_gain(before_held_out, searched_again)
+        if again < gain:
             say(f"round {rnd}: {family(top[1])} searched again without each fold's held-out points predicts them "
-                f"{fold_gain(before_held_out, searched_again):.2f}x better (placed with them, {gain:.2f}x)")
-            after_held_out = searched_again  # the proof is the search's, not the placement's
-            gain = fold_gain(before_held_out, after_held_out)
+                f"{again:.2f}x better (placed with them, {gain:.2f}x)")
+            after_held_out, gain = searched_again, again  # the proof is the search's, not the placement's
         eff.signature = Signature(before_held_out.rms, after_held_out.rms, int(np.count_nonzero(where[problem.rows])), gain)
         no_worse = gain >= PREDICTIVE_GAIN and after_held_out.rms <= before_held_out.rms / PREDICTIVE_GAIN
         ranked[-len(scores)] = dataclasses.replace(ranked[-len(scores)], held_out_gain=gain)
