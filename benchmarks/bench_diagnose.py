@@ -19,13 +19,15 @@ moves, at held-out operating points; the total beside it), a median under 30 s p
 diagnosis's own CPU time, one process: one core; cases run side by side, one per core).
 
 Run: ``python -m benchmarks diagnose [--suite ours|independent|all] [--json] [--cases NAME,...] [--out DIR] [--quick]
-[--another-copy]``
+[--another-copy | --drawn-copy SEED]``
 (``--cases``: a bare name selects it in every chosen suite that has it, ``SUITE:NAME`` in that suite only;
 ``--out``: each case's report page and figures, the independent suite's under ``DIR/independent``, and
 results.json; ``--quick``: a short day of our suite, for a first look only; the independent days are
 played as written; ``--another-copy``: the independent suite's days on another copy of its bench, its
 physics moved by 7 % to 2.5x and other seeds: a bench the diagnosis's settings were not made on; the
-reports under ``DIR/independent-another-copy``).
+reports under ``DIR/independent-another-copy``; ``--drawn-copy SEED``: on a copy drawn at random,
+``drawn_copy(SEED)``, each effect and constant moved as far as that copy's or less, either way: a bench
+nobody chose; the reports under ``DIR/independent-drawn-copy-SEED``).
 """
 
 from __future__ import annotations
@@ -68,14 +70,15 @@ def suite_cases(suite: str) -> list[Any]:
 
 
 def run_named(name: str, plan: BenchDayPlan | None = None, out: Path | None = None,
-              suite: str = "ours", shuffle: int | None = None, another_copy: bool = False) -> dict[str, Any]:
+              suite: str = "ours", shuffle: int | None = None, another_copy: bool = False,
+              draw: int | None = None) -> dict[str, Any]:
     """:func:`run_case` (or :func:`run_independent_case`) of the case called ``name`` in ``suite`` (what
     a worker process is sent: our cases' tables are read-only mappings, which do not pickle)."""
-    if another_copy and suite != "independent":
+    if (another_copy or draw is not None) and suite != "independent":
         raise ValueError(f"another_copy: only the independent suite has another copy of its bench, not {suite!r}")
     if suite == "independent":
         return run_independent_case({c.name: c for c in suite_cases(suite)}[name], out, shuffle=shuffle,
-                                    another_copy=another_copy)
+                                    another_copy=another_copy, draw=draw)
     return run_case({c.name: c for c in CASES}[name], plan, out)
 
 
@@ -99,18 +102,18 @@ def run_case(case: Case, plan: BenchDayPlan | None = None, out: Path | None = No
 
 def run_independent_case(case: Any, out: Path | None = None,
                          say: Callable[[str], None] | None = None, shuffle: int | None = None,
-                         another_copy: bool = False) -> dict[str, Any]:
+                         another_copy: bool = False, draw: int | None = None) -> dict[str, Any]:
     """One case of the independent suite: its day written to a temporary folder (one folder, every
     rig), read back as the recording format's sweep (``read_sweep``: rigs told apart by the sidecar), diagnosed with the
     case's baseline (every candidate), and the answer judged against the truth; the row has
     :func:`run_case`'s keys (``seconds_simulate``: writing the day and reading it back).  ``shuffle``:
     each block's frequencies played in the order this seed draws (what the diagnosis advises when a
     slow change along the day may pass for a frequency dependence).  ``another_copy``: played on
-    another copy of the bench (``on_another_copy``)."""
+    another copy of the bench (``on_another_copy``); ``draw``: on the copy ``drawn_copy(draw)``."""
     from hystbench.formats.recording import read_sweep
 
-    if another_copy:
-        case = independent_suite().on_another_copy(case)
+    if another_copy or draw is not None:
+        case = independent_suite().on_another_copy(case, draw)
     if shuffle is not None:
         case = replace(case, plan=tuple(independent_bench("bench").shuffled_blocks(case.points, shuffle)))
 
@@ -125,7 +128,8 @@ def run_independent_case(case: Any, out: Path | None = None,
     if out is not None:
         from hystbench.reports.diagnosis import write_report
 
-        folder = "independent-another-copy" if another_copy else "independent"
+        folder = (f"independent-drawn-copy-{draw}" if draw is not None
+                  else "independent-another-copy" if another_copy else "independent")
         row["report"] = str(write_report(d, out / folder / case.name, overwrite=True))
     return row
 
@@ -258,6 +262,8 @@ def confusion(rows: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
 
 def _label(res: dict[str, Any], suite: str) -> str:
     """A suite's name as printed: the independent one played on another copy of its bench says so."""
+    if suite == "independent" and res.get("drawn_copy") is not None:
+        return f"{suite} (a copy of its bench drawn by seed {res['drawn_copy']})"
     return f"{suite} (another copy of its bench)" if res.get("another_copy") and suite == "independent" else suite
 
 
@@ -388,14 +394,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--another-copy", action="store_true",
                     help="the independent suite's days on another copy of its bench (its physics moved by 7 %% to "
                          "2.5x, other seeds)")
+    ap.add_argument("--drawn-copy", type=int, metavar="SEED",
+                    help="the independent suite's days on a copy of its bench drawn at random by SEED (each effect "
+                         "and constant moved as far as --another-copy's or less, either way)")
     args = ap.parse_args(argv)
     suites = list(SUITES) if args.suite == "all" else [args.suite]
     cases = _select(ap, args.cases, suites)
     if args.shuffle is not None and any(s != "independent" for s, _ in cases):
         ap.error("--shuffle: only the independent suite's days can be played shuffled (our suite's BenchDayPlan plays "
                  "each block in order); add --suite independent")
-    if args.another_copy and any(s != "independent" for s, _ in cases):
-        ap.error("--another-copy: only the independent suite has another copy of its bench; add --suite independent")
+    if args.another_copy and args.drawn_copy is not None:
+        ap.error("--another-copy and --drawn-copy: one copy of the bench at a time")
+    for flag, given in (("--another-copy", args.another_copy), ("--drawn-copy", args.drawn_copy is not None)):
+        if given and any(s != "independent" for s, _ in cases):
+            ap.error(f"{flag}: only the independent suite has another copy of its bench; add --suite independent")
     plan = BenchDayPlan.quick() if args.quick else None
     out = Path(args.out) if args.out else None
     from hystbench.reports.console import progress
@@ -411,17 +423,17 @@ def main(argv: list[str] | None = None) -> int:
                     bar.update(task, description=f"{s}:{c.name}: {msg}")
                 rows.append(run_case(c, plan, out, say=say) if s == "ours"
                             else run_independent_case(c, out, say=say, shuffle=args.shuffle,
-                                                      another_copy=args.another_copy))
+                                                      another_copy=args.another_copy, draw=args.drawn_copy))
                 bar.advance(task)
         else:  # one case per process, each diagnosis on one core (its seconds are that core's)
             with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("forkserver")) as pool:
-                futures = [pool.submit(run_named, c.name, plan, out, s, args.shuffle, args.another_copy)
+                futures = [pool.submit(run_named, c.name, plan, out, s, args.shuffle, args.another_copy, args.drawn_copy)
                            for s, c in cases]
                 for fut in as_completed(futures):
                     bar.advance(task)
                 rows = [f.result() for f in futures]
     res = {"cases": rows, "suites": judge(rows), "quick": bool(args.quick), "shuffle": args.shuffle,
-           "another_copy": args.another_copy,
+           "another_copy": args.another_copy or args.drawn_copy is not None, "drawn_copy": args.drawn_copy,
            "seconds": time.monotonic() - t0}
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)

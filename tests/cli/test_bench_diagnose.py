@@ -62,16 +62,30 @@ def test_another_copy_is_refused_for_our_suite_saying_which_has_one(capsys):
     assert "--another-copy" in err and "--suite independent" in err
 
 
+@pytest.mark.parametrize("argv, says", [(["--suite", "ours", "--drawn-copy", "3"], ["--drawn-copy", "--suite independent"]),
+                                        (["--suite", "independent", "--another-copy", "--drawn-copy", "3"],
+                                         ["--another-copy", "--drawn-copy", "one copy"])])
+def test_a_drawn_copy_is_refused_where_it_cannot_be_played(capsys, argv, says):
+    with pytest.raises(SystemExit) as stop:
+        main(["diagnose", *argv])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert all(s in err for s in says), err
+
+
 def test_a_worker_plays_the_day_on_the_copy_it_is_asked_for(monkeypatch):
     import benchmarks.bench_diagnose as bench
 
     played = []
     monkeypatch.setattr(bench, "run_independent_case",
-                        lambda case, out=None, say=None, shuffle=None, another_copy=False: played.append(
-                            (case.name, another_copy)) or {})
+                        lambda case, out=None, say=None, shuffle=None, another_copy=False, draw=None: played.append(
+                            (case.name, another_copy, draw)) or {})
     bench.run_named("null_seed1", suite="independent", another_copy=True)
     bench.run_named("null_seed1", suite="independent")
-    assert played == [("null_seed1", True), ("null_seed1", False)]
+    bench.run_named("null_seed1", suite="independent", draw=4)
+    assert played == [("null_seed1", True, None), ("null_seed1", False, None), ("null_seed1", False, 4)]
+    with pytest.raises(ValueError, match="another_copy"):
+        bench.run_named("null_seed1", suite="ours", draw=4)
     with pytest.raises(ValueError, match="another_copy"):
         bench.run_named("null_seed1", suite="ours", another_copy=True)
 

@@ -27,12 +27,14 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
-from .bench import (BASELINE, EFFECT_NAMES, VARIANTS, BenchConstants, bench_day_plan, effect_params,
+import numpy as np
+
+from .bench import (BASELINE, DEFAULTS, EFFECT_NAMES, VARIANTS, BenchConstants, bench_day_plan, effect_params,
                     write_bench_day)
 from .magnetics import ECoreGeometry
 
 __all__ = ["Case", "CASES", "DIAGNOSIS_BASELINE", "ANOTHER_COPY", "ANOTHER_BENCH", "ANOTHER_SEED", "KEPT_ON_THE_COPY",
-           "on_another_copy", "day_points", "without_hidden", "write_case"]
+           "drawn_copy", "on_another_copy", "day_points", "without_hidden", "write_case"]
 
 #: What the diagnosis is told the bench has (the issue's ``--baseline``), in catalogue names.
 DIAGNOSIS_BASELINE: tuple[str, ...] = tuple(BASELINE)
@@ -270,30 +272,72 @@ def _own_fields(obj: Any, nominal: Any) -> dict[str, Any]:
     return {f.name: getattr(obj, f.name) for f in fields(obj) if getattr(obj, f.name) != getattr(nominal, f.name)}
 
 
-def on_another_copy(case: Case) -> Case:
-    """``case`` played on :data:`ANOTHER_COPY` of the bench: each effect it switches on at the copy's
-    parameters under the case's own overrides, the copy's constants under the case's own (a null on
-    another copy keeps its clocks or geometry), another seed.  The truth is unchanged."""
+#: A drawn copy's days' seeds: the nominal case's plus this times (the draw + 1).
+DRAWN_SEED_STRIDE = 100_000
+#: A drawn copy's mains: one of the grids, off it by up to this (Hz).
+MAINS_GRIDS_HZ, MAINS_OFF_HZ = (50.0, 60.0), 0.03
+
+
+def _along(nominal: float, copy: float, u: float) -> float:
+    """The point a fraction ``u`` of the way from ``nominal`` to ``copy`` (``-1``: as far the other way):
+    in log for quantities of one sign (a conductivity, a time constant, a loop's slope), linearly for
+    one that crosses zero (a clock's offset in ppm)."""
+    if nominal * copy > 0:
+        return float(nominal * (copy / nominal) ** u)
+    return float(nominal + u * (copy - nominal))
+
+
+def drawn_copy(draw: int) -> tuple[dict[str, dict[str, Any]], BenchConstants]:
+    """Another copy of the bench drawn at random (``draw`` its seed), for benches nobody chose: each
+    effect's physics moved along the line from the bench's defaults to :data:`ANOTHER_COPY` by a
+    fraction drawn uniformly in [-1, 1] (one per effect, its parameters together, so that a loop stays
+    a loop of one shape family), each constant :data:`ANOTHER_BENCH` moves by its own fraction; the
+    mains' grid drawn (50 or 60 Hz, up to 0.03 Hz off).  What the hand-made copy keeps
+    (:data:`KEPT_ON_THE_COPY`), this one keeps; the parameters and constants it moves, and how far,
+    are the hand-made copy's: 7 % to 2.5x from the defaults, either way."""
+    rng = np.random.default_rng([ANOTHER_SEED, int(draw)])
+    params: dict[str, dict[str, Any]] = {}
+    for name in sorted(ANOTHER_COPY):
+        u = rng.uniform(-1.0, 1.0)
+        params[name] = {k: _along(DEFAULTS[name][k], v, u) for k, v in ANOTHER_COPY[name].items()}
+    params["mains_pickup"]["frequency_Hz"] = float(rng.choice(MAINS_GRIDS_HZ) + rng.uniform(-MAINS_OFF_HZ, MAINS_OFF_HZ))
+
+    def moved(nominal: Any, copy: Any) -> dict[str, Any]:
+        return {f.name: _along(getattr(nominal, f.name), getattr(copy, f.name), rng.uniform(-1.0, 1.0))
+                for f in fields(nominal) if f.name != "ecore" and getattr(nominal, f.name) != getattr(copy, f.name)}
+
     nominal = BenchConstants()
-    bench = ANOTHER_BENCH
+    ecore = replace(nominal.ecore, **moved(nominal.ecore, ANOTHER_BENCH.ecore))
+    return params, replace(nominal, ecore=ecore, **moved(nominal, ANOTHER_BENCH))
+
+
+def on_another_copy(case: Case, draw: int | None = None) -> Case:
+    """``case`` played on :data:`ANOTHER_COPY` of the bench (or, with ``draw``, on the copy
+    :func:`drawn_copy` draws): each effect it switches on at the copy's parameters under the case's own
+    overrides, the copy's constants under the case's own (a null on another copy keeps its clocks or
+    geometry), another seed.  The truth is unchanged."""
+    copy, another = (ANOTHER_COPY, ANOTHER_BENCH) if draw is None else drawn_copy(draw)
+    nominal = BenchConstants()
+    bench = another
     if case.bench is not None:
         own = _own_fields(case.bench, nominal)
         if "ecore" in own:
-            own["ecore"] = replace(ANOTHER_BENCH.ecore, **_own_fields(case.bench.ecore, nominal.ecore))
-        bench = replace(ANOTHER_BENCH, **own)
+            own["ecore"] = replace(another.ecore, **_own_fields(case.bench.ecore, nominal.ecore))
+        bench = replace(another, **own)
     effects = {}
     for name, value in case.effects.items():
         if value is True:
-            effects[name] = dict(ANOTHER_COPY.get(name, {}))
+            effects[name] = dict(copy.get(name, {}))
         elif isinstance(value, Mapping):
             if set(value) & set(VARIANTS.get(name, {})):  # another family (an elliptic loop): no copy of it
                 raise ValueError(f"case {case.name!r}: {name} as {sorted(VARIANTS[name])} has no parameters on "
                                  "the other copy of the bench")
-            effects[name] = {**ANOTHER_COPY.get(name, {}), **value}
+            effects[name] = {**copy.get(name, {}), **value}
         else:
             effects[name] = value
     params = effect_params(effects)
-    return replace(case, effects=effects, seed=case.seed + ANOTHER_SEED, bench=bench,
+    seed = case.seed + (ANOTHER_SEED if draw is None else DRAWN_SEED_STRIDE * (int(draw) + 1))
+    return replace(case, effects=effects, seed=seed, bench=bench,
                    expected={e: dict(params[e]) for e in case.truth})
 
 

@@ -24,8 +24,10 @@ from hystbench.config.effects import CATALOGUE
 from hystbench.formats.recording import read_recording
 from independent_bench import BASELINE, simulate_recording
 from independent_bench.bench import DEFAULTS, VARIANTS, effect_params
-from independent_bench.concealed import (ANOTHER_BENCH, ANOTHER_COPY, CASES, DIAGNOSIS_BASELINE, KEPT_ON_THE_COPY, Case,
-                                        day_points, on_another_copy, without_hidden, write_case)
+from independent_bench.bench import BenchConstants
+from independent_bench.concealed import (ANOTHER_BENCH, ANOTHER_COPY, ANOTHER_SEED, CASES, DIAGNOSIS_BASELINE,
+                                        KEPT_ON_THE_COPY, Case, day_points, drawn_copy, on_another_copy,
+                                        without_hidden, write_case)
 
 pytestmark = pytest.mark.slow(35)  # ~35 s: handed to a worker before lighter files (tests/conftest.py)
 
@@ -203,3 +205,54 @@ def test_an_effect_of_another_family_has_no_copy_and_says_so():
                                                                "static_hysteresis": dict(VARIANTS["static_hysteresis"])})
     with pytest.raises(ValueError, match="elliptic_day.*static_hysteresis"):
         on_another_copy(elliptic)
+
+
+def _fraction(nominal: float, value: float, copy: float) -> float:
+    """How far ``value`` lies along the line from ``nominal`` to ``copy`` (1: at the copy; -1: as far the
+    other way), in log for quantities of one sign, linearly for one that crosses zero."""
+    if nominal * copy > 0:
+        return float(np.log(value / nominal) / np.log(copy / nominal))
+    return float((value - nominal) / (copy - nominal))
+
+
+def test_a_drawn_copy_moves_what_the_copy_moves_as_far_or_less_either_way_one_fraction_per_effect():
+    """``--drawn-copy SEED``: every parameter the hand-made copy moves lies between the default moved
+    as far the other way and the copy's value, the parameters of one effect by one fraction (a loop
+    stays of its family); what the copy keeps is kept; the mains on a grid; the same seed the same
+    bench, two seeds two benches; a case's own choices still win, and its seeds are its own."""
+    one, again, two = drawn_copy(1), drawn_copy(1), drawn_copy(2)
+    assert one == again and one != two
+    fractions = []
+    for params, bench in (one, two):
+        for name, moved in ANOTHER_COPY.items():
+            if name == "mains_pickup":
+                f = params[name]["frequency_Hz"]
+                assert min(abs(f - 50.0), abs(f - 60.0)) <= 0.03
+                continue
+            u = {k: _fraction(DEFAULTS[name][k], params[name][k], v) for k, v in moved.items()}
+            assert all(-1.0 <= x <= 1.0 for x in u.values()), (name, u)
+            assert max(u.values()) - min(u.values()) < 1e-9, (name, u)  # one fraction per effect
+            fractions.append(next(iter(u.values())))
+            full = effect_params({name: params[name]})[name]
+            assert {k for k in full if full[k] != DEFAULTS[name][k]} <= set(moved)
+        nominal = BenchConstants()
+        for obj, nom, copy in ((bench, nominal, ANOTHER_BENCH), (bench.ecore, nominal.ecore, ANOTHER_BENCH.ecore)):
+            for key in vars(nom):
+                if key == "ecore":
+                    continue
+                a, b, c = getattr(nom, key), getattr(obj, key), getattr(copy, key)
+                if a == c:
+                    assert b == a, key
+                else:
+                    assert -1.0 <= _fraction(a, b, c) <= 1.0, key
+    assert min(fractions) < -0.2 and max(fractions) > 0.2  # both ways, not all at one end
+    cases = [on_another_copy(c, 1) for c in CASES]
+    seeds = {c.seed for c in cases}
+    assert len(seeds) == len(CASES) and not seeds & ({c.seed for c in CASES} | {c.seed + ANOTHER_SEED for c in CASES})
+    assert {c.seed for c in map(lambda c: on_another_copy(c, 2), CASES)}.isdisjoint(seeds)
+    by_name = {c.name: c for c in cases}
+    assert by_name["frame_resonance_2400"].effects["frame_resonance"]["frequency_Hz"] == 2400.0
+    for case, copy in zip(CASES, cases):
+        assert (copy.truth, copy.plan, copy.baseline) == (case.truth, case.plan, case.baseline)
+        if case.bench is None:
+            assert copy.bench == one[1]
