@@ -346,7 +346,8 @@ def print_summary(diagnosis: Diagnosis, console: Any) -> None:
                                       f"({_num(sig['improvement'])}x; {median}{sig['numbers']:.0f} held-out numbers)")
     for c in d.suspects:
         gain = c.held_out_gain
-        held = "not checked held out" if gain is None or math.isnan(gain) else f"held out {_num(gain)}x, median fold"
+        held = "not checked held out" if gain is None or math.isnan(gain) else f"held out {_num(gain)}x, median fold" + (
+            f"; {_num(c.held_out_total)}x in total" if c.held_out_total is not None else "")
         t.add_row("suspect", f"{escape(c.name)} (score {_num(c.score)}, {held})")
     first = [c for c in d.candidates if c.round == 1 and (not d.effects or c.name != d.effects[0])]
     if first:

@@ -47,7 +47,7 @@ from .forward import MEASURED_DIRECTLY, clock_follows_frequency, points_of
 from .locate import locate_residual
 from .prove import FoldErrors, cross_validate, fold_errors, folds
 from .result import Candidate, Diagnosis
-from .select import DC_BLIND, MIN_HELD_OUT_GAIN, candidate_effects, dc_blind, family, forward_selection, named_parameters
+from .select import DC_BLIND, MIN_HELD_OUT_GAIN, MIN_TOTAL_GAIN, candidate_effects, dc_blind, family, forward_selection, named_parameters
 from .vector import CHANNELS, layout_of, line_values, values_of
 
 __all__ = ["diagnose", "DiagnosisError", "worse_in_total"]
@@ -206,6 +206,11 @@ def _suspect_finding(c: Candidate, proven: bool) -> str:
         why = (f"suspect: {c.name} scores {c.score:.0f} but its signature could not be checked at held-out operating "
                f"points (none of them shows it: the day holds too few points of its rig); it is left out of the "
                "model that is proven")
+    elif c.held_out_gain >= MIN_HELD_OUT_GAIN and c.held_out_total is not None and c.held_out_total < MIN_TOTAL_GAIN:
+        why = (f"suspect: {c.name} scores {c.score:.0f} and, modelled, predicts its signature {c.held_out_gain:.2f}x "
+               f"better at the median held-out fold, but {1 / c.held_out_total:.0f}x worse in total (more than "
+               f"{1 / MIN_TOTAL_GAIN:g}x worse refuses it: a model that breaks at some operating point); "
+               "what it fitted is left out of the model that is proven (the later rounds were scored beside it)")
     else:
         why = (f"suspect: {c.name} scores {c.score:.0f} but, modelled, predicts its signature at the held-out "
                f"operating points only {c.held_out_gain:.2f}x better at the median held-out fold (at least "

@@ -36,6 +36,8 @@ class Candidate:
     #: in its most distinctive combination), then the share of that each group of those columns alone
     #: can make, largest first (select.mimicry)
     mimicry: Mapping[str, float] = field(default_factory=dict)
+    #: how much better it predicts its signature's held-out total (every fold's numbers pooled), beside held_out_gain
+    held_out_total: float | None = None
 
     def own_text(self) -> str:
         """What it does that the baseline cannot, in words: ``"1.5e-06 its own, 99.8 % within the
@@ -48,7 +50,7 @@ class Candidate:
 
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "score": json_number(self.score), "round": self.round,
-                "held_out_gain": json_number(self.held_out_gain),
+                "held_out_gain": json_number(self.held_out_gain), "held_out_total": json_number(self.held_out_total),
                 "mimicry": {k: json_number(v) for k, v in self.mimicry.items()},
                 "parameters": {k: {"value": json_number(v), "std": json_number(s)} for k, (v, s) in self.parameters.items()}}
 

@@ -124,6 +124,44 @@ def test_the_median_fold_decides_a_name_not_the_pooled_residual():
     assert sig.fold_gain == 10.0 and sig.before / sig.after < 0.51  # the pooled figure, reported beside it
 
 
+def test_a_median_fold_does_not_name_a_model_that_breaks_at_one_operating_point():
+    """``breaks`` predicts four of five folds 10x better and the fifth 100x worse (rms): its median fold
+    passes, its total is 100x worse (more than 1/MIN_TOTAL_GAIN), so it is refused and says so; beside it
+    ``confirmed``, the same four folds and the fifth 2x worse (total 0.5x), is named."""
+    from hystbench.analysis.diagnosis import _suspect_finding
+    from hystbench.analysis.diagnosis.calibrate import Calibration
+    from hystbench.analysis.diagnosis.fit import Problem
+    from hystbench.analysis.diagnosis.prove import FoldErrors
+    from hystbench.analysis.diagnosis.select import MIN_TOTAL_GAIN, forward_selection
+
+    n = 20
+    block = _blocks(n, (10, 10))
+    d = SIGMA * (50 * block[0] + 30 * block[1])
+    sigma = np.full(n, SIGMA)
+    problem = Problem(d, sigma, np.arange(n), lambda requests: [np.zeros(n) for _ in requests], None, sigma,
+                      np.zeros(0, int))
+    calibration = Calibration([], [], np.zeros(n), {}, problem.solve(np.zeros(n), []), np.zeros((n, 0)))
+    effects = {name: CandidateEffect(name, [Column(f"{name}.strength", col)])
+               for name, col in zip(("breaks", "confirmed"), block)}
+    baseline = np.array([1.0, 1.0, 1.0, 1.0, 100.0])
+    with_term = {"breaks": np.array([0.01, 0.01, 0.01, 0.01, 100.0 * 100.0 ** 2]),
+                 "confirmed": np.array([0.01, 0.01, 0.01, 0.01, 400.0])}
+
+    def held_out(problem, m, columns, where):
+        names = {c.name.split(".")[0] for c in columns if not c.name.startswith("generic.")}
+        return FoldErrors(np.ones(5), baseline if not names else with_term[names.pop()])
+
+    sel = forward_selection(problem, effects, calibration, lambda p, fitted: calibration, held_out, lambda s: None)
+    assert [e.name for e in sel.named] == ["confirmed"]
+    (suspect,) = sel.suspects
+    assert suspect.name == "breaks" and suspect.held_out_gain == 10.0
+    assert suspect.held_out_total == pytest.approx(np.sqrt(104.0 / (0.04 + 1e6)))  # ~0.01: 100x worse
+    assert suspect.held_out_total < MIN_TOTAL_GAIN <= np.sqrt(104.0 / 400.04)  # confirmed's 0.51x
+    assert not any(c.name.startswith("generic.breaks") for c in sel.columns)
+    text = _suspect_finding(suspect, False)
+    assert "10.00x better at the median held-out fold, but 98x worse in total" in text
+
+
 def test_a_refused_suspect_that_predicts_worse_is_left_out_of_the_proven_model():
     """What a refused suspect fitted stays for the later rounds' scores; in the model that is proven
     (the later proofs, the final cross-validation: ``Selection.columns``) only when it predicted no
