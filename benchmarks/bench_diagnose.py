@@ -75,7 +75,7 @@ def run_named(name: str, plan: BenchDayPlan | None = None, out: Path | None = No
     """:func:`run_case` (or :func:`run_independent_case`) of the case called ``name`` in ``suite`` (what
     a worker process is sent: our cases' tables are read-only mappings, which do not pickle)."""
     if (another_copy or draw is not None) and suite != "independent":
-        raise ValueError(f"another_copy: only the independent suite has another copy of its bench, not {suite!r}")
+        raise ValueError(f"another_copy, draw: only the independent suite has another copy of its bench, not {suite!r}")
     if suite == "independent":
         return run_independent_case({c.name: c for c in suite_cases(suite)}[name], out, shuffle=shuffle,
                                     another_copy=another_copy, draw=draw)
@@ -146,7 +146,8 @@ def _row(suite: str, case: Any, bench: str | None, d: Any, recordings: int, t_si
         # the proof in each named effect's own signature (held-out, before / after), and the suspects
         "signature": {e: sig.get("improvement") for e, sig in d.signature.items()},
         "fold_gain": {e: sig.get("fold_gain") for e, sig in d.signature.items()},
-        "suspects": [{"name": c.name, "score": c.score, "held_out_gain": c.held_out_gain, "own": c.mimicry.get("own")}
+        "suspects": [{"name": c.name, "score": c.score, "held_out_gain": c.held_out_gain,
+                      "held_out_total": c.held_out_total, "own": c.mimicry.get("own")}
                      for c in d.suspects],
         "residual_before": d.residual_before, "residual_after": d.residual_after,
         "parameters": {e: {p: {"value": v, "std": s} for p, (v, s) in ps.items()} for e, ps in d.parameters.items()},
@@ -172,8 +173,9 @@ def why_wrong(truth: Any, d: Any) -> list[str]:
         best = max(scores, default=None)
         refused = [c for c in d.suspects if c.name == effect]
         if refused:
-            out.append(f"{effect}: refused by the held-out proof ({refused[0].held_out_gain:.2f}x, score "
-                       f"{refused[0].score:.0f})")
+            total = refused[0].held_out_total
+            out.append(f"{effect}: refused by the held-out proof ({refused[0].held_out_gain:.2f}x at the median fold"
+                       + (f", {total:.2g}x in total" if total is not None else "") + f", score {refused[0].score:.0f})")
         elif best is None:
             out.append(f"{effect}: not a candidate")
         elif best < NAME_MARGIN:
@@ -332,12 +334,15 @@ def markdown(res: dict[str, Any]) -> str:
                 out.append(f"| {truth} | {'**' + named + '**' if wrong else named} | {k} |")
         out += ["", "| case | what differs from the truth, and why |", "|---|---|"]
         out += [f"| {r['case']} | {'; '.join(r['why'])} |" for r in rows if r.get("why")]
-        out += ["", "| case | truth | named (top first) | suspects (held-out gain, own share) | signature improvement "
+        out += ["", "| case | truth | named (top first) | suspects (held-out gain at the median fold, in total; own "
+                    "share) | signature improvement "
                     "(median fold) | "
                     "held-out residual before -> after | s |", "|---|---|---|---|---|---|---|"]
         for r in rows:
             sus = ", ".join((f"{x['name']} ({x['held_out_gain']:.2f}x" if x["held_out_gain"] is not None
-                             else f"{x['name']} (nanx") + (f", own {x['own']:.1g})" if x.get("own") is not None else ")")
+                             else f"{x['name']} (nanx")
+                            + (f", {x['held_out_total']:.2g}x" if x.get("held_out_total") is not None else "")
+                            + (f"; own {x['own']:.1g})" if x.get("own") is not None else ")")
                             for x in r["suspects"]) or "-"
             median = r.get("fold_gain", {})
             sig = ", ".join(f"{e} {v:.1f}x" + (f" ({median[e]:.1f}x)" if median.get(e) is not None else "")
@@ -378,6 +383,17 @@ def _select(ap: argparse.ArgumentParser, spec: str | None, suites: list[str]) ->
     return picked
 
 
+def _seed(text: str) -> int:
+    """A drawn copy's seed: a non-negative integer (numpy's generator takes no other)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"a seed is >= 0, not {value}")
+    return value
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks diagnose", description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", action="store_true")
@@ -394,7 +410,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--another-copy", action="store_true",
                     help="the independent suite's days on another copy of its bench (its physics moved by 7 %% to "
                          "2.5x, other seeds)")
-    ap.add_argument("--drawn-copy", type=int, metavar="SEED",
+    ap.add_argument("--drawn-copy", type=_seed, metavar="SEED",
                     help="the independent suite's days on a copy of its bench drawn at random by SEED (each effect "
                          "and constant moved as far as --another-copy's or less, either way)")
     args = ap.parse_args(argv)

@@ -63,6 +63,7 @@ def test_another_copy_is_refused_for_our_suite_saying_which_has_one(capsys):
 
 
 @pytest.mark.parametrize("argv, says", [(["--suite", "ours", "--drawn-copy", "3"], ["--drawn-copy", "--suite independent"]),
+                                        (["--suite", "independent", "--drawn-copy", "-1"], ["--drawn-copy", "a seed is >= 0"]),
                                         (["--suite", "independent", "--another-copy", "--drawn-copy", "3"],
                                          ["--another-copy", "--drawn-copy", "one copy"])])
 def test_a_drawn_copy_is_refused_where_it_cannot_be_played(capsys, argv, says):
@@ -114,7 +115,11 @@ def test_why_wrong_tells_a_miss_below_the_data_from_one_outranked_or_refused():
         "magnet_thermal_drift: score 34, first in round 1 and not named"]
     refused = _answer([], [("channel_skew", 1558.0)], suspects=[("channel_skew", 1558.0, 1.45)])
     assert why_wrong(["channel_skew"], refused) == [
-        "channel_skew: refused by the held-out proof (1.45x, score 1558)"]
+        "channel_skew: refused by the held-out proof (1.45x at the median fold, score 1558)"]
+    broken = _answer([], [("frame_resonance", 900.0)], suspects=[("frame_resonance", 900.0, 1.7)])
+    broken.suspects[0] = Candidate("frame_resonance", 900.0, {}, held_out_gain=1.7, held_out_total=0.004)
+    assert why_wrong(["frame_resonance"], broken) == [
+        "frame_resonance: refused by the held-out proof (1.70x at the median fold, 0.004x in total, score 900)"]
     right = _answer(["integrator_leak"], [("integrator_leak", 300.0)])
     assert why_wrong(["integrator_leak"], right) == [] and why_wrong([], _answer([], [])) == []
 

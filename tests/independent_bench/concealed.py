@@ -16,7 +16,8 @@ says otherwise; each changes the recordings well beyond the noise of a 48-period
 (tests/independent_bench/test_concealed.py measures it).  :func:`write_case` writes a case's day.
 :func:`on_another_copy` plays a case on a second copy of the whole bench (every effect's physics and
 the constants moved, other seeds: a bench the diagnosis's settings were not chosen on), beyond the
-few constants a null's own ``bench`` changes.
+few constants a null's own ``bench`` changes; with a seed, on a copy :func:`drawn_copy` draws at random
+(benches nobody chose).
 
 Like the rest of the package, this module imports nothing from ``hystbench``.
 """
@@ -294,7 +295,9 @@ def drawn_copy(draw: int) -> tuple[dict[str, dict[str, Any]], BenchConstants]:
     a loop of one shape family), each constant :data:`ANOTHER_BENCH` moves by its own fraction; the
     mains' grid drawn (50 or 60 Hz, up to 0.03 Hz off).  What the hand-made copy keeps
     (:data:`KEPT_ON_THE_COPY`), this one keeps; the parameters and constants it moves, and how far,
-    are the hand-made copy's: 7 % to 2.5x from the defaults, either way."""
+    are the hand-made copy's: 7 % to 2.5x from the defaults, either way.  A seed's bench is fixed by the
+    order of the draws (effects by name, then the constants): a key added to ANOTHER_COPY moves every
+    drawn bench, and the figures measured on them must be measured again."""
     rng = np.random.default_rng([ANOTHER_SEED, int(draw)])
     params: dict[str, dict[str, Any]] = {}
     for name in sorted(ANOTHER_COPY):

@@ -246,13 +246,31 @@ def test_a_drawn_copy_moves_what_the_copy_moves_as_far_or_less_either_way_one_fr
                 else:
                     assert -1.0 <= _fraction(a, b, c) <= 1.0, key
     assert min(fractions) < -0.2 and max(fractions) > 0.2  # both ways, not all at one end
+    b1, b2 = one[1], two[1]
+    moved_constants = [k for k in ("adc_clock_ppm", "generator_clock_ppm", "amp_bandwidth_hz", "voice_coil_bl_n_per_a")]
+    u = [_fraction(getattr(BenchConstants(), k), getattr(b1, k), getattr(ANOTHER_BENCH, k)) for k in moved_constants]
+    assert max(u) - min(u) > 0.1  # each constant its own fraction
+    taken = {c.seed for c in CASES} | {c.seed + ANOTHER_SEED for c in CASES}
+    for draw in (0, 1, 2):
+        cases = [on_another_copy(c, draw) for c in CASES]
+        seeds = {c.seed for c in cases}
+        assert len(seeds) == len(CASES) and seeds.isdisjoint(taken), draw
+        taken |= seeds
     cases = [on_another_copy(c, 1) for c in CASES]
-    seeds = {c.seed for c in cases}
-    assert len(seeds) == len(CASES) and not seeds & ({c.seed for c in CASES} | {c.seed + ANOTHER_SEED for c in CASES})
-    assert {c.seed for c in map(lambda c: on_another_copy(c, 2), CASES)}.isdisjoint(seeds)
     by_name = {c.name: c for c in cases}
     assert by_name["frame_resonance_2400"].effects["frame_resonance"]["frequency_Hz"] == 2400.0
     for case, copy in zip(CASES, cases):
         assert (copy.truth, copy.plan, copy.baseline) == (case.truth, case.plan, case.baseline)
+        params = effect_params(copy.effects)
+        assert copy.expected == {e: params[e] for e in copy.truth}
+        for name in case.effects:  # the drawn copy's physics where the case left the default
+            own = case.effects[name] if isinstance(case.effects[name], dict) else {}
+            for key, value in one[0].get(name, {}).items():
+                assert params[name][key] == own.get(key, value), (case.name, name, key)
         if case.bench is None:
-            assert copy.bench == one[1]
+            assert copy.bench == b1
+    clocks = next(c for c in CASES if c.name == "null_bench_clocks")
+    assert by_name["null_bench_clocks"].bench == replace(
+        b1, adc_clock_ppm=clocks.bench.adc_clock_ppm, generator_clock_ppm=clocks.bench.generator_clock_ppm,
+        amp_bandwidth_hz=clocks.bench.amp_bandwidth_hz, amp_gain_a_per_v=clocks.bench.amp_gain_a_per_v)
+    assert b1 != b2

@@ -82,9 +82,11 @@ def test_the_terminal_table_gives_the_proof_in_the_signature_and_the_suspects():
     d = _diagnosis()
     d.signature = {"charge_amp_highpass": {"before": 30.0, "after": 1.5, "improvement": 20.0, "numbers": 42,
                                            "fold_gain": 12.0}}
-    d.suspects = [Candidate("frame_resonance", 400.0, {}, held_out_gain=0.2)]
+    d.suspects = [Candidate("frame_resonance", 400.0, {}, held_out_gain=0.2),
+                  Candidate("channel_skew", 90.0, {}, held_out_gain=1.7, held_out_total=0.004)]
     buf = io.StringIO()
-    print_summary(d, Console(file=buf, width=140))
+    print_summary(d, Console(file=buf, width=160))
     out = buf.getvalue()
     assert "charge_amp_highpass: 30 -> 1.5 (20x; median fold 12x; 42 held-out numbers)" in out
     assert "frame_resonance (score 400, held out 0.2x, median fold)" in out
+    assert "channel_skew (score 90, held out 1.7x, median fold; 0.004x in total)" in out

@@ -207,8 +207,10 @@ def _suspect_finding(c: Candidate, proven: bool) -> str:
                f"points (none of them shows it: the day holds too few points of its rig); it is left out of the "
                "model that is proven")
     elif c.held_out_gain >= MIN_HELD_OUT_GAIN and c.held_out_total is not None and c.held_out_total < MIN_TOTAL_GAIN:
+        ratio = 1 / c.held_out_total if c.held_out_total > 0 else math.inf
+        worse = "infinitely" if not math.isfinite(ratio) else f"{ratio:.3g}x" if ratio < 100 else f"{ratio:.0f}x"
         why = (f"suspect: {c.name} scores {c.score:.0f} and, modelled, predicts its signature {c.held_out_gain:.2f}x "
-               f"better at the median held-out fold, but {1 / c.held_out_total:.0f}x worse in total (more than "
+               f"better at the median held-out fold, but {worse} worse in total (more than "
                f"{1 / MIN_TOTAL_GAIN:g}x worse refuses it: a model that breaks at some operating point); "
                "what it fitted is left out of the model that is proven (the later rounds were scored beside it)")
     else:

@@ -25,7 +25,7 @@ from .vector import record_harmonics
 if TYPE_CHECKING:  # select judges its candidates by this module's folds
     from .select import Selection
 
-__all__ = ["FoldErrors", "cross_validate", "fold_errors", "fold_gain", "folds", "held_out"]
+__all__ = ["FoldErrors", "cross_validate", "fold_errors", "fold_gain", "folds", "held_out", "total_gain"]
 
 
 def folds(problem: Problem, data: Sequence[RecordFeatures]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -113,6 +113,16 @@ def fold_gain(before: FoldErrors, after: FoldErrors) -> float:
     order = np.argsort(ratio)
     share = np.cumsum(before.count[seen][order]) / before.count[seen].sum()
     return float(ratio[order][np.searchsorted(share, 0.5)])
+
+
+def total_gain(before: FoldErrors, after: FoldErrors) -> float:
+    """How much better ``after`` predicts every held-out number together (the ratio of the pooled rms):
+    what the tables call the signature improvement, and what a named effect may not make more than
+    1/MIN_TOTAL_GAIN worse.  NaN when no number was held out; inf when ``after`` is exact."""
+    b, a = before.rms, after.rms
+    if math.isnan(a) or math.isnan(b):
+        return math.nan
+    return 1.0 if a == b == 0 else (b / a if a > 0 else math.inf)
 
 
 def cross_validate(problem: Problem, data: Sequence[RecordFeatures], before: Calibration,

@@ -36,7 +36,8 @@ class Candidate:
     #: in its most distinctive combination), then the share of that each group of those columns alone
     #: can make, largest first (select.mimicry)
     mimicry: Mapping[str, float] = field(default_factory=dict)
-    #: how much better it predicts its signature's held-out total (every fold's numbers pooled), beside held_out_gain
+    #: how much better it predicts its signature's held-out total (every fold's numbers pooled; of a searched mode's two
+    #: proofs, the worse), beside held_out_gain: a ratio, as held_out_gain
     held_out_total: float | None = None
 
     def own_text(self) -> str:

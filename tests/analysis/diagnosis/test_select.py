@@ -159,7 +159,42 @@ def test_a_median_fold_does_not_name_a_model_that_breaks_at_one_operating_point(
     assert suspect.held_out_total < MIN_TOTAL_GAIN <= np.sqrt(104.0 / 400.04)  # confirmed's 0.51x
     assert not any(c.name.startswith("generic.breaks") for c in sel.columns)
     text = _suspect_finding(suspect, False)
-    assert "10.00x better at the median held-out fold, but 98x worse in total" in text
+    assert "10.00x better at the median held-out fold, but 98.1x worse in total" in text
+
+
+def test_a_searched_mode_is_judged_in_total_by_the_worse_of_its_two_proofs():
+    """A searched mode is proven twice (placed on the whole day; searched again without each fold's
+    held-out points): the worse median decides, and the worse total too.  Here the placement's proof
+    is the worse at the median (10x against 12x), so it is the one reported, but the search's total is
+    100x worse: refused."""
+    from hystbench.analysis.diagnosis.calibrate import Calibration
+    from hystbench.analysis.diagnosis.fit import Problem
+    from hystbench.analysis.diagnosis.prove import FoldErrors
+    from hystbench.analysis.diagnosis.select import forward_selection
+
+    n = 10
+    d = SIGMA * 50 * _blocks(n, (10,))[0]
+    sigma = np.full(n, SIGMA)
+    problem = Problem(d, sigma, np.arange(n), lambda requests: [np.zeros(n) for _ in requests], None, sigma,
+                      np.zeros(0, int))
+    calibration = Calibration([], [], np.zeros(n), {}, problem.solve(np.zeros(n), []), np.zeros((n, 0)))
+    mode = CandidateEffect("frame_resonance", [Column("frame_resonance.depth", _blocks(n, (10,))[0])],
+                           research=lambda train, m, cols: [])
+    baseline = np.array([1.0, 1.0, 1.0, 1.0, 100.0])
+    placed = np.array([0.01, 0.01, 0.01, 0.01, 400.0])  # median 10x, total 0.51x
+    searched = np.array([1 / 144, 1 / 144, 1 / 144, 1 / 144, 1e6])  # median 12x, total 0.01x
+
+    def held_out(problem, m, columns, where, per_fold=None):
+        named = any(not c.name.startswith("generic.") for c in columns)
+        return FoldErrors(np.ones(5), baseline if not named and per_fold is None else
+                          (searched if per_fold is not None else placed))
+
+    sel = forward_selection(problem, {"frame_resonance": mode}, calibration, lambda p, fitted: calibration, held_out,
+                            lambda s: None)
+    assert sel.named == []
+    (suspect,) = sel.suspects
+    assert suspect.held_out_gain == pytest.approx(10.0)
+    assert suspect.held_out_total == pytest.approx(np.sqrt(104.0 / (4 / 144 + 1e6)))
 
 
 def test_a_refused_suspect_that_predicts_worse_is_left_out_of_the_proven_model():
