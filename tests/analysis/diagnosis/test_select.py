@@ -89,12 +89,10 @@ def _selection_with_suspects():
     return sel, calls
 
 
-def test_the_median_fold_decides_a_name_not_the_pooled_residual():
-    """Two candidates, each decisive in its round, proven over five folds (one number each).
-    ``one_fold`` takes the one badly extrapolated fold from 1000 to 1 and leaves the other four as they
-    were (pooled 447x, median 1x): refused.  ``confirmed`` predicts four folds 10x better and the
-    extrapolated one 2x worse (pooled 0.50x, median 10x): named.  Judged by the pooled ratio the answers
-    would be the other way round."""
+def _proven_by_folds(baseline: np.ndarray, with_term: dict[str, np.ndarray]):
+    """forward_selection on two decisive candidates (one block each of a 20-number day), each proven
+    over five folds of one number: ``baseline`` the folds' chi-squares without a named effect,
+    ``with_term[name]`` with it (the first name holds the larger block: it is scored first)."""
     from hystbench.analysis.diagnosis.calibrate import Calibration
     from hystbench.analysis.diagnosis.fit import Problem
     from hystbench.analysis.diagnosis.prove import FoldErrors
@@ -107,17 +105,24 @@ def test_the_median_fold_decides_a_name_not_the_pooled_residual():
     problem = Problem(d, sigma, np.arange(n), lambda requests: [np.zeros(n) for _ in requests], None, sigma,
                       np.zeros(0, int))
     calibration = Calibration([], [], np.zeros(n), {}, problem.solve(np.zeros(n), []), np.zeros((n, 0)))
-    effects = {name: CandidateEffect(name, [Column(f"{name}.strength", col)])
-               for name, col in zip(("one_fold", "confirmed"), block)}
-    baseline = np.array([1.0, 1.0, 1.0, 1.0, 1e6])  # the fifth fold: an extrapolation no training row pins
-    with_term = {"one_fold": np.array([1.0, 1.0, 1.0, 1.0, 1.0]), "confirmed": np.array([0.01, 0.01, 0.01, 0.01, 4e6])}
+    effects = {name: CandidateEffect(name, [Column(f"{name}.strength", col)]) for name, col in zip(with_term, block)}
 
     def held_out(problem, m, columns, where):
         names = {c.name.split(".")[0] for c in columns if not c.name.startswith("generic.")}
-        chi2 = baseline if not names else with_term[names.pop()]
-        return FoldErrors(np.ones(5), chi2)
+        return FoldErrors(np.ones(5), baseline if not names else with_term[names.pop()])
 
-    sel = forward_selection(problem, effects, calibration, lambda p, fitted: calibration, held_out, lambda s: None)
+    return forward_selection(problem, effects, calibration, lambda p, fitted: calibration, held_out, lambda s: None)
+
+
+def test_the_median_fold_decides_a_name_not_the_pooled_residual():
+    """Two candidates, each decisive in its round, proven over five folds (one number each).
+    ``one_fold`` takes the one badly extrapolated fold from 1000 to 1 and leaves the other four as they
+    were (pooled 447x, median 1x): refused.  ``confirmed`` predicts four folds 10x better and the
+    extrapolated one 2x worse (pooled 0.50x, median 10x): named.  Judged by the pooled ratio the answers
+    would be the other way round."""
+    baseline = np.array([1.0, 1.0, 1.0, 1.0, 1e6])  # the fifth fold: an extrapolation no training row pins
+    sel = _proven_by_folds(baseline, {"one_fold": np.array([1.0, 1.0, 1.0, 1.0, 1.0]),
+                                      "confirmed": np.array([0.01, 0.01, 0.01, 0.01, 4e6])})
     assert [e.name for e in sel.named] == ["confirmed"]
     assert [(c.name, c.held_out_gain) for c in sel.suspects] == [("one_fold", 1.0)]
     sig = sel.named[0].signature
@@ -129,29 +134,11 @@ def test_a_median_fold_does_not_name_a_model_that_breaks_at_one_operating_point(
     passes, its total is 100x worse (more than 1/MIN_TOTAL_GAIN), so it is refused and says so; beside it
     ``confirmed``, the same four folds and the fifth 2x worse (total 0.5x), is named."""
     from hystbench.analysis.diagnosis import _suspect_finding
-    from hystbench.analysis.diagnosis.calibrate import Calibration
-    from hystbench.analysis.diagnosis.fit import Problem
-    from hystbench.analysis.diagnosis.prove import FoldErrors
-    from hystbench.analysis.diagnosis.select import MIN_TOTAL_GAIN, forward_selection
+    from hystbench.analysis.diagnosis.select import MIN_TOTAL_GAIN
 
-    n = 20
-    block = _blocks(n, (10, 10))
-    d = SIGMA * (50 * block[0] + 30 * block[1])
-    sigma = np.full(n, SIGMA)
-    problem = Problem(d, sigma, np.arange(n), lambda requests: [np.zeros(n) for _ in requests], None, sigma,
-                      np.zeros(0, int))
-    calibration = Calibration([], [], np.zeros(n), {}, problem.solve(np.zeros(n), []), np.zeros((n, 0)))
-    effects = {name: CandidateEffect(name, [Column(f"{name}.strength", col)])
-               for name, col in zip(("breaks", "confirmed"), block)}
-    baseline = np.array([1.0, 1.0, 1.0, 1.0, 100.0])
-    with_term = {"breaks": np.array([0.01, 0.01, 0.01, 0.01, 100.0 * 100.0 ** 2]),
-                 "confirmed": np.array([0.01, 0.01, 0.01, 0.01, 400.0])}
-
-    def held_out(problem, m, columns, where):
-        names = {c.name.split(".")[0] for c in columns if not c.name.startswith("generic.")}
-        return FoldErrors(np.ones(5), baseline if not names else with_term[names.pop()])
-
-    sel = forward_selection(problem, effects, calibration, lambda p, fitted: calibration, held_out, lambda s: None)
+    sel = _proven_by_folds(np.array([1.0, 1.0, 1.0, 1.0, 100.0]),
+                           {"breaks": np.array([0.01, 0.01, 0.01, 0.01, 100.0 * 100.0 ** 2]),
+                            "confirmed": np.array([0.01, 0.01, 0.01, 0.01, 400.0])})
     assert [e.name for e in sel.named] == ["confirmed"]
     (suspect,) = sel.suspects
     assert suspect.name == "breaks" and suspect.held_out_gain == 10.0
