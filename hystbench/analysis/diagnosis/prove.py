@@ -116,9 +116,9 @@ def fold_gain(before: FoldErrors, after: FoldErrors) -> float:
 
 
 def total_gain(before: FoldErrors, after: FoldErrors) -> float:
-    """How much better ``after`` predicts every held-out number together (the ratio of the pooled rms):
-    what the tables call the signature improvement, and what a named effect may not make more than
-    1/MIN_TOTAL_GAIN worse.  NaN when no number was held out; inf when ``after`` is exact."""
+    """How much better ``after`` predicts every held-out number together (the ratio of the pooled rms,
+    as the tables' signature improvement): a named effect may not make it more than 1/MIN_TOTAL_GAIN
+    worse, whatever its median fold.  NaN when no number was held out; inf when ``after`` is exact."""
     b, a = before.rms, after.rms
     if math.isnan(a) or math.isnan(b):
         return math.nan
