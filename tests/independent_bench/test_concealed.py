@@ -247,7 +247,7 @@ def test_a_drawn_copy_moves_what_the_copy_moves_as_far_or_less_either_way_one_fr
                     assert -1.0 <= _fraction(a, b, c) <= 1.0, key
     assert min(fractions) < -0.2 and max(fractions) > 0.2  # both ways, not all at one end
     b1, b2 = one[1], two[1]
-    moved_constants = [k for k in ("adc_clock_ppm", "generator_clock_ppm", "amp_bandwidth_hz", "voice_coil_bl_n_per_a")]
+    moved_constants = ("adc_clock_ppm", "generator_clock_ppm", "amp_bandwidth_hz", "voice_coil_bl_n_per_a")
     u = [_fraction(getattr(BenchConstants(), k), getattr(b1, k), getattr(ANOTHER_BENCH, k)) for k in moved_constants]
     assert max(u) - min(u) > 0.1  # each constant its own fraction
     taken = {c.seed for c in CASES} | {c.seed + ANOTHER_SEED for c in CASES}
