@@ -237,6 +237,15 @@ def _page(d: Diagnosis, heat_map_note: str | None, loops_written: bool) -> str:
     else:
         lines += ["No candidate was scored."] + [""]
 
+    if d.limits:
+        lines += ["### What this day can decide", "",
+                  "For each candidate parameter (the others off), the size from which this day would be expected "
+                  "to name it: where its change, beyond what the calibrated baseline absorbs with its priors, "
+                  "scores the naming margin.  Below it a \"none\" says nothing about that effect; above it the "
+                  "day's own noise, the runner-up and the held-out proof still decide.", ""]
+        lines += _table(("effect", "parameter", "decided from"),
+                        ((f"`{lim.effect}`", lim.param, lim.bound()) for lim in d.limits)) + [""]
+
     lines += ["## 4. The model", ""]
     if d.parameters:
         lines += ["The named effects' parameters, in the catalogue's names and units (`hystbench effects`):", "",
@@ -353,6 +362,9 @@ def print_summary(diagnosis: Diagnosis, console: Any) -> None:
     if first:
         best = max(first, key=lambda c: c.score if math.isfinite(c.score) else -math.inf)
         t.add_row("runner-up" if d.effects else "best candidate", f"{escape(best.name)} (score {_num(best.score)})")
+    if not d.effects:  # what a "none" is worth here: the day's reach for each candidate
+        for lim in d.limits:
+            t.add_row("named from", escape(lim.text()))
     for f in d.findings[:3]:
         t.add_row("finding", escape(f))
     for w in d.warnings:

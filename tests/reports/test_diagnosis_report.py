@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from hystbench.analysis.diagnosis.result import Candidate, Diagnosis, Loops
+from hystbench.analysis.diagnosis.result import Candidate, Diagnosis, Limit, Loops
 from hystbench.reports.diagnosis import PAGE, plus_minus, print_summary, verdict, write_report
 
 
@@ -90,3 +90,33 @@ def test_the_terminal_table_gives_the_proof_in_the_signature_and_the_suspects():
     assert "charge_amp_highpass: 30 -> 1.5 (20x; median fold 12x; 42 held-out numbers)" in out
     assert "frame_resonance (score 400, held out 0.2x, median fold)" in out
     assert "channel_skew (score 90, held out 1.7x, median fold; 0.004x in total)" in out
+
+
+def test_a_none_says_what_the_day_could_have_named():
+    """Nothing named: the page's table and the terminal give each candidate's limit, so that a "none" says
+    which effects it speaks for; with a name, the terminal stays short and the page keeps the table."""
+    limits = [Limit("channel_skew", "current_A", 7.3e-7, "s", False, True),
+              Limit("charge_amp_highpass", "time_constant_s", 44.0, "s", True, True, "its DC replayed over 2 s"),
+              Limit("load_cell_compliance", "stiffness_n_per_m", 0.0, "N/m", True, False)]
+    d = _diagnosis(named=False)
+    d.limits = limits
+    buf = io.StringIO()
+    print_summary(d, Console(file=buf, width=160))
+    out = buf.getvalue()
+    assert "named from" in out and "channel_skew current_A >= 7.3e-07 s" in out
+    assert "load_cell_compliance stiffness_n_per_m none the catalogue's range reaches" in out
+    named = _diagnosis()
+    named.limits = limits
+    buf = io.StringIO()
+    print_summary(named, Console(file=buf, width=160))
+    assert "named from" not in buf.getvalue()
+
+
+def test_the_page_tables_what_the_day_can_decide(tmp_path):
+    d = _diagnosis(named=False)
+    d.limits = [Limit("magnet_thermal_drift", "kelvin_per_s", 0.079, "K/s", False, True, either_sign=True),
+                Limit("charge_amp_highpass", "time_constant_s", 44.0, "s", True, True, "its DC replayed over 2 s")]
+    text = write_report(d, tmp_path / "rep").read_text()
+    assert "### What this day can decide" in text
+    assert "| `magnet_thermal_drift` | kelvin_per_s | >= 0.079 K/s either way |" in text
+    assert "| `charge_amp_highpass` | time_constant_s | <= 44 s (its DC replayed over 2 s) |" in text

@@ -14,6 +14,7 @@ The stages, each in its module:
 3. name and 4. model (:mod:`.select`): each candidate switched on in the simulation (a frame mode
    searched first, :mod:`.search`), scored by BIC, named only when decisive and proven in its own
    signature at held-out operating points, re-simulated at its fitted values;
+   and what the day can decide (:mod:`.limits`): each candidate's smallest size it would name;
 5. prove (:mod:`.prove`): cross-validation over every block's operating points, held-out residual
    before and after.
 Real material data (loss tables, no waveforms) take their own path: :mod:`.loss_separation`.
@@ -44,6 +45,7 @@ from .columns import Simulator, accepts, catalogue_params, check_known
 from .features import RecordFeatures, record_features
 from .fit import Problem, floor_scales, variance
 from .forward import MEASURED_DIRECTLY, clock_follows_frequency, points_of
+from .limits import detection_limits
 from .locate import locate_residual
 from .prove import FoldErrors, cross_validate, fold_errors, folds
 from .result import Candidate, Diagnosis
@@ -175,6 +177,7 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
     def judged(fit: Problem, m: np.ndarray, cols, where: np.ndarray, per_fold=None) -> FoldErrors:
         return fold_errors(fit, folds(fit, data), m, cols, fit.sigma, where, per_fold)[0]
 
+    limits = detection_limits(problem, effects, calibration)  # before selection moves the named ones
     selection = forward_selection(problem, effects, calibration, recalibrate, judged, say)
     say("cross-validating over operating points")
     proof = cross_validate(selection.problem or problem, data, calibration, selection)  # 5
@@ -196,7 +199,8 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
         recalibrated=recal, located=located, residual_before=proof["before"], residual_after=proof["after"],
         noise_floor=_noise_floor(data), seconds=time.perf_counter() - start, baseline=in_base,
         candidates_considered=pool_names, findings=findings, warnings=warnings, recordings=len(recs), rigs=list(presets),
-        loops=proof["loops"], grid=grid, signature=signature, suspects=list(selection.suspects))
+        loops=proof["loops"], grid=grid, signature=signature, suspects=list(selection.suspects),
+        limits=limits)
 
 
 def _suspect_finding(c: Candidate, proven: bool) -> str:

@@ -87,6 +87,8 @@ class Probe:
     grid: tuple[float, ...] = ()
     #: the effect's other parameters while this one is probed (a skew of one channel: the others 0)
     fixed: Mapping[str, Any] = field(default_factory=dict)
+    #: the value is 1/u (a time constant, a stiffness): a larger effect is a smaller value
+    inverse: bool = False
 
     @property
     def is_switch(self) -> bool:
@@ -105,7 +107,7 @@ class Probe:
 
 def _inverse(effect: str, param: str, probe: float, grid: tuple[float, ...] = ()) -> Probe:
     return Probe(effect, param, probe, lambda u: {param: 1.0 / max(u, 1e-300)}, lambda u: 1.0 / u if u > 0 else math.inf,
-                 lower=0.0, grid=tuple(1.0 / g for g in grid))
+                 lower=0.0, grid=tuple(1.0 / g for g in grid), inverse=True)
 
 
 #: The catalogue's own frame modes (the paper's, at their catalogue frequencies and damping), their

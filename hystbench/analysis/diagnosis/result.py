@@ -12,7 +12,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["Candidate", "Diagnosis", "Loops", "json_number"]
+__all__ = ["Candidate", "Diagnosis", "Limit", "Loops", "json_number"]
 
 
 def json_number(x: Any) -> float | None:
@@ -57,6 +57,41 @@ class Candidate:
 
 
 @dataclass(frozen=True)
+class Limit:
+    """The size of one parameter of one effect at which the day would name it (.limits): decided from
+    ``value`` up, or, ``at_most``, for a parameter whose size is its inverse (a time constant, a
+    stiffness), from 0 up to ``value``; ``either_sign``: of either sign (a drift that falls or rises);
+    ``in_range``: the catalogue's range reaches it."""
+
+    effect: str
+    param: str
+    value: float
+    unit: str
+    at_most: bool
+    in_range: bool
+    #: what the limit leaves out, when something (a high-pass's DC over a whole day)
+    note: str = ""
+    either_sign: bool = False
+
+    def bound(self) -> str:
+        """``">= 7.3e-07 s"``, ``">= 0.08 K/s either way"`` or ``"<= 44 s"``; why there is none, out of range."""
+        if not self.in_range:
+            text = "none the catalogue's range reaches"
+        else:
+            text = f"{'<=' if self.at_most else '>='} {self.value:.2g}{' ' + self.unit if self.unit else ''}"
+            text += " either way" if self.either_sign and not self.at_most else ""
+        return text + (f" ({self.note})" if self.note else "")
+
+    def text(self) -> str:
+        """``"channel_skew current_A >= 7.3e-07 s"``."""
+        return f"{self.effect} {self.param} {self.bound()}"
+
+    def to_json(self) -> dict[str, Any]:
+        return {"value": json_number(self.value), "unit": self.unit, "at_most": self.at_most,
+                "either_sign": self.either_sign, "in_range": self.in_range, "note": self.note}
+
+
+@dataclass(frozen=True)
 class Loops:
     """One held-out recording's period, measured and predicted before/after (the report's loop figure)."""
 
@@ -97,6 +132,8 @@ class Diagnosis:
     signature: dict[str, dict[str, float]] = field(default_factory=dict)
     #: decisive effects the held-out proof refused, with their numbers
     suspects: list[Candidate] = field(default_factory=list)
+    #: what the day can decide: each candidate parameter's smallest size it would name (.limits)
+    limits: list[Limit] = field(default_factory=list)
 
     @property
     def improvement(self) -> float:
@@ -127,4 +164,10 @@ class Diagnosis:
             "rigs": list(self.rigs),
             "signature": {e: {k: json_number(v) for k, v in sig.items()} for e, sig in self.signature.items()},
             "suspects": [c.to_json() for c in self.suspects],
+            "limits": self.limits_json(),
         }
+
+    def limits_json(self) -> dict[str, dict[str, Any]]:
+        """effect -> parameter -> its limit (:meth:`Limit.to_json`)."""
+        return {e: {lim.param: lim.to_json() for lim in self.limits if lim.effect == e}
+                for e in dict.fromkeys(lim.effect for lim in self.limits)}

@@ -30,7 +30,7 @@ from .search import frame_mode_columns, frame_mode_search
 from .vector import CHANNELS
 from .result import Candidate
 
-__all__ = ["CandidateEffect", "Selection", "candidate_effects", "best_on_grid", "setting_at", "dc_blind", "named_parameters", "forward_selection", "family", "parameters_of",
+__all__ = ["CandidateEffect", "Selection", "candidate_effects", "best_on_grid", "setting_at", "dc_blind", "judged_as", "named_parameters", "forward_selection", "family", "parameters_of",
            "column_groups", "mimicry", "channel_variants",
            "NAME_MARGIN", "RUNNER_UP_MARGIN", "MAX_ROUNDS", "MIN_HELD_OUT_GAIN", "MIN_TOTAL_GAIN"]
 
@@ -95,6 +95,9 @@ class CandidateEffect:
     #: held-out points, a sharp mode can sit on one played frequency and "predict" it (a foreign iron's
     #: misfit at 480 Hz took a mode at 481 Hz, 8.7x in its signature, on a day with no frame mode)
     research: Callable[[np.ndarray, np.ndarray, list[Column]], list[Column]] | None = None
+    #: an effect whose only parameter is gridded (a time constant): its change from off at each grid
+    #: value, (u, change) in u's order, which its decision limit follows (.limits: far from linear in u)
+    grid: tuple[tuple[float, np.ndarray], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -162,9 +165,12 @@ def candidate_effects(problem: Problem, pool: Sequence[str], presets: Mapping[st
         eff = effects.setdefault(name, CandidateEffect(name, [], ()))
         eff.columns.append(Column(f"{name}.{pr.param}", (next(runs) - m0) / pr.probe, lower=pr.lower, upper=pr.upper))
         eff.probes += (pr,)
+    grids: dict[str, tuple[tuple[float, np.ndarray], ...]] = {}
     for name, prs in gridded:  # measured around its best grid value
-        u, change = best_on_grid(prs[0], problem, calibration, [next(runs) for _ in prs[0].grid],
-                                 any_size=len(prs) > 1)
+        on_grid = [next(runs) for _ in prs[0].grid]
+        if len(prs) == 1:  # its time constant is its size: the limit follows the grid (.limits)
+            grids[name] = tuple(sorted(((u, m - m0) for u, m in zip(prs[0].grid, on_grid)), key=lambda g: g[0]))
+        u, change = best_on_grid(prs[0], problem, calibration, on_grid, any_size=len(prs) > 1)
         around.append((name, prs, {**_probed(prs), prs[0].param: u}, change))
     # each of those around its starting point: a replay there (unless the grid made it) and one per
     # parameter stepped (a time constant or a frequency by a share of itself), all at once
@@ -180,7 +186,8 @@ def candidate_effects(problem: Problem, pool: Sequence[str], presets: Mapping[st
         cols = [Column(f"{name}.{pr.param}", (next(runs) - m0 - change) / _step(pr, at), lower=pr.lower - at[pr.param],
                        upper=pr.upper - at[pr.param])
                 for pr in probes]
-        effects[name] = CandidateEffect(name, cols, probes, offset=change, at=dict(at), research=research.get(name))
+        effects[name] = CandidateEffect(name, cols, probes, offset=change, at=dict(at), research=research.get(name),
+                                        grid=grids.get(name, ()))
     effects.update(channel_variants(effects))
     return {k: e for k, e in effects.items() if any(np.any(np.abs(c.values[problem.rows]) > 0) for c in e.columns)}
 
@@ -227,6 +234,13 @@ def dc_blind(problem: Problem, name: str) -> Problem:
     return dataclasses.replace(problem, rows=problem.rows[~dc[problem.rows]])
 
 
+def judged_as(problem: Problem, key: str) -> tuple[Problem, int]:
+    """The rows candidate ``key`` is scored on, and how many DCs it frees there: a DC-blind effect's DCs
+    are unknowable, each a free parameter, charged as one (its score's baseline keeps every row)."""
+    judge = dc_blind(problem, key)
+    return judge, problem.rows.size - judge.rows.size
+
+
 def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], calibration: Calibration,
                       recalibrate: Callable[[Problem, Mapping[str, Mapping[str, Any]]], Calibration],
                       held_out: Callable[..., FoldErrors],
@@ -268,10 +282,7 @@ def forward_selection(problem: Problem, effects: Mapping[str, CandidateEffect], 
         for key, eff in effects.items():
             if any(family(key) == family(e.name) for e in named):
                 continue
-            judge, freed = problem, 0
-            if family(key) in DC_BLIND:  # its DCs are unknowable: each a free parameter, charged as one
-                judge = dc_blind(problem, key)
-                freed = problem.rows.size - judge.rows.size
+            judge, freed = judged_as(problem, key)
             sol_e = judge.solve(m_named if eff.offset is None else m_named + eff.offset, base_cols + eff.columns)
             delta = ((base.chi2 + base.chi2_prior) - (sol_e.chi2 + sol_e.chi2_prior)
                      - (len(eff.columns) + freed) * log_n)
