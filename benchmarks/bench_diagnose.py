@@ -153,16 +153,20 @@ def _row(suite: str, case: Any, bench: str | None, d: Any, recordings: int, t_si
         "parameters": {e: {p: {"value": v, "std": s} for p, (v, s) in ps.items()} for e, ps in d.parameters.items()},
         "expected": {e: dict(ps) for e, ps in case.expected.items()},
         "recordings": recordings, "seconds_simulate": t_sim, "seconds_diagnose": t_diag,
-        "why": why_wrong(case.truth, d),
+        "why": why_wrong(case.truth, d, case.expected),
+        "limits": d.limits_json(),  # effect -> parameter -> the size the day names it from
+        # each candidate's score in the first round (against the calibrated baseline alone)
+        "first_scores": {c.name: c.score for c in d.candidates if c.round == 1},
     }
 
 
-def why_wrong(truth: Any, d: Any) -> list[str]:
+def why_wrong(truth: Any, d: Any, expected: Mapping[str, Mapping[str, Any]] | None = None) -> list[str]:
     """Each way the answer differs from the truth, in the diagnosis's own numbers: a true effect whose
     best score (its parameters fitted, the calibration re-solved) never reached NAME_MARGIN is below
     what the day's data can decide under the baseline's discrepancy; one that did was outranked by
     what was named, undecided against a look-alike of its round within RUNNER_UP_MARGIN, or refused by
-    the held-out proof; a name the truth lacks, with its proof."""
+    the held-out proof; a name the truth lacks, with its proof.  A missed effect's limits on the day
+    (.limits) follow, beside its true size where ``expected`` holds it under the catalogue's name."""
     from hystbench.analysis.diagnosis.select import NAME_MARGIN, RUNNER_UP_MARGIN
 
     out = []
@@ -173,9 +177,14 @@ def why_wrong(truth: Any, d: Any) -> list[str]:
         best = max(scores, default=None)
         refused = [c for c in d.suspects if c.name == effect]
         if refused:
-            total = refused[0].held_out_total
-            out.append(f"{effect}: refused by the held-out proof ({refused[0].held_out_gain:.2f}x at the median fold"
-                       + (f", {total:.2g}x in total" if total is not None else "") + f", score {refused[0].score:.0f})")
+            gain, total = refused[0].held_out_gain, refused[0].held_out_total
+            if gain is None or not math.isfinite(gain):  # no held-out number it moves by half a sigma
+                out.append(f"{effect}: refused by the held-out proof (it moves no held-out number by half a sigma, "
+                           f"score {refused[0].score:.0f})")
+            else:
+                out.append(f"{effect}: refused by the held-out proof ({gain:.2f}x at the median fold"
+                           + (f", {total:.2g}x in total" if total is not None and math.isfinite(total) else "")
+                           + f", score {refused[0].score:.0f})")
         elif best is None:
             out.append(f"{effect}: not a candidate")
         elif best < NAME_MARGIN:
@@ -195,12 +204,26 @@ def why_wrong(truth: Any, d: Any) -> list[str]:
         own = next((c.own_text() for c in d.candidates if c.name == effect and c.own_text()), "")
         if own and out and out[-1].startswith(f"{effect}:"):  # what the baseline could not do of it
             out[-1] += f" (of what it does, {own})"
+        reach = [_reach(lim, (expected or {}).get(effect, {})) for lim in d.limits if lim.effect == effect]
+        if reach and out and out[-1].startswith(f"{effect}:"):
+            out[-1] += f"; the day decides {'; '.join(reach)}"
     for effect in d.effects:
         if effect not in truth:
             gain = d.signature.get(effect, {}).get("improvement")
             out.append(f"{effect}: named, not in the truth (held out {gain:.2f}x in its signature)" if gain
                        else f"{effect}: named, not in the truth")
     return out
+
+
+def _reach(limit: Any, truth: Mapping[str, Any]) -> str:
+    """A limit in words, with the true size beside it when the truth gives it under the same name: a
+    true skew of 5e-07 s against a limit of 7.3e-07 s was below the day's reach, not lost."""
+    text = f"{limit.param} {limit.bound()}"
+    size = truth.get(limit.param)
+    if not isinstance(size, (int, float)) or not size or not limit.in_range:
+        return text
+    inside = abs(size) <= limit.value if limit.at_most else abs(size) >= limit.value
+    return f"{text} (true {abs(size):.2g}: {'within' if inside else 'below'} the day's reach)"
 
 
 def _bench_label(bench: Any) -> str | None:

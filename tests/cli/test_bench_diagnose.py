@@ -3,6 +3,8 @@ against the generator's truth as the issue states them; an unknown case is refus
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from types import SimpleNamespace
@@ -94,7 +96,7 @@ def test_a_worker_plays_the_day_on_the_copy_it_is_asked_for(monkeypatch):
 def _answer(named, candidates, suspects=(), signature=None):
     """A diagnosis's answer as why_wrong reads it: the names, every candidate's (name, score) and the
     suspects' (name, score, held-out gain)."""
-    return SimpleNamespace(effects=list(named), candidates=[Candidate(n, s, {}) for n, s in candidates],
+    return SimpleNamespace(effects=list(named), candidates=[Candidate(n, s, {}) for n, s in candidates], limits=[],
                            suspects=[Candidate(n, s, {}, held_out_gain=g) for n, s, g in suspects],
                            signature=signature or {})
 
@@ -120,6 +122,9 @@ def test_why_wrong_tells_a_miss_below_the_data_from_one_outranked_or_refused():
     broken.suspects[0] = Candidate("frame_resonance", 900.0, {}, held_out_gain=1.7, held_out_total=0.004)
     assert why_wrong(["frame_resonance"], broken) == [
         "frame_resonance: refused by the held-out proof (1.70x at the median fold, 0.004x in total, score 900)"]
+    untested = _answer([], [("charge_amp_highpass", 9750.0)], suspects=[("charge_amp_highpass", 9750.0, math.nan)])
+    assert why_wrong(["charge_amp_highpass"], untested) == [
+        "charge_amp_highpass: refused by the held-out proof (it moves no held-out number by half a sigma, score 9750)"]
     right = _answer(["integrator_leak"], [("integrator_leak", 300.0)])
     assert why_wrong(["integrator_leak"], right) == [] and why_wrong([], _answer([], [])) == []
 
@@ -127,7 +132,7 @@ def test_why_wrong_tells_a_miss_below_the_data_from_one_outranked_or_refused():
 def test_why_wrong_says_how_much_of_a_missed_effect_the_baseline_could_not_do():
     """A miss whose candidate was measured against the baseline's span says so: a compliance is a
     smaller airgap but for a millionth of it."""
-    below = SimpleNamespace(effects=[], suspects=[], signature={}, candidates=[Candidate(
+    below = SimpleNamespace(effects=[], suspects=[], signature={}, limits=[], candidates=[Candidate(
         "load_cell_compliance", -4.0, {}, mimicry={"own": 1.5e-6, "the calibration's knobs": 0.998})])
     assert why_wrong(["load_cell_compliance"], below) == [
         "load_cell_compliance: below the data's decision (best score -4.0 < 10) (of what it does, "

@@ -34,7 +34,7 @@ from .bench import (BASELINE, DEFAULTS, EFFECT_NAMES, VARIANTS, BenchConstants, 
                     write_bench_day)
 from .magnetics import ECoreGeometry
 
-__all__ = ["Case", "CASES", "DIAGNOSIS_BASELINE", "ANOTHER_COPY", "ANOTHER_BENCH", "ANOTHER_SEED", "KEPT_ON_THE_COPY",
+__all__ = ["Case", "CASES", "case_hiding", "DIAGNOSIS_BASELINE", "ANOTHER_COPY", "ANOTHER_BENCH", "ANOTHER_SEED", "KEPT_ON_THE_COPY",
            "drawn_copy", "on_another_copy", "day_points", "without_hidden", "write_case"]
 
 #: What the diagnosis is told the bench has (the issue's ``--baseline``), in catalogue names.
@@ -92,6 +92,12 @@ def _case(name: str, hidden: Mapping[str, Any] | None, *, seed: int, concealment
     return Case(name=name, truth=tuple(e for e in EFFECT_NAMES if e in params), effects={**BASELINE, **hidden},
                 seed=seed, concealment=concealment, expected={e: dict(p) for e, p in params.items()},
                 plan=tuple(plan) if plan is not None else None, bench=bench)
+
+
+def case_hiding(name: str, hidden: Mapping[str, Any], *, seed: int) -> Case:
+    """A day of this bench hiding ``hidden`` (this bench's effect table) on the whole plan: what a sweep of
+    one effect's size is made of (``python -m benchmarks limits``)."""
+    return _case(name, hidden, seed=seed, concealment="a sweep of one effect's size")
 
 
 def _only(*rigs: str) -> list[Point]:

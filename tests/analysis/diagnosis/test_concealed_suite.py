@@ -54,6 +54,16 @@ def test_every_effect_left_out_is_named_and_proven_in_its_signature(rows, job):
         assert row["signature"][effect] >= MIN_HELD_OUT_GAIN, (effect, row["signature"])
 
 
+def test_a_named_effect_was_within_the_days_reach(rows):
+    """What a day can decide (.limits) against what it did: an effect named is at least its limit's size.
+    The independent leak's time constant is its circuit's (0.459 s, the test below) and a day decides
+    leaks up to its limit; our magnet's eddy currents are the preset's (strength 1)."""
+    leak = rows[("independent", "integrator_leak+distortion")]["limits"]["integrator_leak"]["time_constant_s"]
+    assert leak["at_most"] and leak["in_range"] and leak["value"] >= 0.459, leak
+    eddy = rows[("ours", "magnet_eddy_currents")]["limits"]["magnet_eddy_currents"]["strength"]
+    assert not eddy["at_most"] and eddy["in_range"] and eddy["value"] <= 1.0, eddy
+
+
 def test_the_integrator_leak_is_the_independent_benchs_circuit(rows):
     """The leak's time constant against the op-amp integrator it came from: 100 nF on its 4.7 MOhm feedback
     in parallel with the op-amp's finite gain (20000 x 10 kOhm; tests/independent_bench's BenchConstants
