@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.bench_diagnose import independent_suite, run_case, run_independent_case, suite_cases
+from hystbench.analysis.diagnosis.result import Limit
 
 #: (effect, parameter) swept on our simulator's null day.
 OURS = (("channel_skew", "current_A"), ("channel_skew", "flux_Wb"), ("charge_amp_highpass", "time_constant_s"),
@@ -119,8 +120,7 @@ def markdown(table: list[dict[str, Any]], summ: dict[str, str]) -> str:
              "|---|---|---|---|---|---|"]
     for key in dict.fromkeys((r["suite"], r["effect"], r["param"]) for r in table):
         mine = {r["factor"]: r for r in table if (r["suite"], r["effect"], r["param"]) == key}
-        lim = mine[hi]["limit"]
-        bound = f"{'<=' if lim['at_most'] else '>='} {lim['value']:.2g} {lim['unit']}".rstrip()
+        bound = Limit(key[1], key[2], **{**mine[hi]["limit"], "note": ""}).bound()
         lines.append(f"| {key[0]} | {key[1]} {key[2]} | {bound} | {_score(mine.get(lo))} | {_score(mine.get(hi))} | "
                      f"{_yes(mine.get(lo))} / {_yes(mine.get(hi))} |")
     return "\n".join(lines + ["", " ".join(f"{k}: {v}." for k, v in summ.items())])

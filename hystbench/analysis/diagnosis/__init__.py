@@ -14,7 +14,7 @@ The stages, each in its module:
 3. name and 4. model (:mod:`.select`): each candidate switched on in the simulation (a frame mode
    searched first, :mod:`.search`), scored by BIC, named only when decisive and proven in its own
    signature at held-out operating points, re-simulated at its fitted values;
-   and what the day can decide (:mod:`.limits`): each candidate's smallest size it would name;
+   and what the day can decide (:mod:`.limits`): the size from which it would be expected to name each;
 5. prove (:mod:`.prove`): cross-validation over every block's operating points, held-out residual
    before and after.
 Real material data (loss tables, no waveforms) take their own path: :mod:`.loss_separation`.

@@ -68,7 +68,7 @@ def detection_limits(problem: Problem, effects: Mapping[str, CandidateEffect], c
                 size = size_on_grid(problem, eff.grid, calibration.columns, threshold)
             elif eff.offset is None or i > 0:  # measured from off, or a size beside a searched position
                 size = _size(problem, column.values, calibration.columns, threshold)
-            else:
+            else:  # a gridded position beside a size of its own, not listed in NOT_A_SIZE: no limit
                 continue
             k = (family(key), probe.param)
             if k not in best or size < best[k][0]:
