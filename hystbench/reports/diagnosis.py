@@ -242,9 +242,11 @@ def _page(d: Diagnosis, heat_map_note: str | None, loops_written: bool) -> str:
                   "For each candidate parameter (the others off), the size from which this day would be expected "
                   "to name it: where its change, beyond what the calibrated baseline absorbs with its priors, "
                   "scores the naming margin.  Below it a \"none\" says nothing about that effect; above it the "
-                  "day's own noise, the runner-up and the held-out proof still decide.", ""]
-        lines += _table(("effect", "parameter", "decided from"),
-                        ((f"`{lim.effect}`", lim.param, lim.bound()) for lim in d.limits)) + [""]
+                  "day's own noise, the runner-up and the held-out proof still decide.  Seen most at: the operating "
+                  "points that hold most of what the baseline cannot make of it (more of them lower the limit).", ""]
+        lines += _table(("effect", "parameter", "decided from", "seen most at"),
+                        ((f"`{lim.effect}`", lim.param, lim.bound(),
+                          ", ".join(f"{k} ({100 * v:.0f} %)" for k, v in lim.seen_at) or "-") for lim in d.limits)) + [""]
 
     lines += ["## 4. The model", ""]
     if d.parameters:

@@ -177,7 +177,8 @@ def _diagnose(recs, data, layout, points, presets, base_effects, in_base, pool_n
     def judged(fit: Problem, m: np.ndarray, cols, where: np.ndarray, per_fold=None) -> FoldErrors:
         return fold_errors(fit, folds(fit, data), m, cols, fit.sigma, where, per_fold)[0]
 
-    limits = detection_limits(problem, effects, calibration)  # before selection moves the named ones
+    points = [f"{f.rig} {f.frequency_hz:.4g} Hz {f.current_pp_a:.3g} A-pp" for f in data]
+    limits = detection_limits(problem, effects, calibration, points)  # before selection moves the named ones
     selection = forward_selection(problem, effects, calibration, recalibrate, judged, say)
     say("cross-validating over operating points")
     proof = cross_validate(selection.problem or problem, data, calibration, selection)  # 5

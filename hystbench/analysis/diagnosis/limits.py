@@ -23,7 +23,8 @@ how well it predicts whole diagnoses.
 from __future__ import annotations
 
 import math
-from typing import Mapping
+import dataclasses
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -35,20 +36,24 @@ from .forward import MEMORY_CAP_S
 from .result import Limit
 from .select import DC_BLIND, NAME_MARGIN, CandidateEffect, family, judged_as
 
-__all__ = ["detection_limits", "unexplained", "size_on_grid", "NOT_A_SIZE", "ABSORBED"]
+__all__ = ["detection_limits", "unexplained", "seen_at", "size_on_grid", "NOT_A_SIZE", "ABSORBED"]
 
 #: Parameters beside an effect's size that place or shape it (a searched mode's frequency, two modes' split,
 #: a relaxation's time constant): no limit of their own.
 NOT_A_SIZE = {("frame_resonance", "split"), ("frame_resonance", "frequency_hz"), ("magnetic_relaxation", "time_constant_s")}
 #: Less than this share of a change left unexplained is a change the baseline makes whole (rounding).
 ABSORBED = 1e-12
+#: Where the day sees an effect: its largest operating points, each with at least this share.
+SEEN_AT, MIN_SHARE = 2, 0.1
 
 
-def detection_limits(problem: Problem, effects: Mapping[str, CandidateEffect], calibration: Calibration
-                     ) -> list[Limit]:
+def detection_limits(problem: Problem, effects: Mapping[str, CandidateEffect], calibration: Calibration,
+                     labels: Sequence[str] | None = None) -> list[Limit]:
     """Each candidate parameter's limit against the calibrated baseline (module docstring); of a
     family's variants (a skew of one channel, of all three) the lowest speaks for it, as its best variant's
-    score does.  Mains pick-up is scored on lines whose size is measured directly: no limit here."""
+    score does.  Mains pick-up is scored on lines whose size is measured directly: no limit here.
+    ``labels``: each record's operating point ("voicecoil_ferrite 3000 Hz"), for where the day sees each
+    effect (:attr:`Limit.seen_at`: what it would add to more such points is what lowers the limit)."""
     log_n = math.log(problem.rows.size)
     missed = (problem.d - calibration.m0 - calibration.residual) / problem.sigma
     best: dict[tuple[str, str], tuple[float, Probe, str]] = {}
@@ -66,14 +71,18 @@ def detection_limits(problem: Problem, effects: Mapping[str, CandidateEffect], c
                 continue
             if eff.grid:  # its only parameter, on a grid
                 size = size_on_grid(problem, eff.grid, calibration.columns, threshold)
+                change = _nearest(eff.grid, size)
             elif eff.offset is None or i > 0:  # measured from off, or a size beside a searched position
-                size = _size(problem, column.values, calibration.columns, threshold)
+                change = column.values
+                size = _size(problem, change, calibration.columns, threshold)
             else:  # a gridded position beside a size of its own, not listed in NOT_A_SIZE: no limit
                 continue
             k = (family(key), probe.param)
             if k not in best or size < best[k][0]:
-                best[k] = (size, probe, note)
-    return [_limit(fam, param, size, probe, note) for (fam, param), (size, probe, note) in best.items()]
+                best[k] = (size, probe, note, change)
+    return [dataclasses.replace(_limit(fam, param, size, probe, note),
+                                seen_at=seen_at(problem, change, calibration.columns, labels) if labels else ())
+            for (fam, param), (size, probe, note, change) in best.items()]
 
 
 def unexplained(problem: Problem, change: np.ndarray, columns: list[Column]) -> float:
@@ -86,6 +95,25 @@ def unexplained(problem: Problem, change: np.ndarray, columns: list[Column]) -> 
     left = sol.chi2 + sol.chi2_prior
     whole = float(np.sum((change[rows] / problem.sigma[rows]) ** 2))
     return left if left > ABSORBED * whole else 0.0
+
+
+def seen_at(problem: Problem, change: np.ndarray, columns: list[Column], labels: Sequence[str],
+            top: int = SEEN_AT) -> tuple[tuple[str, float], ...]:
+    """Where the day sees ``change``: the share of what ``columns`` cannot make of it, by the operating
+    point (``labels``, one per record) of the rows it is on, the ``top`` largest (at least MIN_SHARE)."""
+    rows = problem.rows
+    if not np.all(np.isfinite(change[rows])):
+        return ()
+    left = (change - solve(change, problem.sigma, columns, rows).fitted)[rows] / problem.sigma[rows]
+    record = np.concatenate([problem.layout.record, problem.line_records])[rows]
+    by: dict[str, float] = {}
+    for label, x in zip(labels, np.bincount(record, weights=left ** 2, minlength=len(labels))):
+        by[label] = by.get(label, 0.0) + float(x)
+    total = sum(by.values())
+    if not total > 0:
+        return ()
+    shares = sorted(((k, v / total) for k, v in by.items()), key=lambda kv: -kv[1])
+    return tuple((k, round(v, 3)) for k, v in shares[:top] if v >= MIN_SHARE)
 
 
 def _size(problem: Problem, change: np.ndarray, columns: list[Column], threshold: float) -> float:
@@ -118,6 +146,13 @@ def size_on_grid(problem: Problem, grid: tuple[tuple[float, np.ndarray], ...], c
         return float(u[k] * math.sqrt(threshold / s[k]))
     t = (math.log(threshold) - math.log(s[k - 1])) / (math.log(s[k]) - math.log(s[k - 1]))
     return float(math.exp(math.log(u[k - 1]) + t * (math.log(u[k]) - math.log(u[k - 1]))))
+
+
+def _nearest(grid: tuple[tuple[float, np.ndarray], ...], size: float) -> np.ndarray:
+    """The grid's change nearest ``size`` in log (the largest u's when there is no finite size)."""
+    if not 0 < size < math.inf:
+        return grid[-1][1]
+    return min(grid, key=lambda g: abs(math.log(g[0] / size)))[1]
 
 
 def _limit(effect: str, param: str, size: float, probe: Probe, note: str = "") -> Limit:

@@ -72,6 +72,8 @@ class Limit:
     #: what the limit leaves out, when something (a high-pass's DC over a whole day)
     note: str = ""
     either_sign: bool = False
+    #: where the day sees it: (operating point, share of what the baseline cannot make of it), largest first
+    seen_at: tuple[tuple[str, float], ...] = ()
 
     def bound(self) -> str:
         """``">= 7.3e-07 s"``, ``">= 0.08 K/s either way"`` or ``"<= 44 s"``; why there is none, out of range."""
@@ -88,7 +90,8 @@ class Limit:
 
     def to_json(self) -> dict[str, Any]:
         return {"value": json_number(self.value), "unit": self.unit, "at_most": self.at_most,
-                "either_sign": self.either_sign, "in_range": self.in_range, "note": self.note}
+                "either_sign": self.either_sign, "in_range": self.in_range, "note": self.note,
+                "seen_at": {k: json_number(v) for k, v in self.seen_at}}
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ import pytest
 from hystbench.analysis.diagnosis.calibrate import Calibration
 from hystbench.analysis.diagnosis.columns import PROBES
 from hystbench.analysis.diagnosis.fit import Column, Problem, solve
-from hystbench.analysis.diagnosis.limits import _limit, detection_limits, size_on_grid, unexplained
+from hystbench.analysis.diagnosis.limits import _limit, detection_limits, seen_at, size_on_grid, unexplained
 from hystbench.analysis.diagnosis.result import Diagnosis
 from hystbench.analysis.diagnosis.select import NAME_MARGIN, CandidateEffect
 from hystbench.analysis.diagnosis.vector import CHANNELS
@@ -174,5 +174,25 @@ def test_the_json_document_carries_every_limit_and_no_nan():
                           _limit("charge_amp_highpass", "time_constant_s", 0.05, HIGHPASS)])
     doc = json.loads(json.dumps(d.to_json(), allow_nan=False))
     assert doc["limits"]["channel_skew"]["current_A"] == {
-        "value": None, "unit": "s", "at_most": False, "either_sign": False, "in_range": False, "note": ""}
+        "value": None, "unit": "s", "at_most": False, "either_sign": False, "in_range": False, "note": "",
+        "seen_at": {}}
     assert doc["limits"]["charge_amp_highpass"]["time_constant_s"]["value"] == pytest.approx(20.0)
+
+
+def test_where_the_day_sees_an_effect_is_where_the_baseline_cannot_make_it():
+    """Three operating points of 40 numbers each: the change is 3 on the first, 1 on the third, nothing on
+    the second, and the baseline can make only a constant on the third: the day sees it at the first alone
+    (all of what is left), not where it is largest before the baseline has its say."""
+    n = 120
+    record = np.repeat(np.arange(3), 40)
+    layout = SimpleNamespace(size=n, channel=np.zeros(n, int), harmonic=np.ones(n, int), record=record)
+    problem = _problem(np.zeros(n), np.ones(n), layout)
+    change = np.where(record == 0, 3.0 * np.cos(np.arange(n)), 0.0) + np.where(record == 2, 5.0, 0.0)
+    third = Column("third point's offset", (record == 2).astype(float))
+    labels = ["ecore 40 Hz 1.27 A-pp", "ecore 80 Hz 1.27 A-pp", "voicecoil_ferrite 3000 Hz 1 A-pp"]
+    assert seen_at(problem, change, [third], labels) == (("ecore 40 Hz 1.27 A-pp", 1.0),)
+    both = np.where(record == 0, 3.0, 0.0) + np.where(record == 2, 1.0, 0.0)  # chi2 360 and 40: 90 %, 10 %
+    assert seen_at(problem, both, [], labels) == (("ecore 40 Hz 1.27 A-pp", 0.9), ("voicecoil_ferrite 3000 Hz 1 A-pp", 0.1))
+    effect = CandidateEffect("channel_skew@current_A", [Column("channel_skew@current_A.current_A", both)], (SKEW,))
+    lim, = detection_limits(problem, {effect.name: effect}, _calibration(problem, []), labels)
+    assert lim.seen_at == (("ecore 40 Hz 1.27 A-pp", 0.9), ("voicecoil_ferrite 3000 Hz 1 A-pp", 0.1))
