@@ -71,41 +71,48 @@ def detection_limits(problem: Problem, effects: Mapping[str, CandidateEffect], c
                 continue
             if eff.grid:  # its only parameter, on a grid
                 size = size_on_grid(problem, eff.grid, calibration.columns, threshold)
-                change = _nearest(eff.grid, size)
+                left = _fit(problem, _nearest(eff.grid, size), calibration.columns)[1]
             elif eff.offset is None or i > 0:  # measured from off, or a size beside a searched position
-                change = column.values
-                size = _size(problem, change, calibration.columns, threshold)
+                q, left = _fit(problem, column.values, calibration.columns)
+                size = _size(q, threshold)
             else:  # a gridded position beside a size of its own, not listed in NOT_A_SIZE: no limit
                 continue
             k = (family(key), probe.param)
             if k not in best or size < best[k][0]:
-                best[k] = (size, probe, note, change)
-    return [dataclasses.replace(_limit(fam, param, size, probe, note),
-                                seen_at=seen_at(problem, change, calibration.columns, labels) if labels else ())
-            for (fam, param), (size, probe, note, change) in best.items()]
+                best[k] = (size, probe, note, left)
+    return [dataclasses.replace(_limit(fam, param, size, probe, note), seen_at=_shares(problem, left, labels))
+            for (fam, param), (size, probe, note, left) in best.items()]
 
 
 def unexplained(problem: Problem, change: np.ndarray, columns: list[Column]) -> float:
     """What of ``change`` the ``columns`` cannot make, with their priors: chi-square in the day's sigmas
     (NaN when the change is not finite on the rows that count; 0 when the columns make it whole)."""
-    rows = problem.rows
-    if not np.all(np.isfinite(change[rows])):
-        return math.nan
-    sol = solve(change, problem.sigma, columns, rows)
-    left = sol.chi2 + sol.chi2_prior
-    whole = float(np.sum((change[rows] / problem.sigma[rows]) ** 2))
-    return left if left > ABSORBED * whole else 0.0
+    return _fit(problem, change, columns)[0]
 
 
 def seen_at(problem: Problem, change: np.ndarray, columns: list[Column], labels: Sequence[str],
             top: int = SEEN_AT) -> tuple[tuple[str, float], ...]:
     """Where the day sees ``change``: the share of what ``columns`` cannot make of it, by the operating
     point (``labels``, one per record) of the rows it is on, the ``top`` largest (at least MIN_SHARE)."""
+    return _shares(problem, _fit(problem, change, columns)[1], labels, top)
+
+
+def _fit(problem: Problem, change: np.ndarray, columns: list[Column]) -> tuple[float, np.ndarray | None]:
+    """:func:`unexplained`, and what is left of the change on each row that counts, in its sigmas."""
     rows = problem.rows
     if not np.all(np.isfinite(change[rows])):
+        return math.nan, None
+    sol = solve(change, problem.sigma, columns, rows)
+    left = sol.chi2 + sol.chi2_prior
+    whole = float(np.sum((change[rows] / problem.sigma[rows]) ** 2))
+    return (left if left > ABSORBED * whole else 0.0), (change - sol.fitted)[rows] / problem.sigma[rows]
+
+
+def _shares(problem: Problem, left: np.ndarray | None, labels: Sequence[str] | None,
+            top: int = SEEN_AT) -> tuple[tuple[str, float], ...]:
+    if left is None or not labels:
         return ()
-    left = (change - solve(change, problem.sigma, columns, rows).fitted)[rows] / problem.sigma[rows]
-    record = np.concatenate([problem.layout.record, problem.line_records])[rows]
+    record = np.concatenate([problem.layout.record, problem.line_records])[problem.rows]
     by: dict[str, float] = {}
     for label, x in zip(labels, np.bincount(record, weights=left ** 2, minlength=len(labels))):
         by[label] = by.get(label, 0.0) + float(x)
@@ -116,10 +123,9 @@ def seen_at(problem: Problem, change: np.ndarray, columns: list[Column], labels:
     return tuple((k, round(v, 3)) for k, v in shares[:top] if v >= MIN_SHARE)
 
 
-def _size(problem: Problem, change: np.ndarray, columns: list[Column], threshold: float) -> float:
-    """The size a at which ``a * change`` is worth ``threshold`` (quadratic: the columns are unbounded);
-    inf when nothing of it is left, or it is not finite; 0 when today's credit already passes it."""
-    q = unexplained(problem, change, columns)
+def _size(q: float, threshold: float) -> float:
+    """The size a at which a^2 ``q`` is worth ``threshold`` (the columns are unbounded: quadratic); inf
+    when nothing of the change is left or it is not finite, 0 when today's credit already passes it."""
     if threshold <= 0:
         return 0.0
     return math.sqrt(threshold / q) if q > 0 else math.inf
