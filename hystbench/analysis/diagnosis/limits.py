@@ -52,11 +52,11 @@ def detection_limits(problem: Problem, effects: Mapping[str, CandidateEffect], c
     """Each candidate parameter's limit against the calibrated baseline (module docstring); of a
     family's variants (a skew of one channel, of all three) the lowest speaks for it, as its best variant's
     score does.  Mains pick-up is scored on lines whose size is measured directly: no limit here.
-    ``labels``: each record's operating point ("voicecoil_ferrite 3000 Hz"), for where the day sees each
-    effect (:attr:`Limit.seen_at`: what it would add to more such points is what lowers the limit)."""
+    ``labels``: each record's operating point ("voicecoil_ferrite 3000 Hz 1 A-pp"), for where the day sees
+    each effect (:attr:`Limit.seen_at`: the points to play more of to lower its limit)."""
     log_n = math.log(problem.rows.size)
     missed = (problem.d - calibration.m0 - calibration.residual) / problem.sigma
-    best: dict[tuple[str, str], tuple[float, Probe, str]] = {}
+    best: dict[tuple[str, str], tuple[float, Probe, str, np.ndarray | None]] = {}
     for key, eff in effects.items():
         if eff.line_hz is not None:
             continue
