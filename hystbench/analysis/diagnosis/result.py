@@ -135,7 +135,7 @@ class Diagnosis:
     signature: dict[str, dict[str, float]] = field(default_factory=dict)
     #: decisive effects the held-out proof refused, with their numbers
     suspects: list[Candidate] = field(default_factory=list)
-    #: what the day can decide: each candidate parameter's smallest size it would name (.limits)
+    #: what the day can decide: each candidate parameter's size from which it would be expected to name it (.limits)
     limits: list[Limit] = field(default_factory=list)
 
     @property

@@ -8,6 +8,7 @@ diagnosis decides is ``python -m benchmarks limits``'s question (each limit at 0
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from types import SimpleNamespace
@@ -97,8 +98,7 @@ def test_a_dc_blind_effect_pays_for_the_dcs_it_frees_and_is_credited_what_the_ba
                              grid=tuple((1 / t, u / t) for t in (64.0, 16.0, 4.0, 1.0, 0.25)))
     lim, = detection_limits(problem, {effect.name: effect}, _calibration(problem, base))
     assert lim.at_most and "DC" in lim.note
-    judge = _problem(missed, sigma, layout)
-    judge = Problem(**{**judge.__dict__, "rows": np.arange(4, n)})
+    judge = dataclasses.replace(problem, rows=np.arange(4, n))  # without the force's DCs
     size = 1 / lim.value  # the change is linear in 1/tau on this grid: the limit is exact
     assert _score(problem, judge, missed + size * u, base, effect.columns, 1 + 4) == pytest.approx(NAME_MARGIN, rel=1e-6)
 
